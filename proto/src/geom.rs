@@ -1,0 +1,91 @@
+//! Metric geometry shared by every process: poses in metres and the map frame that converts
+//! between metres and grid cells.
+//!
+//! One vocabulary (see STYLE.md): [`crate::grid::Cell`] for integer grid indices, metres as
+//! `f64` in [`Pose`] / [`MapInfo`] — never mixed silently.
+
+use serde::{Deserialize, Serialize};
+
+use crate::grid::Cell;
+
+/// A robot pose in the map frame: metres and radians.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Default)]
+pub struct Pose {
+    pub x: f64,
+    pub y: f64,
+    pub theta: f64,
+}
+
+/// The frame of a grid: its size in cells, the cell side in metres and the metric position of
+/// cell (0, 0)'s lower-left corner (ROS `origin`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MapInfo {
+    pub width: u32,
+    pub height: u32,
+    pub resolution_m: f64,
+    pub origin_x_m: f64,
+    pub origin_y_m: f64,
+}
+
+impl MapInfo {
+    /// The cell containing a metric point (may lie outside the grid).
+    pub fn cell_of(&self, x_m: f64, y_m: f64) -> Cell {
+        Cell::new(
+            ((x_m - self.origin_x_m) / self.resolution_m).floor() as i32,
+            ((y_m - self.origin_y_m) / self.resolution_m).floor() as i32,
+        )
+    }
+
+    /// The metric centre of a cell.
+    pub fn centre_of(&self, c: Cell) -> (f64, f64) {
+        (
+            self.origin_x_m + (f64::from(c.x) + 0.5) * self.resolution_m,
+            self.origin_y_m + (f64::from(c.y) + 0.5) * self.resolution_m,
+        )
+    }
+
+    /// Map diagonal in metres.
+    pub fn diagonal_m(&self) -> f64 {
+        let w = f64::from(self.width) * self.resolution_m;
+        let h = f64::from(self.height) * self.resolution_m;
+        (w * w + h * h).sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cell_and_centre_agree() {
+        let m = MapInfo { width: 10, height: 10, resolution_m: 0.2, origin_x_m: -1.0, origin_y_m: 0.5 };
+        let c = Cell::new(3, 7);
+        let (x, y) = m.centre_of(c);
+        assert_eq!(m.cell_of(x, y), c);
+        assert_eq!(m.cell_of(-1.01, 0.5), Cell::new(-1, 0));
+    }
+}
+
+/// The laser model, shared so that the world-server (which casts the beams) and the robots (which
+/// integrate them) agree on every beam's angle.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LaserSpec {
+    pub beams: u32,
+    pub fov_rad: f64,
+    pub max_range_m: f64,
+    pub noise_std_m: f64,
+}
+
+impl LaserSpec {
+    /// Angle of beam `i` relative to the robot's heading. A full circle (fov ≥ 2π) spreads
+    /// `beams` beams without repeating the first at the end; a partial fov spans both edges.
+    pub fn beam_angle(&self, i: u32) -> f64 {
+        let full = self.fov_rad >= std::f64::consts::TAU - 1e-9;
+        if full || self.beams < 2 {
+            -self.fov_rad.min(std::f64::consts::TAU) / 2.0
+                + f64::from(i) * self.fov_rad.min(std::f64::consts::TAU) / f64::from(self.beams.max(1))
+        } else {
+            -self.fov_rad / 2.0 + f64::from(i) * self.fov_rad / f64::from(self.beams - 1)
+        }
+    }
+}

@@ -1,0 +1,79 @@
+//! Every zenoh key expression of swarm-explore. Nobody formats a key by hand elsewhere.
+//!
+//! Sim plane: `sim/...` (not range-limited, not counted as radio traffic). Radio plane:
+//! `radio/...` (only over netem's per-pair links).
+
+use crate::msg::RobotId;
+
+/// Queryable of the world-server: replies [`crate::msg::WorldInfo`].
+pub const WORLD_INFO: &str = "sim/world/info";
+/// Queryable of the world-server: replies [`crate::msg::TruthMap`] (launcher only).
+pub const WORLD_TRUTH: &str = "sim/world/truth";
+/// The world-server's per-step [`crate::msg::Status`].
+pub const STATUS: &str = "sim/status";
+/// Every robot's telemetry.
+pub const TELEMETRY_ALL: &str = "sim/telemetry/*";
+/// Every robot's move command.
+pub const CMD_ALL: &str = "sim/robot/*/cmd";
+/// Control messages from the launcher.
+pub const CONTROL: &str = "sim/ctl/run";
+/// Liveliness tokens of robots on the sim plane (the world-server waits for all of them).
+pub const SIM_ALIVE_ALL: &str = "sim/alive/*";
+/// Liveliness tokens on the radio plane: a peer's token vanishes when its link does.
+pub const RADIO_ALIVE_ALL: &str = "radio/alive/*";
+
+pub fn scan(id: RobotId) -> String {
+    format!("sim/robot/{id}/scan")
+}
+
+pub fn cmd(id: RobotId) -> String {
+    format!("sim/robot/{id}/cmd")
+}
+
+pub fn telemetry(id: RobotId) -> String {
+    format!("sim/telemetry/{id}")
+}
+
+pub fn sim_alive(id: RobotId) -> String {
+    format!("sim/alive/{id}")
+}
+
+pub fn radio_alive(id: RobotId) -> String {
+    format!("radio/alive/{id}")
+}
+
+/// Where `to` receives handshakes.
+pub fn radio_hello(to: RobotId) -> String {
+    format!("radio/{to}/hello")
+}
+
+/// Where `to` receives log deltas.
+pub fn radio_delta(to: RobotId) -> String {
+    format!("radio/{to}/delta")
+}
+
+/// The robot id at the end of a key such as `sim/alive/3` or `sim/telemetry/3`, or the middle
+/// of `sim/robot/3/cmd`.
+pub fn robot_of(key: &str) -> Option<RobotId> {
+    let mut parts = key.split('/');
+    match (parts.next(), parts.next(), parts.next(), parts.next()) {
+        (Some("sim"), Some("robot"), Some(id), Some(_)) => id.parse().ok(),
+        (Some(_), Some(_), Some(id), None) => id.parse().ok(),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robot_of_parses_our_keys() {
+        assert_eq!(robot_of(&sim_alive(3)), Some(3));
+        assert_eq!(robot_of(&radio_alive(12)), Some(12));
+        assert_eq!(robot_of(&telemetry(7)), Some(7));
+        assert_eq!(robot_of(&cmd(5)), Some(5));
+        assert_eq!(robot_of("sim/alive/x"), None);
+        assert_eq!(robot_of("sim"), None);
+    }
+}

@@ -1,0 +1,324 @@
+//! Every message that crosses a process boundary, and its versioned postcard codec.
+//!
+//! Sim plane (world-server ⇄ robots ⇄ launcher): [`WorldInfo`], [`TruthMap`], [`Scan`], [`Cmd`],
+//! [`Status`], [`Telemetry`], [`Control`]. Radio plane (robot ⇄ robot, through netem):
+//! [`Hello`] (the thesis's `conn` handshake) and [`ScanDelta`] (the `raw-scans` exchange of
+//! DESIGN.md §4.8). Every payload starts with [`PROTOCOL_VERSION`] so that mixed builds fail
+//! loudly instead of misreading each other.
+
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
+
+use crate::geom::{LaserSpec, MapInfo, Pose};
+
+/// Bumped whenever any message below changes shape.
+pub const PROTOCOL_VERSION: u16 = 1;
+
+pub type RobotId = u16;
+pub type Step = u32;
+
+/// Reply to the `sim/world/info` query: everything a robot may know about the world before it
+/// explores it (extent and resolution of the grid, its sensor, the clock).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorldInfo {
+    pub map: MapInfo,
+    pub laser: LaserSpec,
+    pub step_seconds: f64,
+    pub robots: u16,
+    pub max_speed_m_per_s: f64,
+}
+
+/// Reply to the `sim/world/truth` query (launcher only: the evaluator needs ground truth).
+/// `reachable_rle` is a grid whose `Free` cells are the reachable free region.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TruthMap {
+    pub map: MapInfo,
+    pub grid_rle: Vec<u8>,
+    pub reachable_rle: Vec<u8>,
+}
+
+/// What happened to a robot's last move command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum MoveOutcome {
+    /// No command had been sent yet (step 0).
+    Start,
+    Moved,
+    /// The robot asked to stay.
+    Stayed,
+    /// The command did not arrive within `step_timeout` (lockstep) or the step period (realtime).
+    Missed,
+    /// The straight segment crosses a cell that is not free.
+    Blocked,
+    /// The end point is too close to another robot.
+    Collision { with: RobotId },
+    OutOfMap,
+    /// The command named another step than the current one.
+    WrongStep,
+}
+
+/// World → robot, every step: the robot's true pose and its laser scan.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Scan {
+    pub step: Step,
+    pub pose: Pose,
+    /// One range per beam in metres; `>= laser.max_range_m` means no return.
+    pub ranges: Vec<f32>,
+    pub last_move: MoveOutcome,
+}
+
+/// Robot → world, every step: where to go (`None`: stay).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Cmd {
+    pub step: Step,
+    pub robot: RobotId,
+    pub waypoint: Option<(f64, f64)>,
+}
+
+/// World → everyone, after each step's moves: the truth-side state.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Status {
+    /// The step whose scans are published next.
+    pub step: Step,
+    pub robots: Vec<RobotStatus>,
+    pub collisions_total: u64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RobotStatus {
+    pub id: RobotId,
+    pub pose: Pose,
+    pub alive: bool,
+    pub distance_m: f64,
+}
+
+/// Robot → launcher, every step (sim plane; never counted as radio traffic).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Telemetry {
+    pub robot: RobotId,
+    pub step: Step,
+    pub pose: Pose,
+    pub target: Option<(f64, f64)>,
+    /// Cells of the planning grid that are not unknown.
+    pub known_cells: u32,
+    /// Radio payload bytes this robot handed to its radio session so far, and received.
+    pub bytes_sent: u64,
+    pub bytes_received: u64,
+    /// The robot's planning grid, run-length encoded ([`crate::grid::Grid::to_rle`]).
+    pub grid_rle: Vec<u8>,
+    /// True when the robot sees no reachable frontier in its planning grid.
+    pub idle: bool,
+    /// Peers whose radio liveliness token this robot currently sees.
+    pub neighbours: Vec<RobotId>,
+    /// Radio payloads that failed to decode so far.
+    pub decode_errors: u64,
+    /// Payload bytes sent so far per traffic class, in [`Traffic::ALL`] order.
+    pub sent_by_type: Vec<u64>,
+}
+
+/// The classes every radio payload byte is accounted to: the nine package types of thesis
+/// Table 6.1 and `scan` for the raw-scans baseline (DESIGN.md §4.3, §4.8).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Traffic {
+    Ins,
+    Rep,
+    Del,
+    Em,
+    Chg,
+    Rm,
+    Conn,
+    Targ,
+    Save,
+    Scan,
+}
+
+impl Traffic {
+    pub const ALL: [Traffic; 10] = [
+        Traffic::Ins,
+        Traffic::Rep,
+        Traffic::Del,
+        Traffic::Em,
+        Traffic::Chg,
+        Traffic::Rm,
+        Traffic::Conn,
+        Traffic::Targ,
+        Traffic::Save,
+        Traffic::Scan,
+    ];
+
+    /// The name used in `summary.json` and `traffic_by_type.csv`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Traffic::Ins => "ins",
+            Traffic::Rep => "rep",
+            Traffic::Del => "del",
+            Traffic::Em => "em",
+            Traffic::Chg => "chg",
+            Traffic::Rm => "rm",
+            Traffic::Conn => "conn",
+            Traffic::Targ => "targ",
+            Traffic::Save => "save",
+            Traffic::Scan => "scan",
+        }
+    }
+}
+
+/// Launcher → everyone on `sim/ctl/**`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Control {
+    /// End the run: every process finishes its step and exits 0.
+    Stop,
+}
+
+/// Radio: the knowledge vector {owner → number of log entries held} (thesis `conn`).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Hello {
+    pub from: RobotId,
+    pub knowledge: Vec<(RobotId, u32)>,
+}
+
+/// One laser scan as shared on the radio in the `raw-scans` exchange. Ranges are quantized to
+/// centimetres (`u16::MAX` = no return) so the baseline is not inflated by float noise.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ScanRecord {
+    pub step: Step,
+    /// Pose in millimetres and milliradians.
+    pub x_mm: i32,
+    pub y_mm: i32,
+    pub theta_mrad: i32,
+    pub ranges_cm: Vec<u16>,
+}
+
+/// Radio: entries `start..start+records.len()` of `owner`'s scan log, sent by `from`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ScanDelta {
+    pub from: RobotId,
+    pub owner: RobotId,
+    pub start: u32,
+    pub records: Vec<ScanRecord>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum DecodeError {
+    #[error("empty payload")]
+    Empty,
+    #[error("protocol version {got}, this build speaks {PROTOCOL_VERSION}")]
+    Version { got: u16 },
+    #[error("malformed payload: {0}")]
+    Malformed(String),
+}
+
+/// Encodes a message with the protocol version in front.
+pub fn encode<T: Serialize>(msg: &T) -> Vec<u8> {
+    // Serializing our own plain data types into a Vec cannot fail.
+    postcard::to_stdvec(&(PROTOCOL_VERSION, msg)).unwrap_or_default()
+}
+
+/// Decodes what [`encode`] wrote; total on arbitrary bytes.
+pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, DecodeError> {
+    if bytes.is_empty() {
+        return Err(DecodeError::Empty);
+    }
+    let (version, rest): (u16, &[u8]) =
+        postcard::take_from_bytes(bytes).map_err(|e| DecodeError::Malformed(e.to_string()))?;
+    if version != PROTOCOL_VERSION {
+        return Err(DecodeError::Version { got: version });
+    }
+    let (msg, tail): (T, &[u8]) =
+        postcard::take_from_bytes(rest).map_err(|e| DecodeError::Malformed(e.to_string()))?;
+    if !tail.is_empty() {
+        return Err(DecodeError::Malformed(format!("{} trailing bytes", tail.len())));
+    }
+    Ok(msg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn round_trip<T: Serialize + DeserializeOwned + PartialEq + std::fmt::Debug>(m: T) {
+        let bytes = encode(&m);
+        assert_eq!(decode::<T>(&bytes).as_ref(), Ok(&m));
+    }
+
+    fn map() -> MapInfo {
+        MapInfo { width: 3, height: 4, resolution_m: 0.2, origin_x_m: -1.0, origin_y_m: 2.0 }
+    }
+
+    #[test]
+    fn every_message_round_trips() {
+        let pose = Pose { x: 1.5, y: -2.0, theta: 0.25 };
+        round_trip(WorldInfo {
+            map: map(),
+            laser: LaserSpec { beams: 360, fov_rad: 6.28, max_range_m: 8.0, noise_std_m: 0.0 },
+            step_seconds: 1.0,
+            robots: 4,
+            max_speed_m_per_s: 0.5,
+        });
+        round_trip(TruthMap { map: map(), grid_rle: vec![1, 2, 3], reachable_rle: vec![4] });
+        for last_move in [
+            MoveOutcome::Start,
+            MoveOutcome::Moved,
+            MoveOutcome::Stayed,
+            MoveOutcome::Missed,
+            MoveOutcome::Blocked,
+            MoveOutcome::Collision { with: 3 },
+            MoveOutcome::OutOfMap,
+            MoveOutcome::WrongStep,
+        ] {
+            round_trip(Scan { step: 7, pose, ranges: vec![1.0, 8.0], last_move });
+        }
+        round_trip(Cmd { step: 3, robot: 1, waypoint: Some((0.5, 0.5)) });
+        round_trip(Cmd { step: 3, robot: 1, waypoint: None });
+        round_trip(Status {
+            step: 9,
+            robots: vec![RobotStatus { id: 0, pose, alive: true, distance_m: 3.5 }],
+            collisions_total: 2,
+        });
+        round_trip(Telemetry {
+            robot: 2,
+            step: 5,
+            pose,
+            target: Some((1.0, 1.0)),
+            known_cells: 100,
+            bytes_sent: 1000,
+            bytes_received: 2000,
+            grid_rle: vec![9, 9],
+            idle: false,
+            neighbours: vec![0, 1],
+            decode_errors: 0,
+            sent_by_type: vec![0, 0, 0, 0, 0, 0, 40, 0, 0, 960],
+        });
+        round_trip(Control::Stop);
+        round_trip(Hello { from: 1, knowledge: vec![(0, 5), (1, 7)] });
+        round_trip(ScanDelta {
+            from: 1,
+            owner: 0,
+            start: 4,
+            records: vec![ScanRecord {
+                step: 4,
+                x_mm: -100,
+                y_mm: 2000,
+                theta_mrad: 1571,
+                ranges_cm: vec![0, 800, u16::MAX],
+            }],
+        });
+    }
+
+    #[test]
+    fn wrong_version_is_rejected() {
+        let bytes = postcard::to_stdvec(&(PROTOCOL_VERSION + 1, Control::Stop)).unwrap_or_default();
+        assert_eq!(decode::<Control>(&bytes), Err(DecodeError::Version { got: PROTOCOL_VERSION + 1 }));
+        assert_eq!(decode::<Control>(&[]), Err(DecodeError::Empty));
+    }
+
+    proptest! {
+        #[test]
+        fn decoding_arbitrary_bytes_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..256)) {
+            let _ = decode::<Telemetry>(&bytes);
+            let _ = decode::<ScanDelta>(&bytes);
+            let _ = decode::<Hello>(&bytes);
+            let _ = decode::<Scan>(&bytes);
+            let _ = decode::<Status>(&bytes);
+        }
+    }
+}

@@ -1,0 +1,179 @@
+//! The process side shared by every binary: the zenoh arguments ([`ZenohArgs`], after zenoh's
+//! own `CommonArgs`, STYLE.md), the one place that turns them into a `zenoh::Config`, payload
+//! helpers and logging.
+//!
+//! Two planes (DESIGN.md §1): the **sim plane** is a hub — the world-server runs a zenoh router,
+//! everybody else joins it as a client. The **radio plane** is peer-to-peer with every form of
+//! scouting off: a robot listens on one endpoint and connects only to the endpoints the launcher
+//! (later: netem) gives it, so that no byte between robots takes another path.
+
+use std::path::{Path, PathBuf};
+
+use zenoh::Config;
+
+/// zenoh flags shared by every process (flattened into each binary's clap `Args`).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ZenohArgs {
+    /// Sim-plane endpoint to connect to: the world-server's router (clients), repeatable.
+    #[arg(short = 'e', long = "connect", value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
+    /// Sim-plane endpoint to listen on (world-server only), repeatable.
+    #[arg(short = 'l', long = "listen", value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
+    /// A zenoh JSON5 configuration file applied before the flags.
+    #[arg(long = "config", value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Extra zenoh configuration as KEY:VALUE with a JSON5 value, e.g. --cfg 'transport/link/tx/batch_size:1024'.
+    #[arg(long = "cfg", value_name = "KEY:VALUE")]
+    pub cfg: Vec<String>,
+}
+
+/// The default sim-plane endpoint when none is given.
+pub const DEFAULT_SIM_ENDPOINT: &str = "tcp/127.0.0.1:7447";
+
+impl ZenohArgs {
+    fn or_default(v: &[String]) -> Vec<String> {
+        if v.is_empty() {
+            vec![DEFAULT_SIM_ENDPOINT.to_string()]
+        } else {
+            v.to_vec()
+        }
+    }
+
+    /// The world-server's router config.
+    pub fn router(&self) -> Result<Config, ZargsError> {
+        sim_router(&Self::or_default(&self.listen), self.config.as_deref(), &self.cfg)
+    }
+
+    /// A client config that waits up to `wait_ms` for the router.
+    pub fn client(&self, wait_ms: u64) -> Result<Config, ZargsError> {
+        sim_client(&Self::or_default(&self.connect), self.config.as_deref(), &self.cfg, wait_ms)
+    }
+}
+
+/// zenoh's boxed error as an `anyhow`-friendly error with context.
+pub fn zerr(e: zenoh::Error) -> ZenohError {
+    ZenohError(e.to_string())
+}
+
+/// A zenoh operation failed.
+#[derive(Debug, thiserror::Error)]
+#[error("zenoh: {0}")]
+pub struct ZenohError(pub String);
+
+/// Logs to stderr; `RUST_LOG` overrides the default level `warn` (e.g. `RUST_LOG=info`).
+pub fn init_logging(process: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
+    let _ = process;
+}
+
+/// Errors while building a zenoh configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ZargsError {
+    #[error("zenoh config file {path}: {reason}")]
+    File { path: PathBuf, reason: String },
+    #[error("zenoh config key `{key}` = {value}: {reason}")]
+    Key { key: String, value: String, reason: String },
+}
+
+fn set(config: &mut Config, key: &str, value: &str) -> Result<(), ZargsError> {
+    config.insert_json5(key, value).map_err(|e| ZargsError::Key {
+        key: key.into(),
+        value: value.into(),
+        reason: e.to_string(),
+    })
+}
+
+fn json_list(items: &[String]) -> String {
+    let quoted: Vec<String> = items.iter().map(|s| format!("{s:?}")).collect();
+    format!("[{}]", quoted.join(","))
+}
+
+fn base(file: Option<&Path>) -> Result<Config, ZargsError> {
+    match file {
+        Some(path) => Config::from_file(path)
+            .map_err(|e| ZargsError::File { path: path.to_path_buf(), reason: e.to_string() }),
+        None => Ok(Config::default()),
+    }
+}
+
+/// Applies `KEY:VALUE` pairs (JSON5 values) given with `--cfg`.
+fn apply_cfg(config: &mut Config, cfg: &[String]) -> Result<(), ZargsError> {
+    for kv in cfg {
+        let (k, v) = kv.split_once(':').ok_or_else(|| ZargsError::Key {
+            key: kv.clone(),
+            value: String::new(),
+            reason: "expected KEY:VALUE".into(),
+        })?;
+        set(config, k, v)?;
+    }
+    Ok(())
+}
+
+/// The world-server's sim-plane session: a router listening on `listen`.
+pub fn sim_router(listen: &[String], file: Option<&Path>, cfg: &[String]) -> Result<Config, ZargsError> {
+    let mut c = base(file)?;
+    set(&mut c, "mode", "\"router\"")?;
+    set(&mut c, "listen/endpoints", &json_list(listen))?;
+    set(&mut c, "scouting/multicast/enabled", "false")?;
+    set(&mut c, "scouting/gossip/enabled", "false")?;
+    apply_cfg(&mut c, cfg)?;
+    Ok(c)
+}
+
+/// A sim-plane client of the world-server's router (robots, netem, launcher). It waits up to
+/// `wait_ms` for the router to come up instead of failing at once.
+pub fn sim_client(connect: &[String], file: Option<&Path>, cfg: &[String], wait_ms: u64) -> Result<Config, ZargsError> {
+    let mut c = base(file)?;
+    set(&mut c, "mode", "\"client\"")?;
+    set(&mut c, "connect/endpoints", &json_list(connect))?;
+    set(&mut c, "connect/timeout_ms", &wait_ms.to_string())?;
+    set(&mut c, "scouting/multicast/enabled", "false")?;
+    set(&mut c, "scouting/gossip/enabled", "false")?;
+    apply_cfg(&mut c, cfg)?;
+    Ok(c)
+}
+
+/// A robot's radio-plane session: a peer that listens on `listen`, connects to `connect` and
+/// nothing else (no multicast, no gossip: peers learn no endpoint they were not given).
+/// Reconnects quickly (50 ms, backing off to 200 ms) so a link that comes back is used within a
+/// step.
+pub fn radio_peer(listen: &[String], connect: &[String], file: Option<&Path>, cfg: &[String]) -> Result<Config, ZargsError> {
+    let mut c = base(file)?;
+    set(&mut c, "mode", "\"peer\"")?;
+    set(&mut c, "listen/endpoints", &json_list(listen))?;
+    set(&mut c, "connect/endpoints", &json_list(connect))?;
+    set(&mut c, "scouting/multicast/enabled", "false")?;
+    set(&mut c, "scouting/gossip/enabled", "false")?;
+    set(&mut c, "scouting/delay", "0")?;
+    set(
+        &mut c,
+        "connect/retry",
+        "{period_init_ms: 50, period_max_ms: 200, period_increase_factor: 2}",
+    )?;
+    apply_cfg(&mut c, cfg)?;
+    Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn configs_build_and_bad_keys_are_named() {
+        let e = vec!["tcp/127.0.0.1:7447".to_string()];
+        assert!(sim_router(&e, None, &[]).is_ok());
+        assert!(sim_client(&e, None, &[], 1000).is_ok());
+        assert!(radio_peer(&e, &e, None, &[]).is_ok());
+        let err = sim_client(&e, None, &["no_such/key:1".into()], 0).err().map(|e| e.to_string());
+        assert!(err.unwrap_or_default().contains("no_such/key"));
+        let err = sim_client(&e, Some(Path::new("/nonexistent.json5")), &[], 0).err();
+        assert!(err.map(|e| e.to_string()).unwrap_or_default().contains("/nonexistent.json5"));
+    }
+}

@@ -1,0 +1,226 @@
+//! One robot's decision loop as a pure state machine (the steps of thesis Algorithm 10 that
+//! exist so far): integrate the scan into G_s, exchange over the radio, build the planning grid,
+//! pick a target, plan, move. [`crate::node`] feeds it from zenoh and sends what it returns.
+//!
+//! The exchange is the `raw-scans` baseline (DESIGN.md §4.8): peers' scans are integrated into a
+//! grid of their own, and the planning grid is that grid overlaid with every known cell of G_s
+//! (self-explored data wins, thesis §5.2).
+
+use std::collections::{BTreeSet, HashMap};
+
+use proto::geom::Pose;
+use proto::grid::{Cell, Grid, Occ};
+use proto::msg::{Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Telemetry, Traffic, WorldInfo};
+use proto::scenario::Scenario;
+
+use crate::grid::integrate_scan;
+use crate::plan;
+use crate::raw_scans::{scan_ranges, scan_record, DeltaOutcome, RawScanExchange};
+
+/// A message for the radio plane.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RadioOut {
+    Hello { to: RobotId, msg: Hello },
+    Delta { to: RobotId, msg: ScanDelta },
+}
+
+/// After this many rejected moves in a row the robot gives up its target for a while (another
+/// robot may be standing in a narrow passage).
+const MAX_REJECTIONS: u32 = 3;
+/// How long a given-up target stays excluded.
+const BLACKLIST_STEPS: Step = 30;
+
+pub struct Agent {
+    pub id: RobotId,
+    world: WorldInfo,
+    /// G_s: what this robot sensed itself.
+    own: Grid,
+    /// What peers' scans told it (never overrides G_s in the planning grid).
+    others: Grid,
+    exchange: RawScanExchange,
+    pose: Pose,
+    step: Step,
+    target: Option<Cell>,
+    rejections: u32,
+    blacklist: HashMap<Cell, Step>,
+    neighbours: BTreeSet<RobotId>,
+    /// Radio budget per link and step in bytes (`usize::MAX`: unlimited).
+    budget_per_step: usize,
+    hello_every_steps: u32,
+    pub bytes_sent: u64,
+    pub bytes_received: u64,
+    pub decode_errors: u64,
+    /// Payload bytes sent per traffic class ([`Traffic::ALL`] order).
+    pub sent_by_type: [u64; Traffic::ALL.len()],
+    idle: bool,
+}
+
+impl Agent {
+    pub fn new(id: RobotId, world: WorldInfo, s: &Scenario) -> Agent {
+        let empty = Grid::new(world.map.width, world.map.height, Occ::Unknown);
+        let per_step = s.radio.bandwidth_bytes_per_s as f64 * world.step_seconds;
+        Agent {
+            id,
+            world,
+            own: empty.clone(),
+            others: empty,
+            exchange: RawScanExchange::new(id),
+            pose: Pose::default(),
+            step: 0,
+            target: None,
+            rejections: 0,
+            blacklist: HashMap::new(),
+            neighbours: BTreeSet::new(),
+            budget_per_step: if per_step <= 0.0 { usize::MAX } else { per_step as usize },
+            hello_every_steps: s.exchange.hello_every_steps,
+            bytes_sent: 0,
+            bytes_received: 0,
+            decode_errors: 0,
+            sent_by_type: [0; Traffic::ALL.len()],
+            idle: false,
+        }
+    }
+
+    /// Integrates a scan, records it in the own log and decides the move for its step.
+    pub fn on_scan(&mut self, scan: &Scan) -> Cmd {
+        self.step = scan.step;
+        self.pose = scan.pose;
+        integrate_scan(&mut self.own, &self.world.map, scan.pose, &scan.ranges, &self.world.laser);
+        self.exchange.record_own(scan_record(scan.step, scan.pose, &scan.ranges, &self.world.laser));
+        match scan.last_move {
+            MoveOutcome::Blocked | MoveOutcome::Collision { .. } | MoveOutcome::OutOfMap => self.rejections += 1,
+            _ => self.rejections = 0,
+        }
+        let waypoint = self.plan();
+        Cmd { step: scan.step, robot: self.id, waypoint }
+    }
+
+    /// The planning grid: peers' knowledge overlaid with every known cell of G_s.
+    pub fn planning_grid(&self) -> Grid {
+        let mut g = self.others.clone();
+        for (p, &o) in g.cells_mut().iter_mut().zip(self.own.cells()) {
+            if o != Occ::Unknown {
+                *p = o;
+            }
+        }
+        g
+    }
+
+    fn plan(&mut self) -> Option<(f64, f64)> {
+        let g = self.planning_grid();
+        let me = self.world.map.cell_of(self.pose.x, self.pose.y);
+        let costs = plan::costs(&g, me);
+        let step = self.step;
+        self.blacklist.retain(|_, until| *until > step);
+        if self.rejections >= MAX_REJECTIONS {
+            if let Some(t) = self.target.take() {
+                self.blacklist.insert(t, step + BLACKLIST_STEPS);
+            }
+            self.rejections = 0;
+        }
+        let frontiers: Vec<Cell> = plan::frontiers(&g, &costs);
+        let valid = |t: &Cell| *t != me && frontiers.contains(t) && !self.blacklist.contains_key(t);
+        if !self.target.as_ref().is_some_and(valid) {
+            self.target = frontiers
+                .iter()
+                .filter(|c| valid(c))
+                .filter_map(|&c| costs.cost(c).map(|v| (v, c.y, c.x, c)))
+                .min_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal))
+                .map(|(_, _, _, c)| c);
+        }
+        self.idle = self.target.is_none();
+        let target = self.target?;
+        let path = plan::path_to(&costs, target)?;
+        let max_cells = self.world.max_speed_m_per_s * self.world.step_seconds / self.world.map.resolution_m;
+        let next = plan::next_waypoint(&g, &path, max_cells)?;
+        (next != me).then(|| self.world.map.centre_of(next))
+    }
+
+    /// Messages to send this step: periodic handshakes and the log suffixes each neighbour lacks,
+    /// within the per-link budget.
+    pub fn radio_step(&mut self) -> Vec<RadioOut> {
+        let mut out = Vec::new();
+        let peers: Vec<RobotId> = self.neighbours.iter().copied().collect();
+        for peer in peers {
+            let mut budget = self.budget_per_step;
+            if self.step % self.hello_every_steps == 0 {
+                let msg = self.exchange.knowledge();
+                budget = budget.saturating_sub(proto::msg::encode(&msg).len());
+                out.push(RadioOut::Hello { to: peer, msg });
+            }
+            for msg in self.exchange.outgoing(peer, budget, |d| proto::msg::encode(d).len()) {
+                out.push(RadioOut::Delta { to: peer, msg });
+            }
+        }
+        out
+    }
+
+    /// A peer's radio liveliness token appeared: greet it with our knowledge vector.
+    pub fn link_up(&mut self, peer: RobotId) -> Vec<RadioOut> {
+        if peer == self.id || !self.neighbours.insert(peer) {
+            return Vec::new();
+        }
+        self.exchange.link_up(peer);
+        vec![RadioOut::Hello { to: peer, msg: self.exchange.knowledge() }]
+    }
+
+    pub fn link_down(&mut self, peer: RobotId) {
+        if self.neighbours.remove(&peer) {
+            self.exchange.link_down(peer);
+        }
+    }
+
+    pub fn on_hello(&mut self, h: &Hello) {
+        self.exchange.on_hello(h);
+    }
+
+    /// Integrates the new records of a delta; a gap is answered with a handshake.
+    pub fn on_delta(&mut self, d: &ScanDelta) -> Vec<RadioOut> {
+        let first_new = self.exchange.log(d.owner).len();
+        match self.exchange.on_delta(d) {
+            DeltaOutcome::Appended { .. } => {
+                if d.owner != self.id {
+                    let log = self.exchange.log(d.owner);
+                    for rec in log.get(first_new..).unwrap_or_default() {
+                        let (pose, ranges) = scan_ranges(rec, &self.world.laser);
+                        integrate_scan(&mut self.others, &self.world.map, pose, &ranges, &self.world.laser);
+                    }
+                }
+                Vec::new()
+            }
+            DeltaOutcome::Duplicate => Vec::new(),
+            DeltaOutcome::Gap { .. } => {
+                vec![RadioOut::Hello { to: d.from, msg: self.exchange.knowledge() }]
+            }
+        }
+    }
+
+    /// This step's telemetry for the launcher.
+    pub fn telemetry(&self) -> Telemetry {
+        let g = self.planning_grid();
+        Telemetry {
+            robot: self.id,
+            step: self.step,
+            pose: self.pose,
+            target: self.target.map(|t| self.world.map.centre_of(t)),
+            known_cells: (g.len() - g.count(Occ::Unknown)) as u32,
+            bytes_sent: self.bytes_sent,
+            bytes_received: self.bytes_received,
+            grid_rle: g.to_rle(),
+            idle: self.idle,
+            neighbours: self.neighbours.iter().copied().collect(),
+            decode_errors: self.decode_errors,
+            sent_by_type: self.sent_by_type.to_vec(),
+        }
+    }
+
+    /// Accounts a payload about to be sent.
+    pub fn count_sent(&mut self, class: Traffic, bytes: usize) {
+        self.bytes_sent += bytes as u64;
+        self.sent_by_type[class as usize] += bytes as u64;
+    }
+
+    pub fn log_len(&self, owner: RobotId) -> usize {
+        self.exchange.log(owner).len()
+    }
+}

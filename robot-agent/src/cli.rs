@@ -1,0 +1,85 @@
+//! The robot-agent's command line: flags → validated scenario → [`crate::node::run_robot`].
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context;
+use clap::Parser;
+use proto::msg::RobotId;
+use proto::node::{init_logging, radio_peer, zerr, ZenohArgs};
+use proto::scenario::Scenario;
+
+use crate::node::{run_robot, world_info, End};
+
+/// One robot of swarm-explore: maps what its laser sees, shares it with the robots in radio
+/// range, and explores. Joins the world-server's sim plane as a client (--connect) and runs its
+/// own radio-plane peer (--radio-listen / --radio-connect). Normally started by `swarm run`.
+#[derive(Parser, Debug, Clone)]
+#[command(name = "robot-agent", version)]
+pub struct Args {
+    /// This robot's id, 0..robots.count.
+    #[arg(long)]
+    pub id: RobotId,
+    /// Scenario TOML file (see configs/default.toml for every key).
+    #[arg(long, value_name = "FILE")]
+    pub scenario: PathBuf,
+    /// Override a scenario key, e.g. --set exchange.hello_every_steps=5 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Radio-plane endpoint this robot listens on, e.g. tcp/127.0.0.1:7500 (repeatable).
+    #[arg(long = "radio-listen", value_name = "ENDPOINT")]
+    pub radio_listen: Vec<String>,
+    /// Radio-plane endpoint to connect to (a peer robot, or netem's proxy for the pair); repeatable.
+    #[arg(long = "radio-connect", value_name = "ENDPOINT")]
+    pub radio_connect: Vec<String>,
+    /// A zenoh JSON5 configuration file for the radio-plane session.
+    #[arg(long = "radio-config", value_name = "FILE")]
+    pub radio_config: Option<PathBuf>,
+    /// Seconds without a scan after which the robot assumes the world is gone and exits.
+    #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
+    pub idle_timeout_s: f64,
+    /// Sim-plane zenoh options (--connect the world-server's router).
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
+}
+
+async fn run(args: Args) -> anyhow::Result<End> {
+    let scenario = Scenario::load(&args.scenario, &args.set)?;
+    if args.id >= scenario.robots.count {
+        anyhow::bail!("--id {} is out of range: the scenario has robots.count = {}", args.id, scenario.robots.count);
+    }
+    let sim = zenoh::open(args.zenoh.client(20_000)?).await.map_err(zerr).context("joining the sim plane")?;
+    let world = world_info(&sim, Duration::from_secs(20)).await?;
+    let radio_cfg = radio_peer(&args.radio_listen, &args.radio_connect, args.radio_config.as_deref(), &[])?;
+    let radio = zenoh::open(radio_cfg).await.map_err(zerr).context("opening the radio plane")?;
+    let idle = Duration::from_secs_f64(args.idle_timeout_s.max(0.1));
+    let end = run_robot(args.id, &scenario, sim.clone(), radio.clone(), world, idle).await?;
+    radio.close().await.map_err(zerr)?;
+    sim.close().await.map_err(zerr)?;
+    Ok(end)
+}
+
+/// The whole process: one tokio runtime, logging, exit code.
+pub fn main(args: Args) -> ExitCode {
+    init_logging("robot-agent");
+    let id = args.id;
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("robot-agent {id}: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(args)) {
+        Ok(End::Stopped) => ExitCode::SUCCESS,
+        Ok(End::WorldSilent) => {
+            eprintln!("robot-agent {id}: no scan from the world-server for too long; exiting");
+            ExitCode::FAILURE
+        }
+        Err(e) => {
+            eprintln!("robot-agent {id}: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,127 @@
+//! The robot on its two zenoh planes (DESIGN.md §1): the sim plane (a client of the
+//! world-server's router: scans in, commands and telemetry out) and the radio plane (a peer with
+//! scouting off, linked only to the endpoints it was given: handshakes and log deltas). All
+//! decisions are [`crate::agent::Agent`]'s; this module only moves bytes and counts them.
+
+use std::time::Duration;
+
+use proto::keys;
+use proto::msg::{decode, encode, Control, Hello, RobotId, Scan, ScanDelta, Traffic, WorldInfo};
+use proto::node::{zerr, ZenohError};
+use proto::scenario::Scenario;
+use tokio::time::Instant;
+use zenoh::qos::CongestionControl;
+use zenoh::sample::SampleKind;
+use zenoh::Session;
+
+use crate::agent::{Agent, RadioOut};
+
+/// Why the robot stopped.
+#[derive(Debug, PartialEq, Eq)]
+pub enum End {
+    Stopped,
+    /// No scan arrived for this long: the world is gone.
+    WorldSilent,
+}
+
+/// Asks the world-server for [`WorldInfo`], retrying until `wait` has passed.
+pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, ZenohError> {
+    let deadline = Instant::now() + wait;
+    loop {
+        let replies = sim.get(keys::WORLD_INFO).timeout(Duration::from_secs(2)).await.map_err(zerr)?;
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                match decode::<WorldInfo>(&sample.payload().to_bytes()) {
+                    Ok(info) => return Ok(info),
+                    Err(e) => return Err(ZenohError(format!("world info: {e}"))),
+                }
+            }
+        }
+        if Instant::now() >= deadline {
+            return Err(ZenohError(format!("no world-server answered {} within {wait:?}", keys::WORLD_INFO)));
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// Sends radio messages, counting payload bytes. A radio link may be gone at any moment:
+/// messages are dropped rather than queued (`CongestionControl::Drop`); the exchange's
+/// handshakes make losses harmless.
+async fn send_radio(radio: &Session, agent: &mut Agent, out: Vec<RadioOut>) {
+    for m in out {
+        let (key, bytes, class) = match &m {
+            RadioOut::Hello { to, msg } => (keys::radio_hello(*to), encode(msg), Traffic::Conn),
+            RadioOut::Delta { to, msg } => (keys::radio_delta(*to), encode(msg), Traffic::Scan),
+        };
+        agent.count_sent(class, bytes.len());
+        if let Err(e) = radio.put(&key, bytes).congestion_control(CongestionControl::Drop).await {
+            tracing::debug!("radio put to {key} failed: {e}");
+        }
+    }
+}
+
+/// Runs one robot until the launcher stops it or the world falls silent.
+pub async fn run_robot(id: RobotId, s: &Scenario, sim: Session, radio: Session, world: WorldInfo, idle_timeout: Duration) -> Result<End, ZenohError> {
+    let mut agent = Agent::new(id, world, s);
+    let scans = sim.declare_subscriber(keys::scan(id)).await.map_err(zerr)?;
+    let ctl = sim.declare_subscriber(keys::CONTROL).await.map_err(zerr)?;
+    let hellos = radio.declare_subscriber(keys::radio_hello(id)).await.map_err(zerr)?;
+    let deltas = radio.declare_subscriber(keys::radio_delta(id)).await.map_err(zerr)?;
+    let peers = radio.liveliness().declare_subscriber(keys::RADIO_ALIVE_ALL).history(true).await.map_err(zerr)?;
+    let _radio_token = radio.liveliness().declare_token(keys::radio_alive(id)).await.map_err(zerr)?;
+    // Declared last: the world-server starts the clock once every robot's token is there, and by
+    // then this robot's subscribers exist.
+    let _sim_token = sim.liveliness().declare_token(keys::sim_alive(id)).await.map_err(zerr)?;
+    let mut logged_bad = false;
+    loop {
+        tokio::select! {
+            sample = scans.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped) };
+                let scan = match decode::<Scan>(&sample.payload().to_bytes()) {
+                    Ok(scan) => scan,
+                    Err(e) => { tracing::warn!("bad scan: {e}"); continue; }
+                };
+                let cmd = agent.on_scan(&scan);
+                sim.put(keys::cmd(id), encode(&cmd)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
+                let out = agent.radio_step();
+                send_radio(&radio, &mut agent, out).await;
+                sim.put(keys::telemetry(id), encode(&agent.telemetry())).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
+            }
+            sample = hellos.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped) };
+                let bytes = sample.payload().to_bytes();
+                agent.bytes_received += bytes.len() as u64;
+                match decode::<Hello>(&bytes) {
+                    Ok(h) => agent.on_hello(&h),
+                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
+                }
+            }
+            sample = deltas.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped) };
+                let bytes = sample.payload().to_bytes();
+                agent.bytes_received += bytes.len() as u64;
+                match decode::<ScanDelta>(&bytes) {
+                    Ok(d) => { let out = agent.on_delta(&d); send_radio(&radio, &mut agent, out).await; }
+                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
+                }
+            }
+            sample = peers.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped) };
+                let Some(peer) = keys::robot_of(sample.key_expr().as_str()) else { continue };
+                if sample.kind() == SampleKind::Put {
+                    let out = agent.link_up(peer);
+                    send_radio(&radio, &mut agent, out).await;
+                } else {
+                    agent.link_down(peer);
+                }
+            }
+            c = ctl.recv_async() => {
+                match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
+                    Ok(Ok(Control::Stop)) | Err(_) => return Ok(End::Stopped),
+                    Ok(Err(e)) => tracing::warn!("bad control message: {e}"),
+                }
+            }
+            _ = tokio::time::sleep(idle_timeout) => return Ok(End::WorldSilent),
+        }
+    }
+}

@@ -1,0 +1,119 @@
+//! Child processes of a run: spawned with their output in the run directory's `logs/`, watched
+//! for unexpected exits, and always reaped.
+//!
+//! **Invariant:** no child outlives the launcher. Three layers make that hold: an orderly
+//! [`Children::shutdown`] (grace period, then SIGKILL, then wait), `kill_on_drop` for every
+//! early return, and `PR_SET_PDEATHSIG = SIGKILL` set in each child, so that even a launcher
+//! killed with SIGKILL takes its children with it.
+
+use std::fs::File;
+use std::path::Path;
+use std::process::{ExitStatus, Stdio};
+use std::time::Duration;
+
+use anyhow::Context;
+use tokio::process::{Child, Command};
+
+pub struct Proc {
+    pub name: String,
+    pub pid: u32,
+    child: Child,
+    pub exited: Option<ExitStatus>,
+}
+
+#[derive(Default)]
+pub struct Children {
+    procs: Vec<Proc>,
+}
+
+/// Asks the kernel to SIGKILL the calling process when its parent thread dies. Runs in the
+/// forked child before exec.
+#[allow(unsafe_code)]
+fn die_with_parent(cmd: &mut Command) {
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: the closure runs between fork and exec and only calls the async-signal-safe
+    // functions prctl, getppid and _exit.
+    unsafe {
+        cmd.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The parent may have died before prctl took effect.
+            if libc::getppid() != parent {
+                libc::_exit(1);
+            }
+            Ok(())
+        });
+    }
+}
+
+impl Children {
+    /// Spawns `exe args…` with stdout and stderr appended to `log`.
+    ///
+    /// Must be called from the thread that lives as long as the launcher (the runtime's
+    /// `block_on` thread): the kernel's parent-death signal follows the spawning thread.
+    pub fn spawn(&mut self, name: &str, exe: &Path, args: &[String], log: &Path) -> anyhow::Result<u32> {
+        let out = File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        let err = out.try_clone()?;
+        let mut cmd = Command::new(exe);
+        cmd.args(args).stdin(Stdio::null()).stdout(out).stderr(err).kill_on_drop(true);
+        die_with_parent(&mut cmd);
+        let child = cmd.spawn().with_context(|| format!("starting {name} ({})", exe.display()))?;
+        let pid = child.id().unwrap_or(0);
+        self.procs.push(Proc { name: name.to_string(), pid, child, exited: None });
+        Ok(pid)
+    }
+
+    /// Children that exited since the last call (non-blocking).
+    pub fn newly_exited(&mut self) -> Vec<(String, u32, ExitStatus)> {
+        let mut out = Vec::new();
+        for p in &mut self.procs {
+            if p.exited.is_none() {
+                if let Ok(Some(status)) = p.child.try_wait() {
+                    p.exited = Some(status);
+                    out.push((p.name.clone(), p.pid, status));
+                }
+            }
+        }
+        out
+    }
+
+    pub fn pids(&self) -> Vec<u32> {
+        self.procs.iter().map(|p| p.pid).collect()
+    }
+
+    /// Waits up to `grace` for every child to exit by itself, then kills the rest; always reaps.
+    /// Returns the names of the children that had to be killed.
+    pub async fn shutdown(&mut self, grace: Duration) -> Vec<String> {
+        let deadline = tokio::time::Instant::now() + grace;
+        let mut killed = Vec::new();
+        for p in &mut self.procs {
+            if p.exited.is_some() {
+                continue;
+            }
+            match tokio::time::timeout_at(deadline, p.child.wait()).await {
+                Ok(Ok(status)) => p.exited = Some(status),
+                _ => {
+                    let _ = p.child.start_kill();
+                    killed.push(p.name.clone());
+                    if let Ok(status) = p.child.wait().await {
+                        p.exited = Some(status);
+                    }
+                }
+            }
+        }
+        killed
+    }
+}
+
+/// A human description of an exit status ("exit code 1", "signal 9 (SIGKILL)").
+pub fn describe(status: ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (status.code(), status.signal()) {
+        (Some(c), _) => format!("exit code {c}"),
+        (None, Some(9)) => "signal 9 (SIGKILL)".into(),
+        (None, Some(15)) => "signal 15 (SIGTERM)".into(),
+        (None, Some(s)) => format!("signal {s}"),
+        _ => "unknown status".into(),
+    }
+}

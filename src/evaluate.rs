@@ -1,0 +1,174 @@
+//! The evaluator (DESIGN.md §6): scores every robot's reported planning grid against the truth.
+//!
+//! Exploration time is the first step at which some robot knows at least `done_pct` % of the
+//! truth's reachable free cells (the thesis: the first robot that knows the full map); the
+//! steps to 50/90/95/100 % are kept too. A cell counts as known-correct when the robot's state
+//! agrees with the truth (truth-unknown space is opaque in the simulation, so a robot that marks
+//! it occupied is right).
+
+use std::collections::BTreeMap;
+
+use proto::grid::{Grid, Occ};
+use proto::msg::{RobotId, Step, Telemetry};
+
+/// Coverage thresholds reported in `summary.json` (`coverage_steps`).
+pub const THRESHOLDS: [u32; 4] = [50, 90, 95, 100];
+
+/// One row of `metrics.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MetricsRow {
+    pub step: Step,
+    pub robot: RobotId,
+    pub x: f64,
+    pub y: f64,
+    pub known_cells: u32,
+    pub correct_known_cells: u32,
+    pub target: Option<(f64, f64)>,
+    pub bytes_sent: u64,
+    pub bytes_received: u64,
+    pub coverage_pct: f64,
+    pub idle: bool,
+    pub neighbours: usize,
+}
+
+pub struct Evaluator {
+    truth: Grid,
+    reachable: Vec<bool>,
+    reachable_count: usize,
+    done_pct: f64,
+    pub rows: Vec<MetricsRow>,
+    /// Step at which some robot first reached each threshold.
+    pub coverage_steps: BTreeMap<u32, Step>,
+    pub exploration_step: Option<Step>,
+    /// Best coverage so far, and the robot that has it.
+    pub best: (f64, RobotId),
+    /// The last decoded grid and telemetry of every robot.
+    pub last: BTreeMap<RobotId, (Grid, Telemetry)>,
+    pub bad_telemetry: u64,
+}
+
+impl Evaluator {
+    pub fn new(truth: Grid, reachable: &Grid, done_pct: f64) -> Evaluator {
+        let reachable: Vec<bool> = reachable.cells().iter().map(|&c| c == Occ::Free).collect();
+        let reachable_count = reachable.iter().filter(|&&r| r).count();
+        Evaluator {
+            truth,
+            reachable,
+            reachable_count,
+            done_pct,
+            rows: Vec::new(),
+            coverage_steps: BTreeMap::new(),
+            exploration_step: None,
+            best: (0.0, 0),
+            last: BTreeMap::new(),
+            bad_telemetry: 0,
+        }
+    }
+
+    pub fn reachable_cells(&self) -> usize {
+        self.reachable_count
+    }
+
+    /// Scores one telemetry message.
+    pub fn add(&mut self, t: Telemetry) {
+        let grid = match Grid::from_rle(&t.grid_rle) {
+            Ok(g) if g.width() == self.truth.width() && g.height() == self.truth.height() => g,
+            _ => {
+                self.bad_telemetry += 1;
+                return;
+            }
+        };
+        let (mut covered, mut correct) = (0usize, 0u32);
+        for ((&r, &truth), &seen) in self.reachable.iter().zip(self.truth.cells()).zip(grid.cells()) {
+            if r && seen == Occ::Free {
+                covered += 1;
+            }
+            let agrees = match seen {
+                Occ::Unknown => false,
+                Occ::Free => truth == Occ::Free,
+                Occ::Occupied => truth != Occ::Free,
+            };
+            correct += u32::from(agrees);
+        }
+        let pct = if self.reachable_count == 0 { 100.0 } else { 100.0 * covered as f64 / self.reachable_count as f64 };
+        if pct > self.best.0 {
+            self.best = (pct, t.robot);
+        }
+        for th in THRESHOLDS {
+            if pct >= f64::from(th) {
+                let e = self.coverage_steps.entry(th).or_insert(t.step);
+                *e = (*e).min(t.step);
+            }
+        }
+        if pct >= self.done_pct {
+            self.exploration_step = Some(self.exploration_step.map_or(t.step, |s| s.min(t.step)));
+        }
+        self.rows.push(MetricsRow {
+            step: t.step,
+            robot: t.robot,
+            x: t.pose.x,
+            y: t.pose.y,
+            known_cells: t.known_cells,
+            correct_known_cells: correct,
+            target: t.target,
+            bytes_sent: t.bytes_sent,
+            bytes_received: t.bytes_received,
+            coverage_pct: pct,
+            idle: t.idle,
+            neighbours: t.neighbours.len(),
+        });
+        self.last.insert(t.robot, (grid, t));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proto::geom::Pose;
+
+    fn telemetry(robot: RobotId, step: Step, grid: &Grid) -> Telemetry {
+        Telemetry {
+            robot,
+            step,
+            pose: Pose::default(),
+            target: None,
+            known_cells: 0,
+            bytes_sent: 0,
+            bytes_received: 0,
+            grid_rle: grid.to_rle(),
+            idle: false,
+            neighbours: vec![],
+            decode_errors: 0,
+            sent_by_type: vec![],
+        }
+    }
+
+    #[test]
+    fn coverage_counts_reachable_free_cells_only() {
+        let truth = Grid::from_ascii("#####\n#...#\n#.#.#\n#####\n");
+        let reachable = Grid::from_ascii("?????\n?...?\n?.?.?\n?????\n");
+        let mut ev = Evaluator::new(truth, &reachable, 99.0);
+        assert_eq!(ev.reachable_cells(), 5);
+        ev.add(telemetry(0, 3, &Grid::from_ascii("#####\n#..??\n#????\n?????\n")));
+        assert_eq!(ev.rows[0].coverage_pct, 40.0);
+        assert_eq!(ev.rows[0].correct_known_cells, 8);
+        assert_eq!(ev.exploration_step, None);
+        ev.add(telemetry(1, 7, &Grid::from_ascii("?????\n?...?\n?.?.?\n?????\n")));
+        assert_eq!(ev.exploration_step, Some(7));
+        assert_eq!(ev.coverage_steps.get(&50), Some(&7));
+        assert_eq!(ev.coverage_steps.get(&100), Some(&7));
+        assert_eq!(ev.best, (100.0, 1));
+    }
+
+    #[test]
+    fn malformed_grids_are_counted_not_scored() {
+        let truth = Grid::from_ascii("...\n");
+        let mut ev = Evaluator::new(truth.clone(), &truth, 99.0);
+        let mut t = telemetry(0, 1, &truth);
+        t.grid_rle = vec![0xff];
+        ev.add(t);
+        ev.add(telemetry(0, 1, &Grid::from_ascii("..\n")));
+        assert_eq!(ev.bad_telemetry, 2);
+        assert!(ev.rows.is_empty());
+    }
+}

@@ -1,0 +1,17 @@
+//! `swarm`: the launcher of swarm-explore. It starts every process of a run, follows the run on
+//! the sim plane, evaluates the robots' maps against the truth and writes the run directory.
+//! It also carries every role's entry point (`swarm world-server`, `swarm robot-agent`), so one
+//! binary is all a machine needs.
+
+/// Child processes: spawn, watch, reap.
+pub mod children;
+/// Coverage and exploration time from telemetry.
+pub mod evaluate;
+/// Free loopback ports.
+pub mod ports;
+/// PNG pictures of grids and trajectories.
+pub mod render;
+/// `swarm run`.
+pub mod run;
+/// The run directory's files.
+pub mod rundir;

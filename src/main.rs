@@ -1,0 +1,67 @@
+//! `swarm`: command line of the launcher. Thin: parse, dispatch, map errors to exit codes.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// swarm-explore: a team of robots explores an unknown world over a weak radio. Every robot is
+/// its own OS process speaking zenoh; a world-server simulates the world.
+#[derive(Parser, Debug)]
+#[command(name = "swarm", version)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run one exploration: start the world-server and N robot-agents, follow them to the end,
+    /// write the run directory. Exit code 0 if the exploration completed, 2 if it ended
+    /// incomplete (step limit, all robots idle or dead, interrupted), 1 on error.
+    Run(swarm::run::RunArgs),
+    /// Run a world-server process (what `swarm run` starts; use it to spread a run over machines).
+    WorldServer(world_server::cli::Args),
+    /// Run one robot-agent process (what `swarm run` starts, once per robot).
+    RobotAgent(robot_agent::cli::Args),
+}
+
+fn main() -> ExitCode {
+    match Cli::parse().command {
+        Command::Run(args) => run(args),
+        Command::WorldServer(args) => world_server::cli::main(args),
+        Command::RobotAgent(args) => robot_agent::cli::main(args),
+    }
+}
+
+fn run(args: swarm::run::RunArgs) -> ExitCode {
+    proto::node::init_logging("swarm");
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("swarm: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(swarm::run::run(args)) {
+        Ok(out) => {
+            let s = &out.summary;
+            let steps = s.exploration_steps.map_or("-".into(), |v| v.to_string());
+            println!(
+                "{}: {} after {} steps ({}); exploration steps {steps}; best coverage {:.1}%; {:.1} s wall; radio payload {} bytes; run directory {}",
+                if s.complete { "complete" } else { "INCOMPLETE" },
+                s.exit_reason,
+                s.steps,
+                s.robots,
+                s.best_coverage_pct,
+                s.wall_seconds,
+                s.bytes_payload_total,
+                out.dir.display()
+            );
+            if s.complete { ExitCode::SUCCESS } else { ExitCode::from(2) }
+        }
+        Err(e) => {
+            eprintln!("swarm: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,113 @@
+//! PNG pictures of a run: the truth map and each robot's final planning grid with its
+//! trajectory. Cells are drawn as `scale × scale` squares, row 0 (the bottom of the world) at the
+//! bottom of the picture.
+
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::Path;
+
+use anyhow::Context;
+use proto::geom::MapInfo;
+use proto::grid::{Grid, Occ};
+
+/// Colours of robots' trajectories, reused cyclically.
+const PALETTE: [[u8; 3]; 8] = [
+    [228, 26, 28],
+    [55, 126, 184],
+    [77, 175, 74],
+    [152, 78, 163],
+    [255, 127, 0],
+    [166, 86, 40],
+    [247, 129, 191],
+    [0, 160, 160],
+];
+
+pub fn robot_colour(i: usize) -> [u8; 3] {
+    PALETTE[i % PALETTE.len()]
+}
+
+/// An RGB image under construction.
+pub struct Picture {
+    width: u32,
+    height: u32,
+    scale: u32,
+    rgb: Vec<u8>,
+    info: MapInfo,
+}
+
+impl Picture {
+    /// Draws a grid (free white, occupied black, unknown grey), scaled to about 800 px wide.
+    pub fn of_grid(g: &Grid, info: MapInfo) -> Picture {
+        let scale = (800 / g.width().max(1)).clamp(1, 8);
+        let (width, height) = (g.width() * scale, g.height() * scale);
+        let mut p = Picture { width, height, scale, rgb: vec![0; (width * height * 3) as usize], info };
+        for (i, &c) in g.cells().iter().enumerate() {
+            let cell = g.cell_of(i);
+            let col = match c {
+                Occ::Free => [255, 255, 255],
+                Occ::Occupied => [0, 0, 0],
+                Occ::Unknown => [160, 160, 160],
+            };
+            p.fill_cell(cell.x, cell.y, col);
+        }
+        p
+    }
+
+    fn fill_cell(&mut self, cx: i32, cy: i32, col: [u8; 3]) {
+        let s = self.scale as i32;
+        let h = self.height as i32;
+        for dy in 0..s {
+            for dx in 0..s {
+                self.put(cx * s + dx, h - 1 - (cy * s + dy), col);
+            }
+        }
+    }
+
+    fn put(&mut self, x: i32, y: i32, col: [u8; 3]) {
+        if x >= 0 && y >= 0 && (x as u32) < self.width && (y as u32) < self.height {
+            let i = ((y as u32 * self.width + x as u32) * 3) as usize;
+            self.rgb[i..i + 3].copy_from_slice(&col);
+        }
+    }
+
+    /// Pixel of a metric point.
+    fn pixel(&self, x_m: f64, y_m: f64) -> (f64, f64) {
+        let s = f64::from(self.scale);
+        let px = (x_m - self.info.origin_x_m) / self.info.resolution_m * s;
+        let py = f64::from(self.height) - (y_m - self.info.origin_y_m) / self.info.resolution_m * s;
+        (px, py)
+    }
+
+    /// A polyline through metric points.
+    pub fn path(&mut self, points: &[(f64, f64)], col: [u8; 3]) {
+        for w in points.windows(2) {
+            let (a, b) = (self.pixel(w[0].0, w[0].1), self.pixel(w[1].0, w[1].1));
+            let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as i32).max(1);
+            for k in 0..=n {
+                let t = f64::from(k) / f64::from(n);
+                self.put((a.0 + t * (b.0 - a.0)) as i32, (a.1 + t * (b.1 - a.1)) as i32, col);
+            }
+        }
+    }
+
+    /// A filled square marker at a metric point.
+    pub fn marker(&mut self, x_m: f64, y_m: f64, col: [u8; 3]) {
+        let (px, py) = self.pixel(x_m, y_m);
+        let r = (self.scale as i32).max(2);
+        for dy in -r..=r {
+            for dx in -r..=r {
+                self.put(px as i32 + dx, py as i32 + dy, col);
+            }
+        }
+    }
+
+    pub fn save(&self, path: &Path) -> anyhow::Result<()> {
+        let file = File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        let mut enc = png::Encoder::new(BufWriter::new(file), self.width, self.height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header().with_context(|| format!("writing {}", path.display()))?;
+        w.write_image_data(&self.rgb).with_context(|| format!("writing {}", path.display()))?;
+        Ok(())
+    }
+}

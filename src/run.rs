@@ -1,0 +1,289 @@
+//! `swarm run`: one exploration run, every participant its own OS process (DESIGN.md §6).
+//!
+//! Resolve the scenario → create the run directory → start the world-server (sim-plane router)
+//! → join the sim plane, fetch the truth → start the robots, each with its radio endpoints →
+//! follow status and telemetry (evaluate, show progress, watch children) until done, the step
+//! limit, a failure or Ctrl-C → stop everyone, reap every child → write the run directory.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use proto::grid::Grid;
+use proto::keys;
+use proto::msg::{decode, encode, Control, RobotId, Status, Telemetry, TruthMap};
+use proto::node::{zerr, ZenohArgs};
+use proto::scenario::Scenario;
+use zenoh::qos::CongestionControl;
+use zenoh::Session;
+
+use crate::children::{describe, Children};
+use crate::evaluate::Evaluator;
+use crate::ports::{endpoint, free_ports};
+use crate::render::{robot_colour, Picture};
+use crate::rundir::{bytes_by_type, coverage_steps, write_metrics, write_summary, Summary, SCHEMA_VERSION};
+
+/// The embedded default scenario (`configs/default.toml`).
+pub const DEFAULT_SCENARIO: &str = include_str!("../configs/default.toml");
+
+/// Flags of `swarm run`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RunArgs {
+    /// Scenario TOML file; without one, the embedded default (configs/default.toml: intel_lab, 4 robots).
+    pub scenario: Option<PathBuf>,
+    /// Run directory to write (default: runs/<time>-<map>-<N>r).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Override a scenario key, e.g. --set robots.count=8 --set world.map=office (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Print only the final summary, no progress.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// How a run ended, for the exit code.
+pub struct Outcome {
+    pub dir: PathBuf,
+    pub summary: Summary,
+}
+
+fn load_scenario(args: &RunArgs) -> anyhow::Result<(Scenario, PathBuf)> {
+    let (mut s, base) = match &args.scenario {
+        Some(p) => (Scenario::load(p, &args.set)?, p.parent().unwrap_or(Path::new(".")).to_path_buf()),
+        None => (Scenario::from_toml(DEFAULT_SCENARIO, &args.set)?, PathBuf::from(".")),
+    };
+    if !s.world_is_generated() {
+        let map = world_server::cli::locate_map(&s.world.map, &base)?;
+        let map = map.canonicalize().with_context(|| format!("resolving {}", map.display()))?;
+        s.world.map = map.to_string_lossy().into_owned();
+    }
+    let name = Path::new(&s.world.map).file_stem().map_or("run".into(), |n| n.to_string_lossy().into_owned());
+    Ok((s, PathBuf::from(name)))
+}
+
+fn run_dir(args: &RunArgs, name: &Path, robots: u16) -> anyhow::Result<PathBuf> {
+    let dir = match &args.out {
+        Some(d) => d.clone(),
+        None => {
+            let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+            PathBuf::from("runs").join(format!("{secs}-{}-{robots}r", name.display()))
+        }
+    };
+    std::fs::create_dir_all(dir.join("logs")).with_context(|| format!("creating run directory {}", dir.display()))?;
+    Ok(dir)
+}
+
+async fn fetch_truth(session: &Session, children: &mut Children) -> anyhow::Result<TruthMap> {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        if let Some((name, _, status)) = children.newly_exited().into_iter().next() {
+            bail!("{name} exited during start-up ({}); see its log in the run directory", describe(status));
+        }
+        let replies = session.get(keys::WORLD_TRUTH).timeout(Duration::from_secs(2)).await.map_err(zerr)?;
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                return decode::<TruthMap>(&sample.payload().to_bytes()).context("decoding the truth map");
+            }
+        }
+        if Instant::now() > deadline {
+            bail!("the world-server did not answer {} within 60 s", keys::WORLD_TRUTH);
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// Progress on stderr: an updating line on a terminal, a line every few seconds otherwise.
+struct Progress {
+    tty: bool,
+    quiet: bool,
+    last: Instant,
+}
+
+impl Progress {
+    fn show(&mut self, line: &str) {
+        if self.quiet {
+            return;
+        }
+        let every = if self.tty { Duration::from_millis(200) } else { Duration::from_secs(5) };
+        if self.last.elapsed() >= every {
+            self.last = Instant::now();
+            if self.tty {
+                eprint!("\r\x1b[2K{line}");
+            } else {
+                eprintln!("{line}");
+            }
+        }
+    }
+
+    fn event(&mut self, line: &str) {
+        if self.tty && !self.quiet {
+            eprint!("\r\x1b[2K");
+        }
+        eprintln!("{line}");
+    }
+}
+
+/// Runs one scenario to the end. The caller turns the outcome into an exit code.
+pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
+    let started = Instant::now();
+    let (scenario, name) = load_scenario(&args)?;
+    let n = scenario.robots.count;
+    let dir = run_dir(&args, &name, n)?;
+    let scenario_path = dir.join("scenario.toml");
+    std::fs::write(&scenario_path, scenario.to_toml()).context("writing scenario.toml")?;
+    let exe = std::env::current_exe().context("locating the swarm binary")?;
+    let ports = free_ports(1 + usize::from(n))?;
+    let sim = endpoint(ports[0]);
+    let scenario_arg = scenario_path.to_string_lossy().into_owned();
+    let mut children = Children::default();
+    let mut progress = Progress { tty: std::io::stderr().is_terminal(), quiet: args.quiet, last: Instant::now() };
+
+    children.spawn(
+        "world-server",
+        &exe,
+        &["world-server".into(), "--scenario".into(), scenario_arg.clone(), "--listen".into(), sim.clone()],
+        &dir.join("logs/world-server.log"),
+    )?;
+    let zargs = ZenohArgs { connect: vec![sim.clone()], ..ZenohArgs::default() };
+    let session = zenoh::open(zargs.client(20_000)?).await.map_err(zerr).context("joining the sim plane")?;
+    let truth = fetch_truth(&session, &mut children).await?;
+    let truth_grid = Grid::from_rle(&truth.grid_rle).context("truth grid")?;
+    let reachable = Grid::from_rle(&truth.reachable_rle).context("reachable grid")?;
+    let mut eval = Evaluator::new(truth_grid.clone(), &reachable, scenario.done_pct);
+    let statuses = session.declare_subscriber(keys::STATUS).await.map_err(zerr)?;
+    let telemetry = session.declare_subscriber(keys::TELEMETRY_ALL).await.map_err(zerr)?;
+
+    // Radio plane: for this issue every pair is linked directly (netem takes over in #3).
+    for i in 0..n {
+        let mut a = vec![
+            "robot-agent".into(), "--id".into(), i.to_string(), "--scenario".into(), scenario_arg.clone(),
+            "--connect".into(), sim.clone(), "--radio-listen".into(), endpoint(ports[1 + usize::from(i)]),
+        ];
+        for j in (i + 1)..n {
+            a.push("--radio-connect".into());
+            a.push(endpoint(ports[1 + usize::from(j)]));
+        }
+        children.spawn(&format!("robot-{i}"), &exe, &a, &dir.join(format!("logs/robot-{i}.log")))?;
+    }
+    if !args.quiet {
+        eprintln!(
+            "swarm run: {} robots on {} ({} reachable free cells), run directory {}",
+            n,
+            name.display(),
+            eval.reachable_cells(),
+            dir.display()
+        );
+    }
+
+    let mut last_status: Option<Status> = None;
+    let mut failed: Vec<String> = Vec::new();
+    let mut trajectories: Vec<Vec<(f64, f64)>> = vec![Vec::new(); usize::from(n)];
+    let mut idle_since: Option<u32> = None;
+    let mut tick = tokio::time::interval(Duration::from_millis(200));
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let exit_reason: String = loop {
+        tokio::select! {
+            s = statuses.recv_async() => {
+                let Ok(s) = s else { break "sim-plane-closed".into() };
+                match decode::<Status>(&s.payload().to_bytes()) {
+                    Ok(st) => {
+                        for r in &st.robots {
+                            if let Some(t) = trajectories.get_mut(usize::from(r.id)) { t.push((r.pose.x, r.pose.y)); }
+                        }
+                        let alive = st.robots.iter().filter(|r| r.alive).count();
+                        progress.show(&format!(
+                            "step {:>5}/{}  best coverage {:5.1}% (robot {})  robots alive {alive}/{n}",
+                            st.step, scenario.max_steps, eval.best.0, eval.best.1
+                        ));
+                        let done = st.step >= scenario.max_steps;
+                        last_status = Some(st);
+                        if alive == 0 { break "all-robots-dead".into(); }
+                        if done { break "max-steps".into(); }
+                    }
+                    Err(e) => tracing::warn!("bad status: {e}"),
+                }
+            }
+            t = telemetry.recv_async() => {
+                let Ok(t) = t else { break "sim-plane-closed".into() };
+                match decode::<Telemetry>(&t.payload().to_bytes()) {
+                    Ok(t) => {
+                        let step = t.step;
+                        eval.add(t);
+                        if eval.exploration_step.is_some() { break "explored".into(); }
+                        // Every live robot idle at the same step: nobody sees a reachable frontier.
+                        let alive: Vec<RobotId> = last_status.as_ref().map_or(Vec::new(), |s| s.robots.iter().filter(|r| r.alive).map(|r| r.id).collect());
+                        let all_idle = !alive.is_empty() && alive.iter().all(|id| eval.last.get(id).is_some_and(|(_, t)| t.idle && t.step == step));
+                        if all_idle {
+                            let since = *idle_since.get_or_insert(step);
+                            if step >= since + 3 { break "no-frontiers".into(); }
+                        } else { idle_since = None; }
+                    }
+                    Err(e) => tracing::warn!("bad telemetry: {e}"),
+                }
+            }
+            _ = tick.tick() => {
+                let mut world_gone = None;
+                for (name, pid, status) in children.newly_exited() {
+                    let what = format!("{name} (pid {pid}) exited: {}", describe(status));
+                    progress.event(&format!("swarm run: {what}"));
+                    failed.push(what);
+                    if name == "world-server" { world_gone = Some(status); }
+                }
+                if world_gone.is_some() { break "world-server-exited".into(); }
+            }
+            _ = tokio::signal::ctrl_c() => { progress.event("swarm run: interrupted, stopping every process"); break "interrupted".into(); }
+            _ = sigterm.recv() => { progress.event("swarm run: terminated, stopping every process"); break "terminated".into(); }
+        }
+    };
+
+    let _ = session.put(keys::CONTROL, encode(&Control::Stop)).congestion_control(CongestionControl::Block).await;
+    let killed = children.shutdown(Duration::from_secs(5)).await;
+    for name in killed {
+        progress.event(&format!("swarm run: {name} did not stop within 5 s and was killed"));
+    }
+    let _ = session.close().await;
+
+    let last = last_status.unwrap_or(Status { step: 0, robots: Vec::new(), collisions_total: 0 });
+    let per_robot_types: Vec<Vec<u64>> = eval.last.values().map(|(_, t)| t.sent_by_type.clone()).collect();
+    let summary = Summary {
+        schema_version: SCHEMA_VERSION,
+        complete: eval.exploration_step.is_some(),
+        exit_reason,
+        robots: n,
+        robots_alive_at_end: last.robots.iter().filter(|r| r.alive).count(),
+        steps: last.step,
+        wall_seconds: started.elapsed().as_secs_f64(),
+        exploration_steps: eval.exploration_step,
+        coverage_steps: coverage_steps(&eval.coverage_steps),
+        best_coverage_pct: eval.best.0,
+        reachable_cells: eval.reachable_cells(),
+        bytes_wire_total: None,
+        bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum(),
+        bytes_by_type: bytes_by_type(&per_robot_types),
+        approx_error_avg: None,
+        collisions: last.collisions_total,
+        distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
+        radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
+        failed_processes: failed,
+    };
+    write_summary(&dir, &summary)?;
+    write_metrics(&dir, &eval.rows)?;
+    let mut truth_pic = Picture::of_grid(&truth_grid, truth.map);
+    for (i, t) in trajectories.iter().enumerate() {
+        truth_pic.path(t, robot_colour(i));
+        if let Some(&(x, y)) = t.first() { truth_pic.marker(x, y, robot_colour(i)); }
+    }
+    truth_pic.save(&dir.join("truth.png"))?;
+    for (id, (grid, _)) in &eval.last {
+        let mut pic = Picture::of_grid(grid, truth.map);
+        let i = usize::from(*id);
+        if let Some(t) = trajectories.get(i) {
+            pic.path(t, robot_colour(i));
+            if let Some(&(x, y)) = t.last() { pic.marker(x, y, robot_colour(i)); }
+        }
+        pic.save(&dir.join(format!("robot_{id}.png")))?;
+    }
+    Ok(Outcome { dir, summary })
+}

@@ -1,0 +1,21 @@
+//! `world-server`: the simulated world of swarm-explore (DESIGN.md §3).
+//!
+//! Pure modules (no I/O but reading map files): [`map`], [`generate`], [`reachable`], [`laser`],
+//! [`motion`], [`world`]. The zenoh side: [`server`]; the command line: [`cli`].
+
+/// Command line and process entry.
+pub mod cli;
+/// Generated worlds: unstructured, mixed, office.
+pub mod generate;
+/// Laser ray casting on the truth map.
+pub mod laser;
+/// ROS map_server maps: loading and resampling.
+pub mod map;
+/// Move validation: straight segments through free cells, robot collisions.
+pub mod motion;
+/// The reachable free region and spawn placement.
+pub mod reachable;
+/// The clock and the sim-plane protocol over zenoh.
+pub mod server;
+/// The world's state and its step.
+pub mod world;

@@ -1,0 +1,180 @@
+//! The world-server on the sim plane: the clock (lockstep or realtime, DESIGN.md §2) driving
+//! [`World`] over zenoh.
+//!
+//! Per step t: publish every live robot's scan for t; collect commands for t until all live
+//! robots answered (lockstep) or the step timed out (`step_timeout_ms`; realtime: the step
+//! period); apply them; publish [`proto::msg::Status`] for t+1. A robot whose sim-plane
+//! liveliness token vanishes is dead at once; one that misses `dead_after` steps in a row too.
+//! Everything received is validated; bad input is counted and logged, never fatal.
+
+use std::collections::{HashMap, HashSet};
+use std::time::Duration;
+
+use proto::keys;
+use proto::msg::{decode, encode, Cmd, Control, RobotId, Step};
+use proto::node::{zerr, ZenohError};
+use proto::scenario::{ClockMode, Scenario};
+use tokio::time::{sleep_until, Instant};
+use zenoh::qos::CongestionControl;
+use zenoh::sample::SampleKind;
+use zenoh::Session;
+
+use crate::world::World;
+
+/// How the world-server's loop ended.
+#[derive(Debug, PartialEq, Eq)]
+pub enum End {
+    /// The launcher (or anybody on the sim plane) sent [`Control::Stop`].
+    Stopped { step: Step },
+    MaxSteps { step: Step },
+    AllDead { step: Step },
+}
+
+/// Options of the serve loop that are not part of the scenario.
+pub struct ServeOpts {
+    /// How long to wait for all robots to join before giving up.
+    pub startup_timeout: Duration,
+}
+
+async fn put(session: &Session, key: &str, bytes: Vec<u8>) -> Result<(), ZenohError> {
+    session.put(key, bytes).congestion_control(CongestionControl::Block).await.map_err(zerr)
+}
+
+/// Answers `sim/world/info` and `sim/world/truth` until the session closes.
+async fn answer_queries(session: Session, info: Vec<u8>, truth: Vec<u8>) -> Result<(), ZenohError> {
+    let info_q = session.declare_queryable(keys::WORLD_INFO).await.map_err(zerr)?;
+    let truth_q = session.declare_queryable(keys::WORLD_TRUTH).await.map_err(zerr)?;
+    loop {
+        let (query, bytes) = tokio::select! {
+            q = info_q.recv_async() => (q, &info),
+            q = truth_q.recv_async() => (q, &truth),
+        };
+        let Ok(query) = query else { return Ok(()) };
+        if let Err(e) = query.reply(query.key_expr().clone(), bytes.clone()).await {
+            tracing::warn!("reply to {} failed: {e}", query.key_expr());
+        }
+    }
+}
+
+/// Counts and logs (once per source) input that failed validation.
+#[derive(Default)]
+struct BadInput {
+    count: u64,
+    logged: HashSet<String>,
+}
+
+impl BadInput {
+    fn record(&mut self, source: &str, what: impl std::fmt::Display) {
+        self.count += 1;
+        if self.logged.insert(source.to_string()) {
+            tracing::warn!("bad input from {source}: {what} (further errors from it are only counted)");
+        }
+    }
+}
+
+/// Runs the world until stopped, `max_steps`, or every robot is dead.
+pub async fn serve(session: Session, mut world: World, s: &Scenario, opts: ServeOpts) -> Result<End, ZenohError> {
+    let queries = tokio::spawn(answer_queries(
+        session.clone(),
+        encode(&world.info()),
+        encode(&world.truth_msg()),
+    ));
+    let cmds = session.declare_subscriber(keys::CMD_ALL).await.map_err(zerr)?;
+    let ctl = session.declare_subscriber(keys::CONTROL).await.map_err(zerr)?;
+    let live = session.liveliness().declare_subscriber(keys::SIM_ALIVE_ALL).history(true).await.map_err(zerr)?;
+    let n = world.bodies.len();
+    let mut bad = BadInput::default();
+
+    // Wait for every robot's sim-plane token: a robot declares it once its subscribers are up.
+    let mut present = HashSet::new();
+    let deadline = Instant::now() + opts.startup_timeout;
+    while present.len() < n {
+        tokio::select! {
+            sample = live.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped { step: 0 }) };
+                match keys::robot_of(sample.key_expr().as_str()) {
+                    Some(id) if usize::from(id) < n && sample.kind() == SampleKind::Put => { present.insert(id); }
+                    Some(id) if usize::from(id) < n => { present.remove(&id); }
+                    _ => bad.record(sample.key_expr().as_str(), "unknown robot id"),
+                }
+            }
+            c = ctl.recv_async() => if c.is_ok() { return Ok(End::Stopped { step: 0 }) },
+            _ = sleep_until(deadline) => {
+                let missing: Vec<usize> = (0..n).filter(|i| !present.contains(&(*i as RobotId))).collect();
+                return Err(ZenohError(format!("robots {missing:?} did not join within {:?}", opts.startup_timeout)));
+            }
+        }
+    }
+    tracing::info!("all {n} robots joined");
+
+    let timeout = match s.clock.mode {
+        ClockMode::Lockstep => Duration::from_millis(s.clock.step_timeout_ms),
+        ClockMode::Realtime => Duration::from_secs_f64(s.clock.step_seconds / s.clock.speedup),
+    };
+    let mut step: Step = 0;
+    put(&session, keys::STATUS, encode(&world.status(step))).await?;
+    let end = loop {
+        if step >= s.max_steps {
+            break End::MaxSteps { step };
+        }
+        let alive: Vec<RobotId> = world.alive().collect();
+        if alive.is_empty() {
+            break End::AllDead { step };
+        }
+        let started = Instant::now();
+        for &id in &alive {
+            if let Some(scan) = world.scan(id, step) {
+                put(&session, &keys::scan(id), encode(&scan)).await?;
+            }
+        }
+        let mut got: HashMap<RobotId, Cmd> = HashMap::new();
+        let mut stop = false;
+        loop {
+            let waiting = world.alive().any(|id| !got.contains_key(&id));
+            if s.clock.mode == ClockMode::Lockstep && !waiting {
+                break;
+            }
+            tokio::select! {
+                sample = cmds.recv_async() => {
+                    let Ok(sample) = sample else { stop = true; break };
+                    let key = sample.key_expr().as_str().to_string();
+                    match decode::<Cmd>(&sample.payload().to_bytes()) {
+                        Ok(cmd) if keys::robot_of(&key) != Some(cmd.robot) => bad.record(&key, "robot id does not match the key"),
+                        Ok(cmd) if usize::from(cmd.robot) >= n => bad.record(&key, "unknown robot id"),
+                        Ok(cmd) if cmd.step == step => { got.insert(cmd.robot, cmd); }
+                        Ok(cmd) if cmd.step < step => tracing::debug!("late command of robot {} for step {}", cmd.robot, cmd.step),
+                        Ok(cmd) => bad.record(&key, format!("command for future step {}", cmd.step)),
+                        Err(e) => bad.record(&key, e),
+                    }
+                }
+                sample = live.recv_async() => {
+                    let Ok(sample) = sample else { stop = true; break };
+                    if sample.kind() == SampleKind::Delete {
+                        if let Some(id) = keys::robot_of(sample.key_expr().as_str()) {
+                            tracing::warn!("robot {id} left the sim plane at step {step}: declared dead");
+                            world.kill(id);
+                        }
+                    }
+                }
+                c = ctl.recv_async() => {
+                    match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
+                        Ok(Ok(Control::Stop)) | Err(_) => { stop = true; break; }
+                        Ok(Err(e)) => bad.record(keys::CONTROL, e),
+                    }
+                }
+                _ = sleep_until(started + timeout) => break,
+            }
+        }
+        if stop {
+            break End::Stopped { step };
+        }
+        world.apply(step, &got);
+        step += 1;
+        put(&session, keys::STATUS, encode(&world.status(step))).await?;
+    };
+    if bad.count > 0 {
+        tracing::warn!("{} bad inputs were rejected during the run", bad.count);
+    }
+    queries.abort();
+    Ok(end)
+}

@@ -1,0 +1,240 @@
+//! The simulated world's state and its step: truth map, reachable region, robot bodies,
+//! laser scans and moves (DESIGN.md §3). Pure: the zenoh side lives in [`crate::server`].
+//!
+//! **Invariant:** the world-server alone owns ground truth; robots learn the world only through
+//! the scans this module casts.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use proto::geom::{LaserSpec, MapInfo, Pose};
+use proto::grid::{Cell, Grid};
+use proto::msg::{Cmd, MoveOutcome, RobotId, RobotStatus, Scan, Status, Step, TruthMap, WorldInfo};
+use proto::scenario::Scenario;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::generate::{generate, GenKind};
+use crate::map::{load_ros_map, resample, MapError};
+use crate::reachable::{reachable_free, spawn_cluster, SpawnError};
+
+/// Why a world could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum WorldError {
+    #[error(transparent)]
+    Map(#[from] MapError),
+    #[error(transparent)]
+    Spawn(#[from] SpawnError),
+    #[error("world.map = {0:?} is a file path but the scenario gave no file to load")]
+    NoMapFile(String),
+}
+
+/// One robot's body.
+#[derive(Clone, Debug)]
+pub struct Body {
+    pub id: RobotId,
+    pub pose: Pose,
+    pub alive: bool,
+    /// Consecutive steps without a command (lockstep dead-robot detection).
+    pub missed: u32,
+    pub distance_m: f64,
+    pub last_move: MoveOutcome,
+}
+
+pub struct World {
+    pub truth: crate::map::TruthMap,
+    /// Free cells 4-connected to the spawn area: what exploration must cover.
+    pub reachable: Grid,
+    pub bodies: Vec<Body>,
+    laser: LaserSpec,
+    max_step_m: f64,
+    radius_m: f64,
+    dead_after: u32,
+    step_seconds: f64,
+    speed_m_per_s: f64,
+    rng: ChaCha8Rng,
+    collisions_total: u64,
+}
+
+impl World {
+    /// Builds the world of a scenario: loads (`map_file`) or generates the truth, resamples it to
+    /// `world.resolution_m`, places the robots and computes the reachable region from them.
+    pub fn build(s: &Scenario, map_file: Option<&Path>) -> Result<World, WorldError> {
+        let truth = match s.world.map.as_str() {
+            "unstructured" | "mixed" | "office" => {
+                let kind = match s.world.map.as_str() {
+                    "unstructured" => GenKind::Unstructured,
+                    "mixed" => GenKind::Mixed,
+                    _ => GenKind::Office,
+                };
+                generate(kind, s.world.width_m, s.world.height_m, s.world.resolution_m, s.seed)
+            }
+            other => {
+                let path = map_file.ok_or_else(|| WorldError::NoMapFile(other.into()))?;
+                resample(&load_ros_map(path)?, s.world.resolution_m)
+            }
+        };
+        let spawn = spawn_cluster(
+            &truth.grid,
+            &truth.info,
+            usize::from(s.robots.count),
+            s.robots.spawn_spacing_m,
+            s.robots.spawn_clearance_m,
+            s.seed,
+        )?;
+        let reachable = reachable_free(&truth.grid, &spawn);
+        let bodies = spawn
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| {
+                let (x, y) = truth.info.centre_of(c);
+                Body {
+                    id: i as RobotId,
+                    pose: Pose { x, y, theta: 0.0 },
+                    alive: true,
+                    missed: 0,
+                    distance_m: 0.0,
+                    last_move: MoveOutcome::Start,
+                }
+            })
+            .collect();
+        Ok(World {
+            truth,
+            reachable,
+            bodies,
+            laser: s.laser(),
+            max_step_m: s.robots.speed_m_per_s * s.clock.step_seconds,
+            radius_m: s.robots.radius_m,
+            dead_after: s.clock.dead_after,
+            step_seconds: s.clock.step_seconds,
+            speed_m_per_s: s.robots.speed_m_per_s,
+            rng: ChaCha8Rng::seed_from_u64(s.seed ^ 0x5eed_1a5e),
+            collisions_total: 0,
+        })
+    }
+
+    pub fn map(&self) -> MapInfo {
+        self.truth.info
+    }
+
+    pub fn info(&self) -> WorldInfo {
+        WorldInfo {
+            map: self.truth.info,
+            laser: self.laser,
+            step_seconds: self.step_seconds,
+            robots: self.bodies.len() as u16,
+            max_speed_m_per_s: self.speed_m_per_s,
+        }
+    }
+
+    pub fn truth_msg(&self) -> TruthMap {
+        TruthMap {
+            map: self.truth.info,
+            grid_rle: self.truth.grid.to_rle(),
+            reachable_rle: self.reachable.to_rle(),
+        }
+    }
+
+    /// The scan robot `id` receives at `step` (its pose after the previous step's moves).
+    pub fn scan(&mut self, id: RobotId, step: Step) -> Option<Scan> {
+        let body = self.bodies.get(usize::from(id))?.clone();
+        let noisy = self.laser.noise_std_m > 0.0;
+        let ranges = crate::laser::cast(
+            &self.truth.grid,
+            &self.truth.info,
+            body.pose,
+            &self.laser,
+            noisy.then_some(&mut self.rng),
+        );
+        Some(Scan { step, pose: body.pose, ranges, last_move: body.last_move })
+    }
+
+    /// Applies the commands of one step in robot-id order (deterministic): each valid move
+    /// happens, every other robot stays and learns why in its next scan. Live robots without a
+    /// command count a miss; after `dead_after` misses in a row they are declared dead.
+    pub fn apply(&mut self, step: Step, cmds: &HashMap<RobotId, Cmd>) {
+        for i in 0..self.bodies.len() {
+            if !self.bodies[i].alive {
+                continue;
+            }
+            let id = self.bodies[i].id;
+            let outcome = match cmds.get(&id) {
+                None => {
+                    self.bodies[i].missed += 1;
+                    if self.bodies[i].missed >= self.dead_after {
+                        self.bodies[i].alive = false;
+                    }
+                    MoveOutcome::Missed
+                }
+                Some(cmd) if cmd.step != step => MoveOutcome::WrongStep,
+                Some(Cmd { waypoint: None, .. }) => MoveOutcome::Stayed,
+                Some(Cmd { waypoint: Some(to), .. }) => self.try_move(i, *to),
+            };
+            if cmds.contains_key(&id) {
+                self.bodies[i].missed = 0;
+            }
+            if matches!(outcome, MoveOutcome::Collision { .. }) {
+                self.collisions_total += 1;
+            }
+            self.bodies[i].last_move = outcome;
+        }
+    }
+
+    fn try_move(&mut self, i: usize, to: (f64, f64)) -> MoveOutcome {
+        if !(to.0.is_finite() && to.1.is_finite()) {
+            return MoveOutcome::OutOfMap;
+        }
+        let others: Vec<(RobotId, (f64, f64))> = self
+            .bodies
+            .iter()
+            .filter(|b| b.alive && b.id != self.bodies[i].id)
+            .map(|b| (b.id, (b.pose.x, b.pose.y)))
+            .collect();
+        let from = self.bodies[i].pose;
+        match crate::motion::validate_move(
+            &self.truth.grid,
+            &self.truth.info,
+            from,
+            to,
+            self.max_step_m,
+            &others,
+            self.radius_m,
+        ) {
+            Ok(pose) => {
+                self.bodies[i].distance_m += (pose.x - from.x).hypot(pose.y - from.y);
+                self.bodies[i].pose = pose;
+                MoveOutcome::Moved
+            }
+            Err(outcome) => outcome,
+        }
+    }
+
+    /// Marks a robot dead at once (its sim-plane session vanished).
+    pub fn kill(&mut self, id: RobotId) {
+        if let Some(b) = self.bodies.get_mut(usize::from(id)) {
+            b.alive = false;
+        }
+    }
+
+    pub fn alive(&self) -> impl Iterator<Item = RobotId> + '_ {
+        self.bodies.iter().filter(|b| b.alive).map(|b| b.id)
+    }
+
+    pub fn status(&self, step: Step) -> Status {
+        Status {
+            step,
+            robots: self
+                .bodies
+                .iter()
+                .map(|b| RobotStatus { id: b.id, pose: b.pose, alive: b.alive, distance_m: b.distance_m })
+                .collect(),
+            collisions_total: self.collisions_total,
+        }
+    }
+
+    /// The cell a robot stands on.
+    pub fn cell_of(&self, id: RobotId) -> Option<Cell> {
+        let b = self.bodies.get(usize::from(id))?;
+        Some(self.truth.info.cell_of(b.pose.x, b.pose.y))
+    }
+}
