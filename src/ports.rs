@@ -7,9 +7,13 @@ use std::net::TcpListener;
 /// `n` distinct free TCP ports on 127.0.0.1.
 pub fn free_ports(n: usize) -> std::io::Result<Vec<u16>> {
     // Hold all listeners until every port is chosen, so the kernel gives distinct ones.
-    let listeners: Vec<TcpListener> =
-        (0..n).map(|_| TcpListener::bind("127.0.0.1:0")).collect::<Result<_, _>>()?;
-    listeners.iter().map(|l| l.local_addr().map(|a| a.port())).collect()
+    let listeners: Vec<TcpListener> = (0..n)
+        .map(|_| TcpListener::bind("127.0.0.1:0"))
+        .collect::<Result<_, _>>()?;
+    listeners
+        .iter()
+        .map(|l| l.local_addr().map(|a| a.port()))
+        .collect()
 }
 
 pub fn endpoint(port: u16) -> String {

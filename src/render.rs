@@ -40,7 +40,13 @@ impl Picture {
     pub fn of_grid(g: &Grid, info: MapInfo) -> Picture {
         let scale = (800 / g.width().max(1)).clamp(1, 8);
         let (width, height) = (g.width() * scale, g.height() * scale);
-        let mut p = Picture { width, height, scale, rgb: vec![0; (width * height * 3) as usize], info };
+        let mut p = Picture {
+            width,
+            height,
+            scale,
+            rgb: vec![0; (width * height * 3) as usize],
+            info,
+        };
         for (i, &c) in g.cells().iter().enumerate() {
             let cell = g.cell_of(i);
             let col = match c {
@@ -85,7 +91,11 @@ impl Picture {
             let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as i32).max(1);
             for k in 0..=n {
                 let t = f64::from(k) / f64::from(n);
-                self.put((a.0 + t * (b.0 - a.0)) as i32, (a.1 + t * (b.1 - a.1)) as i32, col);
+                self.put(
+                    (a.0 + t * (b.0 - a.0)) as i32,
+                    (a.1 + t * (b.1 - a.1)) as i32,
+                    col,
+                );
             }
         }
     }
@@ -106,8 +116,11 @@ impl Picture {
         let mut enc = png::Encoder::new(BufWriter::new(file), self.width, self.height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
-        let mut w = enc.write_header().with_context(|| format!("writing {}", path.display()))?;
-        w.write_image_data(&self.rgb).with_context(|| format!("writing {}", path.display()))?;
+        let mut w = enc
+            .write_header()
+            .with_context(|| format!("writing {}", path.display()))?;
+        w.write_image_data(&self.rgb)
+            .with_context(|| format!("writing {}", path.display()))?;
         Ok(())
     }
 }

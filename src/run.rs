@@ -22,10 +22,16 @@ use crate::children::{describe, Children};
 use crate::evaluate::Evaluator;
 use crate::ports::{endpoint, free_ports};
 use crate::render::{robot_colour, Picture};
-use crate::rundir::{bytes_by_type, coverage_steps, write_metrics, write_summary, Summary, SCHEMA_VERSION};
+use crate::rundir::{
+    bytes_by_type, coverage_steps, write_metrics, write_summary, Summary, SCHEMA_VERSION,
+};
 
 /// The embedded default scenario (`configs/default.toml`).
 pub const DEFAULT_SCENARIO: &str = include_str!("../configs/default.toml");
+
+/// Steps every robot must be idle in a row before the run ends with `no-frontiers` (data still
+/// in flight on the radio may give an idle robot new frontiers).
+const IDLE_STEPS: u32 = 5;
 
 /// Flags of `swarm run`.
 #[derive(clap::Args, Debug, Clone)]
@@ -51,15 +57,25 @@ pub struct Outcome {
 
 fn load_scenario(args: &RunArgs) -> anyhow::Result<(Scenario, PathBuf)> {
     let (mut s, base) = match &args.scenario {
-        Some(p) => (Scenario::load(p, &args.set)?, p.parent().unwrap_or(Path::new(".")).to_path_buf()),
-        None => (Scenario::from_toml(DEFAULT_SCENARIO, &args.set)?, PathBuf::from(".")),
+        Some(p) => (
+            Scenario::load(p, &args.set)?,
+            p.parent().unwrap_or(Path::new(".")).to_path_buf(),
+        ),
+        None => (
+            Scenario::from_toml(DEFAULT_SCENARIO, &args.set)?,
+            PathBuf::from("."),
+        ),
     };
     if !s.world_is_generated() {
         let map = world_server::cli::locate_map(&s.world.map, &base)?;
-        let map = map.canonicalize().with_context(|| format!("resolving {}", map.display()))?;
+        let map = map
+            .canonicalize()
+            .with_context(|| format!("resolving {}", map.display()))?;
         s.world.map = map.to_string_lossy().into_owned();
     }
-    let name = Path::new(&s.world.map).file_stem().map_or("run".into(), |n| n.to_string_lossy().into_owned());
+    let name = Path::new(&s.world.map)
+        .file_stem()
+        .map_or("run".into(), |n| n.to_string_lossy().into_owned());
     Ok((s, PathBuf::from(name)))
 }
 
@@ -67,28 +83,86 @@ fn run_dir(args: &RunArgs, name: &Path, robots: u16) -> anyhow::Result<PathBuf> 
     let dir = match &args.out {
         Some(d) => d.clone(),
         None => {
-            let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+            let secs = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs());
             PathBuf::from("runs").join(format!("{secs}-{}-{robots}r", name.display()))
         }
     };
-    std::fs::create_dir_all(dir.join("logs")).with_context(|| format!("creating run directory {}", dir.display()))?;
+    std::fs::create_dir_all(dir.join("logs"))
+        .with_context(|| format!("creating run directory {}", dir.display()))?;
     Ok(dir)
 }
 
-async fn fetch_truth(session: &Session, children: &mut Children) -> anyhow::Result<TruthMap> {
+/// The last non-empty line of a child's log (its error message, when it failed).
+fn last_log_line(log: &Path) -> String {
+    std::fs::read_to_string(log)
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .rev()
+                .find(|l| !l.trim().is_empty())
+                .map(str::to_string)
+        })
+        .unwrap_or_else(|| format!("see {}", log.display()))
+}
+
+/// Fails with the child's own last words if any child has exited.
+fn check_started(children: &mut Children, dir: &Path) -> anyhow::Result<()> {
+    if let Some((name, _, status)) = children.newly_exited().into_iter().next() {
+        let why = last_log_line(&dir.join(format!("logs/{name}.log")));
+        bail!(
+            "{name} exited during start-up ({}): {why}",
+            describe(status)
+        );
+    }
+    Ok(())
+}
+
+/// Joins the sim plane in short attempts, watching the children meanwhile: a world-server that
+/// fails at start-up is reported with its own error, not as a connection time-out.
+async fn join_sim(
+    zargs: &ZenohArgs,
+    children: &mut Children,
+    dir: &Path,
+) -> anyhow::Result<Session> {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        check_started(children, dir)?;
+        match zenoh::open(zargs.client(500)?).await {
+            Ok(s) => return Ok(s),
+            Err(e) if Instant::now() > deadline => {
+                return Err(zerr(e)).context("joining the sim plane")
+            }
+            Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+        }
+    }
+}
+
+async fn fetch_truth(
+    session: &Session,
+    children: &mut Children,
+    dir: &Path,
+) -> anyhow::Result<TruthMap> {
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
-        if let Some((name, _, status)) = children.newly_exited().into_iter().next() {
-            bail!("{name} exited during start-up ({}); see its log in the run directory", describe(status));
-        }
-        let replies = session.get(keys::WORLD_TRUTH).timeout(Duration::from_secs(2)).await.map_err(zerr)?;
+        check_started(children, dir)?;
+        let replies = session
+            .get(keys::WORLD_TRUTH)
+            .timeout(Duration::from_secs(2))
+            .await
+            .map_err(zerr)?;
         while let Ok(reply) = replies.recv_async().await {
             if let Ok(sample) = reply.result() {
-                return decode::<TruthMap>(&sample.payload().to_bytes()).context("decoding the truth map");
+                return decode::<TruthMap>(&sample.payload().to_bytes())
+                    .context("decoding the truth map");
             }
         }
         if Instant::now() > deadline {
-            bail!("the world-server did not answer {} within 60 s", keys::WORLD_TRUTH);
+            bail!(
+                "the world-server did not answer {} within 60 s",
+                keys::WORLD_TRUTH
+            );
         }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
@@ -106,7 +180,11 @@ impl Progress {
         if self.quiet {
             return;
         }
-        let every = if self.tty { Duration::from_millis(200) } else { Duration::from_secs(5) };
+        let every = if self.tty {
+            Duration::from_millis(200)
+        } else {
+            Duration::from_secs(5)
+        };
         if self.last.elapsed() >= every {
             self.last = Instant::now();
             if self.tty {
@@ -138,34 +216,65 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let sim = endpoint(ports[0]);
     let scenario_arg = scenario_path.to_string_lossy().into_owned();
     let mut children = Children::default();
-    let mut progress = Progress { tty: std::io::stderr().is_terminal(), quiet: args.quiet, last: Instant::now() };
+    let mut progress = Progress {
+        tty: std::io::stderr().is_terminal(),
+        quiet: args.quiet,
+        last: Instant::now(),
+    };
 
     children.spawn(
         "world-server",
         &exe,
-        &["world-server".into(), "--scenario".into(), scenario_arg.clone(), "--listen".into(), sim.clone()],
+        &[
+            "world-server".into(),
+            "--scenario".into(),
+            scenario_arg.clone(),
+            "--listen".into(),
+            sim.clone(),
+        ],
         &dir.join("logs/world-server.log"),
     )?;
-    let zargs = ZenohArgs { connect: vec![sim.clone()], ..ZenohArgs::default() };
-    let session = zenoh::open(zargs.client(20_000)?).await.map_err(zerr).context("joining the sim plane")?;
-    let truth = fetch_truth(&session, &mut children).await?;
+    let zargs = ZenohArgs {
+        connect: vec![sim.clone()],
+        ..ZenohArgs::default()
+    };
+    let session = join_sim(&zargs, &mut children, &dir).await?;
+    let truth = fetch_truth(&session, &mut children, &dir).await?;
     let truth_grid = Grid::from_rle(&truth.grid_rle).context("truth grid")?;
     let reachable = Grid::from_rle(&truth.reachable_rle).context("reachable grid")?;
     let mut eval = Evaluator::new(truth_grid.clone(), &reachable, scenario.done_pct);
-    let statuses = session.declare_subscriber(keys::STATUS).await.map_err(zerr)?;
-    let telemetry = session.declare_subscriber(keys::TELEMETRY_ALL).await.map_err(zerr)?;
+    let statuses = session
+        .declare_subscriber(keys::STATUS)
+        .await
+        .map_err(zerr)?;
+    let telemetry = session
+        .declare_subscriber(keys::TELEMETRY_ALL)
+        .await
+        .map_err(zerr)?;
 
     // Radio plane: for this issue every pair is linked directly (netem takes over in #3).
     for i in 0..n {
         let mut a = vec![
-            "robot-agent".into(), "--id".into(), i.to_string(), "--scenario".into(), scenario_arg.clone(),
-            "--connect".into(), sim.clone(), "--radio-listen".into(), endpoint(ports[1 + usize::from(i)]),
+            "robot-agent".into(),
+            "--id".into(),
+            i.to_string(),
+            "--scenario".into(),
+            scenario_arg.clone(),
+            "--connect".into(),
+            sim.clone(),
+            "--radio-listen".into(),
+            endpoint(ports[1 + usize::from(i)]),
         ];
         for j in (i + 1)..n {
             a.push("--radio-connect".into());
             a.push(endpoint(ports[1 + usize::from(j)]));
         }
-        children.spawn(&format!("robot-{i}"), &exe, &a, &dir.join(format!("logs/robot-{i}.log")))?;
+        children.spawn(
+            &format!("robot-{i}"),
+            &exe,
+            &a,
+            &dir.join(format!("logs/robot-{i}.log")),
+        )?;
     }
     if !args.quiet {
         eprintln!(
@@ -212,12 +321,13 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
                         let step = t.step;
                         eval.add(t);
                         if eval.exploration_step.is_some() { break "explored".into(); }
-                        // Every live robot idle at the same step: nobody sees a reachable frontier.
+                        // Every live robot idle (its latest telemetry says it sees no reachable
+                        // frontier) for a few steps in a row: nothing is left to explore.
                         let alive: Vec<RobotId> = last_status.as_ref().map_or(Vec::new(), |s| s.robots.iter().filter(|r| r.alive).map(|r| r.id).collect());
-                        let all_idle = !alive.is_empty() && alive.iter().all(|id| eval.last.get(id).is_some_and(|(_, t)| t.idle && t.step == step));
+                        let all_idle = !alive.is_empty() && alive.iter().all(|id| eval.last.get(id).is_some_and(|(_, t)| t.idle));
                         if all_idle {
                             let since = *idle_since.get_or_insert(step);
-                            if step >= since + 3 { break "no-frontiers".into(); }
+                            if step >= since + IDLE_STEPS { break "no-frontiers".into(); }
                         } else { idle_since = None; }
                     }
                     Err(e) => tracing::warn!("bad telemetry: {e}"),
@@ -238,15 +348,28 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         }
     };
 
-    let _ = session.put(keys::CONTROL, encode(&Control::Stop)).congestion_control(CongestionControl::Block).await;
+    let _ = session
+        .put(keys::CONTROL, encode(&Control::Stop))
+        .congestion_control(CongestionControl::Block)
+        .await;
     let killed = children.shutdown(Duration::from_secs(5)).await;
     for name in killed {
-        progress.event(&format!("swarm run: {name} did not stop within 5 s and was killed"));
+        progress.event(&format!(
+            "swarm run: {name} did not stop within 5 s and was killed"
+        ));
     }
-    let _ = session.close().await;
+    proto::node::close_quickly(session).await;
 
-    let last = last_status.unwrap_or(Status { step: 0, robots: Vec::new(), collisions_total: 0 });
-    let per_robot_types: Vec<Vec<u64>> = eval.last.values().map(|(_, t)| t.sent_by_type.clone()).collect();
+    let last = last_status.unwrap_or(Status {
+        step: 0,
+        robots: Vec::new(),
+        collisions_total: 0,
+    });
+    let per_robot_types: Vec<Vec<u64>> = eval
+        .last
+        .values()
+        .map(|(_, t)| t.sent_by_type.clone())
+        .collect();
     let summary = Summary {
         schema_version: SCHEMA_VERSION,
         complete: eval.exploration_step.is_some(),
@@ -273,7 +396,9 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let mut truth_pic = Picture::of_grid(&truth_grid, truth.map);
     for (i, t) in trajectories.iter().enumerate() {
         truth_pic.path(t, robot_colour(i));
-        if let Some(&(x, y)) = t.first() { truth_pic.marker(x, y, robot_colour(i)); }
+        if let Some(&(x, y)) = t.first() {
+            truth_pic.marker(x, y, robot_colour(i));
+        }
     }
     truth_pic.save(&dir.join("truth.png"))?;
     for (id, (grid, _)) in &eval.last {
@@ -281,7 +406,9 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         let i = usize::from(*id);
         if let Some(t) = trajectories.get(i) {
             pic.path(t, robot_colour(i));
-            if let Some(&(x, y)) = t.last() { pic.marker(x, y, robot_colour(i)); }
+            if let Some(&(x, y)) = t.last() {
+                pic.marker(x, y, robot_colour(i));
+            }
         }
         pic.save(&dir.join(format!("robot_{id}.png")))?;
     }

@@ -43,14 +43,25 @@ pub struct Summary {
 }
 
 pub fn coverage_steps(reached: &BTreeMap<u32, u32>) -> BTreeMap<String, Option<u32>> {
-    THRESHOLDS.iter().map(|t| (t.to_string(), reached.get(t).copied())).collect()
+    THRESHOLDS
+        .iter()
+        .map(|t| (t.to_string(), reached.get(t).copied()))
+        .collect()
 }
 
 pub fn bytes_by_type(per_robot: &[Vec<u64>]) -> BTreeMap<String, u64> {
     Traffic::ALL
         .iter()
         .enumerate()
-        .map(|(i, t)| (t.name().to_string(), per_robot.iter().map(|v| v.get(i).copied().unwrap_or(0)).sum()))
+        .map(|(i, t)| {
+            (
+                t.name().to_string(),
+                per_robot
+                    .iter()
+                    .map(|v| v.get(i).copied().unwrap_or(0))
+                    .sum(),
+            )
+        })
         .collect()
 }
 
@@ -67,12 +78,25 @@ pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
     let mut sorted: Vec<&MetricsRow> = rows.iter().collect();
     sorted.sort_by_key(|r| (r.step, r.robot));
     for r in sorted {
-        let (tx, ty) = r.target.map_or((String::new(), String::new()), |(x, y)| (format!("{x:.3}"), format!("{y:.3}")));
+        let (tx, ty) = r.target.map_or((String::new(), String::new()), |(x, y)| {
+            (format!("{x:.3}"), format!("{y:.3}"))
+        });
         let _ = writeln!(
             s,
             "{},{},{:.3},{:.3},{},{},{},{},{},{},{:.3},{},{}",
-            r.step, r.robot, r.x, r.y, r.known_cells, r.correct_known_cells, tx, ty, r.bytes_sent,
-            r.bytes_received, r.coverage_pct, u8::from(r.idle), r.neighbours
+            r.step,
+            r.robot,
+            r.x,
+            r.y,
+            r.known_cells,
+            r.correct_known_cells,
+            tx,
+            ty,
+            r.bytes_sent,
+            r.bytes_received,
+            r.coverage_pct,
+            u8::from(r.idle),
+            r.neighbours
         );
     }
     std::fs::write(dir.join("metrics.csv"), s).context("writing metrics.csv")

@@ -1,1 +1,9 @@
+//! Integration tests of swarm-explore: every test launches real processes (the `swarm` binary and
+//! the world-server and robot-agent processes it starts) talking zenoh over loopback TCP on free
+//! ports. Each test is bounded in time and kills everything it started, also when it fails.
 
+mod support;
+
+mod cli;
+mod lifecycle;
+mod runs;

@@ -58,7 +58,13 @@ mod tests {
 
     #[test]
     fn cell_and_centre_agree() {
-        let m = MapInfo { width: 10, height: 10, resolution_m: 0.2, origin_x_m: -1.0, origin_y_m: 0.5 };
+        let m = MapInfo {
+            width: 10,
+            height: 10,
+            resolution_m: 0.2,
+            origin_x_m: -1.0,
+            origin_y_m: 0.5,
+        };
         let c = Cell::new(3, 7);
         let (x, y) = m.centre_of(c);
         assert_eq!(m.cell_of(x, y), c);
@@ -83,7 +89,8 @@ impl LaserSpec {
         let full = self.fov_rad >= std::f64::consts::TAU - 1e-9;
         if full || self.beams < 2 {
             -self.fov_rad.min(std::f64::consts::TAU) / 2.0
-                + f64::from(i) * self.fov_rad.min(std::f64::consts::TAU) / f64::from(self.beams.max(1))
+                + f64::from(i) * self.fov_rad.min(std::f64::consts::TAU)
+                    / f64::from(self.beams.max(1))
         } else {
             -self.fov_rad / 2.0 + f64::from(i) * self.fov_rad / f64::from(self.beams - 1)
         }

@@ -48,7 +48,12 @@ impl Cell {
     /// The four 4-neighbours: right, up, left, down.
     pub fn neighbours4(self) -> [Cell; 4] {
         let Cell { x, y } = self;
-        [Cell::new(x + 1, y), Cell::new(x, y + 1), Cell::new(x - 1, y), Cell::new(x, y - 1)]
+        [
+            Cell::new(x + 1, y),
+            Cell::new(x, y + 1),
+            Cell::new(x - 1, y),
+            Cell::new(x, y - 1),
+        ]
     }
 }
 
@@ -85,7 +90,11 @@ impl Grid {
     pub fn new(width: u32, height: u32, fill: Occ) -> Grid {
         let n = u64::from(width) * u64::from(height);
         assert!(n <= MAX_CELLS, "grid {width}x{height} exceeds MAX_CELLS");
-        Grid { width, height, cells: vec![fill; n as usize] }
+        Grid {
+            width,
+            height,
+            cells: vec![fill; n as usize],
+        }
     }
 
     pub fn width(&self) -> u32 {
@@ -110,12 +119,16 @@ impl Grid {
 
     /// Row-major index of an in-bounds cell.
     pub fn index(&self, c: Cell) -> Option<usize> {
-        self.contains(c).then(|| c.y as usize * self.width as usize + c.x as usize)
+        self.contains(c)
+            .then(|| c.y as usize * self.width as usize + c.x as usize)
     }
 
     /// The cell of a row-major index.
     pub fn cell_of(&self, i: usize) -> Cell {
-        Cell::new((i % self.width as usize) as i32, (i / self.width as usize) as i32)
+        Cell::new(
+            (i % self.width as usize) as i32,
+            (i / self.width as usize) as i32,
+        )
     }
 
     /// The value at `c`; cells outside the grid read [`Occ::Unknown`].
@@ -145,8 +158,11 @@ impl Grid {
     /// Parses an ASCII picture (`#` occupied, `.` free, `?` unknown), top line = top row.
     /// For tests and fixtures; panics on other characters or ragged lines.
     pub fn from_ascii(pic: &str) -> Grid {
-        let lines: Vec<&str> =
-            pic.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+        let lines: Vec<&str> = pic
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty())
+            .collect();
         let height = lines.len() as u32;
         let width = lines.first().map_or(0, |l| l.chars().count()) as u32;
         let mut g = Grid::new(width, height, Occ::Unknown);
@@ -206,7 +222,10 @@ impl Grid {
         let width = get_varint(bytes, &mut pos)?;
         let height = get_varint(bytes, &mut pos)?;
         let (Ok(width), Ok(height)) = (u32::try_from(width), u32::try_from(height)) else {
-            return Err(RleError::TooLarge { width: u32::MAX, height: u32::MAX });
+            return Err(RleError::TooLarge {
+                width: u32::MAX,
+                height: u32::MAX,
+            });
         };
         let want = u64::from(width) * u64::from(height);
         if want > MAX_CELLS {
@@ -224,9 +243,16 @@ impl Grid {
             cells.resize(got as usize, v);
         }
         if cells.len() as u64 != want {
-            return Err(RleError::WrongLength { got: cells.len() as u64, want });
+            return Err(RleError::WrongLength {
+                got: cells.len() as u64,
+                want,
+            });
         }
-        Ok(Grid { width, height, cells })
+        Ok(Grid {
+            width,
+            height,
+            cells,
+        })
     }
 }
 
@@ -259,11 +285,19 @@ mod tests {
     #[test]
     fn ascii_round_trip_and_orientation() {
         let g = Grid::from_ascii("#..\n?.#\n");
-        assert_eq!(g.get(Cell::new(0, 1)), Occ::Occupied, "top-left is the top row");
+        assert_eq!(
+            g.get(Cell::new(0, 1)),
+            Occ::Occupied,
+            "top-left is the top row"
+        );
         assert_eq!(g.get(Cell::new(0, 0)), Occ::Unknown);
         assert_eq!(g.get(Cell::new(2, 0)), Occ::Occupied);
         assert_eq!(g.to_ascii(), "#..\n?.#\n");
-        assert_eq!(g.get(Cell::new(-1, 0)), Occ::Unknown, "outside reads unknown");
+        assert_eq!(
+            g.get(Cell::new(-1, 0)),
+            Occ::Unknown,
+            "outside reads unknown"
+        );
     }
 
     #[test]

@@ -17,6 +17,8 @@ pub const TELEMETRY_ALL: &str = "sim/telemetry/*";
 pub const CMD_ALL: &str = "sim/robot/*/cmd";
 /// Control messages from the launcher.
 pub const CONTROL: &str = "sim/ctl/run";
+/// The world-server's liveliness token: when it vanishes, the run is over for everybody.
+pub const WORLD_ALIVE: &str = "sim/world/alive";
 /// Liveliness tokens of robots on the sim plane (the world-server waits for all of them).
 pub const SIM_ALIVE_ALL: &str = "sim/alive/*";
 /// Liveliness tokens on the radio plane: a peer's token vanishes when its link does.

@@ -7,6 +7,6 @@ pub mod geom;
 pub mod grid;
 pub mod keys;
 pub mod msg;
-pub mod scenario;
 #[cfg(feature = "node")]
 pub mod node;
+pub mod scenario;

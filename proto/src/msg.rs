@@ -49,7 +49,9 @@ pub enum MoveOutcome {
     /// The straight segment crosses a cell that is not free.
     Blocked,
     /// The end point is too close to another robot.
-    Collision { with: RobotId },
+    Collision {
+        with: RobotId,
+    },
     OutOfMap,
     /// The command named another step than the current one.
     WrongStep,
@@ -225,7 +227,10 @@ pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, DecodeError> {
     let (msg, tail): (T, &[u8]) =
         postcard::take_from_bytes(rest).map_err(|e| DecodeError::Malformed(e.to_string()))?;
     if !tail.is_empty() {
-        return Err(DecodeError::Malformed(format!("{} trailing bytes", tail.len())));
+        return Err(DecodeError::Malformed(format!(
+            "{} trailing bytes",
+            tail.len()
+        )));
     }
     Ok(msg)
 }
@@ -241,20 +246,39 @@ mod tests {
     }
 
     fn map() -> MapInfo {
-        MapInfo { width: 3, height: 4, resolution_m: 0.2, origin_x_m: -1.0, origin_y_m: 2.0 }
+        MapInfo {
+            width: 3,
+            height: 4,
+            resolution_m: 0.2,
+            origin_x_m: -1.0,
+            origin_y_m: 2.0,
+        }
     }
 
     #[test]
     fn every_message_round_trips() {
-        let pose = Pose { x: 1.5, y: -2.0, theta: 0.25 };
+        let pose = Pose {
+            x: 1.5,
+            y: -2.0,
+            theta: 0.25,
+        };
         round_trip(WorldInfo {
             map: map(),
-            laser: LaserSpec { beams: 360, fov_rad: 6.28, max_range_m: 8.0, noise_std_m: 0.0 },
+            laser: LaserSpec {
+                beams: 360,
+                fov_rad: 6.28,
+                max_range_m: 8.0,
+                noise_std_m: 0.0,
+            },
             step_seconds: 1.0,
             robots: 4,
             max_speed_m_per_s: 0.5,
         });
-        round_trip(TruthMap { map: map(), grid_rle: vec![1, 2, 3], reachable_rle: vec![4] });
+        round_trip(TruthMap {
+            map: map(),
+            grid_rle: vec![1, 2, 3],
+            reachable_rle: vec![4],
+        });
         for last_move in [
             MoveOutcome::Start,
             MoveOutcome::Moved,
@@ -265,13 +289,31 @@ mod tests {
             MoveOutcome::OutOfMap,
             MoveOutcome::WrongStep,
         ] {
-            round_trip(Scan { step: 7, pose, ranges: vec![1.0, 8.0], last_move });
+            round_trip(Scan {
+                step: 7,
+                pose,
+                ranges: vec![1.0, 8.0],
+                last_move,
+            });
         }
-        round_trip(Cmd { step: 3, robot: 1, waypoint: Some((0.5, 0.5)) });
-        round_trip(Cmd { step: 3, robot: 1, waypoint: None });
+        round_trip(Cmd {
+            step: 3,
+            robot: 1,
+            waypoint: Some((0.5, 0.5)),
+        });
+        round_trip(Cmd {
+            step: 3,
+            robot: 1,
+            waypoint: None,
+        });
         round_trip(Status {
             step: 9,
-            robots: vec![RobotStatus { id: 0, pose, alive: true, distance_m: 3.5 }],
+            robots: vec![RobotStatus {
+                id: 0,
+                pose,
+                alive: true,
+                distance_m: 3.5,
+            }],
             collisions_total: 2,
         });
         round_trip(Telemetry {
@@ -289,7 +331,10 @@ mod tests {
             sent_by_type: vec![0, 0, 0, 0, 0, 0, 40, 0, 0, 960],
         });
         round_trip(Control::Stop);
-        round_trip(Hello { from: 1, knowledge: vec![(0, 5), (1, 7)] });
+        round_trip(Hello {
+            from: 1,
+            knowledge: vec![(0, 5), (1, 7)],
+        });
         round_trip(ScanDelta {
             from: 1,
             owner: 0,
@@ -307,7 +352,12 @@ mod tests {
     #[test]
     fn wrong_version_is_rejected() {
         let bytes = postcard::to_stdvec(&(PROTOCOL_VERSION + 1, Control::Stop)).unwrap_or_default();
-        assert_eq!(decode::<Control>(&bytes), Err(DecodeError::Version { got: PROTOCOL_VERSION + 1 }));
+        assert_eq!(
+            decode::<Control>(&bytes),
+            Err(DecodeError::Version {
+                got: PROTOCOL_VERSION + 1
+            })
+        );
         assert_eq!(decode::<Control>(&[]), Err(DecodeError::Empty));
     }
 

@@ -42,12 +42,21 @@ impl ZenohArgs {
 
     /// The world-server's router config.
     pub fn router(&self) -> Result<Config, ZargsError> {
-        sim_router(&Self::or_default(&self.listen), self.config.as_deref(), &self.cfg)
+        sim_router(
+            &Self::or_default(&self.listen),
+            self.config.as_deref(),
+            &self.cfg,
+        )
     }
 
     /// A client config that waits up to `wait_ms` for the router.
     pub fn client(&self, wait_ms: u64) -> Result<Config, ZargsError> {
-        sim_client(&Self::or_default(&self.connect), self.config.as_deref(), &self.cfg, wait_ms)
+        sim_client(
+            &Self::or_default(&self.connect),
+            self.config.as_deref(),
+            &self.cfg,
+            wait_ms,
+        )
     }
 }
 
@@ -61,10 +70,19 @@ pub fn zerr(e: zenoh::Error) -> ZenohError {
 #[error("zenoh: {0}")]
 pub struct ZenohError(pub String);
 
-/// Logs to stderr; `RUST_LOG` overrides the default level `warn` (e.g. `RUST_LOG=info`).
+/// Closes a session, giving up after a second: when the other end is already gone (the run is
+/// over), zenoh's orderly close can wait for it much longer, and the process should just exit.
+pub async fn close_quickly(session: zenoh::Session) {
+    let close = async move { session.close().await };
+    if let Ok(Err(e)) = tokio::time::timeout(std::time::Duration::from_secs(1), close).await {
+        tracing::debug!("closing zenoh session: {e}");
+    }
+}
+
+/// Logs to stderr; `RUST_LOG` overrides the default (`warn`, zenoh's own messages from `error`).
 pub fn init_logging(process: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,zenoh=error"));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -79,15 +97,21 @@ pub enum ZargsError {
     #[error("zenoh config file {path}: {reason}")]
     File { path: PathBuf, reason: String },
     #[error("zenoh config key `{key}` = {value}: {reason}")]
-    Key { key: String, value: String, reason: String },
+    Key {
+        key: String,
+        value: String,
+        reason: String,
+    },
 }
 
 fn set(config: &mut Config, key: &str, value: &str) -> Result<(), ZargsError> {
-    config.insert_json5(key, value).map_err(|e| ZargsError::Key {
-        key: key.into(),
-        value: value.into(),
-        reason: e.to_string(),
-    })
+    config
+        .insert_json5(key, value)
+        .map_err(|e| ZargsError::Key {
+            key: key.into(),
+            value: value.into(),
+            reason: e.to_string(),
+        })
 }
 
 fn json_list(items: &[String]) -> String {
@@ -97,8 +121,10 @@ fn json_list(items: &[String]) -> String {
 
 fn base(file: Option<&Path>) -> Result<Config, ZargsError> {
     match file {
-        Some(path) => Config::from_file(path)
-            .map_err(|e| ZargsError::File { path: path.to_path_buf(), reason: e.to_string() }),
+        Some(path) => Config::from_file(path).map_err(|e| ZargsError::File {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        }),
         None => Ok(Config::default()),
     }
 }
@@ -117,7 +143,11 @@ fn apply_cfg(config: &mut Config, cfg: &[String]) -> Result<(), ZargsError> {
 }
 
 /// The world-server's sim-plane session: a router listening on `listen`.
-pub fn sim_router(listen: &[String], file: Option<&Path>, cfg: &[String]) -> Result<Config, ZargsError> {
+pub fn sim_router(
+    listen: &[String],
+    file: Option<&Path>,
+    cfg: &[String],
+) -> Result<Config, ZargsError> {
     let mut c = base(file)?;
     set(&mut c, "mode", "\"router\"")?;
     set(&mut c, "listen/endpoints", &json_list(listen))?;
@@ -129,7 +159,12 @@ pub fn sim_router(listen: &[String], file: Option<&Path>, cfg: &[String]) -> Res
 
 /// A sim-plane client of the world-server's router (robots, netem, launcher). It waits up to
 /// `wait_ms` for the router to come up instead of failing at once.
-pub fn sim_client(connect: &[String], file: Option<&Path>, cfg: &[String], wait_ms: u64) -> Result<Config, ZargsError> {
+pub fn sim_client(
+    connect: &[String],
+    file: Option<&Path>,
+    cfg: &[String],
+    wait_ms: u64,
+) -> Result<Config, ZargsError> {
     let mut c = base(file)?;
     set(&mut c, "mode", "\"client\"")?;
     set(&mut c, "connect/endpoints", &json_list(connect))?;
@@ -144,7 +179,12 @@ pub fn sim_client(connect: &[String], file: Option<&Path>, cfg: &[String], wait_
 /// nothing else (no multicast, no gossip: peers learn no endpoint they were not given).
 /// Reconnects quickly (50 ms, backing off to 200 ms) so a link that comes back is used within a
 /// step.
-pub fn radio_peer(listen: &[String], connect: &[String], file: Option<&Path>, cfg: &[String]) -> Result<Config, ZargsError> {
+pub fn radio_peer(
+    listen: &[String],
+    connect: &[String],
+    file: Option<&Path>,
+    cfg: &[String],
+) -> Result<Config, ZargsError> {
     let mut c = base(file)?;
     set(&mut c, "mode", "\"peer\"")?;
     set(&mut c, "listen/endpoints", &json_list(listen))?;
@@ -171,9 +211,14 @@ mod tests {
         assert!(sim_router(&e, None, &[]).is_ok());
         assert!(sim_client(&e, None, &[], 1000).is_ok());
         assert!(radio_peer(&e, &e, None, &[]).is_ok());
-        let err = sim_client(&e, None, &["no_such/key:1".into()], 0).err().map(|e| e.to_string());
+        let err = sim_client(&e, None, &["no_such/key:1".into()], 0)
+            .err()
+            .map(|e| e.to_string());
         assert!(err.unwrap_or_default().contains("no_such/key"));
         let err = sim_client(&e, Some(Path::new("/nonexistent.json5")), &[], 0).err();
-        assert!(err.map(|e| e.to_string()).unwrap_or_default().contains("/nonexistent.json5"));
+        assert!(err
+            .map(|e| e.to_string())
+            .unwrap_or_default()
+            .contains("/nonexistent.json5"));
     }
 }

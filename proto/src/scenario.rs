@@ -159,7 +159,12 @@ impl Default for Clock {
 
 impl Default for World {
     fn default() -> Self {
-        World { map: "intel_lab".into(), resolution_m: 0.2, width_m: 40.0, height_m: 30.0 }
+        World {
+            map: "intel_lab".into(),
+            resolution_m: 0.2,
+            width_m: 40.0,
+            height_m: 30.0,
+        }
     }
 }
 
@@ -177,7 +182,12 @@ impl Default for Robots {
 
 impl Default for Sensor {
     fn default() -> Self {
-        Sensor { beams: 360, fov_deg: 360.0, max_range_m: 8.0, noise_std_m: 0.0 }
+        Sensor {
+            beams: 360,
+            fov_deg: 360.0,
+            max_range_m: 8.0,
+            noise_std_m: 0.0,
+        }
     }
 }
 
@@ -194,13 +204,18 @@ impl Default for Radio {
 
 impl Default for Exchange {
     fn default() -> Self {
-        Exchange { mode: ExchangeMode::RawScans, hello_every_steps: 10 }
+        Exchange {
+            mode: ExchangeMode::RawScans,
+            hello_every_steps: 10,
+        }
     }
 }
 
 impl Default for Coordination {
     fn default() -> Self {
-        Coordination { strategy: Strategy::Uncoordinated }
+        Coordination {
+            strategy: Strategy::Uncoordinated,
+        }
     }
 }
 
@@ -214,9 +229,17 @@ pub enum ScenarioError {
     #[error("unknown key `{key}` (allowed here: {allowed})")]
     UnknownKey { key: String, allowed: String },
     #[error("key `{key}` has a {got} value, expected {want}")]
-    WrongType { key: String, got: &'static str, want: &'static str },
+    WrongType {
+        key: String,
+        got: &'static str,
+        want: &'static str,
+    },
     #[error("key `{key}` = {value}: {allowed}")]
-    Invalid { key: String, value: String, allowed: String },
+    Invalid {
+        key: String,
+        value: String,
+        allowed: String,
+    },
     #[error("override `{0}` is not of the form KEY=VALUE")]
     BadOverride(String),
 }
@@ -236,8 +259,9 @@ impl Scenario {
 
     /// Parses scenario text and applies `KEY=VALUE` overrides.
     pub fn from_toml(text: &str, overrides: &[String]) -> Result<Scenario, ScenarioError> {
-        let mut table: toml::Table =
-            text.parse().map_err(|e: toml::de::Error| ScenarioError::Syntax(one_line(&e)))?;
+        let mut table: toml::Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| ScenarioError::Syntax(one_line(&e)))?;
         for o in overrides {
             apply_override(&mut table, o)?;
         }
@@ -275,9 +299,16 @@ impl Scenario {
             ));
         }
         if !(0.01..=2.0).contains(&s.world.resolution_m) {
-            return Err(invalid("world.resolution_m", s.world.resolution_m, "must be in [0.01, 2]"));
+            return Err(invalid(
+                "world.resolution_m",
+                s.world.resolution_m,
+                "must be in [0.01, 2]",
+            ));
         }
-        for (key, v) in [("world.width_m", s.world.width_m), ("world.height_m", s.world.height_m)] {
+        for (key, v) in [
+            ("world.width_m", s.world.width_m),
+            ("world.height_m", s.world.height_m),
+        ] {
             if !(5.0..=500.0).contains(&v) {
                 return Err(invalid(key, v, "must be in [5, 500] metres"));
             }
@@ -297,15 +328,27 @@ impl Scenario {
             ));
         }
         if !(1..=4096).contains(&s.sensor.beams) {
-            return Err(invalid("sensor.beams", s.sensor.beams, "must be in 1..=4096"));
+            return Err(invalid(
+                "sensor.beams",
+                s.sensor.beams,
+                "must be in 1..=4096",
+            ));
         }
         if !(s.sensor.fov_deg > 0.0 && s.sensor.fov_deg <= 360.0) {
-            return Err(invalid("sensor.fov_deg", s.sensor.fov_deg, "must be in (0, 360]"));
+            return Err(invalid(
+                "sensor.fov_deg",
+                s.sensor.fov_deg,
+                "must be in (0, 360]",
+            ));
         }
         positive("sensor.max_range_m", s.sensor.max_range_m)?;
         at_least("sensor.noise_std_m", s.sensor.noise_std_m, 0.0)?;
         positive("radio.range_m", s.radio.range_m)?;
-        at_least("exchange.hello_every_steps", f64::from(s.exchange.hello_every_steps), 1.0)?;
+        at_least(
+            "exchange.hello_every_steps",
+            f64::from(s.exchange.hello_every_steps),
+            1.0,
+        )?;
         s.check_implemented()
     }
 
@@ -367,7 +410,11 @@ fn one_line(e: &toml::de::Error) -> String {
 }
 
 fn invalid(key: &str, value: impl std::fmt::Display, allowed: &str) -> ScenarioError {
-    ScenarioError::Invalid { key: key.into(), value: value.to_string(), allowed: allowed.into() }
+    ScenarioError::Invalid {
+        key: key.into(),
+        value: value.to_string(),
+        allowed: allowed.into(),
+    }
 }
 
 fn positive(key: &str, v: f64) -> Result<(), ScenarioError> {
@@ -389,7 +436,9 @@ fn at_least(key: &str, v: f64, min: f64) -> Result<(), ScenarioError> {
 /// Applies `a.b.c=VALUE`: VALUE is read as a TOML value, or as a bare string if it is not one
 /// (so `--set world.map=office` needs no quotes).
 fn apply_override(table: &mut toml::Table, o: &str) -> Result<(), ScenarioError> {
-    let (key, raw) = o.split_once('=').ok_or_else(|| ScenarioError::BadOverride(o.into()))?;
+    let (key, raw) = o
+        .split_once('=')
+        .ok_or_else(|| ScenarioError::BadOverride(o.into()))?;
     let key = key.trim();
     if key.is_empty() || key.split('.').any(str::is_empty) {
         return Err(ScenarioError::BadOverride(o.into()));
@@ -404,13 +453,21 @@ fn apply_override(table: &mut toml::Table, o: &str) -> Result<(), ScenarioError>
     let mut t = table;
     let mut path = String::new();
     for p in parts {
-        path = if path.is_empty() { p.to_string() } else { format!("{path}.{p}") };
-        let entry = t.entry(p.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        t = entry.as_table_mut().ok_or_else(|| ScenarioError::WrongType {
-            key: path.clone(),
-            got: type_name(&toml::Value::Boolean(false)),
-            want: "table",
-        })?;
+        path = if path.is_empty() {
+            p.to_string()
+        } else {
+            format!("{path}.{p}")
+        };
+        let entry = t
+            .entry(p.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        t = entry
+            .as_table_mut()
+            .ok_or_else(|| ScenarioError::WrongType {
+                key: path.clone(),
+                got: type_name(&toml::Value::Boolean(false)),
+                want: "table",
+            })?;
     }
     t.insert(last.to_string(), value);
     Ok(())
@@ -433,10 +490,17 @@ fn type_name(v: &toml::Value) -> &'static str {
 /// expected (and converted in place).
 fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<(), ScenarioError> {
     for (k, v) in user {
-        let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+        let key = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
         let Some(want) = schema.get(k) else {
             let allowed: Vec<&str> = schema.keys().map(String::as_str).collect();
-            return Err(ScenarioError::UnknownKey { key, allowed: allowed.join(", ") });
+            return Err(ScenarioError::UnknownKey {
+                key,
+                allowed: allowed.join(", "),
+            });
         };
         match (v, want) {
             (toml::Value::Table(u), toml::Value::Table(s)) => check_keys(u, s, &key)?,
@@ -446,7 +510,11 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
             }
             (u, s) if std::mem::discriminant(u) == std::mem::discriminant(s) => {}
             (u, s) => {
-                return Err(ScenarioError::WrongType { key, got: type_name(u), want: type_name(s) })
+                return Err(ScenarioError::WrongType {
+                    key,
+                    got: type_name(u),
+                    want: type_name(s),
+                })
             }
         }
     }
@@ -488,7 +556,11 @@ mod tests {
     fn overrides_set_nested_keys_and_bare_strings() {
         let s = Scenario::from_toml(
             "",
-            &["robots.count=8".into(), "radio.range_m=10".into(), "world.map=office".into()],
+            &[
+                "robots.count=8".into(),
+                "radio.range_m=10".into(),
+                "world.map=office".into(),
+            ],
         )
         .unwrap_or_default();
         assert_eq!(s.robots.count, 8);

@@ -10,10 +10,12 @@ use std::collections::{BTreeSet, HashMap};
 
 use proto::geom::Pose;
 use proto::grid::{Cell, Grid, Occ};
-use proto::msg::{Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Telemetry, Traffic, WorldInfo};
+use proto::msg::{
+    Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Telemetry, Traffic, WorldInfo,
+};
 use proto::scenario::Scenario;
 
-use crate::grid::integrate_scan;
+use crate::grid::Evidence;
 use crate::plan;
 use crate::raw_scans::{scan_ranges, scan_record, DeltaOutcome, RawScanExchange};
 
@@ -33,10 +35,12 @@ const BLACKLIST_STEPS: Step = 30;
 pub struct Agent {
     pub id: RobotId,
     world: WorldInfo,
-    /// G_s: what this robot sensed itself.
+    /// G_s: what this robot sensed itself, and the beam counts behind it.
     own: Grid,
+    own_evidence: Evidence,
     /// What peers' scans told it (never overrides G_s in the planning grid).
     others: Grid,
+    others_evidence: Evidence,
     exchange: RawScanExchange,
     pose: Pose,
     step: Step,
@@ -62,6 +66,8 @@ impl Agent {
         Agent {
             id,
             world,
+            own_evidence: Evidence::new(&empty),
+            others_evidence: Evidence::new(&empty),
             own: empty.clone(),
             others: empty,
             exchange: RawScanExchange::new(id),
@@ -71,7 +77,11 @@ impl Agent {
             rejections: 0,
             blacklist: HashMap::new(),
             neighbours: BTreeSet::new(),
-            budget_per_step: if per_step <= 0.0 { usize::MAX } else { per_step as usize },
+            budget_per_step: if per_step <= 0.0 {
+                usize::MAX
+            } else {
+                per_step as usize
+            },
             hello_every_steps: s.exchange.hello_every_steps,
             bytes_sent: 0,
             bytes_received: 0,
@@ -85,14 +95,29 @@ impl Agent {
     pub fn on_scan(&mut self, scan: &Scan) -> Cmd {
         self.step = scan.step;
         self.pose = scan.pose;
-        integrate_scan(&mut self.own, &self.world.map, scan.pose, &scan.ranges, &self.world.laser);
-        self.exchange.record_own(scan_record(scan.step, scan.pose, &scan.ranges, &self.world.laser));
+        self.own_evidence.integrate(
+            &mut self.own,
+            &self.world.map,
+            scan.pose,
+            &scan.ranges,
+            &self.world.laser,
+        );
+        match scan_record(scan.step, scan.pose, &scan.ranges, &self.world.laser) {
+            Ok(rec) => self.exchange.record_own(rec),
+            Err(e) => tracing::warn!("scan of step {} not shared: {e}", scan.step),
+        }
         match scan.last_move {
-            MoveOutcome::Blocked | MoveOutcome::Collision { .. } | MoveOutcome::OutOfMap => self.rejections += 1,
+            MoveOutcome::Blocked | MoveOutcome::Collision { .. } | MoveOutcome::OutOfMap => {
+                self.rejections += 1
+            }
             _ => self.rejections = 0,
         }
         let waypoint = self.plan();
-        Cmd { step: scan.step, robot: self.id, waypoint }
+        Cmd {
+            step: scan.step,
+            robot: self.id,
+            waypoint,
+        }
     }
 
     /// The planning grid: peers' knowledge overlaid with every known cell of G_s.
@@ -131,7 +156,8 @@ impl Agent {
         self.idle = self.target.is_none();
         let target = self.target?;
         let path = plan::path_to(&costs, target)?;
-        let max_cells = self.world.max_speed_m_per_s * self.world.step_seconds / self.world.map.resolution_m;
+        let max_cells =
+            self.world.max_speed_m_per_s * self.world.step_seconds / self.world.map.resolution_m;
         let next = plan::next_waypoint(&g, &path, max_cells)?;
         (next != me).then(|| self.world.map.centre_of(next))
     }
@@ -148,7 +174,10 @@ impl Agent {
                 budget = budget.saturating_sub(proto::msg::encode(&msg).len());
                 out.push(RadioOut::Hello { to: peer, msg });
             }
-            for msg in self.exchange.outgoing(peer, budget, |d| proto::msg::encode(d).len()) {
+            for msg in self
+                .exchange
+                .outgoing(peer, budget, |d| proto::msg::encode(d).len())
+            {
                 out.push(RadioOut::Delta { to: peer, msg });
             }
         }
@@ -161,7 +190,10 @@ impl Agent {
             return Vec::new();
         }
         self.exchange.link_up(peer);
-        vec![RadioOut::Hello { to: peer, msg: self.exchange.knowledge() }]
+        vec![RadioOut::Hello {
+            to: peer,
+            msg: self.exchange.knowledge(),
+        }]
     }
 
     pub fn link_down(&mut self, peer: RobotId) {
@@ -183,14 +215,23 @@ impl Agent {
                     let log = self.exchange.log(d.owner);
                     for rec in log.get(first_new..).unwrap_or_default() {
                         let (pose, ranges) = scan_ranges(rec, &self.world.laser);
-                        integrate_scan(&mut self.others, &self.world.map, pose, &ranges, &self.world.laser);
+                        self.others_evidence.integrate(
+                            &mut self.others,
+                            &self.world.map,
+                            pose,
+                            &ranges,
+                            &self.world.laser,
+                        );
                     }
                 }
                 Vec::new()
             }
             DeltaOutcome::Duplicate => Vec::new(),
             DeltaOutcome::Gap { .. } => {
-                vec![RadioOut::Hello { to: d.from, msg: self.exchange.knowledge() }]
+                vec![RadioOut::Hello {
+                    to: d.from,
+                    msg: self.exchange.knowledge(),
+                }]
             }
         }
     }

@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 use proto::msg::RobotId;
-use proto::node::{init_logging, radio_peer, zerr, ZenohArgs};
+use proto::node::{close_quickly, init_logging, radio_peer, zerr, ZenohArgs};
 use proto::scenario::Scenario;
 
 use crate::node::{run_robot, world_info, End};
@@ -47,16 +47,31 @@ pub struct Args {
 async fn run(args: Args) -> anyhow::Result<End> {
     let scenario = Scenario::load(&args.scenario, &args.set)?;
     if args.id >= scenario.robots.count {
-        anyhow::bail!("--id {} is out of range: the scenario has robots.count = {}", args.id, scenario.robots.count);
+        anyhow::bail!(
+            "--id {} is out of range: the scenario has robots.count = {}",
+            args.id,
+            scenario.robots.count
+        );
     }
-    let sim = zenoh::open(args.zenoh.client(20_000)?).await.map_err(zerr).context("joining the sim plane")?;
+    let sim = zenoh::open(args.zenoh.client(20_000)?)
+        .await
+        .map_err(zerr)
+        .context("joining the sim plane")?;
     let world = world_info(&sim, Duration::from_secs(20)).await?;
-    let radio_cfg = radio_peer(&args.radio_listen, &args.radio_connect, args.radio_config.as_deref(), &[])?;
-    let radio = zenoh::open(radio_cfg).await.map_err(zerr).context("opening the radio plane")?;
+    let radio_cfg = radio_peer(
+        &args.radio_listen,
+        &args.radio_connect,
+        args.radio_config.as_deref(),
+        &[],
+    )?;
+    let radio = zenoh::open(radio_cfg)
+        .await
+        .map_err(zerr)
+        .context("opening the radio plane")?;
     let idle = Duration::from_secs_f64(args.idle_timeout_s.max(0.1));
     let end = run_robot(args.id, &scenario, sim.clone(), radio.clone(), world, idle).await?;
-    radio.close().await.map_err(zerr)?;
-    sim.close().await.map_err(zerr)?;
+    close_quickly(radio).await;
+    close_quickly(sim).await;
     Ok(end)
 }
 
@@ -73,6 +88,10 @@ pub fn main(args: Args) -> ExitCode {
     };
     match runtime.block_on(run(args)) {
         Ok(End::Stopped) => ExitCode::SUCCESS,
+        Ok(End::WorldGone) => {
+            eprintln!("robot-agent {id}: the world-server is gone; exiting");
+            ExitCode::SUCCESS
+        }
         Ok(End::WorldSilent) => {
             eprintln!("robot-agent {id}: no scan from the world-server for too long; exiting");
             ExitCode::FAILURE

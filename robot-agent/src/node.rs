@@ -22,13 +22,19 @@ pub enum End {
     Stopped,
     /// No scan arrived for this long: the world is gone.
     WorldSilent,
+    /// The world-server's liveliness token vanished.
+    WorldGone,
 }
 
 /// Asks the world-server for [`WorldInfo`], retrying until `wait` has passed.
 pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, ZenohError> {
     let deadline = Instant::now() + wait;
     loop {
-        let replies = sim.get(keys::WORLD_INFO).timeout(Duration::from_secs(2)).await.map_err(zerr)?;
+        let replies = sim
+            .get(keys::WORLD_INFO)
+            .timeout(Duration::from_secs(2))
+            .await
+            .map_err(zerr)?;
         while let Ok(reply) = replies.recv_async().await {
             if let Ok(sample) = reply.result() {
                 match decode::<WorldInfo>(&sample.payload().to_bytes()) {
@@ -38,7 +44,10 @@ pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, Zeno
             }
         }
         if Instant::now() >= deadline {
-            return Err(ZenohError(format!("no world-server answered {} within {wait:?}", keys::WORLD_INFO)));
+            return Err(ZenohError(format!(
+                "no world-server answered {} within {wait:?}",
+                keys::WORLD_INFO
+            )));
         }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
@@ -54,24 +63,60 @@ async fn send_radio(radio: &Session, agent: &mut Agent, out: Vec<RadioOut>) {
             RadioOut::Delta { to, msg } => (keys::radio_delta(*to), encode(msg), Traffic::Scan),
         };
         agent.count_sent(class, bytes.len());
-        if let Err(e) = radio.put(&key, bytes).congestion_control(CongestionControl::Drop).await {
+        if let Err(e) = radio
+            .put(&key, bytes)
+            .congestion_control(CongestionControl::Drop)
+            .await
+        {
             tracing::debug!("radio put to {key} failed: {e}");
         }
     }
 }
 
 /// Runs one robot until the launcher stops it or the world falls silent.
-pub async fn run_robot(id: RobotId, s: &Scenario, sim: Session, radio: Session, world: WorldInfo, idle_timeout: Duration) -> Result<End, ZenohError> {
+pub async fn run_robot(
+    id: RobotId,
+    s: &Scenario,
+    sim: Session,
+    radio: Session,
+    world: WorldInfo,
+    idle_timeout: Duration,
+) -> Result<End, ZenohError> {
     let mut agent = Agent::new(id, world, s);
     let scans = sim.declare_subscriber(keys::scan(id)).await.map_err(zerr)?;
     let ctl = sim.declare_subscriber(keys::CONTROL).await.map_err(zerr)?;
-    let hellos = radio.declare_subscriber(keys::radio_hello(id)).await.map_err(zerr)?;
-    let deltas = radio.declare_subscriber(keys::radio_delta(id)).await.map_err(zerr)?;
-    let peers = radio.liveliness().declare_subscriber(keys::RADIO_ALIVE_ALL).history(true).await.map_err(zerr)?;
-    let _radio_token = radio.liveliness().declare_token(keys::radio_alive(id)).await.map_err(zerr)?;
+    let world_alive = sim
+        .liveliness()
+        .declare_subscriber(keys::WORLD_ALIVE)
+        .history(true)
+        .await
+        .map_err(zerr)?;
+    let hellos = radio
+        .declare_subscriber(keys::radio_hello(id))
+        .await
+        .map_err(zerr)?;
+    let deltas = radio
+        .declare_subscriber(keys::radio_delta(id))
+        .await
+        .map_err(zerr)?;
+    let peers = radio
+        .liveliness()
+        .declare_subscriber(keys::RADIO_ALIVE_ALL)
+        .history(true)
+        .await
+        .map_err(zerr)?;
+    let _radio_token = radio
+        .liveliness()
+        .declare_token(keys::radio_alive(id))
+        .await
+        .map_err(zerr)?;
     // Declared last: the world-server starts the clock once every robot's token is there, and by
     // then this robot's subscribers exist.
-    let _sim_token = sim.liveliness().declare_token(keys::sim_alive(id)).await.map_err(zerr)?;
+    let _sim_token = sim
+        .liveliness()
+        .declare_token(keys::sim_alive(id))
+        .await
+        .map_err(zerr)?;
     let mut logged_bad = false;
     loop {
         tokio::select! {
@@ -119,6 +164,11 @@ pub async fn run_robot(id: RobotId, s: &Scenario, sim: Session, radio: Session, 
                 match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
                     Ok(Ok(Control::Stop)) | Err(_) => return Ok(End::Stopped),
                     Ok(Err(e)) => tracing::warn!("bad control message: {e}"),
+                }
+            }
+            w = world_alive.recv_async() => {
+                if w.map_or(true, |w| w.kind() == SampleKind::Delete) {
+                    return Ok(End::WorldGone);
                 }
             }
             _ = tokio::time::sleep(idle_timeout) => return Ok(End::WorldSilent),

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::Parser;
-use proto::node::{init_logging, zerr, ZenohArgs};
+use proto::node::{close_quickly, init_logging, zerr, ZenohArgs};
 use proto::scenario::Scenario;
 
 use crate::server::{serve, End, ServeOpts};
@@ -42,12 +42,23 @@ pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<PathBuf> {
         return Ok(direct);
     }
     let file = format!("{name}.yaml");
-    let dirs = [base.to_path_buf(), base.join("maps"), PathBuf::from("configs/maps"), PathBuf::from(SHIPPED_MAPS)];
+    let dirs = [
+        base.to_path_buf(),
+        base.join("maps"),
+        PathBuf::from("configs/maps"),
+        PathBuf::from(SHIPPED_MAPS),
+    ];
     dirs.iter()
         .map(|d| d.join(&file))
         .find(|p| p.is_file())
         .with_context(|| {
-            format!("world.map = {name:?}: no such map file, and no {file} in {}", dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(", "))
+            format!(
+                "world.map = {name:?}: no such map file, and no {file} in {}",
+                dirs.iter()
+                    .map(|d| d.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
         })
 }
 
@@ -55,22 +66,31 @@ pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<PathBuf> {
 pub fn build_world(args: &Args) -> anyhow::Result<(Scenario, World)> {
     let scenario = Scenario::load(&args.scenario, &args.set)?;
     let base = args.scenario.parent().unwrap_or(Path::new("."));
-    let map = if scenario.world_is_generated() { None } else { Some(locate_map(&scenario.world.map, base)?) };
+    let map = if scenario.world_is_generated() {
+        None
+    } else {
+        Some(locate_map(&scenario.world.map, base)?)
+    };
     let world = World::build(&scenario, map.as_deref())?;
     Ok((scenario, world))
 }
 
 async fn run(args: Args) -> anyhow::Result<End> {
     let (scenario, world) = build_world(&args)?;
-    let session = zenoh::open(args.zenoh.router()?).await.map_err(zerr).context("opening the sim-plane router")?;
+    let session = zenoh::open(args.zenoh.router()?)
+        .await
+        .map_err(zerr)
+        .context("opening the sim-plane router")?;
     let end = serve(
         session.clone(),
         world,
         &scenario,
-        ServeOpts { startup_timeout: Duration::from_secs_f64(args.startup_timeout_s.max(0.1)) },
+        ServeOpts {
+            startup_timeout: Duration::from_secs_f64(args.startup_timeout_s.max(0.1)),
+        },
     )
     .await?;
-    session.close().await.map_err(zerr)?;
+    close_quickly(session).await;
     Ok(end)
 }
 

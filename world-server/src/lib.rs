@@ -7,6 +7,8 @@
 pub mod cli;
 /// Generated worlds: unstructured, mixed, office.
 pub mod generate;
+/// Map images: PGM (P2/P5) and PNG decoding with map_server's classification.
+pub mod image;
 /// Laser ray casting on the truth map.
 pub mod laser;
 /// ROS map_server maps: loading and resampling.

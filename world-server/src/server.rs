@@ -25,9 +25,15 @@ use crate::world::World;
 #[derive(Debug, PartialEq, Eq)]
 pub enum End {
     /// The launcher (or anybody on the sim plane) sent [`Control::Stop`].
-    Stopped { step: Step },
-    MaxSteps { step: Step },
-    AllDead { step: Step },
+    Stopped {
+        step: Step,
+    },
+    MaxSteps {
+        step: Step,
+    },
+    AllDead {
+        step: Step,
+    },
 }
 
 /// Options of the serve loop that are not part of the scenario.
@@ -37,13 +43,23 @@ pub struct ServeOpts {
 }
 
 async fn put(session: &Session, key: &str, bytes: Vec<u8>) -> Result<(), ZenohError> {
-    session.put(key, bytes).congestion_control(CongestionControl::Block).await.map_err(zerr)
+    session
+        .put(key, bytes)
+        .congestion_control(CongestionControl::Block)
+        .await
+        .map_err(zerr)
 }
 
 /// Answers `sim/world/info` and `sim/world/truth` until the session closes.
 async fn answer_queries(session: Session, info: Vec<u8>, truth: Vec<u8>) -> Result<(), ZenohError> {
-    let info_q = session.declare_queryable(keys::WORLD_INFO).await.map_err(zerr)?;
-    let truth_q = session.declare_queryable(keys::WORLD_TRUTH).await.map_err(zerr)?;
+    let info_q = session
+        .declare_queryable(keys::WORLD_INFO)
+        .await
+        .map_err(zerr)?;
+    let truth_q = session
+        .declare_queryable(keys::WORLD_TRUTH)
+        .await
+        .map_err(zerr)?;
     loop {
         let (query, bytes) = tokio::select! {
             q = info_q.recv_async() => (q, &info),
@@ -67,21 +83,44 @@ impl BadInput {
     fn record(&mut self, source: &str, what: impl std::fmt::Display) {
         self.count += 1;
         if self.logged.insert(source.to_string()) {
-            tracing::warn!("bad input from {source}: {what} (further errors from it are only counted)");
+            tracing::warn!(
+                "bad input from {source}: {what} (further errors from it are only counted)"
+            );
         }
     }
 }
 
 /// Runs the world until stopped, `max_steps`, or every robot is dead.
-pub async fn serve(session: Session, mut world: World, s: &Scenario, opts: ServeOpts) -> Result<End, ZenohError> {
+pub async fn serve(
+    session: Session,
+    mut world: World,
+    s: &Scenario,
+    opts: ServeOpts,
+) -> Result<End, ZenohError> {
     let queries = tokio::spawn(answer_queries(
         session.clone(),
         encode(&world.info()),
         encode(&world.truth_msg()),
     ));
-    let cmds = session.declare_subscriber(keys::CMD_ALL).await.map_err(zerr)?;
-    let ctl = session.declare_subscriber(keys::CONTROL).await.map_err(zerr)?;
-    let live = session.liveliness().declare_subscriber(keys::SIM_ALIVE_ALL).history(true).await.map_err(zerr)?;
+    let cmds = session
+        .declare_subscriber(keys::CMD_ALL)
+        .await
+        .map_err(zerr)?;
+    let ctl = session
+        .declare_subscriber(keys::CONTROL)
+        .await
+        .map_err(zerr)?;
+    let live = session
+        .liveliness()
+        .declare_subscriber(keys::SIM_ALIVE_ALL)
+        .history(true)
+        .await
+        .map_err(zerr)?;
+    let _alive = session
+        .liveliness()
+        .declare_token(keys::WORLD_ALIVE)
+        .await
+        .map_err(zerr)?;
     let n = world.bodies.len();
     let mut bad = BadInput::default();
 
@@ -175,6 +214,11 @@ pub async fn serve(session: Session, mut world: World, s: &Scenario, opts: Serve
     if bad.count > 0 {
         tracing::warn!("{} bad inputs were rejected during the run", bad.count);
     }
+    // This process is the sim plane's router: tell everyone the run is over (also when the stop
+    // came from the launcher, so no robot depends on the order of forwarding), then give the
+    // router a moment to deliver it before the session closes.
+    put(&session, keys::CONTROL, encode(&Control::Stop)).await?;
+    tokio::time::sleep(Duration::from_millis(200)).await;
     queries.abort();
     Ok(end)
 }

@@ -14,7 +14,7 @@ use proto::scenario::Scenario;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::generate::{generate, GenKind};
+use crate::generate::{generate, GenError, GenKind};
 use crate::map::{load_ros_map, resample, MapError};
 use crate::reachable::{reachable_free, spawn_cluster, SpawnError};
 
@@ -25,6 +25,8 @@ pub enum WorldError {
     Map(#[from] MapError),
     #[error(transparent)]
     Spawn(#[from] SpawnError),
+    #[error(transparent)]
+    Generate(#[from] GenError),
     #[error("world.map = {0:?} is a file path but the scenario gave no file to load")]
     NoMapFile(String),
 }
@@ -67,11 +69,17 @@ impl World {
                     "mixed" => GenKind::Mixed,
                     _ => GenKind::Office,
                 };
-                generate(kind, s.world.width_m, s.world.height_m, s.world.resolution_m, s.seed)
+                generate(
+                    kind,
+                    s.world.width_m,
+                    s.world.height_m,
+                    s.world.resolution_m,
+                    s.seed,
+                )?
             }
             other => {
                 let path = map_file.ok_or_else(|| WorldError::NoMapFile(other.into()))?;
-                resample(&load_ros_map(path)?, s.world.resolution_m)
+                resample(&load_ros_map(path)?, s.world.resolution_m)?
             }
         };
         let spawn = spawn_cluster(
@@ -144,9 +152,18 @@ impl World {
             &self.truth.info,
             body.pose,
             &self.laser,
-            noisy.then_some(&mut self.rng),
+            if noisy {
+                Some(&mut self.rng as &mut dyn rand::RngCore)
+            } else {
+                None
+            },
         );
-        Some(Scan { step, pose: body.pose, ranges, last_move: body.last_move })
+        Some(Scan {
+            step,
+            pose: body.pose,
+            ranges,
+            last_move: body.last_move,
+        })
     }
 
     /// Applies the commands of one step in robot-id order (deterministic): each valid move
@@ -168,7 +185,9 @@ impl World {
                 }
                 Some(cmd) if cmd.step != step => MoveOutcome::WrongStep,
                 Some(Cmd { waypoint: None, .. }) => MoveOutcome::Stayed,
-                Some(Cmd { waypoint: Some(to), .. }) => self.try_move(i, *to),
+                Some(Cmd {
+                    waypoint: Some(to), ..
+                }) => self.try_move(i, *to),
             };
             if cmds.contains_key(&id) {
                 self.bodies[i].missed = 0;
@@ -226,7 +245,12 @@ impl World {
             robots: self
                 .bodies
                 .iter()
-                .map(|b| RobotStatus { id: b.id, pose: b.pose, alive: b.alive, distance_m: b.distance_m })
+                .map(|b| RobotStatus {
+                    id: b.id,
+                    pose: b.pose,
+                    alive: b.alive,
+                    distance_m: b.distance_m,
+                })
                 .collect(),
             collisions_total: self.collisions_total,
         }

@@ -1,0 +1,546 @@
+//! Path planning on a ternary grid: costs, frontiers, paths and waypoints (DESIGN.md §4.6, first
+//! paragraph; thesis §4.5).
+//!
+//! Every coordination strategy needs the same three things from the planning grid G_p: the cost
+//! V of reaching each cell from the robot's cell, the frontiers (reachable free cells next to
+//! unknown space, Yamauchi's targets), and a way to get to the chosen target. The thesis computes V
+//! by value iteration (Algorithm 7); with deterministic moves that is a shortest-path problem, so
+//! here it is a Dijkstra over free cells, 8-connected with Euclidean step costs (1 and √2). A
+//! diagonal step needs both orthogonal neighbours free: the robot never cuts a wall's corner, and a
+//! diagonal step's straight segment (which passes through the shared corner) touches only free
+//! cells — the same supercover test the world-server applies to a move.
+//!
+//! The path to a target follows the Dijkstra predecessors; [`next_waypoint`] then shortcuts it to
+//! the farthest path cell that one move can reach along a verified straight segment.
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+use proto::grid::{Cell, Grid, Occ};
+
+use crate::grid::supercover;
+
+/// Costs that differ by less than this count as equal when frontiers are ranked, so that the
+/// tie-break by position is not decided by the rounding of sums of 1 and √2.
+const COST_TIE_QUANTUM: f64 = 1e-6;
+
+/// Marks a cell without predecessor (the start, and unreachable cells).
+const NO_PRED: u32 = u32::MAX;
+
+/// The eight moves as (dx, dy); orthogonal moves first.
+const MOVES: [(i32, i32); 8] = [
+    (1, 0),
+    (0, 1),
+    (-1, 0),
+    (0, -1),
+    (1, 1),
+    (-1, 1),
+    (-1, -1),
+    (1, -1),
+];
+
+/// The cost (in cells) of reaching every cell from one start cell, with the shortest-path tree.
+#[derive(Clone, Debug)]
+pub struct CostMap {
+    width: u32,
+    height: u32,
+    start: Cell,
+    /// Cost per row-major cell index; `f64::INFINITY` when unreachable.
+    dist: Vec<f64>,
+    /// Predecessor on a shortest path per cell index; [`NO_PRED`] for the start and unreachable
+    /// cells.
+    pred: Vec<u32>,
+}
+
+impl CostMap {
+    /// The cell the costs are measured from.
+    pub fn start(&self) -> Cell {
+        self.start
+    }
+
+    /// The cost of the cheapest path from the start to `c` in cells; `None` when `c` is
+    /// unreachable or outside the grid.
+    pub fn cost(&self, c: Cell) -> Option<f64> {
+        self.index(c)
+            .map(|i| self.dist[i])
+            .filter(|d| d.is_finite())
+    }
+
+    fn index(&self, c: Cell) -> Option<usize> {
+        let inside =
+            c.x >= 0 && c.y >= 0 && (c.x as u32) < self.width && (c.y as u32) < self.height;
+        inside.then(|| c.y as usize * self.width as usize + c.x as usize)
+    }
+
+    fn cell_of(&self, i: usize) -> Cell {
+        let w = self.width as usize;
+        Cell::new((i % w) as i32, (i / w) as i32)
+    }
+}
+
+/// A Dijkstra queue entry, ordered so that `BinaryHeap` pops the cheapest first and, among equal
+/// costs, the lowest index (which keeps the search deterministic).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Entry {
+    cost: f64,
+    index: usize,
+}
+
+impl Eq for Entry {}
+
+impl Ord for Entry {
+    fn cmp(&self, other: &Self) -> Ordering {
+        other
+            .cost
+            .total_cmp(&self.cost)
+            .then_with(|| other.index.cmp(&self.index))
+    }
+}
+
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// The moves allowed out of `c`: into free cells, 8-connected, diagonals only between two free
+/// orthogonal neighbours. Returns (neighbour, step cost).
+fn moves(g: &Grid, c: Cell) -> impl Iterator<Item = (Cell, f64)> + '_ {
+    let free = move |x: i32, y: i32| g.get(Cell::new(x, y)) == Occ::Free;
+    MOVES.iter().filter_map(move |&(dx, dy)| {
+        let n = Cell::new(c.x + dx, c.y + dy);
+        if !free(n.x, n.y) {
+            return None;
+        }
+        if dx != 0 && dy != 0 {
+            (free(c.x + dx, c.y) && free(c.x, c.y + dy)).then_some((n, std::f64::consts::SQRT_2))
+        } else {
+            Some((n, 1.0))
+        }
+    })
+}
+
+/// Dijkstra from `start` over the free cells of `g` (8-connected, step costs 1 and √2, no corner
+/// cutting). The start cell itself is traversable whatever its value — the robot stands on it —
+/// but every other cell on a path is free. A start outside the grid reaches nothing.
+pub fn costs(g: &Grid, start: Cell) -> CostMap {
+    let mut map = CostMap {
+        width: g.width(),
+        height: g.height(),
+        start,
+        dist: vec![f64::INFINITY; g.len()],
+        pred: vec![NO_PRED; g.len()],
+    };
+    let Some(s) = map.index(start) else {
+        return map;
+    };
+    map.dist[s] = 0.0;
+    let mut heap = BinaryHeap::from([Entry {
+        cost: 0.0,
+        index: s,
+    }]);
+    while let Some(Entry { cost, index }) = heap.pop() {
+        if cost > map.dist[index] {
+            continue;
+        }
+        for (n, step) in moves(g, map.cell_of(index)) {
+            // `moves` yields only free cells, which lie inside the grid.
+            let Some(ni) = map.index(n) else { continue };
+            let next = cost + step;
+            if next < map.dist[ni] {
+                map.dist[ni] = next;
+                map.pred[ni] = index as u32;
+                heap.push(Entry {
+                    cost: next,
+                    index: ni,
+                });
+            }
+        }
+    }
+    map
+}
+
+/// The frontier cells: reachable free cells with at least one unknown 4-neighbour inside the grid,
+/// in row-major order (bottom row first). Cells beyond the grid's edge do not count as unknown:
+/// the map's extent is known, and nothing lies out there to explore.
+pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
+    (0..g.len())
+        .map(|i| g.cell_of(i))
+        .filter(|&c| g.get(c) == Occ::Free && costs.cost(c).is_some())
+        .filter(|&c| {
+            c.neighbours4()
+                .iter()
+                .any(|&n| g.contains(n) && g.get(n) == Occ::Unknown)
+        })
+        .collect()
+}
+
+/// The cheapest frontier, ties broken by `(y, x)` (costs equal to within 10⁻⁶ cells count as
+/// ties); `None` when no frontier is reachable.
+pub fn nearest_frontier(g: &Grid, costs: &CostMap) -> Option<Cell> {
+    frontiers(g, costs).into_iter().min_by_key(|&c| {
+        let cost = costs.cost(c).unwrap_or(f64::INFINITY);
+        ((cost / COST_TIE_QUANTUM).round() as i64, c.y, c.x)
+    })
+}
+
+/// The cells of a cheapest path from the start of `costs` to `target`, both included, following
+/// the Dijkstra predecessors; `None` when `target` is unreachable.
+pub fn path_to(costs: &CostMap, target: Cell) -> Option<Vec<Cell>> {
+    costs.cost(target)?;
+    let mut i = costs.index(target)?;
+    let mut path = vec![target];
+    // The predecessor tree has no cycles; the bound makes that an enforced invariant.
+    for _ in 0..costs.dist.len() {
+        let p = costs.pred[i];
+        if p == NO_PRED {
+            break;
+        }
+        i = p as usize;
+        path.push(costs.cell_of(i));
+    }
+    path.reverse();
+    (path.first() == Some(&costs.start)).then_some(path)
+}
+
+/// The farthest cell along `path` within `max_cells` (Euclidean, from the path's first cell) that
+/// the robot can reach on one straight segment: the segment between the two cell centres touches
+/// only free cells (its supercover; the first cell, where the robot stands, is exempt).
+///
+/// Only the leading part of the path up to the first cell beyond `max_cells` is considered, so the
+/// waypoint never skips a stretch of the path the robot has not reached. `None` when the path has
+/// fewer than two cells, or when no such cell exists — in particular when even the path's second
+/// cell lies farther than `max_cells`.
+pub fn next_waypoint(g: &Grid, path: &[Cell], max_cells: f64) -> Option<Cell> {
+    let (&first, rest) = path.split_first()?;
+    let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
+    let reach = rest.iter().take_while(|&&c| {
+        let (dx, dy) = (f64::from(c.x - first.x), f64::from(c.y - first.y));
+        dx.hypot(dy) <= max_cells
+    });
+    let candidates: Vec<Cell> = reach.copied().collect();
+    candidates.into_iter().rev().find(|&c| {
+        supercover(centre(first), centre(c))
+            .into_iter()
+            .all(|s| s == first || g.get(s) == Occ::Free)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// The cells marked with one of `marks` in an ASCII picture (top line = top row), bottom row
+    /// first.
+    fn marked(pic: &str, marks: &[char]) -> Vec<Cell> {
+        let lines: Vec<&str> = pic
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty())
+            .collect();
+        let h = lines.len() as i32;
+        let mut out = Vec::new();
+        for (row, line) in lines.iter().enumerate() {
+            for (x, ch) in line.chars().enumerate() {
+                if marks.contains(&ch) {
+                    out.push(Cell::new(x as i32, h - 1 - row as i32));
+                }
+            }
+        }
+        out.sort_by_key(|c| (c.y, c.x));
+        out
+    }
+
+    /// Parses an ASCII map where `S` marks the (free) start cell, `T` a (free) target cell and
+    /// `s` an unknown start cell; the other characters are those of [`Grid::from_ascii`].
+    fn parse(pic: &str) -> (Grid, Cell, Option<Cell>) {
+        let start = marked(pic, &['S', 's'])
+            .first()
+            .copied()
+            .expect("map has a start");
+        let target = marked(pic, &['T']).first().copied();
+        let plain = pic.replace(['S', 'T'], ".").replace('s', "?");
+        (Grid::from_ascii(&plain), start, target)
+    }
+
+    /// Compares the costs from `S` with a picture of costs, one token per cell: the cost with one
+    /// decimal, or `-` where the cell is unreachable.
+    fn check_costs(pic: &str, expected: &str) {
+        let (g, start, _) = parse(pic);
+        let map = costs(&g, start);
+        let mut got = String::new();
+        for y in (0..g.height() as i32).rev() {
+            let row: Vec<String> = (0..g.width() as i32)
+                .map(|x| {
+                    map.cost(Cell::new(x, y))
+                        .map_or("-".into(), |v| format!("{v:.1}"))
+                })
+                .collect();
+            got.push_str(&row.join(" "));
+            got.push('\n');
+        }
+        let want: Vec<Vec<&str>> = expected
+            .lines()
+            .map(|l| l.split_whitespace().collect::<Vec<_>>())
+            .filter(|l| !l.is_empty())
+            .collect();
+        let have: Vec<Vec<&str>> = got
+            .lines()
+            .map(|l| l.split_whitespace().collect())
+            .collect();
+        assert_eq!(have, want, "costs:\n{got}");
+    }
+
+    /// Compares the frontiers (marked `F` in `expected`) and the nearest one (marked `N`).
+    fn check_frontiers(pic: &str, expected: &str) {
+        let (g, start, _) = parse(pic);
+        let map = costs(&g, start);
+        assert_eq!(frontiers(&g, &map), marked(expected, &['F', 'N']));
+        assert_eq!(
+            nearest_frontier(&g, &map),
+            marked(expected, &['N']).first().copied()
+        );
+    }
+
+    /// Plans from `S` to `T` and compares the waypoint within `max_cells` with `W` in `expected`
+    /// (no `W`: no waypoint).
+    fn check_waypoint(pic: &str, max_cells: f64, expected: &str) {
+        let (g, start, target) = parse(pic);
+        let map = costs(&g, start);
+        let path = path_to(&map, target.expect("map has a target")).expect("target is reachable");
+        let want = marked(expected, &['W']).first().copied();
+        assert_eq!(next_waypoint(&g, &path, max_cells), want, "path {path:?}");
+    }
+
+    #[test]
+    fn costs_in_an_empty_room() {
+        check_costs(
+            "....
+             ....
+             S...",
+            "2.0 2.4 2.8 3.8
+             1.0 1.4 2.4 3.4
+             0.0 1.0 2.0 3.0",
+        );
+    }
+
+    #[test]
+    fn costs_around_a_wall() {
+        check_costs(
+            ".....
+             .###.
+             ..S..",
+            "4.0 5.0 6.0 5.0 4.0
+             3.0 -   -   -   3.0
+             2.0 1.0 0.0 1.0 2.0",
+        );
+    }
+
+    #[test]
+    fn corners_are_not_cut() {
+        // The diagonal step from S to the upper right needs both orthogonal neighbours free.
+        check_costs(
+            "?.
+             S#",
+            "-   -
+             0.0 -",
+        );
+        check_costs(
+            "..
+             S#",
+            "1.0 2.0
+             0.0 -",
+        );
+    }
+
+    #[test]
+    fn start_cell_need_not_be_free() {
+        check_costs(
+            "...
+             .s.",
+            "1.4 1.0 1.4
+             1.0 0.0 1.0",
+        );
+        let g = Grid::from_ascii("...");
+        assert_eq!(
+            costs(&g, Cell::new(5, 0)).cost(Cell::new(0, 0)),
+            None,
+            "start off the grid"
+        );
+    }
+
+    #[test]
+    fn frontier_detection() {
+        check_frontiers(
+            "??????
+             ?..#??
+             ?S.#.?
+             ......",
+            "??????
+             ?FF#??
+             ?N.#F?
+             F....F",
+        );
+        // Unreachable free cells next to unknown are no frontiers, and the grid's edge is none.
+        check_frontiers(
+            "..#.?
+             S.#..",
+            "..#.?
+             ..#..",
+        );
+    }
+
+    #[test]
+    fn nearest_frontier_breaks_ties_by_row_then_column() {
+        check_frontiers(
+            "?.?
+             .S.
+             ?.?",
+            "?F?
+             FSF
+             ?N?",
+        );
+    }
+
+    #[test]
+    fn unreachable_target_has_no_path() {
+        let (g, start, _) = parse(
+            "S.#.
+             ..#.",
+        );
+        let map = costs(&g, start);
+        assert_eq!(path_to(&map, Cell::new(3, 0)), None);
+        assert_eq!(path_to(&map, Cell::new(2, 0)), None, "a wall");
+        assert_eq!(path_to(&map, Cell::new(9, 9)), None, "off the grid");
+        assert_eq!(path_to(&map, start), Some(vec![start]));
+    }
+
+    #[test]
+    fn path_goes_around_a_wall() {
+        let (g, start, target) = parse(
+            "....
+             .##.
+             S#T.",
+        );
+        let map = costs(&g, start);
+        let path = path_to(&map, target.expect("target")).expect("reachable");
+        assert_eq!(path.first(), Some(&start));
+        assert_eq!(path.last(), target.as_ref());
+        // No diagonal helps: each one would cut a corner of the wall.
+        assert_eq!(path.len(), 9);
+        assert_eq!(map.cost(Cell::new(2, 0)), Some(8.0));
+    }
+
+    #[test]
+    fn waypoints() {
+        // A straight corridor: as far as the step allows.
+        check_waypoint("S.....T", 3.0, "...W...");
+        check_waypoint("S.....T", 10.0, "......W");
+        // The diagonal first step (√2) does not fit into one cell's move.
+        check_waypoint(
+            "?.T
+             .S.",
+            1.2,
+            "?..
+             ...",
+        );
+        // Around a corner the waypoint stops where the straight segment would cross the wall.
+        check_waypoint(
+            "###T.
+             S....",
+            10.0,
+            "###..
+             ...W.",
+        );
+    }
+
+    fn arb_grid() -> impl Strategy<Value = Grid> {
+        (1u32..14, 1u32..14).prop_flat_map(|(w, h)| {
+            proptest::collection::vec(0u8..10, (w * h) as usize).prop_map(move |v| {
+                let mut g = Grid::new(w, h, Occ::Unknown);
+                for (c, b) in g.cells_mut().iter_mut().zip(v) {
+                    *c = match b {
+                        0..=6 => Occ::Free,
+                        7 | 8 => Occ::Occupied,
+                        _ => Occ::Unknown,
+                    };
+                }
+                g
+            })
+        })
+    }
+
+    /// Costs by Bellman–Ford relaxation, the plain definition Dijkstra must agree with.
+    fn reference_costs(g: &Grid, start: Cell) -> Vec<f64> {
+        let mut d = vec![f64::INFINITY; g.len()];
+        let Some(s) = g.index(start) else { return d };
+        d[s] = 0.0;
+        for _ in 0..g.len() {
+            for i in 0..g.len() {
+                for (n, step) in moves(g, g.cell_of(i)) {
+                    if let Some(ni) = g.index(n) {
+                        d[ni] = d[ni].min(d[i] + step);
+                    }
+                }
+            }
+        }
+        d
+    }
+
+    proptest! {
+        #[test]
+        fn dijkstra_agrees_with_relaxation(g in arb_grid(), sx in 0i32..14, sy in 0i32..14) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            let map = costs(&g, start);
+            let want = reference_costs(&g, start);
+            for (i, w) in want.iter().enumerate() {
+                match map.cost(g.cell_of(i)) {
+                    Some(c) => prop_assert!((c - w).abs() < 1e-9),
+                    None => prop_assert!(w.is_infinite()),
+                }
+            }
+        }
+
+        #[test]
+        fn paths_and_waypoints_are_sound(
+            g in arb_grid(),
+            sx in 0i32..14,
+            sy in 0i32..14,
+            pick in any::<prop::sample::Index>(),
+            max_cells in 0.0f64..12.0,
+        ) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            let map = costs(&g, start);
+            let reachable: Vec<Cell> = (0..g.len()).map(|i| g.cell_of(i)).filter(|&c| map.cost(c).is_some()).collect();
+            let target = reachable[pick.index(reachable.len())];
+            let path = path_to(&map, target).expect("reachable cells have paths");
+            prop_assert_eq!(path.first(), Some(&start));
+            prop_assert_eq!(path.last(), Some(&target));
+            let mut total = 0.0;
+            for pair in path.windows(2) {
+                let (a, b) = (pair[0], pair[1]);
+                let step = moves(&g, a).find(|&(n, _)| n == b);
+                prop_assert!(step.is_some(), "{:?} -> {:?} is no legal move", a, b);
+                total += step.map_or(0.0, |(_, s)| s);
+            }
+            prop_assert!((total - map.cost(target).unwrap_or(f64::NAN)).abs() < 1e-9);
+
+            let waypoint = next_waypoint(&g, &path, max_cells);
+            if let Some(w) = waypoint {
+                prop_assert!(path[1..].contains(&w));
+                prop_assert!(f64::from(w.x - start.x).hypot(f64::from(w.y - start.y)) <= max_cells);
+                let line = supercover(
+                    (f64::from(start.x) + 0.5, f64::from(start.y) + 0.5),
+                    (f64::from(w.x) + 0.5, f64::from(w.y) + 0.5),
+                );
+                for c in line {
+                    prop_assert!(c == start || g.get(c) == Occ::Free, "{:?} on the segment is not free", c);
+                }
+            } else if let [a, b, ..] = path[..] {
+                let first_step = f64::from(b.x - a.x).hypot(f64::from(b.y - a.y));
+                prop_assert!(first_step > max_cells, "a legal first step always qualifies");
+            }
+        }
+    }
+}

@@ -1,0 +1,117 @@
+//! The command line: help texts and errors for bad input.
+
+use std::process::Command;
+
+use crate::support::{stderr, TempDir, SWARM};
+
+fn help(args: &[&str]) -> String {
+    let out = Command::new(SWARM)
+        .args(args)
+        .arg("--help")
+        .output()
+        .expect("run swarm --help");
+    assert!(out.status.success(), "{args:?} --help failed");
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn every_subcommand_explains_its_flags() {
+    let top = help(&[]);
+    for sub in ["run", "world-server", "robot-agent"] {
+        assert!(top.contains(sub), "swarm --help lists {sub}");
+    }
+    let run = help(&["run"]);
+    for flag in ["--out", "--set", "--quiet", "[SCENARIO]"] {
+        assert!(
+            run.contains(flag),
+            "swarm run --help explains {flag}:\n{run}"
+        );
+    }
+    let world = help(&["world-server"]);
+    for flag in [
+        "--scenario",
+        "--set",
+        "--listen",
+        "--connect",
+        "--config",
+        "--cfg",
+        "--startup-timeout-s",
+    ] {
+        assert!(
+            world.contains(flag),
+            "world-server --help explains {flag}:\n{world}"
+        );
+    }
+    let robot = help(&["robot-agent"]);
+    for flag in [
+        "--id",
+        "--scenario",
+        "--radio-listen",
+        "--radio-connect",
+        "--radio-config",
+        "--connect",
+        "--idle-timeout-s",
+    ] {
+        assert!(
+            robot.contains(flag),
+            "robot-agent --help explains {flag}:\n{robot}"
+        );
+    }
+}
+
+fn run_error(args: &[&str]) -> (i32, String) {
+    let dir = TempDir::new("bad");
+    let out = Command::new(SWARM)
+        .arg("run")
+        .arg("--out")
+        .arg(dir.path().join("run"))
+        .args(args)
+        .output()
+        .expect("run swarm");
+    (out.status.code().unwrap_or(-1), stderr(&out))
+}
+
+#[test]
+fn malformed_scenarios_give_one_line_naming_the_key() {
+    let dir = TempDir::new("scenario");
+    let file = dir.path().join("bad.toml");
+    std::fs::write(&file, "[radio]\nrnage_m = 5\n").expect("write scenario");
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["--set", "robots.count=0"], "robots.count"),
+        (vec!["--set", "robots.count=many"], "robots.count"),
+        (vec!["--set", "sensor.max_range_m=-1"], "sensor.max_range_m"),
+        (vec!["--set", "world.map=no_such_map"], "no_such_map"),
+        (vec!["--set", "clock.mode=\"sometimes\""], "sometimes"),
+        (vec![file.to_str().expect("utf-8 path")], "radio.rnage_m"),
+        (
+            vec!["/nonexistent/scenario.toml"],
+            "/nonexistent/scenario.toml",
+        ),
+    ];
+    for (args, needle) in cases {
+        let (code, err) = run_error(&args);
+        assert_eq!(code, 1, "{args:?} must fail with exit code 1: {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert_eq!(lines.len(), 1, "{args:?}: one line expected, got {err:?}");
+        assert!(
+            err.contains(needle),
+            "{args:?}: {err:?} should name {needle}"
+        );
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn malformed_map_files_are_reported_not_panicked() {
+    let dir = TempDir::new("badmap");
+    let yaml = dir.path().join("broken.yaml");
+    std::fs::write(&yaml, "image: broken.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n").expect("write yaml");
+    std::fs::write(dir.path().join("broken.pgm"), b"P5\n10 10\n255\n\x00\x01").expect("write pgm");
+    let (code, err) = run_error(&["--set", &format!("world.map={}", yaml.display())]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("broken.pgm"),
+        "the error names the file: {err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}

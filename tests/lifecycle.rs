@@ -1,0 +1,115 @@
+//! No process of a run survives it: not after a normal end, not after a robot is killed with
+//! SIGKILL mid-run (the launcher reports it and the others finish), not after the launcher
+//! itself is killed.
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use crate::support::{descendants, kill, running, stderr, summary, Launcher, TempDir, SWARM};
+
+/// Starts a run in realtime mode (50 ms per step), so that it lasts long enough to be
+/// interfered with.
+fn start(dir: &TempDir, robots: u32) -> Launcher {
+    let mut cmd = Command::new(SWARM);
+    cmd.args(["run", "--quiet", "--out"])
+        .arg(dir.path().join("run"));
+    for s in [
+        "world.map=office".to_string(),
+        "world.width_m=24".into(),
+        "world.height_m=16".into(),
+        format!("robots.count={robots}"),
+        "max_steps=1500".into(),
+        "clock.mode=realtime".into(),
+        "clock.speedup=20".into(),
+    ] {
+        cmd.arg("--set").arg(s);
+    }
+    Launcher::spawn(cmd)
+}
+
+/// Waits until the launcher has `n` live child processes (world-server + robots).
+fn wait_for_children(l: &Launcher, n: usize) -> Vec<u32> {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let kids: Vec<u32> = descendants(l.pid)
+            .into_iter()
+            .filter(|&p| running(p))
+            .collect();
+        if kids.len() >= n {
+            return kids;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "children did not start: {kids:?}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn wait_gone(pids: &[u32]) {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while pids.iter().any(|&p| running(p)) {
+        assert!(
+            Instant::now() < deadline,
+            "processes survived: {:?}",
+            pids.iter().filter(|&&p| running(p)).collect::<Vec<_>>()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[test]
+fn a_robot_killed_mid_run_is_reported_and_nothing_is_left() {
+    let dir = TempDir::new("kill-robot");
+    let l = start(&dir, 3);
+    let kids = wait_for_children(&l, 4);
+    // Let the run get going, then kill one robot-agent process (not the world-server).
+    std::thread::sleep(Duration::from_secs(3));
+    let robot = kids
+        .iter()
+        .copied()
+        .find(|&p| {
+            std::fs::read_to_string(format!("/proc/{p}/cmdline"))
+                .is_ok_and(|c| c.contains("robot-agent"))
+        })
+        .expect("a robot-agent child");
+    kill(robot, 9);
+    let out = l.wait_output(Duration::from_secs(300));
+    let err = stderr(&out);
+    assert!(
+        err.contains("SIGKILL"),
+        "the launcher reports the killed robot: {err}"
+    );
+    let s = summary(&dir.path().join("run"));
+    assert!(
+        s["failed_processes"]
+            .as_array()
+            .is_some_and(|f| f.len() == 1),
+        "{s}"
+    );
+    assert_eq!(
+        s["complete"], true,
+        "the other robots finish the exploration: {s}"
+    );
+    assert_eq!(s["robots_alive_at_end"], 2, "{s}");
+    wait_gone(&kids);
+}
+
+#[test]
+fn killing_the_launcher_takes_every_child_with_it() {
+    let dir = TempDir::new("kill-launcher");
+    let l = start(&dir, 2);
+    let kids = wait_for_children(&l, 3);
+    kill(l.pid, 9);
+    wait_gone(&kids);
+}
+
+#[test]
+fn a_normal_run_leaves_no_process_behind() {
+    let dir = TempDir::new("normal");
+    let l = start(&dir, 2);
+    let kids = wait_for_children(&l, 3);
+    let out = l.wait_output(Duration::from_secs(300));
+    assert!(out.status.code().is_some(), "launcher exited normally");
+    wait_gone(&kids);
+}

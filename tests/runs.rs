@@ -1,0 +1,76 @@
+//! Whole runs complete: 1, 3 and 8 robots on small maps, within a step bound.
+
+use std::time::Duration;
+
+use crate::support::{stderr, summary, swarm_run, TempDir};
+
+/// Runs a small scenario and checks it completes within `max_steps`.
+fn completes(name: &str, sets: &[&str], max_steps: u64) -> serde_json::Value {
+    let dir = TempDir::new(name);
+    let steps = format!("max_steps={max_steps}");
+    let mut all: Vec<&str> = sets.to_vec();
+    all.push(&steps);
+    let (out, run) = swarm_run(&dir, None, &all, Duration::from_secs(300));
+    let s = summary(&run);
+    assert!(
+        out.status.success(),
+        "{name}: swarm run failed: {}\nsummary: {s}",
+        stderr(&out)
+    );
+    assert_eq!(s["complete"], true, "{name}: {s}");
+    assert_eq!(s["exit_reason"], "explored", "{name}: {s}");
+    let steps = s["exploration_steps"]
+        .as_u64()
+        .expect("exploration_steps is set");
+    assert!(steps <= max_steps, "{name}: {steps} steps");
+    for f in [
+        "scenario.toml",
+        "metrics.csv",
+        "truth.png",
+        "robot_0.png",
+        "logs/world-server.log",
+    ] {
+        assert!(run.join(f).is_file(), "{name}: {f} is written");
+    }
+    s
+}
+
+#[test]
+fn one_robot_explores_a_small_office() {
+    completes(
+        "one",
+        &[
+            "world.map=office",
+            "world.width_m=14",
+            "world.height_m=10",
+            "robots.count=1",
+        ],
+        600,
+    );
+}
+
+#[test]
+fn three_robots_explore_a_small_office_and_share_scans() {
+    let s = completes(
+        "three",
+        &[
+            "world.map=office",
+            "world.width_m=14",
+            "world.height_m=10",
+            "robots.count=3",
+            "seed=3",
+        ],
+        400,
+    );
+    assert!(
+        s["bytes_payload_total"].as_u64().unwrap_or(0) > 0,
+        "robots exchanged scans: {s}"
+    );
+    assert!(s["bytes_by_type"]["scan"].as_u64().unwrap_or(0) > 0, "{s}");
+    assert!(s["bytes_by_type"]["conn"].as_u64().unwrap_or(0) > 0, "{s}");
+}
+
+#[test]
+fn eight_robots_explore_a_small_real_map() {
+    completes("eight", &["world.map=fr101", "robots.count=8"], 400);
+}

@@ -1,0 +1,166 @@
+//! Shared helpers: a temporary run directory, a launcher handle that kills its process tree on
+//! drop, and readers for the run directory.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+pub const SWARM: &str = env!("CARGO_BIN_EXE_swarm");
+
+/// A fresh directory under the system temp dir, removed on drop.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    pub fn new(name: &str) -> TempDir {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        let p =
+            std::env::temp_dir().join(format!("swarm-test-{name}-{}-{nanos}", std::process::id()));
+        std::fs::create_dir_all(&p).expect("create temp dir");
+        TempDir(p)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// `swarm run` into `dir/run` with overrides, waiting at most `limit`.
+pub fn swarm_run(
+    dir: &TempDir,
+    scenario: Option<&str>,
+    sets: &[&str],
+    limit: Duration,
+) -> (Output, PathBuf) {
+    let out = dir.path().join("run");
+    let mut cmd = Command::new(SWARM);
+    cmd.arg("run").arg("--quiet").arg("--out").arg(&out);
+    if let Some(s) = scenario {
+        cmd.arg(s);
+    }
+    for s in sets {
+        cmd.arg("--set").arg(s);
+    }
+    let child = Launcher::spawn(cmd);
+    (child.wait_output(limit), out)
+}
+
+/// A running launcher; on drop it and every process it started are killed.
+pub struct Launcher {
+    pub child: Option<Child>,
+    pub pid: u32,
+}
+
+impl Launcher {
+    pub fn spawn(mut cmd: Command) -> Launcher {
+        cmd.stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        let child = cmd.spawn().expect("start swarm");
+        let pid = child.id();
+        Launcher {
+            child: Some(child),
+            pid,
+        }
+    }
+
+    /// Waits for the launcher to exit within `limit` (panics, killing everything, otherwise).
+    pub fn wait_output(mut self, limit: Duration) -> Output {
+        let deadline = Instant::now() + limit;
+        loop {
+            let child = self.child.as_mut().expect("child present");
+            if let Ok(Some(_)) = child.try_wait() {
+                let child = self.child.take().expect("child present");
+                return child.wait_with_output().expect("collect output");
+            }
+            if Instant::now() > deadline {
+                panic!("swarm did not finish within {limit:?}");
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+impl Drop for Launcher {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            for pid in descendants(self.pid) {
+                kill(pid, 9);
+            }
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+pub fn kill(pid: u32, sig: i32) {
+    let _ = Command::new("kill")
+        .arg(format!("-{sig}"))
+        .arg(pid.to_string())
+        .status();
+}
+
+/// Direct children of a process (from /proc).
+pub fn children_of(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return out;
+    };
+    for e in entries.flatten() {
+        let Some(p) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
+            continue;
+        };
+        if let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) {
+            // Fields after the command name (which may contain spaces) start after the last ')'.
+            let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+            let ppid = rest
+                .split_whitespace()
+                .nth(1)
+                .and_then(|s| s.parse::<u32>().ok());
+            if ppid == Some(pid) {
+                out.push(p);
+            }
+        }
+    }
+    out
+}
+
+pub fn descendants(pid: u32) -> Vec<u32> {
+    let mut all = Vec::new();
+    let mut frontier = vec![pid];
+    while let Some(p) = frontier.pop() {
+        for c in children_of(p) {
+            all.push(c);
+            frontier.push(c);
+        }
+    }
+    all
+}
+
+/// A process exists and is not a zombie.
+pub fn running(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Ok(stat) => !matches!(
+            stat.rsplit_once(')')
+                .map(|(_, r)| r.trim_start().chars().next()),
+            Some(Some('Z'))
+        ),
+        Err(_) => false,
+    }
+}
+
+pub fn summary(run: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(run.join("summary.json")).expect("summary.json exists");
+    serde_json::from_str(&text).expect("summary.json is JSON")
+}
+
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}

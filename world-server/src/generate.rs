@@ -1,0 +1,693 @@
+//! Seeded map generators: `unstructured` (scattered obstacles, outdoor-like), `office` (rooms
+//! and corridors, no furniture) and `mixed` (a building amid scattered obstacles).
+//!
+//! DESIGN.md §3 lets a scenario generate its truth map from a seed instead of loading one, with
+//! the three environment types of the thesis's experiments. A generated map is a closed world:
+//! an outer wall, everything else occupied or free (no unknown), and all free cells one
+//! 4-connected region, so that "explored everything reachable" is well defined. Two rules make
+//! that hold by construction: obstacles keep a gap of more than [`PASSAGE_M`] to everything else
+//! (so they are islands), and every room has a door at least [`DOOR_M`] wide onto a corridor
+//! that the corridor spines connect. A final pass then enforces both guarantees on whatever was
+//! built: free cells not inside any free `PASSAGE_M`-square become occupied (no slivers narrower
+//! than a robot's passage), and free cells outside the largest component become occupied.
+//! The same seed always gives the same map (`ChaCha8Rng`, no other source of randomness).
+
+use std::str::FromStr;
+
+use proto::geom::MapInfo;
+use proto::grid::{Cell, Grid, Occ, MAX_CELLS};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::map::TruthMap;
+
+/// Which kind of world to generate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum GenKind {
+    Unstructured,
+    Mixed,
+    Office,
+}
+
+impl FromStr for GenKind {
+    type Err = GenError;
+
+    /// The scenario names `unstructured`, `mixed` and `office`.
+    fn from_str(s: &str) -> Result<GenKind, GenError> {
+        match s {
+            "unstructured" => Ok(GenKind::Unstructured),
+            "mixed" => Ok(GenKind::Mixed),
+            "office" => Ok(GenKind::Office),
+            other => Err(GenError::UnknownKind(other.into())),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum GenError {
+    #[error("unknown map kind {0:?} (expected unstructured, mixed or office)")]
+    UnknownKind(String),
+    #[error("resolution {resolution_m} m must be a positive finite number")]
+    BadResolution { resolution_m: f64 },
+    #[error("a generated map of {width_m} x {height_m} m at {resolution_m} m/cell is too small (at least {MIN_SIDE_M} m and a {DOOR_M} m door inside its walls)")]
+    TooSmall {
+        width_m: f64,
+        height_m: f64,
+        resolution_m: f64,
+    },
+    #[error("a generated map of {width} x {height} cells exceeds the limit of {MAX_CELLS} cells")]
+    TooLarge { width: u64, height: u64 },
+}
+
+/// Narrowest free passage a generated map may contain.
+pub const PASSAGE_M: f64 = 0.8;
+/// Width of every door.
+pub const DOOR_M: f64 = 1.0;
+/// Thickness of walls.
+const WALL_M: f64 = 0.2;
+/// Shortest side of a generated map.
+pub const MIN_SIDE_M: f64 = 3.0;
+
+/// Sizes in cells, derived once from the resolution.
+struct Params {
+    res: f64,
+    wall: i32,
+    door: i32,
+    passage: i32,
+}
+
+impl Params {
+    /// A length in whole cells (at least one).
+    fn cells(&self, m: f64) -> i32 {
+        (m / self.res).round().max(1.0) as i32
+    }
+}
+
+/// Half-open cell rectangle `[x0, x1) × [y0, y1)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Rect {
+    x0: i32,
+    y0: i32,
+    x1: i32,
+    y1: i32,
+}
+
+impl Rect {
+    fn new(x0: i32, y0: i32, x1: i32, y1: i32) -> Rect {
+        Rect { x0, y0, x1, y1 }
+    }
+    fn w(&self) -> i32 {
+        self.x1 - self.x0
+    }
+    fn h(&self) -> i32 {
+        self.y1 - self.y0
+    }
+    fn grow(&self, d: i32) -> Rect {
+        Rect::new(self.x0 - d, self.y0 - d, self.x1 + d, self.y1 + d)
+    }
+}
+
+fn fill(g: &mut Grid, r: Rect, v: Occ) {
+    for y in r.y0..r.y1 {
+        for x in r.x0..r.x1 {
+            g.set(Cell::new(x, y), v);
+        }
+    }
+}
+
+/// True when every cell of `r` is inside the grid and free.
+fn all_free(g: &Grid, r: Rect) -> bool {
+    (r.y0..r.y1).all(|y| (r.x0..r.x1).all(|x| g.get(Cell::new(x, y)) == Occ::Free))
+}
+
+/// A uniform integer in `lo..=hi`, or `lo` when the range is empty.
+fn between(rng: &mut ChaCha8Rng, lo: i32, hi: i32) -> i32 {
+    if hi <= lo {
+        lo
+    } else {
+        rng.gen_range(lo..=hi)
+    }
+}
+
+/// Generates a `width_m × height_m` map of `kind` at `resolution_m`, origin (0, 0).
+pub fn generate(
+    kind: GenKind,
+    width_m: f64,
+    height_m: f64,
+    resolution_m: f64,
+    seed: u64,
+) -> Result<TruthMap, GenError> {
+    if !(resolution_m.is_finite() && resolution_m > 0.0) {
+        return Err(GenError::BadResolution { resolution_m });
+    }
+    let res = resolution_m;
+    let p = Params {
+        res,
+        wall: 0,
+        door: (DOOR_M / res - 1e-9).ceil().max(1.0) as i32,
+        passage: 0,
+    };
+    let p = Params {
+        wall: p.cells(WALL_M),
+        passage: (PASSAGE_M / res - 1e-9).ceil().max(1.0) as i32,
+        ..p
+    };
+    let too_small = GenError::TooSmall {
+        width_m,
+        height_m,
+        resolution_m,
+    };
+    if !(width_m >= MIN_SIDE_M && height_m >= MIN_SIDE_M) {
+        return Err(too_small);
+    }
+    let (w, h) = ((width_m / res).round(), (height_m / res).round());
+    // Each side is checked too, so that neither can overflow an `i32` even if the other is 0.
+    if w * h > MAX_CELLS as f64 || w.max(h) > MAX_CELLS as f64 {
+        return Err(GenError::TooLarge {
+            width: w as u64,
+            height: h as u64,
+        });
+    }
+    let (w, h) = (w as i32, h as i32);
+    if w - 2 * p.wall < p.door || h - 2 * p.wall < p.door {
+        return Err(too_small);
+    }
+    let mut g = Grid::new(w as u32, h as u32, Occ::Occupied);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let interior = Rect::new(p.wall, p.wall, w - p.wall, h - p.wall);
+    match kind {
+        GenKind::Unstructured => {
+            fill(&mut g, interior, Occ::Free);
+            let cover = rng.gen_range(0.10..0.20);
+            scatter(&mut g, &mut rng, &p, interior, None, cover);
+        }
+        GenKind::Office => {
+            office(&mut g, &mut rng, &p, interior);
+        }
+        GenKind::Mixed => {
+            fill(&mut g, interior, Occ::Free);
+            let house = building(&mut g, &mut rng, &p, interior);
+            let cover = rng.gen_range(0.06..0.12);
+            scatter(&mut g, &mut rng, &p, interior, house, cover);
+        }
+    }
+    open_free(&mut g, p.passage);
+    let mask = crate::reachable::largest_free_mask(&g);
+    for (c, keep) in g.cells_mut().iter_mut().zip(mask) {
+        if *c == Occ::Free && !keep {
+            *c = Occ::Occupied;
+        }
+    }
+    let info = MapInfo {
+        width: g.width(),
+        height: g.height(),
+        resolution_m,
+        origin_x_m: 0.0,
+        origin_y_m: 0.0,
+    };
+    Ok(TruthMap { info, grid: g })
+}
+
+/// Scatters rectangles, bars, discs and blobs over `region` (outside `avoid`) until about
+/// `cover` of its free cells are occupied. Each obstacle's bounding box, grown by more than a
+/// passage, must be free, so obstacles never touch each other, the walls or a building, and
+/// never close a passage.
+fn scatter(
+    g: &mut Grid,
+    rng: &mut ChaCha8Rng,
+    p: &Params,
+    region: Rect,
+    avoid: Option<Rect>,
+    cover: f64,
+) {
+    let free = (region.y0..region.y1)
+        .map(|y| {
+            (region.x0..region.x1)
+                .filter(|&x| g.get(Cell::new(x, y)) == Occ::Free)
+                .count()
+        })
+        .sum::<usize>();
+    let target = (free as f64 * cover) as usize;
+    let gap = p.passage + 1;
+    let mut placed = 0;
+    // Bounded (about one try per 25 free cells): a crowded map just gets fewer obstacles.
+    for _ in 0..4000.max(free / 25) {
+        if placed >= target {
+            break;
+        }
+        let (cx, cy) = (
+            between(rng, region.x0, region.x1 - 1),
+            between(rng, region.y0, region.y1 - 1),
+        );
+        let shape = random_shape(rng, p, cx, cy);
+        let Some(bbox) = bounding_box(&shape) else {
+            continue;
+        };
+        let grown = bbox.grow(gap);
+        let clear_of =
+            |a: &Rect| grown.x1 <= a.x0 || a.x1 <= grown.x0 || grown.y1 <= a.y0 || a.y1 <= grown.y0;
+        let outside_avoid = match &avoid {
+            Some(a) => clear_of(a),
+            None => true,
+        };
+        if outside_avoid && all_free(g, grown) {
+            placed += shape.len();
+            for c in shape {
+                g.set(c, Occ::Occupied);
+            }
+        }
+    }
+}
+
+fn random_shape(rng: &mut ChaCha8Rng, p: &Params, cx: i32, cy: i32) -> Vec<Cell> {
+    let rect = |w: i32, h: i32| -> Vec<Cell> {
+        (0..h)
+            .flat_map(|y| (0..w).map(move |x| Cell::new(cx + x - w / 2, cy + y - h / 2)))
+            .collect()
+    };
+    match rng.gen_range(0..4) {
+        0 => rect(
+            p.cells(rng.gen_range(0.3..2.5)),
+            p.cells(rng.gen_range(0.3..2.5)),
+        ),
+        1 if rng.gen_bool(0.5) => rect(p.cells(rng.gen_range(1.5..5.0)), p.wall),
+        1 => rect(p.wall, p.cells(rng.gen_range(1.5..5.0))),
+        2 => disc(cx, cy, rng.gen_range(0.3..1.3) / p.res),
+        _ => {
+            // A blob: a few overlapping discs around the centre.
+            let r = rng.gen_range(0.4..1.0) / p.res;
+            let mut cells = disc(cx, cy, r);
+            for _ in 0..rng.gen_range(1..4) {
+                let (dx, dy) = (rng.gen_range(-r..r), rng.gen_range(-r..r));
+                cells.extend(disc(
+                    cx + dx as i32,
+                    cy + dy as i32,
+                    r * rng.gen_range(0.6..1.0),
+                ));
+            }
+            cells.sort_unstable();
+            cells.dedup();
+            cells
+        }
+    }
+}
+
+/// The cells whose centres lie within `r` cells of cell `(cx, cy)`'s centre.
+fn disc(cx: i32, cy: i32, r: f64) -> Vec<Cell> {
+    let n = r.ceil() as i32;
+    let mut cells = Vec::new();
+    for dy in -n..=n {
+        for dx in -n..=n {
+            if f64::from(dx * dx + dy * dy) <= r * r {
+                cells.push(Cell::new(cx + dx, cy + dy));
+            }
+        }
+    }
+    cells
+}
+
+fn bounding_box(cells: &[Cell]) -> Option<Rect> {
+    let first = cells.first()?;
+    let init = Rect::new(first.x, first.y, first.x + 1, first.y + 1);
+    Some(cells.iter().fold(init, |r, c| {
+        Rect::new(
+            r.x0.min(c.x),
+            r.y0.min(c.y),
+            r.x1.max(c.x + 1),
+            r.y1.max(c.y + 1),
+        )
+    }))
+}
+
+/// A band of rooms between two walls, with the corridor it opens onto above or below it.
+struct Band {
+    y0: i32,
+    y1: i32,
+    corridor_above: bool,
+}
+
+/// Lays out an office inside `area` (all occupied on entry): double-loaded corridors across the
+/// whole width, joined by vertical spines, with rooms on both sides, each with a door onto its
+/// corridor and sometimes a door to its neighbour. Returns the corridors.
+fn office(g: &mut Grid, rng: &mut ChaCha8Rng, p: &Params, area: Rect) -> Vec<Rect> {
+    let t = p.wall;
+    let cw = p.cells(rng.gen_range(1.4..2.2)).max(p.door);
+    let rd = between(rng, p.cells(3.0), p.cells(5.0));
+    let unit = 2 * rd + cw + 2 * t;
+    let units = (area.h() + t) / (unit + t);
+    let mut bands = Vec::new();
+    let mut corridors = Vec::new();
+    if units >= 1 {
+        // The height left over is shared out among the room bands.
+        let spare = area.h() - (units * unit + (units - 1) * t);
+        let depth = |i: i32| rd + spare / (2 * units) + i32::from(i < spare % (2 * units));
+        let mut y = area.y0;
+        for u in 0..units {
+            let (below, above) = (depth(2 * u), depth(2 * u + 1));
+            bands.push(Band {
+                y0: y,
+                y1: y + below,
+                corridor_above: true,
+            });
+            y += below + t;
+            corridors.push(Rect::new(area.x0, y, area.x1, y + cw));
+            y += cw + t;
+            bands.push(Band {
+                y0: y,
+                y1: y + above,
+                corridor_above: false,
+            });
+            y += above + t;
+        }
+    } else if area.h() >= cw + t + p.cells(2.0) {
+        corridors.push(Rect::new(area.x0, area.y0, area.x1, area.y0 + cw));
+        bands.push(Band {
+            y0: area.y0 + cw + t,
+            y1: area.y1,
+            corridor_above: false,
+        });
+    } else {
+        // Too low for rooms beside a corridor: the whole area is one hall.
+        fill(g, area, Occ::Free);
+        return vec![area];
+    }
+    for &c in &corridors {
+        fill(g, c, Occ::Free);
+    }
+    // Vertical spines join the corridors; the rooms leave a wall beside them.
+    let mut spines = Vec::new();
+    if let (Some(first), Some(last)) = (corridors.first(), corridors.last()) {
+        if corridors.len() > 1 {
+            let count = if f64::from(area.w()) * p.res > 40.0 {
+                2
+            } else {
+                1
+            };
+            let slot = area.w() / count;
+            for s in 0..count {
+                let x = between(rng, area.x0 + s * slot, area.x0 + (s + 1) * slot - cw);
+                let spine = Rect::new(x, first.y0, (x + cw).min(area.x1), last.y1);
+                fill(g, spine, Occ::Free);
+                spines.push(spine.grow(t));
+            }
+        }
+    }
+    for band in &bands {
+        let mut x = area.x0;
+        let crossed: Vec<&Rect> = spines
+            .iter()
+            .filter(|s| s.y0 <= band.y0 && band.y1 <= s.y1)
+            .collect();
+        let mut cuts: Vec<(i32, i32)> = crossed.iter().map(|s| (s.x0, s.x1)).collect();
+        cuts.push((area.x1, area.x1));
+        for (cut0, cut1) in cuts {
+            rooms(g, rng, p, band, x, cut0);
+            x = x.max(cut1);
+        }
+    }
+    corridors
+}
+
+/// Splits `[x0, x1)` of a band into rooms 3–6 m wide separated by walls.
+fn rooms(g: &mut Grid, rng: &mut ChaCha8Rng, p: &Params, band: &Band, x0: i32, x1: i32) {
+    let (t, min_w, max_w) = (p.wall, p.cells(3.0), p.cells(6.0));
+    let mut x = x0;
+    let mut previous: Option<Rect> = None;
+    while x1 - x >= p.door {
+        let mut w = between(rng, min_w, max_w);
+        if x1 - x - w < min_w + t {
+            w = x1 - x;
+        }
+        let room = Rect::new(x, band.y0, x + w, band.y1);
+        fill(g, room, Occ::Free);
+        let dx = between(rng, room.x0, room.x1 - p.door);
+        let door_y = if band.corridor_above {
+            room.y1
+        } else {
+            room.y0 - t
+        };
+        fill(g, Rect::new(dx, door_y, dx + p.door, door_y + t), Occ::Free);
+        if let Some(prev) = previous.filter(|_| rng.gen_bool(0.25)) {
+            let dy = between(rng, room.y0, room.y1 - p.door);
+            fill(g, Rect::new(prev.x1, dy, room.x0, dy + p.door), Occ::Free);
+        }
+        previous = Some(room);
+        x += w + t;
+    }
+}
+
+/// Places a building (an office with an outer wall) in the middle part of `area`, with
+/// entrances at the ends of its corridors, and returns its outline. Skipped (`None`) when the
+/// area is too small for one.
+fn building(g: &mut Grid, rng: &mut ChaCha8Rng, p: &Params, area: Rect) -> Option<Rect> {
+    let t = p.wall;
+    let bw = (f64::from(area.w()) * rng.gen_range(0.4..0.6)) as i32;
+    let bh = (f64::from(area.h()) * rng.gen_range(0.4..0.6)) as i32;
+    let margin = p.passage + 2 + t;
+    if bw < p.cells(6.0)
+        || bh < p.cells(6.0)
+        || area.w() - bw < 2 * margin
+        || area.h() - bh < 2 * margin
+    {
+        return None;
+    }
+    let x0 = between(rng, area.x0 + margin, area.x1 - margin - bw);
+    let y0 = between(rng, area.y0 + margin, area.y1 - margin - bh);
+    let outer = Rect::new(x0, y0, x0 + bw, y0 + bh);
+    fill(g, outer, Occ::Occupied);
+    let inner = outer.grow(-t);
+    for c in office(g, rng, p, inner) {
+        // An entrance as high as the corridor (at most 2.2 m) through each end wall.
+        let eh = c.h().min(p.cells(2.2));
+        let ey = c.y0 + (c.h() - eh) / 2;
+        fill(g, Rect::new(outer.x0, ey, inner.x0, ey + eh), Occ::Free);
+        if rng.gen_bool(0.7) {
+            fill(g, Rect::new(inner.x1, ey, outer.x1, ey + eh), Occ::Free);
+        }
+    }
+    Some(outer)
+}
+
+/// Morphological opening of the free space by a `k × k` square: a free cell stays free only if
+/// some all-free `k × k` square contains it. Uses summed-area tables, linear in the grid size.
+fn open_free(g: &mut Grid, k: i32) {
+    let (w, h, k) = (g.width() as usize, g.height() as usize, k.max(1) as usize);
+    let stride = w + 1;
+    let mut sum = vec![0u32; stride * (h + 1)];
+    for y in 0..h {
+        for x in 0..w {
+            let free = u32::from(g.cells()[y * w + x] == Occ::Free);
+            sum[(y + 1) * stride + x + 1] =
+                free + sum[y * stride + x + 1] + sum[(y + 1) * stride + x] - sum[y * stride + x];
+        }
+    }
+    // Difference table of the squares that are all free, then its prefix sum = coverage.
+    let mut cover = vec![0i32; stride * (h + 1)];
+    for y in 0..(h + 1).saturating_sub(k) {
+        for x in 0..(w + 1).saturating_sub(k) {
+            let s = sum[(y + k) * stride + x + k] + sum[y * stride + x]
+                - sum[y * stride + x + k]
+                - sum[(y + k) * stride + x];
+            if s as usize == k * k {
+                cover[y * stride + x] += 1;
+                cover[y * stride + x + k] -= 1;
+                cover[(y + k) * stride + x] -= 1;
+                cover[(y + k) * stride + x + k] += 1;
+            }
+        }
+    }
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * stride + x;
+            let left = if x > 0 { cover[i - 1] } else { 0 };
+            let down = if y > 0 { cover[i - stride] } else { 0 };
+            let diag = if x > 0 && y > 0 {
+                cover[i - stride - 1]
+            } else {
+                0
+            };
+            cover[i] += left + down - diag;
+            if cover[i] == 0 && g.cells()[y * w + x] == Occ::Free {
+                g.cells_mut()[y * w + x] = Occ::Occupied;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::reachable::largest_free_component;
+    use proptest::prelude::*;
+
+    const KINDS: [GenKind; 3] = [GenKind::Unstructured, GenKind::Mixed, GenKind::Office];
+
+    /// The guarantees of every generated map: closed, ternary-free of unknown, one free region.
+    fn check_invariants(map: &TruthMap) -> Result<(), String> {
+        let g = &map.grid;
+        if (map.info.width, map.info.height) != (g.width(), g.height()) {
+            return Err("info and grid disagree".into());
+        }
+        if g.count(Occ::Unknown) != 0 {
+            return Err("unknown cells".into());
+        }
+        let (w, h) = (g.width() as i32, g.height() as i32);
+        let border = (0..w)
+            .flat_map(|x| [Cell::new(x, 0), Cell::new(x, h - 1)])
+            .chain((0..h).flat_map(|y| [Cell::new(0, y), Cell::new(w - 1, y)]));
+        if border.into_iter().any(|c| g.get(c) != Occ::Occupied) {
+            return Err("open border".into());
+        }
+        let free = g.count(Occ::Free);
+        if free == 0 || largest_free_component(g).len() != free {
+            return Err(format!("free cells not one region ({free} free)"));
+        }
+        Ok(())
+    }
+
+    /// Naive check that every free cell lies in some all-free k × k square.
+    fn passages_at_least(g: &Grid, k: i32) -> bool {
+        let square_free = |x0: i32, y0: i32| {
+            (y0..y0 + k).all(|y| (x0..x0 + k).all(|x| g.get(Cell::new(x, y)) == Occ::Free))
+        };
+        (0..g.len())
+            .map(|i| g.cell_of(i))
+            .filter(|&c| g.get(c) == Occ::Free)
+            .all(|c| {
+                (c.y - k + 1..=c.y).any(|y0| (c.x - k + 1..=c.x).any(|x0| square_free(x0, y0)))
+            })
+    }
+
+    #[test]
+    fn same_seed_same_map_other_seed_other_map() {
+        for kind in KINDS {
+            let a = generate(kind, 30.0, 20.0, 0.1, 42).expect("valid size");
+            assert_eq!(
+                Ok(&a),
+                generate(kind, 30.0, 20.0, 0.1, 42).as_ref(),
+                "{kind:?}"
+            );
+            assert_ne!(
+                a.grid,
+                generate(kind, 30.0, 20.0, 0.1, 43)
+                    .expect("valid size")
+                    .grid,
+                "{kind:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn fifty_seeds_of_each_kind_are_closed_and_connected() {
+        for kind in KINDS {
+            let mut fractions = Vec::new();
+            for seed in 0..50 {
+                let map = generate(kind, 40.0, 30.0, 0.1, seed).expect("valid size");
+                assert_eq!(check_invariants(&map), Ok(()), "{kind:?} seed {seed}");
+                fractions.push(map.grid.count(Occ::Free) as f64 / map.grid.len() as f64);
+            }
+            let (lo, hi) = fractions
+                .iter()
+                .fold((1.0f64, 0.0f64), |(lo, hi), &f| (lo.min(f), hi.max(f)));
+            assert!(
+                lo > 0.45 && hi < 0.95,
+                "{kind:?}: free fraction {lo:.3}..{hi:.3}"
+            );
+        }
+    }
+
+    #[test]
+    fn passages_are_at_least_0_8_m_wide() {
+        for kind in KINDS {
+            for seed in 0..5 {
+                let map = generate(kind, 24.0, 18.0, 0.2, seed).expect("valid size");
+                assert!(passages_at_least(&map.grid, 4), "{kind:?} seed {seed}");
+            }
+        }
+    }
+
+    #[test]
+    fn offices_and_mixed_maps_have_rooms_behind_doors() {
+        // Doors are 1 m wide, rooms at least 3 m: opening the free space by a 1.2 m square closes
+        // every door and leaves the rooms as separate regions.
+        for kind in [GenKind::Office, GenKind::Mixed] {
+            for seed in 0..5 {
+                let mut g = generate(kind, 40.0, 30.0, 0.2, seed)
+                    .expect("valid size")
+                    .grid;
+                open_free(&mut g, 6);
+                let free = g.count(Occ::Free);
+                assert!(
+                    free > 0 && largest_free_component(&g).len() < free,
+                    "{kind:?} seed {seed}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn open_free_removes_slivers_only() {
+        let mut g = Grid::from_ascii(
+            "#######\n\
+             #..#..#\n\
+             #..#..#\n\
+             #.....#\n\
+             #######\n",
+        );
+        open_free(&mut g, 2);
+        assert_eq!(
+            g.to_ascii(),
+            "#######\n#..#..#\n#..#..#\n#..#..#\n#######\n"
+        );
+    }
+
+    #[test]
+    fn kinds_parse_and_bad_sizes_are_errors() {
+        assert_eq!("office".parse(), Ok(GenKind::Office));
+        assert_eq!("mixed".parse(), Ok(GenKind::Mixed));
+        assert_eq!("unstructured".parse(), Ok(GenKind::Unstructured));
+        assert_eq!(
+            "maze".parse::<GenKind>(),
+            Err(GenError::UnknownKind("maze".into()))
+        );
+        assert!(matches!(
+            generate(GenKind::Office, 10.0, 10.0, 0.0, 0),
+            Err(GenError::BadResolution { .. })
+        ));
+        assert!(matches!(
+            generate(GenKind::Office, 10.0, 10.0, f64::NAN, 0),
+            Err(GenError::BadResolution { .. })
+        ));
+        assert!(matches!(
+            generate(GenKind::Office, 2.0, 10.0, 0.1, 0),
+            Err(GenError::TooSmall { .. })
+        ));
+        assert!(matches!(
+            generate(GenKind::Office, f64::NAN, 10.0, 0.1, 0),
+            Err(GenError::TooSmall { .. })
+        ));
+        assert!(matches!(
+            generate(GenKind::Office, 3.0, 3.0, 1.5, 0),
+            Err(GenError::TooSmall { .. })
+        ));
+        assert!(matches!(
+            generate(GenKind::Office, 1e6, 1e6, 0.1, 0),
+            Err(GenError::TooLarge { .. })
+        ));
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        #[test]
+        fn any_size_gives_a_valid_map(
+            kind in prop::sample::select(KINDS.to_vec()),
+            w in 3.0f64..45.0,
+            h in 3.0f64..45.0,
+            res in prop::sample::select(vec![0.1, 0.15, 0.2, 0.25, 0.5]),
+            seed in any::<u64>(),
+        ) {
+            let map = generate(kind, w, h, res, seed).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            prop_assert_eq!(check_invariants(&map), Ok(()));
+        }
+    }
+}

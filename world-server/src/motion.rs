@@ -1,0 +1,312 @@
+//! Robot motion: checking a requested waypoint against the truth map and the other robots.
+//!
+//! DESIGN.md §3: each step a robot asks for a waypoint within its speed along a collision-free
+//! straight segment; the world-server moves it there or rejects the move "into obstacles or other
+//! robots, and say why in the robot's next scan message" ([`MoveOutcome`]). A waypoint beyond
+//! the step length is not an error: the robot goes as far as it may in that direction, which is
+//! what a speed limit means. The segment test is a *supercover*: every cell the closed segment
+//! touches must be free, including both side cells where it passes exactly through a corner, so a
+//! robot never slips through a diagonal gap between two blocked cells (the same rule the laser
+//! uses, [`crate::laser`], and the reason free space is 4-connected in [`crate::reachable`]).
+//! Robots are points for the map and discs of `robot_radius_m` for each other.
+
+use proto::geom::{MapInfo, Pose};
+use proto::grid::{Cell, Grid, Occ};
+use proto::msg::{MoveOutcome, RobotId};
+
+/// Checks a move of a robot at `from` toward `to` (metres), clipped to `max_step_m`.
+///
+/// `others` are the positions of the *other* robots (the caller leaves the mover out). Returns
+/// the new pose, heading along the motion, or why the robot stays: [`MoveOutcome::OutOfMap`]
+/// (the end point, or the robot itself, lies outside the grid, or a coordinate is not finite),
+/// [`MoveOutcome::Blocked`] (the segment touches a cell that is not free) or
+/// [`MoveOutcome::Collision`] with the nearest robot whose position is closer than
+/// `2 × robot_radius_m` to the end point. A move of length zero (or a zero step limit) returns
+/// `from` unchanged, heading included.
+pub fn validate_move(
+    grid: &Grid,
+    info: &MapInfo,
+    from: Pose,
+    to: (f64, f64),
+    max_step_m: f64,
+    others: &[(RobotId, (f64, f64))],
+    robot_radius_m: f64,
+) -> Result<Pose, MoveOutcome> {
+    let finite = [from.x, from.y, to.0, to.1].iter().all(|v| v.is_finite());
+    if !finite || !grid.contains(info.cell_of(from.x, from.y)) {
+        return Err(MoveOutcome::OutOfMap);
+    }
+    let (dx, dy) = (to.0 - from.x, to.1 - from.y);
+    let length = dx.hypot(dy);
+    // NaN or negative limits allow no motion at all.
+    let step = if max_step_m > 0.0 { max_step_m } else { 0.0 };
+    if length == 0.0 || step == 0.0 {
+        return Ok(from);
+    }
+    let end = if length > step {
+        (from.x + dx / length * step, from.y + dy / length * step)
+    } else {
+        to
+    };
+    if !grid.contains(info.cell_of(end.0, end.1)) {
+        return Err(MoveOutcome::OutOfMap);
+    }
+    if supercover_m(info, (from.x, from.y), end)
+        .into_iter()
+        .any(|c| grid.get(c) != Occ::Free)
+    {
+        return Err(MoveOutcome::Blocked);
+    }
+    let nearest = others
+        .iter()
+        .map(|&(id, (x, y))| (id, (x - end.0).hypot(y - end.1)))
+        .filter(|&(_, d)| d < 2.0 * robot_radius_m)
+        .min_by(|a, b| a.1.total_cmp(&b.1));
+    if let Some((with, _)) = nearest {
+        return Err(MoveOutcome::Collision { with });
+    }
+    Ok(Pose {
+        x: end.0,
+        y: end.1,
+        theta: dy.atan2(dx),
+    })
+}
+
+/// The cells the closed segment between two metric points touches (see [`supercover`]).
+pub fn supercover_m(info: &MapInfo, a: (f64, f64), b: (f64, f64)) -> Vec<Cell> {
+    let to_cells = |(x, y): (f64, f64)| {
+        (
+            (x - info.origin_x_m) / info.resolution_m,
+            (y - info.origin_y_m) / info.resolution_m,
+        )
+    };
+    supercover(to_cells(a), to_cells(b))
+}
+
+/// Every cell whose closed square meets the closed segment `a`–`b` (in cell units), column by
+/// column: within each column's slice of the segment, all rows its y-extent touches. A segment
+/// through a corner therefore yields all four cells around it, and one along a grid line yields
+/// the cells on both sides. Non-finite input gives no cells.
+pub fn supercover(a: (f64, f64), b: (f64, f64)) -> Vec<Cell> {
+    if ![a.0, a.1, b.0, b.1].iter().all(|v| v.is_finite()) {
+        return Vec::new();
+    }
+    let (x_lo, x_hi) = (a.0.min(b.0), a.0.max(b.0));
+    // The y of the segment at abscissa x (the segment is not vertical where this is used).
+    let y_at = |x: f64| a.1 + (x - a.0) * (b.1 - a.1) / (b.0 - a.0);
+    let mut cells = Vec::new();
+    for cx in (x_lo.ceil() as i32 - 1)..=(x_hi.floor() as i32) {
+        let (s0, s1) = (x_lo.max(f64::from(cx)), x_hi.min(f64::from(cx) + 1.0));
+        let (y0, y1) = if a.0 == b.0 {
+            (a.1, b.1)
+        } else {
+            (y_at(s0), y_at(s1))
+        };
+        let (y_lo, y_hi) = (y0.min(y1), y0.max(y1));
+        for cy in (y_lo.ceil() as i32 - 1)..=(y_hi.floor() as i32) {
+            cells.push(Cell::new(cx, cy));
+        }
+    }
+    cells
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use std::f64::consts::FRAC_PI_2;
+
+    const ROOM: &str = "
+        ##########
+        #........#
+        #..#.....#
+        #........#
+        #.....?..#
+        ##########";
+
+    fn setup() -> (Grid, MapInfo) {
+        let g = Grid::from_ascii(ROOM);
+        let info = MapInfo {
+            width: g.width(),
+            height: g.height(),
+            resolution_m: 0.5,
+            origin_x_m: 0.0,
+            origin_y_m: 0.0,
+        };
+        (g, info)
+    }
+
+    fn pose(x: f64, y: f64) -> Pose {
+        Pose { x, y, theta: 0.3 }
+    }
+
+    #[test]
+    fn a_free_move_heads_along_the_motion() {
+        let (g, i) = setup();
+        let got = validate_move(&g, &i, pose(0.75, 0.75), (0.75, 1.75), 2.0, &[], 0.2);
+        assert_eq!(
+            got,
+            Ok(Pose {
+                x: 0.75,
+                y: 1.75,
+                theta: FRAC_PI_2
+            })
+        );
+    }
+
+    #[test]
+    fn long_moves_are_clipped_to_the_step() {
+        let (g, i) = setup();
+        let got = validate_move(&g, &i, pose(0.75, 0.75), (3.75, 4.75), 1.0, &[], 0.2)
+            .expect("free segment");
+        assert!(
+            (got.x - 1.35).abs() < 1e-12 && (got.y - 1.55).abs() < 1e-12,
+            "{got:?}"
+        );
+        assert!((got.theta - 4f64.atan2(3.0)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn zero_moves_keep_the_pose() {
+        let (g, i) = setup();
+        assert_eq!(
+            validate_move(&g, &i, pose(0.75, 0.75), (0.75, 0.75), 1.0, &[], 0.2),
+            Ok(pose(0.75, 0.75))
+        );
+        assert_eq!(
+            validate_move(&g, &i, pose(0.75, 0.75), (1.75, 0.75), 0.0, &[], 0.2),
+            Ok(pose(0.75, 0.75))
+        );
+        assert_eq!(
+            validate_move(&g, &i, pose(0.75, 0.75), (1.75, 0.75), f64::NAN, &[], 0.2),
+            Ok(pose(0.75, 0.75))
+        );
+    }
+
+    #[test]
+    fn leaving_the_map_is_out_of_map() {
+        let (g, i) = setup();
+        assert_eq!(
+            validate_move(&g, &i, pose(0.75, 0.75), (-0.2, 0.75), 5.0, &[], 0.2),
+            Err(MoveOutcome::OutOfMap)
+        );
+        assert_eq!(
+            validate_move(&g, &i, pose(0.75, 0.75), (0.75, 3.0), 5.0, &[], 0.2),
+            Err(MoveOutcome::OutOfMap)
+        );
+        assert_eq!(
+            validate_move(&g, &i, pose(0.75, 0.75), (f64::NAN, 1.0), 5.0, &[], 0.2),
+            Err(MoveOutcome::OutOfMap)
+        );
+        assert_eq!(
+            validate_move(&g, &i, pose(-9.0, 0.75), (0.75, 0.75), 5.0, &[], 0.2),
+            Err(MoveOutcome::OutOfMap)
+        );
+        // Clipping can bring a target beyond the map back inside it: that move is legal.
+        assert_eq!(
+            validate_move(&g, &i, pose(0.75, 0.75), (-5.0, 0.75), 0.2, &[], 0.2),
+            Ok(Pose {
+                x: 0.55,
+                y: 0.75,
+                theta: std::f64::consts::PI
+            })
+        );
+    }
+
+    #[test]
+    fn obstacles_unknown_cells_and_corners_block() {
+        let (g, i) = setup();
+        let blocked =
+            |from: (f64, f64), to| validate_move(&g, &i, pose(from.0, from.1), to, 5.0, &[], 0.2);
+        assert_eq!(
+            blocked((0.75, 1.75), (2.75, 1.75)),
+            Err(MoveOutcome::Blocked),
+            "through the pillar"
+        );
+        assert_eq!(
+            blocked((2.75, 0.75), (3.75, 0.75)),
+            Err(MoveOutcome::Blocked),
+            "into the unknown cell"
+        );
+        assert_eq!(
+            blocked((0.75, 0.75), (0.25, 0.75)),
+            Err(MoveOutcome::Blocked),
+            "into the wall"
+        );
+        // From cell (2,1) to cell (4,3): the segment passes exactly through the pillar's corner.
+        assert_eq!(
+            blocked((1.25, 0.75), (2.25, 1.75)),
+            Err(MoveOutcome::Blocked),
+            "touching a corner"
+        );
+        assert!(blocked((1.25, 0.75), (2.25, 0.75)).is_ok());
+    }
+
+    #[test]
+    fn ending_near_another_robot_is_a_collision_with_the_nearest() {
+        let (g, i) = setup();
+        let others = [(3, (2.2, 2.25)), (7, (2.05, 2.25)), (9, (4.0, 0.75))];
+        let got = validate_move(&g, &i, pose(2.25, 1.25), (2.25, 2.25), 2.0, &others, 0.2);
+        assert_eq!(got, Err(MoveOutcome::Collision { with: 3 }));
+        let touching = [(7, (2.25, 2.75))];
+        assert!(
+            validate_move(&g, &i, pose(2.25, 1.25), (2.25, 2.25), 2.0, &touching, 0.25).is_ok(),
+            "exactly 2r apart"
+        );
+    }
+
+    #[test]
+    fn supercover_cells() {
+        let sorted = |mut v: Vec<Cell>| {
+            v.sort();
+            v
+        };
+        let c = Cell::new;
+        assert_eq!(
+            supercover((0.5, 0.5), (2.5, 0.5)),
+            vec![c(0, 0), c(1, 0), c(2, 0)]
+        );
+        assert_eq!(
+            supercover((0.5, 2.5), (0.5, 0.5)),
+            vec![c(0, 0), c(0, 1), c(0, 2)]
+        );
+        assert_eq!(
+            sorted(supercover((0.5, 0.5), (1.5, 1.5))),
+            vec![c(0, 0), c(0, 1), c(1, 0), c(1, 1)]
+        );
+        assert_eq!(
+            supercover((0.5, 1.0), (1.5, 1.0)),
+            vec![c(0, 0), c(0, 1), c(1, 0), c(1, 1)],
+            "along a grid line"
+        );
+        // Slope 1/3 passes exactly through the corner (2, 1).
+        assert_eq!(
+            supercover((0.5, 0.5), (3.5, 1.5)),
+            vec![c(0, 0), c(1, 0), c(1, 1), c(2, 0), c(2, 1), c(3, 1)]
+        );
+        assert_eq!(
+            supercover((0.5, 0.5), (3.5, 1.7)),
+            vec![c(0, 0), c(1, 0), c(1, 1), c(2, 1), c(3, 1)]
+        );
+        assert_eq!(supercover((0.2, 0.3), (0.2, 0.3)), vec![c(0, 0)]);
+        assert!(supercover((f64::NAN, 0.0), (1.0, 1.0)).is_empty());
+    }
+
+    proptest! {
+        #[test]
+        fn supercover_contains_every_point_of_the_segment(
+            ax in -20.0f64..20.0, ay in -20.0f64..20.0, bx in -20.0f64..20.0, by in -20.0f64..20.0,
+        ) {
+            let cells = supercover((ax, ay), (bx, by));
+            for k in 0..=100 {
+                let s = f64::from(k) / 100.0;
+                let (x, y) = (ax + s * (bx - ax), ay + s * (by - ay));
+                let c = Cell::new(x.floor() as i32, y.floor() as i32);
+                prop_assert!(cells.contains(&c), "point ({}, {}) in {:?} missing", x, y, c);
+            }
+            // Every cell returned is within the segment's bounding box grown by one cell.
+            let (lo_x, hi_x) = (ax.min(bx).floor() as i32 - 1, ax.max(bx).floor() as i32 + 1);
+            prop_assert!(cells.iter().all(|c| (lo_x..=hi_x).contains(&c.x)));
+        }
+    }
+}
