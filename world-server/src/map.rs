@@ -31,10 +31,10 @@ const MAX_YAML_BYTES: u64 = 1 << 20;
 
 #[derive(Debug, thiserror::Error)]
 pub enum MapError {
-    #[error("{path}: cannot read: {source}")]
+    #[error("{path}: cannot read: {reason}")]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     #[error("{path}: {bytes} bytes is too large for a map YAML (limit {MAX_YAML_BYTES})")]
     YamlTooLarge { path: PathBuf, bytes: u64 },
@@ -73,8 +73,8 @@ pub enum MapError {
         free: f64,
         occupied: f64,
     },
-    #[error("{path}: {source}")]
-    Image { path: PathBuf, source: ImageError },
+    #[error("{path}: {reason}")]
+    Image { path: PathBuf, reason: ImageError },
     #[error("cannot resample to resolution {resolution_m} m: must be a positive finite number")]
     BadTargetResolution { resolution_m: f64 },
     #[error("cannot resample a map whose own resolution is {resolution_m} m")]
@@ -97,9 +97,9 @@ pub struct MapYaml {
 
 /// Loads a ROS `map_server` map: the YAML at `yaml_path` and the image it names.
 pub fn load_ros_map(yaml_path: &Path) -> Result<TruthMap, MapError> {
-    let io = |source| MapError::Io {
+    let io = |reason| MapError::Io {
         path: yaml_path.to_path_buf(),
-        source,
+        reason,
     };
     let mut text = Vec::new();
     std::fs::File::open(yaml_path)
@@ -120,14 +120,14 @@ pub fn load_ros_map(yaml_path: &Path) -> Result<TruthMap, MapError> {
         what: "not valid UTF-8".into(),
     })?;
     let yaml = parse_map_yaml(&text, yaml_path)?;
-    let bytes = std::fs::read(&yaml.image).map_err(|source| MapError::Io {
+    let bytes = std::fs::read(&yaml.image).map_err(|reason| MapError::Io {
         path: yaml.image.clone(),
-        source,
+        reason,
     })?;
     let grid =
-        crate::image::decode(&bytes, &yaml.thresholds).map_err(|source| MapError::Image {
+        crate::image::decode(&bytes, &yaml.thresholds).map_err(|reason| MapError::Image {
             path: yaml.image.clone(),
-            source,
+            reason,
         })?;
     let info = MapInfo {
         width: grid.width(),
@@ -565,7 +565,7 @@ mod tests {
         ] {
             let image = dir.write("m.pgm", bytes);
             match load_ros_map(&yaml) {
-                Err(MapError::Image { path, source }) => assert_eq!((path, source), (image, want)),
+                Err(MapError::Image { path, reason }) => assert_eq!((path, reason), (image, want)),
                 other => panic!("expected an image error, got {other:?}"),
             }
         }
