@@ -266,7 +266,7 @@ mod tests {
             map: map(),
             laser: LaserSpec {
                 beams: 360,
-                fov_rad: 6.28,
+                fov_rad: 1.5,
                 max_range_m: 8.0,
                 noise_std_m: 0.0,
             },

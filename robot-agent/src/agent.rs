@@ -169,7 +169,7 @@ impl Agent {
         let peers: Vec<RobotId> = self.neighbours.iter().copied().collect();
         for peer in peers {
             let mut budget = self.budget_per_step;
-            if self.step % self.hello_every_steps == 0 {
+            if self.step.is_multiple_of(self.hello_every_steps) {
                 let msg = self.exchange.knowledge();
                 budget = budget.saturating_sub(proto::msg::encode(&msg).len());
                 out.push(RadioOut::Hello { to: peer, msg });

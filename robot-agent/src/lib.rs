@@ -1,19 +1,44 @@
 //! `robot-agent`: one robot of swarm-explore (DESIGN.md §4).
 //!
 //! The algorithms are pure modules, each named after its thesis concept: [`grid`] (scan
-//! integration), [`plan`] (costs, frontiers, paths), [`raw_scans`] (the baseline exchange with
-//! transitive logs). [`agent`] composes them into the per-step decision; [`node`] runs it over
-//! zenoh; [`cli`] is the command line.
+//! integration), [`contour`] (P_t, §4.1), [`approx`] + [`refine`] (A_t and Douglas–Peucker,
+//! §4.2–4.3), [`delta`] + [`oplog`] + [`wire`] (edit scripts, save points, encoding, §4.2.3),
+//! [`merge`] (the planning grid, §5.2), [`error`] (eq. 6.1), [`plan`] (costs, frontiers, paths),
+//! [`raw_scans`] (the baseline exchange with transitive logs). [`agent`] composes them into the
+//! per-step decision; [`node`] runs it over zenoh; [`cli`] is the command line.
 
 /// The per-step decision loop as a pure state machine.
 pub mod agent;
+/// Polygonal approximations A_t and edge occupancy (§4.2.2).
+pub mod approx;
 /// Command line and process entry.
 pub mod cli;
+/// Contour extraction: the exact polygonal model P_t (§4.1).
+pub mod contour;
+/// Edit scripts between approximations: the delta ops (§4.2.3, Algorithms 4–5).
+pub mod delta;
+/// The approximation error d_t and e_avg (§6.1, eq. 6.1).
+pub mod error;
 /// Ternary self-explored grid: laser scan integration.
 pub mod grid;
+/// The planning grid: Algorithm 9 (§5.2).
+pub mod merge;
 /// The robot on its sim and radio planes.
 pub mod node;
+/// The op log with save points and a receiver's replica (§4.2.3).
+pub mod oplog;
 /// Path planning: Dijkstra costs, frontiers, waypoints.
 pub mod plan;
+/// Quarter-cell integer coordinates of contour vertices.
+pub mod qpoint;
+/// Rasterizing quarter-cell polygons onto cells (scan-line fill, edges).
+pub mod raster;
 /// The raw-scans exchange: per-owner logs, handshakes, sent-index table.
 pub mod raw_scans;
+/// Douglas–Peucker refinement over all polygons with one priority queue (§4.3).
+pub mod refine;
+/// The compact wire encoding of delta ops (Table 6.1).
+pub mod wire;
+
+#[cfg(test)]
+mod testutil;

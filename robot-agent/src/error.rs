@@ -1,0 +1,64 @@
+//! The approximation error of thesis §6.1: d_t, the number of cells in which the
+//! self-explored grid G_s and the grid rendered from the approximation A_t differ, and its
+//! average e_avg = Σ_{t=1}^{n} d_t / (g · n) (eq. 6.1) over n steps and g explored cells.
+//!
+//! Interpretation: G_s is compared in its [`exploration_view`] — non-free cells with no free
+//! 4-neighbour read unknown — because no contour model carries cells buried behind other
+//! non-free cells (the thesis's own rendering fills them with unknown as well). So d_t is 0
+//! for the unsimplified approximation and counts exactly what simplification loses or invents.
+//! Both grids must share one frame.
+
+use proto::grid::Grid;
+
+use crate::approx::Approximation;
+use crate::merge::{exploration_view, render};
+
+/// d_t: cells where `own` (G_s, in its exploration view) and the rendering of `a` differ.
+pub fn approx_error(own: &Grid, a: &Approximation) -> usize {
+    let rendered = render(a, own.width(), own.height());
+    let view = exploration_view(own);
+    view.cells()
+        .iter()
+        .zip(rendered.cells())
+        .filter(|(v, r)| v != r)
+        .count()
+}
+
+/// e_avg (eq. 6.1) of the series `d` (one d_t per step) for `explored_cells` = g; 0 for an
+/// empty series or g = 0.
+pub fn average_error(d: &[usize], explored_cells: usize) -> f64 {
+    if d.is_empty() || explored_cells == 0 {
+        return 0.0;
+    }
+    let sum: f64 = d.iter().map(|&x| x as f64).sum();
+    sum / (explored_cells as f64 * d.len() as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::approx::approximate;
+    use crate::contour::Contours;
+
+    #[test]
+    fn exact_approximation_has_no_error() {
+        let g = Grid::from_ascii("?????\n.###.\n..#..\n.....");
+        let p = Contours::extract(&g);
+        assert_eq!(approx_error(&g, &Approximation::exact(&p)), 0);
+        assert_eq!(approx_error(&g, &approximate(&p, &g, usize::MAX)), 0);
+    }
+
+    #[test]
+    fn coarse_approximation_has_error() {
+        let g = Grid::from_ascii("......\n.####.\n.#....\n......");
+        let p = Contours::extract(&g);
+        assert!(approx_error(&g, &approximate(&p, &g, 0)) > 0);
+    }
+
+    #[test]
+    fn average_follows_eq_6_1() {
+        assert_eq!(average_error(&[2, 4, 6], 10), 0.4);
+        assert_eq!(average_error(&[], 10), 0.0);
+        assert_eq!(average_error(&[3], 0), 0.0);
+    }
+}
