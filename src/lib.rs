@@ -11,6 +11,8 @@ pub mod evaluate;
 pub mod ports;
 /// PNG pictures of grids and trajectories.
 pub mod render;
+/// `swarm replay`: one robot, no network, the mapping pipeline measured.
+pub mod replay;
 /// `swarm run`.
 pub mod run;
 /// The run directory's files.

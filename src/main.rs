@@ -19,6 +19,10 @@ enum Command {
     /// write the run directory. Exit code 0 if the exploration completed, 2 if it ended
     /// incomplete (step limit, all robots idle or dead, interrupted), 1 on error.
     Run(swarm::run::RunArgs),
+    /// Replay one robot exploring alone, without network, through the mapping pipeline
+    /// (contours, incremental approximation, edit ops): writes PNGs of G_s, P_t and A_t,
+    /// replay.csv per step and replay.json with bytes per package type and e_avg.
+    Replay(swarm::replay::ReplayArgs),
     /// Run a world-server process (what `swarm run` starts; use it to spread a run over machines).
     WorldServer(world_server::cli::Args),
     /// Run one robot-agent process (what `swarm run` starts, once per robot).
@@ -28,8 +32,39 @@ enum Command {
 fn main() -> ExitCode {
     match Cli::parse().command {
         Command::Run(args) => run(args),
+        Command::Replay(args) => replay(&args),
         Command::WorldServer(args) => world_server::cli::main(args),
         Command::RobotAgent(args) => robot_agent::cli::main(args),
+    }
+}
+
+fn replay(args: &swarm::replay::ReplayArgs) -> ExitCode {
+    proto::node::init_logging("swarm");
+    match swarm::replay::replay(args) {
+        Ok((dir, s)) => {
+            println!(
+                "replay of {}: {} steps, coverage {:.1}%, {} ops, {} bytes, e_avg {}",
+                s.map,
+                s.steps,
+                s.coverage_pct,
+                s.ops,
+                s.bytes,
+                s.approx_error_avg.map_or("-".into(), |e| format!("{e:.4}"))
+            );
+            for (name, t) in &s.by_type {
+                let mean = t.mean_bytes.map_or("-".into(), |m| format!("{m:.2}"));
+                println!(
+                    "  {name:>4}: {:>8} ops, mean {mean} bytes (thesis {})",
+                    t.count, t.thesis_bytes
+                );
+            }
+            println!("written to {}", dir.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("swarm: {e:#}");
+            ExitCode::FAILURE
+        }
     }
 }
 

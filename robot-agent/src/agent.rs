@@ -261,6 +261,16 @@ impl Agent {
         self.sent_by_type[class as usize] += bytes as u64;
     }
 
+    /// The robot saw no reachable frontier at its last step.
+    pub fn is_idle(&self) -> bool {
+        self.idle
+    }
+
+    /// G_s, the self-explored grid.
+    pub fn own_grid(&self) -> &Grid {
+        &self.own
+    }
+
     pub fn log_len(&self, owner: RobotId) -> usize {
         self.exchange.log(owner).len()
     }

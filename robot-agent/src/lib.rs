@@ -21,6 +21,8 @@ pub mod delta;
 pub mod error;
 /// Ternary self-explored grid: laser scan integration.
 pub mod grid;
+/// The mapping pipeline: P_t → A_t → ops + save point, with its costs (Algorithm 10, 2–5).
+pub mod mapper;
 /// The planning grid: Algorithm 9 (§5.2).
 pub mod merge;
 /// The robot on its sim and radio planes.
