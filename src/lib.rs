@@ -7,6 +7,8 @@
 pub mod children;
 /// Coverage and exploration time from telemetry.
 pub mod evaluate;
+/// `swarm netem`: the netem process and runtime link control over its HTTP API.
+pub mod netemctl;
 /// Free loopback ports.
 pub mod ports;
 /// PNG pictures of grids and trajectories.

@@ -27,6 +27,11 @@ enum Command {
     WorldServer(world_server::cli::Args),
     /// Run one robot-agent process (what `swarm run` starts, once per robot).
     RobotAgent(robot_agent::cli::Args),
+    /// The netem link emulator: `serve` runs the process (what `swarm run` starts, one proxy
+    /// per robot pair); `list`, `cut`, `restore`, `set`, `unset`, `reset` control the links of a
+    /// running swarm through its HTTP API (--run RUN_DIR or --api ADDR).
+    #[command(subcommand)]
+    Netem(swarm::netemctl::NetemCommand),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +40,14 @@ fn main() -> ExitCode {
         Command::Replay(args) => replay(&args),
         Command::WorldServer(args) => world_server::cli::main(args),
         Command::RobotAgent(args) => robot_agent::cli::main(args),
+        Command::Netem(swarm::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),
+        Command::Netem(cmd) => match swarm::netemctl::control(&cmd) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("swarm netem: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
     }
 }
 

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use proto::grid::Grid;
 use proto::keys;
-use proto::msg::{decode, encode, Control, RobotId, Status, Telemetry, TruthMap};
+use proto::msg::{decode, encode, Control, LinkReport, RobotId, Status, Telemetry, TruthMap};
 use proto::node::{zerr, ZenohArgs};
 use proto::scenario::Scenario;
 use zenoh::qos::CongestionControl;
@@ -23,7 +23,8 @@ use crate::evaluate::Evaluator;
 use crate::ports::{endpoint, free_ports};
 use crate::render::{robot_colour, Picture};
 use crate::rundir::{
-    bytes_by_type, coverage_steps, write_metrics, write_summary, Summary, SCHEMA_VERSION,
+    bytes_by_type, coverage_steps, write_links, write_metrics, write_summary, LinkLog, Summary,
+    SCHEMA_VERSION,
 };
 
 /// The embedded default scenario (`configs/default.toml`).
@@ -204,6 +205,9 @@ impl Progress {
 }
 
 /// Runs one scenario to the end. The caller turns the outcome into an exit code.
+///
+/// Processes: the world-server (sim-plane router), netem (one proxy per robot pair, HTTP API
+/// on a free port written to `netem.addr`), and one robot-agent per robot.
 pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let started = Instant::now();
     let (scenario, name) = load_scenario(&args)?;
@@ -212,8 +216,14 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let scenario_path = dir.join("scenario.toml");
     std::fs::write(&scenario_path, scenario.to_toml()).context("writing scenario.toml")?;
     let exe = std::env::current_exe().context("locating the swarm binary")?;
-    let ports = free_ports(1 + usize::from(n))?;
+    let pairs: Vec<(u16, u16)> = (0..n)
+        .flat_map(|i| ((i + 1)..n).map(move |j| (i, j)))
+        .collect();
+    let ports = free_ports(2 + usize::from(n) + pairs.len())?;
     let sim = endpoint(ports[0]);
+    let http = format!("127.0.0.1:{}", ports[1]);
+    let radio_port = |i: u16| ports[2 + usize::from(i)];
+    let pair_port = |k: usize| ports[2 + usize::from(n) + k];
     let scenario_arg = scenario_path.to_string_lossy().into_owned();
     let mut children = Children::default();
     let mut progress = Progress {
@@ -252,9 +262,36 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         .await
         .map_err(zerr)?;
 
-    // Radio plane: for this issue every pair is linked directly (netem takes over in #3).
+    let link_reports = session
+        .declare_subscriber(keys::NETEM_LINKS)
+        .await
+        .map_err(zerr)?;
+
+    // Radio plane: every robot pair {i, j} runs through netem's proxy for the pair: robot i
+    // connects to the proxy, netem forwards to robot j's radio listener. No robot is given
+    // another robot's radio endpoint.
+    let mut netem_args: Vec<String> = vec![
+        "netem".into(),
+        "serve".into(),
+        "--scenario".into(),
+        scenario_arg.clone(),
+        "--connect".into(),
+        sim.clone(),
+        "--http".into(),
+        http.clone(),
+    ];
+    for (k, &(i, j)) in pairs.iter().enumerate() {
+        netem_args.push("--pair".into());
+        netem_args.push(format!(
+            "{i}-{j}=127.0.0.1:{}>127.0.0.1:{}",
+            pair_port(k),
+            radio_port(j)
+        ));
+    }
+    children.spawn("netem", &exe, &netem_args, &dir.join("logs/netem.log"))?;
+    std::fs::write(dir.join("netem.addr"), format!("{http}\n")).context("writing netem.addr")?;
     for i in 0..n {
-        let mut a = vec![
+        let mut a: Vec<String> = vec![
             "robot-agent".into(),
             "--id".into(),
             i.to_string(),
@@ -263,11 +300,11 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
             "--connect".into(),
             sim.clone(),
             "--radio-listen".into(),
-            endpoint(ports[1 + usize::from(i)]),
+            endpoint(radio_port(i)),
         ];
-        for j in (i + 1)..n {
+        for (k, _) in pairs.iter().enumerate().filter(|(_, &(a, _))| a == i) {
             a.push("--radio-connect".into());
-            a.push(endpoint(ports[1 + usize::from(j)]));
+            a.push(endpoint(pair_port(k)));
         }
         children.spawn(
             &format!("robot-{i}"),
@@ -278,7 +315,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     }
     if !args.quiet {
         eprintln!(
-            "swarm run: {} robots on {} ({} reachable free cells), run directory {}",
+            "swarm run: {} robots on {} ({} reachable free cells), run directory {}, netem API http://{http}",
             n,
             name.display(),
             eval.reachable_cells(),
@@ -287,6 +324,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     }
 
     let mut last_status: Option<Status> = None;
+    let mut links = LinkLog::default();
     let mut failed: Vec<String> = Vec::new();
     let mut trajectories: Vec<Vec<(f64, f64)>> = vec![Vec::new(); usize::from(n)];
     let mut idle_since: Option<u32> = None;
@@ -333,15 +371,22 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
                     Err(e) => tracing::warn!("bad telemetry: {e}"),
                 }
             }
+            r = link_reports.recv_async() => {
+                let Ok(r) = r else { break "sim-plane-closed".into() };
+                match decode::<LinkReport>(&r.payload().to_bytes()) {
+                    Ok(r) => links.add(r),
+                    Err(e) => tracing::warn!("bad link report: {e}"),
+                }
+            }
             _ = tick.tick() => {
                 let mut world_gone = None;
                 for (name, pid, status) in children.newly_exited() {
                     let what = format!("{name} (pid {pid}) exited: {}", describe(status));
                     progress.event(&format!("swarm run: {what}"));
                     failed.push(what);
-                    if name == "world-server" { world_gone = Some(status); }
+                    if name == "world-server" || name == "netem" { world_gone = Some(name); }
                 }
-                if world_gone.is_some() { break "world-server-exited".into(); }
+                if let Some(name) = world_gone { break format!("{name}-exited"); }
             }
             _ = tokio::signal::ctrl_c() => { progress.event("swarm run: interrupted, stopping every process"); break "interrupted".into(); }
             _ = sigterm.recv() => { progress.event("swarm run: terminated, stopping every process"); break "terminated".into(); }
@@ -353,6 +398,12 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         .congestion_control(CongestionControl::Block)
         .await;
     let killed = children.shutdown(Duration::from_secs(5)).await;
+    // Link reports that arrived while the processes were stopping.
+    while let Ok(Some(r)) = link_reports.try_recv() {
+        if let Ok(r) = decode::<LinkReport>(&r.payload().to_bytes()) {
+            links.add(r);
+        }
+    }
     for name in killed {
         progress.event(&format!(
             "swarm run: {name} did not stop within 5 s and was killed"
@@ -382,7 +433,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         coverage_steps: coverage_steps(&eval.coverage_steps),
         best_coverage_pct: eval.best.0,
         reachable_cells: eval.reachable_cells(),
-        bytes_wire_total: None,
+        bytes_wire_total: Some(links.wire_total()),
         bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum(),
         bytes_by_type: bytes_by_type(&per_robot_types),
         approx_error_avg: None,
@@ -393,6 +444,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     };
     write_summary(&dir, &summary)?;
     write_metrics(&dir, &eval.rows)?;
+    write_links(&dir, &links.rows)?;
     let mut truth_pic = Picture::of_grid(&truth_grid, truth.map);
     for (i, t) in trajectories.iter().enumerate() {
         truth_pic.path(t, robot_colour(i));

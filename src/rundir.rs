@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::Context;
-use proto::msg::Traffic;
+use proto::msg::{LinkReport, LinkState, Step, Traffic};
 use serde::Serialize;
 
 use crate::evaluate::{MetricsRow, THRESHOLDS};
@@ -29,8 +29,8 @@ pub struct Summary {
     pub coverage_steps: BTreeMap<String, Option<u32>>,
     pub best_coverage_pct: f64,
     pub reachable_cells: usize,
-    /// Bytes counted on the wire by netem; `null` while the radio plane does not run through
-    /// netem (nothing measured them).
+    /// Bytes netem forwarded between robots (both directions, all links): the radio plane's
+    /// real TCP payload, zenoh's framing included.
     pub bytes_wire_total: Option<u64>,
     pub bytes_payload_total: u64,
     pub bytes_by_type: BTreeMap<String, u64>,
@@ -100,4 +100,49 @@ pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
         );
     }
     std::fs::write(dir.join("metrics.csv"), s).context("writing metrics.csv")
+}
+
+/// Every link report of a run, in arrival order.
+#[derive(Default)]
+pub struct LinkLog {
+    pub rows: Vec<(Step, LinkState)>,
+    totals: BTreeMap<(u16, u16), u64>,
+}
+
+impl LinkLog {
+    pub fn add(&mut self, r: LinkReport) {
+        for l in r.links {
+            let t = self.totals.entry((l.a, l.b)).or_default();
+            *t = (*t).max(l.bytes_total);
+            self.rows.push((r.step, l));
+        }
+    }
+
+    /// Bytes that crossed any link, both ways.
+    pub fn wire_total(&self) -> u64 {
+        self.totals.values().sum()
+    }
+}
+
+/// `links.csv`: one row per step and robot pair.
+pub fn write_links(dir: &Path, rows: &[(Step, LinkState)]) -> anyhow::Result<()> {
+    let mut s =
+        String::from("step,a,b,up,distance_m,bytes_a_to_b,bytes_b_to_a,queued_bytes,bytes_total\n");
+    let mut sorted: Vec<&(Step, LinkState)> = rows.iter().collect();
+    sorted.sort_by_key(|(step, l)| (*step, l.a, l.b));
+    for (step, l) in sorted {
+        let d = l.distance_m.map_or(String::new(), |d| format!("{d:.3}"));
+        let _ = writeln!(
+            s,
+            "{step},{},{},{},{d},{},{},{},{}",
+            l.a,
+            l.b,
+            u8::from(l.up),
+            l.bytes_a_to_b,
+            l.bytes_b_to_a,
+            l.queued_bytes,
+            l.bytes_total
+        );
+    }
+    std::fs::write(dir.join("links.csv"), s).context("writing links.csv")
 }

@@ -7,4 +7,5 @@ mod support;
 mod cli;
 mod lifecycle;
 mod mapping;
+mod netem;
 mod runs;

@@ -1,5 +1,46 @@
-//! `netem`: the link emulator of swarm-explore (DESIGN.md §5) — one TCP proxy per robot pair,
-//! radio models, shaping, faults and byte accounting.
+//! netem: the link emulator of swarm-explore (DESIGN.md §5).
 //!
-//! **Not built yet** (issue #3). Until then `swarm run` links the robots' radio sessions
-//! directly and reports `bytes_wire_total = null`.
+//! A byte-level proxy, not a simulator: one TCP listener per unordered robot pair {a, b}
+//! (a < b). Robot a's radio session connects to it; netem forwards to robot b's radio listener,
+//! and every byte the robots exchange crosses it. Per link and direction netem shapes the bytes
+//! on the *simulated* clock (bandwidth per link or one shared medium, latency, jitter), cuts the
+//! link when the radio model says the robots are out of range, injects faults (toxiproxy's
+//! toxics, over a toxiproxy-compatible HTTP API too), and counts what crossed. Only [`node`]
+//! touches zenoh: it reads poses from the sim plane, calls [`Netem::on_step`] and publishes the
+//! per-step link reports; [`cli`] is the command line.
+//!
+//! **Invariants:** memory is bounded — every connection direction holds at most
+//! `buffer_bytes`, then netem stops reading and TCP pushes back on the sender; every channel and
+//! table is bounded; nothing a peer or an API client sends can panic the process.
+//!
+//! Entry points: [`start`] with a [`NetemConfig`], then [`Netem::on_step`] once per step,
+//! [`Netem::telemetry`] for links.csv, [`Netem::apply`] for runtime faults.
+
+// Tests may unwrap (the brief); library code never does on anything from outside.
+#![cfg_attr(test, allow(clippy::unwrap_used))]
+
+/// Byte counters per link and direction, and the bounded per-connection buffer.
+pub mod accounting;
+/// Command line and process entry.
+pub mod cli;
+/// The simulated clock (lockstep or realtime × speed-up) that all shaping runs on.
+pub mod clock;
+/// The fault vocabulary: cut, partition, reset, and toxiproxy's toxics; folding them into shapes.
+pub mod faults;
+/// The toxiproxy-compatible HTTP API and its small, total HTTP/1.1 request parser.
+pub mod http;
+/// One robot pair's proxy: accept loop, connections, up/down state, cut and refuse.
+pub mod link;
+/// Prometheus text exposition of the link counters.
+pub mod metrics;
+/// Configuration, start, per-step entry point, telemetry, runtime control, shutdown.
+pub mod netem;
+/// netem on the sim plane: poses in, link reports out.
+pub mod node;
+/// Radio models: always, disk, log-distance path loss with walls on the truth map.
+pub mod radio;
+/// The per-direction pipeline of network effects (corrupt, bandwidth, latency) and its harness.
+pub mod shaping;
+
+pub use crate::faults::{Fault, Pair, ScheduledFault, Stream, Toxic, ToxicKind};
+pub use crate::netem::{start, LinkTelemetry, Netem, NetemConfig, NetemError, PairSpec};

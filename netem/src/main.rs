@@ -1,6 +1,7 @@
-//! `netem` binary: not built yet (issue #3); it says so and exits with an error.
+//! `netem` binary: see [`netem::cli`].
+
+use clap::Parser;
 
 fn main() -> std::process::ExitCode {
-    eprintln!("netem: the link emulator is not implemented yet (issue #3)");
-    std::process::ExitCode::FAILURE
+    netem::cli::main(netem::cli::Args::parse())
 }

@@ -11,6 +11,8 @@ pub const WORLD_INFO: &str = "sim/world/info";
 pub const WORLD_TRUTH: &str = "sim/world/truth";
 /// The world-server's per-step [`crate::msg::Status`].
 pub const STATUS: &str = "sim/status";
+/// netem's per-step [`crate::msg::LinkReport`].
+pub const NETEM_LINKS: &str = "sim/netem/links";
 /// Every robot's telemetry.
 pub const TELEMETRY_ALL: &str = "sim/telemetry/*";
 /// Every robot's move command.

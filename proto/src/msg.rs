@@ -163,6 +163,27 @@ impl Traffic {
     }
 }
 
+/// netem → launcher, every step: the state of every robot pair's link (DESIGN.md §5).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkReport {
+    pub step: Step,
+    pub links: Vec<LinkState>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkState {
+    pub a: RobotId,
+    pub b: RobotId,
+    pub up: bool,
+    pub distance_m: Option<f64>,
+    /// Bytes delivered this step, each way, and in total.
+    pub bytes_a_to_b: u64,
+    pub bytes_b_to_a: u64,
+    pub bytes_total: u64,
+    /// Bytes netem holds for the pair (read from a sender, not yet delivered).
+    pub queued_bytes: u64,
+}
+
 /// Launcher → everyone on `sim/ctl/**`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Control {
@@ -331,6 +352,19 @@ mod tests {
             sent_by_type: vec![0, 0, 0, 0, 0, 0, 40, 0, 0, 960],
         });
         round_trip(Control::Stop);
+        round_trip(LinkReport {
+            step: 3,
+            links: vec![LinkState {
+                a: 0,
+                b: 2,
+                up: true,
+                distance_m: Some(4.5),
+                bytes_a_to_b: 10,
+                bytes_b_to_a: 20,
+                bytes_total: 300,
+                queued_bytes: 7,
+            }],
+        });
         round_trip(Hello {
             from: 1,
             knowledge: vec![(0, 5), (1, 7)],

@@ -178,7 +178,10 @@ pub fn sim_client(
 /// A robot's radio-plane session: a peer that listens on `listen`, connects to `connect` and
 /// nothing else (no multicast, no gossip: peers learn no endpoint they were not given).
 /// Reconnects quickly (50 ms, backing off to 200 ms) so a link that comes back is used within a
-/// step.
+/// step. Tuned for slow links (DESIGN.md §1, "zenoh facts"): a batch is only counted when it has
+/// fully arrived, so batches are kept small ([`RADIO_BATCH_BYTES`]) for keep-alives to get
+/// through a 1 kB/s link well within the lease; messages are published with
+/// `CongestionControl::Drop` by the robot, never `Block`.
 pub fn radio_peer(
     listen: &[String],
     connect: &[String],
@@ -197,9 +200,25 @@ pub fn radio_peer(
         "connect/retry",
         "{period_init_ms: 50, period_max_ms: 200, period_increase_factor: 2}",
     )?;
+    set(
+        &mut c,
+        "transport/link/tx/batch_size",
+        &RADIO_BATCH_BYTES.to_string(),
+    )?;
+    set(
+        &mut c,
+        "transport/link/tx/lease",
+        &RADIO_LEASE_MS.to_string(),
+    )?;
+    set(&mut c, "transport/link/tx/keep_alive", "4")?;
     apply_cfg(&mut c, cfg)?;
     Ok(c)
 }
+
+/// Largest zenoh batch on the radio plane: at 1 000 bytes/s one batch crosses in half a second.
+pub const RADIO_BATCH_BYTES: u16 = 512;
+/// Radio link lease (wall milliseconds); 4 keep-alives per lease.
+pub const RADIO_LEASE_MS: u64 = 10_000;
 
 #[cfg(test)]
 mod tests {

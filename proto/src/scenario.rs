@@ -25,6 +25,10 @@ pub struct Scenario {
     pub radio: Radio,
     pub exchange: Exchange,
     pub coordination: Coordination,
+    pub netem: Netem,
+    /// Faults netem applies when the run reaches a step: `[[faults]]` tables with `step`, `kind`
+    /// and the kind's fields (see configs/default.toml). Parsed and checked by netem.
+    pub faults: Vec<toml::Table>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -79,6 +83,33 @@ pub struct Radio {
     pub range_m: f64,
     pub bandwidth_bytes_per_s: u64,
     pub medium: Medium,
+    pub latency_ms: f64,
+    pub jitter_ms: f64,
+    pub pathloss_ref_dbm: f64,
+    pub pathloss_ref_distance_m: f64,
+    pub pathloss_exponent: f64,
+    pub pathloss_wall_attenuation_db: f64,
+    pub pathloss_max_walls: u32,
+    /// `None`: the threshold at which the free-space range is `range_m`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pathloss_threshold_dbm: Option<f64>,
+}
+
+/// netem's own knobs (the link emulator's process, not the radio it emulates).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Netem {
+    pub buffer_bytes: u32,
+    pub connect_timeout_ms: u64,
+}
+
+impl Default for Netem {
+    fn default() -> Self {
+        Netem {
+            buffer_bytes: 64 * 1024,
+            connect_timeout_ms: 2000,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -141,6 +172,8 @@ impl Default for Scenario {
             radio: Radio::default(),
             exchange: Exchange::default(),
             coordination: Coordination::default(),
+            netem: Netem::default(),
+            faults: Vec::new(),
         }
     }
 }
@@ -194,10 +227,18 @@ impl Default for Sensor {
 impl Default for Radio {
     fn default() -> Self {
         Radio {
-            model: RadioModel::Always,
+            model: RadioModel::Disk,
             range_m: 10.0,
-            bandwidth_bytes_per_s: 0,
+            bandwidth_bytes_per_s: 1000,
             medium: Medium::PerLink,
+            latency_ms: 0.0,
+            jitter_ms: 0.0,
+            pathloss_ref_dbm: -40.0,
+            pathloss_ref_distance_m: 1.0,
+            pathloss_exponent: 2.0,
+            pathloss_wall_attenuation_db: 3.1,
+            pathloss_max_walls: 4,
+            pathloss_threshold_dbm: None,
         }
     }
 }
@@ -344,6 +385,42 @@ impl Scenario {
         positive("sensor.max_range_m", s.sensor.max_range_m)?;
         at_least("sensor.noise_std_m", s.sensor.noise_std_m, 0.0)?;
         positive("radio.range_m", s.radio.range_m)?;
+        at_least("radio.latency_ms", s.radio.latency_ms, 0.0)?;
+        at_least("radio.jitter_ms", s.radio.jitter_ms, 0.0)?;
+        positive(
+            "radio.pathloss_ref_distance_m",
+            s.radio.pathloss_ref_distance_m,
+        )?;
+        positive("radio.pathloss_exponent", s.radio.pathloss_exponent)?;
+        at_least(
+            "radio.pathloss_wall_attenuation_db",
+            s.radio.pathloss_wall_attenuation_db,
+            0.0,
+        )?;
+        if !s.radio.pathloss_ref_dbm.is_finite() {
+            return Err(invalid(
+                "radio.pathloss_ref_dbm",
+                s.radio.pathloss_ref_dbm,
+                "must be a finite number",
+            ));
+        }
+        if let Some(t) = s.radio.pathloss_threshold_dbm.filter(|t| !t.is_finite()) {
+            return Err(invalid(
+                "radio.pathloss_threshold_dbm",
+                t,
+                "must be a finite number",
+            ));
+        }
+        at_least(
+            "netem.buffer_bytes",
+            f64::from(s.netem.buffer_bytes),
+            1024.0,
+        )?;
+        at_least(
+            "netem.connect_timeout_ms",
+            s.netem.connect_timeout_ms as f64,
+            1.0,
+        )?;
         at_least(
             "exchange.hello_every_steps",
             f64::from(s.exchange.hello_every_steps),
@@ -367,20 +444,6 @@ impl Scenario {
                 "coordination.strategy",
                 format!("{:?}", self.coordination.strategy),
                 "only \"uncoordinated\" is implemented so far (issue #6)",
-            ));
-        }
-        if self.radio.model != RadioModel::Always {
-            return Err(invalid(
-                "radio.model",
-                format!("{:?}", self.radio.model),
-                "only \"always\" is implemented so far (range models come with netem, issue #3)",
-            ));
-        }
-        if self.radio.medium != Medium::PerLink {
-            return Err(invalid(
-                "radio.medium",
-                "shared",
-                "only \"per-link\" is implemented so far (issue #3)",
             ));
         }
         Ok(())
@@ -485,6 +548,9 @@ fn type_name(v: &toml::Value) -> &'static str {
     }
 }
 
+/// Keys without a default value (absent from the serialized default), accepted as numbers.
+const OPTIONAL_FLOAT_KEYS: [&str; 1] = ["radio.pathloss_threshold_dbm"];
+
 /// Checks every key of `user` against `schema` (the serialized default scenario), naming the
 /// full dotted key of the first unknown key or wrong type. Integers are accepted where floats are
 /// expected (and converted in place).
@@ -495,6 +561,10 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
         } else {
             format!("{prefix}.{k}")
         };
+        let optional = OPTIONAL_FLOAT_KEYS.contains(&key.as_str());
+        if optional && matches!(v, toml::Value::Float(_) | toml::Value::Integer(_)) {
+            continue;
+        }
         let Some(want) = schema.get(k) else {
             let allowed: Vec<&str> = schema.keys().map(String::as_str).collect();
             return Err(ScenarioError::UnknownKey {

@@ -1,0 +1,146 @@
+//! netem's command line: flags → scenario → [`crate::netem::start`] → [`crate::node::follow`].
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context;
+use clap::Parser;
+use proto::msg::RobotId;
+use proto::node::{close_quickly, init_logging, zerr, ZenohArgs};
+use proto::scenario::Scenario;
+
+use crate::netem::{start, NetemConfig, PairSpec};
+use crate::node::{fetch_truth, follow, needs_truth};
+
+/// The link emulator of swarm-explore: one TCP proxy per robot pair, between the lower id's
+/// radio session and the higher id's radio listener. It follows the world-server's robot poses
+/// on the sim plane and opens or cuts each link by the scenario's radio model, shapes its
+/// bandwidth on the simulated clock, applies faults, and counts every byte. Runtime control:
+/// a toxiproxy-compatible HTTP API (--http). Normally started by `swarm run`.
+#[derive(Parser, Debug, Clone)]
+#[command(name = "netem", version)]
+pub struct Args {
+    /// Scenario TOML file (see configs/default.toml: [radio], [netem], [[faults]]).
+    #[arg(long, value_name = "FILE")]
+    pub scenario: PathBuf,
+    /// Override a scenario key, e.g. --set radio.bandwidth_bytes_per_s=500 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// A robot pair's proxy: `A-B=LISTEN>TARGET`, e.g. `0-1=127.0.0.1:7600>127.0.0.1:7501`:
+    /// robot A (the lower id) connects to LISTEN, netem forwards to robot B's radio listener
+    /// TARGET. Repeat for every pair.
+    #[arg(long = "pair", value_name = "A-B=LISTEN>TARGET", value_parser = parse_pair)]
+    pub pairs: Vec<PairSpec>,
+    /// Address of the toxiproxy-compatible HTTP control API (GET /proxies, /metrics, …).
+    #[arg(long, value_name = "ADDR")]
+    pub http: Option<SocketAddr>,
+    /// Sim-plane zenoh options (--connect the world-server's router).
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
+}
+
+/// Parses `A-B=LISTEN>TARGET`.
+pub fn parse_pair(s: &str) -> Result<PairSpec, String> {
+    let bad =
+        || format!("{s:?}: expected A-B=LISTEN>TARGET, e.g. 0-1=127.0.0.1:7600>127.0.0.1:7501");
+    let (ids, addrs) = s.split_once('=').ok_or_else(bad)?;
+    let (a, b) = ids.split_once('-').ok_or_else(bad)?;
+    let (listen, target) = addrs.split_once('>').ok_or_else(bad)?;
+    let (a, b): (RobotId, RobotId) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if a >= b {
+        return Err(format!("{s:?}: the first robot id must be the lower one"));
+    }
+    Ok(PairSpec {
+        a,
+        b,
+        listen: listen.trim().parse().map_err(|_| bad())?,
+        target: target.trim().parse().map_err(|_| bad())?,
+    })
+}
+
+async fn run(args: Args) -> anyhow::Result<()> {
+    let scenario = Scenario::load(&args.scenario, &args.set)?;
+    // Check the scenario's faults before joining anything.
+    NetemConfig::from_scenario(&scenario, Vec::new(), None, None)?;
+    let sim = zenoh::open(args.zenoh.client(20_000)?)
+        .await
+        .map_err(zerr)
+        .context("joining the sim plane")?;
+    let truth = if needs_truth(&scenario) {
+        Some(fetch_truth(&sim, Duration::from_secs(30)).await?)
+    } else {
+        None
+    };
+    let cfg = NetemConfig::from_scenario(&scenario, args.pairs.clone(), truth, args.http)?;
+    let netem = start(cfg).await.context("starting the link proxies")?;
+    let result = follow(&sim, &netem).await;
+    netem.shutdown().await;
+    close_quickly(sim).await;
+    Ok(result?)
+}
+
+/// The whole process: one tokio runtime, logging, exit code.
+pub fn main(args: Args) -> ExitCode {
+    init_logging("netem");
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("netem: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(args)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("netem: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pair_specs_parse_and_bad_ones_say_why() {
+        let p = parse_pair("0-3=127.0.0.1:7600>127.0.0.1:7503").unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            (p.a, p.b, p.listen.port(), p.target.port()),
+            (0, 3, 7600, 7503)
+        );
+        for bad in [
+            "",
+            "0-1",
+            "1-0=127.0.0.1:1>127.0.0.1:2",
+            "0-1=x>y",
+            "a-b=127.0.0.1:1>127.0.0.1:2",
+        ] {
+            assert!(parse_pair(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn scheduled_faults_come_from_the_scenario_and_errors_name_the_entry() {
+        let s = Scenario::from_toml(
+            "[[faults]]\nstep = 5\nkind = \"cut\"\npair = [0, 1]\n[[faults]]\nstep = 9\nkind = \"heal\"\n",
+            &[],
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let cfg = NetemConfig::from_scenario(&s, Vec::new(), None, None)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(cfg.faults.len(), 2);
+        let bad = Scenario::from_toml("[[faults]]\nstep = 5\nkind = \"explode\"\n", &[])
+            .unwrap_or_else(|e| panic!("{e}"));
+        let err = NetemConfig::from_scenario(&bad, Vec::new(), None, None)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(err.contains('0') && err.contains("explode"), "{err}");
+    }
+}

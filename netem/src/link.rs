@@ -1,0 +1,916 @@
+//! One robot pair's link: its TCP proxy, its state (up or down, and why), its toxics and its
+//! counters (DESIGN.md §1, §5: "one listener per unordered pair {i, j}; a connection is forwarded
+//! to robot max(i,j)'s radio listener").
+//!
+//! The structure is tokio's `examples/proxy.rs` — an accept loop that spawns one task per
+//! connection — with each direction run through the shaping pipeline (`shaping/`) instead of
+//! `copy_bidirectional`, and a supervisor per connection that applies toxic changes and timers.
+//!
+//! **Link cut.** A link is up iff it is enabled (no cut, no partition), in radio range, and both
+//! robots are alive. When it goes down, every connection is reset (RST both ways: what netem holds
+//! and what the kernel has not sent yet is lost, as on a real radio). While it is down the
+//! listener stays bound and every new connection is *accepted and reset at once*: the port stays
+//! ours, the robot's zenoh session sees an immediate failure and retries with its own backoff,
+//! and the first retry after the link comes back up succeeds. (Closing the listener instead would
+//! risk losing the port to another process and turn a reconnect into a rebind.)
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use proto::msg::RobotId;
+use serde::Serialize;
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::watch;
+use tokio::task::{AbortHandle, JoinHandle};
+
+use crate::accounting::{Buffer, Dir, DirCounters, DirSnapshot};
+use crate::clock::{SimClock, SimTime};
+use crate::faults::{self, ActiveToxic, BaseShape, Kill, Toxic};
+use crate::radio::Verdict;
+use crate::shaping::{self, DirShape, PipeEnd};
+
+/// Most simultaneous connections per pair (zenoh opens one; a few more cover reconnect races).
+pub const MAX_CONNECTIONS: usize = 8;
+/// Most toxics per link.
+pub const MAX_TOXICS: usize = 32;
+
+/// The fixed parameters of a link.
+#[derive(Clone, Debug)]
+pub struct LinkParams {
+    pub a: RobotId,
+    pub b: RobotId,
+    pub target: SocketAddr,
+    pub base: [BaseShape; 2],
+    pub buffer_bytes: usize,
+    pub connect_timeout: Duration,
+    pub seed: u64,
+}
+
+/// Why a link is down.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DownReason {
+    /// Cut administratively (a fault, a partition, `enabled: false`).
+    Disabled,
+    /// A robot is declared dead by the world-server.
+    Dead,
+    /// The radio model says no.
+    OutOfRange,
+    /// A range model needs poses and netem has none yet.
+    NoPose,
+}
+
+impl DownReason {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DownReason::Disabled => "disabled",
+            DownReason::Dead => "dead",
+            DownReason::OutOfRange => "out_of_range",
+            DownReason::NoPose => "no_pose",
+        }
+    }
+}
+
+/// The mutable state that decides whether a link is up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinkState {
+    pub enabled: bool,
+    pub alive: bool,
+    /// `None`: no verdict yet (no poses); counts as in range only for the `always` model.
+    pub radio: Option<Verdict>,
+    pub always: bool,
+}
+
+impl LinkState {
+    pub fn down_reason(&self) -> Option<DownReason> {
+        if !self.enabled {
+            Some(DownReason::Disabled)
+        } else if !self.alive {
+            Some(DownReason::Dead)
+        } else if self.always {
+            None
+        } else {
+            match self.radio {
+                None => Some(DownReason::NoPose),
+                Some(v) if !v.in_range => Some(DownReason::OutOfRange),
+                Some(_) => None,
+            }
+        }
+    }
+}
+
+struct ConnEntry {
+    kill: watch::Sender<Option<Kill>>,
+    abort: Option<AbortHandle>,
+}
+
+/// A pair's proxy.
+pub struct Link {
+    pub params: LinkParams,
+    pub name: String,
+    pub listen: SocketAddr,
+    clock: SimClock,
+    counters: [Arc<DirCounters>; 2],
+    state: Mutex<LinkState>,
+    up: watch::Sender<bool>,
+    toxics: watch::Sender<Arc<Vec<ActiveToxic>>>,
+    conns: Mutex<HashMap<u64, ConnEntry>>,
+    next_conn: AtomicU64,
+    connects_total: AtomicU64,
+    refused_total: AtomicU64,
+}
+
+/// A copy of a link's state and counters.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LinkSnapshot {
+    pub a: RobotId,
+    pub b: RobotId,
+    pub name: String,
+    pub listen: SocketAddr,
+    pub target: SocketAddr,
+    pub up: bool,
+    pub enabled: bool,
+    pub down_reason: Option<DownReason>,
+    pub verdict: Option<Verdict>,
+    pub dirs: [DirSnapshot; 2],
+    pub connections: usize,
+    pub connects_total: u64,
+    pub refused_total: u64,
+    pub toxics: Vec<Toxic>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl Link {
+    /// A link whose listener is bound at `listen`; call [`Link::serve`] to start accepting.
+    pub fn new(
+        params: LinkParams,
+        listen: SocketAddr,
+        clock: SimClock,
+        state: LinkState,
+    ) -> Arc<Link> {
+        let up = state.down_reason().is_none();
+        Arc::new(Link {
+            name: faults::link_name(params.a, params.b),
+            params,
+            listen,
+            clock,
+            counters: [Arc::default(), Arc::default()],
+            state: Mutex::new(state),
+            up: watch::Sender::new(up),
+            toxics: watch::Sender::new(Arc::new(Vec::new())),
+            conns: Mutex::new(HashMap::new()),
+            next_conn: AtomicU64::new(0),
+            connects_total: AtomicU64::new(0),
+            refused_total: AtomicU64::new(0),
+        })
+    }
+
+    pub fn is_up(&self) -> bool {
+        *self.up.borrow()
+    }
+
+    pub fn counters(&self, dir: Dir) -> &DirCounters {
+        &self.counters[dir.index()]
+    }
+
+    /// Changes the state; resets every connection if the link goes down. Returns whether it is up.
+    pub fn update(&self, f: impl FnOnce(&mut LinkState)) -> bool {
+        let up = {
+            let mut st = lock(&self.state);
+            f(&mut st);
+            st.down_reason().is_none()
+        };
+        let conns = lock(&self.conns);
+        let was = self.up.send_replace(up);
+        if was && !up {
+            tracing::info!(link = %self.name, "link down: resetting {} connection(s)", conns.len());
+            for c in conns.values() {
+                c.kill.send_replace(Some(Kill::Reset));
+            }
+        } else if !was && up {
+            tracing::info!(link = %self.name, "link up");
+        }
+        up
+    }
+
+    pub fn state(&self) -> LinkState {
+        *lock(&self.state)
+    }
+
+    /// Resets the current connections once (the link's state does not change).
+    pub fn reset_connections(&self) {
+        for c in lock(&self.conns).values() {
+            c.kill.send_replace(Some(Kill::Reset));
+        }
+    }
+
+    pub fn toxics(&self) -> Arc<Vec<ActiveToxic>> {
+        Arc::clone(&self.toxics.borrow())
+    }
+
+    /// Replaces the toxic list (validated by the caller, at most [`MAX_TOXICS`]).
+    pub fn set_toxics(&self, toxics: Vec<ActiveToxic>) {
+        self.toxics.send_replace(Arc::new(toxics));
+    }
+
+    pub fn snapshot(&self) -> LinkSnapshot {
+        let st = self.state();
+        LinkSnapshot {
+            a: self.params.a,
+            b: self.params.b,
+            name: self.name.clone(),
+            listen: self.listen,
+            target: self.params.target,
+            up: self.is_up(),
+            enabled: st.enabled,
+            down_reason: st.down_reason(),
+            verdict: st.radio,
+            dirs: [self.counters[0].snapshot(), self.counters[1].snapshot()],
+            connections: lock(&self.conns).len(),
+            connects_total: self.connects_total.load(Relaxed),
+            refused_total: self.refused_total.load(Relaxed),
+            toxics: self.toxics().iter().map(|t| t.toxic.clone()).collect(),
+        }
+    }
+
+    /// Resets every connection and waits (up to `wait`) until their tasks have ended; aborts the rest.
+    pub async fn close_all(&self, wait: Duration) {
+        self.reset_connections();
+        let deadline = tokio::time::Instant::now() + wait;
+        while !lock(&self.conns).is_empty() && tokio::time::Instant::now() < deadline {
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        for c in lock(&self.conns).values() {
+            if let Some(a) = &c.abort {
+                a.abort();
+            }
+        }
+    }
+
+    /// Spawns the accept loop on `listener`; it ends when `shutdown` becomes true.
+    pub fn serve(
+        self: &Arc<Self>,
+        listener: TcpListener,
+        mut shutdown: watch::Receiver<bool>,
+    ) -> JoinHandle<()> {
+        let link = Arc::clone(self);
+        tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    () = stopped(&mut shutdown) => break,
+                    accepted = listener.accept() => match accepted {
+                        Ok((stream, peer)) => link.admit(stream, peer),
+                        Err(e) => {
+                            // Out of descriptors and the like: back off instead of spinning.
+                            tracing::warn!(link = %link.name, "accept failed: {e}");
+                            tokio::time::sleep(Duration::from_millis(20)).await;
+                        }
+                    },
+                }
+            }
+        })
+    }
+
+    fn admit(self: &Arc<Self>, stream: TcpStream, peer: SocketAddr) {
+        let mut conns = lock(&self.conns);
+        if !self.is_up() || conns.len() >= MAX_CONNECTIONS {
+            self.refused_total.fetch_add(1, Relaxed);
+            tracing::debug!(link = %self.name, %peer, up = self.is_up(), "refusing connection");
+            reset(&stream);
+            return;
+        }
+        let id = self.next_conn.fetch_add(1, Relaxed);
+        let (kill_tx, kill_rx) = watch::channel(None);
+        conns.insert(
+            id,
+            ConnEntry {
+                kill: kill_tx,
+                abort: None,
+            },
+        );
+        self.connects_total.fetch_add(1, Relaxed);
+        let link = Arc::clone(self);
+        let task = tokio::spawn(async move {
+            let _guard = ConnGuard {
+                link: Arc::clone(&link),
+                id,
+            };
+            link.run_connection(stream, id, kill_rx).await;
+        });
+        if let Some(e) = conns.get_mut(&id) {
+            e.abort = Some(task.abort_handle());
+        }
+    }
+
+    async fn run_connection(
+        self: &Arc<Self>,
+        client: TcpStream,
+        id: u64,
+        mut kill: watch::Receiver<Option<Kill>>,
+    ) {
+        let target = self.params.target;
+        let server = tokio::select! {
+            r = tokio::time::timeout(self.params.connect_timeout, TcpStream::connect(target)) => match r {
+                Ok(Ok(s)) => s,
+                Ok(Err(e)) => {
+                    tracing::debug!(link = %self.name, %target, "cannot reach the target: {e}");
+                    reset(&client);
+                    return;
+                }
+                Err(_) => {
+                    tracing::debug!(link = %self.name, %target, "timed out connecting to the target");
+                    reset(&client);
+                    return;
+                }
+            },
+            _ = killed(&mut kill) => {
+                reset(&client);
+                return;
+            }
+        };
+        let _ = client.set_nodelay(true);
+        let _ = server.set_nodelay(true);
+        let (client_r, client_w) = client.into_split();
+        let (server_r, server_w) = server.into_split();
+        let mut toxics_rx = self.toxics.subscribe();
+        let toxics = Arc::clone(&toxics_rx.borrow_and_update());
+        let shapes = Dir::BOTH.map(|d| watch::Sender::new(self.shape(&toxics, id, d)));
+        let (dir_kill, dir_kill_rx) = watch::channel(None);
+        let seed = self.params.seed ^ id.wrapping_mul(0xA076_1D64_78BD_642F);
+        let mut up = tokio::spawn(direction(
+            client_r,
+            server_w,
+            Buffer::new(self.params.buffer_bytes, Arc::clone(&self.counters[0])),
+            shapes[0].subscribe(),
+            self.clock.clone(),
+            seed,
+            dir_kill_rx.clone(),
+        ));
+        let mut down = tokio::spawn(direction(
+            server_r,
+            client_w,
+            Buffer::new(self.params.buffer_bytes, Arc::clone(&self.counters[1])),
+            shapes[1].subscribe(),
+            self.clock.clone(),
+            seed.rotate_left(17),
+            dir_kill_rx,
+        ));
+        let mut timers = Timers::default();
+        timers.update(&toxics, id, self.clock.now());
+        let (mut up_done, mut down_done) = (false, false);
+        while !(up_done && down_done) {
+            let next = timers.next();
+            tokio::select! {
+                end = &mut up, if !up_done => {
+                    up_done = true;
+                    on_direction_end(&self.name, Dir::AtoB, end, &dir_kill);
+                }
+                end = &mut down, if !down_done => {
+                    down_done = true;
+                    on_direction_end(&self.name, Dir::BtoA, end, &dir_kill);
+                }
+                k = killed(&mut kill) => {
+                    dir_kill.send_replace(Some(k));
+                    // The running direction tasks now end at once. (A finished JoinHandle must
+                    // not be polled again.)
+                    if !up_done {
+                        let _ = (&mut up).await;
+                    }
+                    if !down_done {
+                        let _ = (&mut down).await;
+                    }
+                    break;
+                }
+                changed = toxics_rx.changed() => {
+                    if changed.is_err() {
+                        break;
+                    }
+                    let toxics = Arc::clone(&toxics_rx.borrow_and_update());
+                    for d in Dir::BOTH {
+                        shapes[d.index()].send_replace(self.shape(&toxics, id, d));
+                    }
+                    timers.update(&toxics, id, self.clock.now());
+                }
+                () = sleep_until_opt(&self.clock, next.map(|(t, _)| t)) => {
+                    if let Some((_, k)) = next {
+                        tracing::debug!(link = %self.name, conn = id, "toxic timer fired: {k:?}");
+                        dir_kill.send_replace(Some(k));
+                        timers.clear();
+                    }
+                }
+            }
+        }
+    }
+
+    fn shape(&self, toxics: &[ActiveToxic], conn: u64, dir: Dir) -> DirShape {
+        faults::fold(&self.params.base[dir.index()], toxics, conn, dir)
+    }
+}
+
+/// Removes a connection from its link's table however its task ends.
+struct ConnGuard {
+    link: Arc<Link>,
+    id: u64,
+}
+
+impl Drop for ConnGuard {
+    fn drop(&mut self) {
+        lock(&self.link.conns).remove(&self.id);
+    }
+}
+
+/// Closes a socket with RST (SO_LINGER 0) instead of FIN.
+fn reset(s: &TcpStream) {
+    let _ = s.set_zero_linger();
+}
+
+fn on_direction_end(
+    link: &str,
+    dir: Dir,
+    end: Result<Option<PipeEnd>, tokio::task::JoinError>,
+    kill: &watch::Sender<Option<Kill>>,
+) {
+    match end {
+        // The sender closed its side; its FIN was passed on. The other direction goes on
+        // (TCP half-close) until its own sender closes.
+        Ok(Some(PipeEnd::Eof)) | Ok(None) => {}
+        Ok(Some(PipeEnd::LimitReached)) => {
+            tracing::debug!(link, dir = dir.label(), "limit_data reached: closing");
+            kill.send_replace(Some(Kill::Close));
+        }
+        Ok(Some(e)) => {
+            tracing::debug!(link, dir = dir.label(), "connection failed: {e:?}");
+            kill.send_replace(Some(Kill::Reset));
+        }
+        Err(e) => {
+            tracing::warn!(
+                link,
+                dir = dir.label(),
+                "direction task ended abnormally: {e}"
+            );
+            kill.send_replace(Some(Kill::Reset));
+        }
+    }
+}
+
+/// One direction of a connection: the pipeline from `reader` to `writer`, until it ends or a
+/// kill arrives (`None` then). On `Kill::Reset` the writer's socket is closed with RST.
+async fn direction(
+    reader: OwnedReadHalf,
+    mut writer: OwnedWriteHalf,
+    buffer: Arc<Buffer>,
+    shape: watch::Receiver<DirShape>,
+    clock: SimClock,
+    seed: u64,
+    mut kill: watch::Receiver<Option<Kill>>,
+) -> Option<PipeEnd> {
+    let killed = {
+        let pipe = shaping::pipeline(
+            reader,
+            &mut writer,
+            buffer,
+            shape,
+            clock,
+            seed,
+            Some(kill.clone()),
+        );
+        tokio::pin!(pipe);
+        tokio::select! {
+            end = &mut pipe => return Some(end),
+            k = killed(&mut kill) => k,
+        }
+    };
+    match killed {
+        Kill::Reset => {
+            let _ = writer.as_ref().set_zero_linger();
+            // Do not send a FIN on the way out: the socket closes with RST once both halves go.
+            writer.forget();
+        }
+        Kill::Close => {
+            use tokio::io::AsyncWriteExt;
+            let _ = writer.shutdown().await;
+        }
+    }
+    None
+}
+
+/// The pending toxic timers of one connection: toxic id → (due time, action).
+#[derive(Default)]
+struct Timers(HashMap<u64, (SimTime, Kill)>);
+
+impl Timers {
+    /// Keeps the timers of toxics that still exist (their start time does not move), adds new ones.
+    fn update(&mut self, toxics: &[ActiveToxic], conn: u64, now: SimTime) {
+        let wanted = faults::timers(toxics, conn);
+        self.0
+            .retain(|id, _| wanted.iter().any(|(w, _, _)| w == id));
+        for (id, kill, delay_ns) in wanted {
+            self.0
+                .entry(id)
+                .or_insert((now.saturating_add_ns(delay_ns), kill));
+        }
+    }
+
+    fn next(&self) -> Option<(SimTime, Kill)> {
+        self.0.values().min_by_key(|(t, _)| *t).copied()
+    }
+
+    fn clear(&mut self) {
+        self.0.clear();
+    }
+}
+
+/// Completes with the kill signal (a gone sender counts as a reset). Copies the value out so that
+/// no watch borrow lives across an await.
+async fn killed(rx: &mut watch::Receiver<Option<Kill>>) -> Kill {
+    let k = match rx.wait_for(Option::is_some).await {
+        Ok(k) => *k,
+        Err(_) => None,
+    };
+    k.unwrap_or(Kill::Reset)
+}
+
+/// Completes once `rx` reads true or its sender is gone.
+pub(crate) async fn stopped(rx: &mut watch::Receiver<bool>) {
+    let _ = rx.wait_for(|s| *s).await.map(|_| ());
+}
+
+async fn sleep_until_opt(clock: &SimClock, t: Option<SimTime>) {
+    match t {
+        Some(t) => clock.sleep_until(t).await,
+        None => std::future::pending().await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shaping::Budget;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    /// A target server that echoes nothing and records what it receives; returns its address and
+    /// a channel of accepted streams.
+    async fn target() -> (SocketAddr, tokio::sync::mpsc::Receiver<TcpStream>) {
+        let l = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = l.local_addr().unwrap();
+        let (tx, rx) = tokio::sync::mpsc::channel(8);
+        tokio::spawn(async move {
+            while let Ok((s, _)) = l.accept().await {
+                if tx.send(s).await.is_err() {
+                    break;
+                }
+            }
+        });
+        (addr, rx)
+    }
+
+    async fn link_with(
+        base: [BaseShape; 2],
+        clock: SimClock,
+        buffer_bytes: usize,
+    ) -> (
+        Arc<Link>,
+        tokio::sync::mpsc::Receiver<TcpStream>,
+        watch::Sender<bool>,
+    ) {
+        let (target, accepted) = target().await;
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let params = LinkParams {
+            a: 0,
+            b: 1,
+            target,
+            base,
+            buffer_bytes,
+            connect_timeout: Duration::from_secs(2),
+            seed: 1,
+        };
+        let state = LinkState {
+            enabled: true,
+            alive: true,
+            radio: None,
+            always: true,
+        };
+        let link = Link::new(params, listener.local_addr().unwrap(), clock, state);
+        let (stop_tx, stop_rx) = watch::channel(false);
+        link.serve(listener, stop_rx);
+        (link, accepted, stop_tx)
+    }
+
+    async fn connect(
+        link: &Link,
+        accepted: &mut tokio::sync::mpsc::Receiver<TcpStream>,
+    ) -> (TcpStream, TcpStream) {
+        let a = TcpStream::connect(link.listen).await.unwrap();
+        let b = tokio::time::timeout(Duration::from_secs(2), accepted.recv())
+            .await
+            .unwrap()
+            .unwrap();
+        (a, b)
+    }
+
+    async fn read_exact_timeout(s: &mut TcpStream, n: usize) -> Vec<u8> {
+        let mut buf = vec![0u8; n];
+        tokio::time::timeout(Duration::from_secs(2), s.read_exact(&mut buf))
+            .await
+            .expect("in time")
+            .expect("read");
+        buf
+    }
+
+    /// Reads until EOF or error; true if the stream ended (EOF or reset) within `wait`.
+    async fn ends_within(s: &mut TcpStream, wait: Duration) -> bool {
+        let mut buf = [0u8; 4096];
+        let deadline = tokio::time::Instant::now() + wait;
+        loop {
+            match tokio::time::timeout_at(deadline, s.read(&mut buf)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => return true,
+                Ok(Ok(_)) => continue,
+                Err(_) => return false,
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn forwards_both_ways_and_counts_bytes_and_chunks_per_direction() {
+        let (link, mut acc, _stop) =
+            link_with(Default::default(), SimClock::lockstep(), 4096).await;
+        let (mut a, mut b) = connect(&link, &mut acc).await;
+        a.write_all(b"hello from a").await.unwrap();
+        assert_eq!(read_exact_timeout(&mut b, 12).await, b"hello from a");
+        b.write_all(b"hi").await.unwrap();
+        assert_eq!(read_exact_timeout(&mut a, 2).await, b"hi");
+        let s = link.snapshot();
+        assert_eq!(s.dirs[0].bytes_total, 12);
+        assert_eq!(s.dirs[1].bytes_total, 2);
+        assert!(s.dirs[0].chunks_total >= 1);
+        assert_eq!(s.connections, 1);
+        assert_eq!(link.counters(Dir::AtoB).take_step(), 12);
+        assert_eq!(link.counters(Dir::AtoB).take_step(), 0);
+        // Half-close passes through: a's FIN reaches b, b can still answer.
+        a.shutdown().await.unwrap();
+        let mut buf = [0u8; 1];
+        assert_eq!(b.read(&mut buf).await.unwrap(), 0);
+        b.write_all(b"bye").await.unwrap();
+        assert_eq!(read_exact_timeout(&mut a, 3).await, b"bye");
+    }
+
+    #[tokio::test]
+    async fn cut_resets_both_sides_refuses_reconnects_and_restore_accepts_again() {
+        let (link, mut acc, _stop) =
+            link_with(Default::default(), SimClock::lockstep(), 4096).await;
+        let (mut a, mut b) = connect(&link, &mut acc).await;
+        a.write_all(b"x").await.unwrap();
+        read_exact_timeout(&mut b, 1).await;
+        assert!(!link.update(|s| s.enabled = false));
+        assert!(
+            ends_within(&mut a, Duration::from_secs(2)).await,
+            "a sees the cut"
+        );
+        assert!(
+            ends_within(&mut b, Duration::from_secs(2)).await,
+            "b sees the cut"
+        );
+        // While down: accepted and reset at once, never forwarded.
+        let mut again = TcpStream::connect(link.listen).await.unwrap();
+        assert!(ends_within(&mut again, Duration::from_secs(2)).await);
+        assert!(tokio::time::timeout(Duration::from_millis(50), acc.recv())
+            .await
+            .is_err());
+        assert!(link.snapshot().refused_total >= 1);
+        assert_eq!(link.snapshot().down_reason, Some(DownReason::Disabled));
+        assert!(link.update(|s| s.enabled = true));
+        let (mut a, mut b) = connect(&link, &mut acc).await;
+        a.write_all(b"back").await.unwrap();
+        assert_eq!(read_exact_timeout(&mut b, 4).await, b"back");
+    }
+
+    #[tokio::test]
+    async fn timeout_toxic_stalls_then_closes_and_latency_toxic_delays_by_simulated_time() {
+        let clock = SimClock::lockstep();
+        let (link, mut acc, _stop) = link_with(Default::default(), clock.clone(), 4096).await;
+        let (mut a, mut b) = connect(&link, &mut acc).await;
+        link.set_toxics(vec![ActiveToxic {
+            toxic: Toxic::both(faults::ToxicKind::Latency {
+                latency_ms: 1500,
+                jitter_ms: 0,
+            }),
+            id: 1,
+            budgets: [None, None],
+        }]);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        a.write_all(b"slow").await.unwrap();
+        // Let netem read the bytes at time 0 (due at 1.5 s).
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let mut buf = [0u8; 4];
+        clock.advance_to(SimTime::from_secs_f64(1.0));
+        assert!(
+            tokio::time::timeout(Duration::from_millis(50), b.read_exact(&mut buf))
+                .await
+                .is_err()
+        );
+        clock.advance_to(SimTime::from_secs_f64(2.0));
+        assert_eq!(read_exact_timeout(&mut b, 4).await, b"slow");
+
+        link.set_toxics(vec![ActiveToxic {
+            toxic: Toxic::both(faults::ToxicKind::Timeout { timeout_ms: 3000 }),
+            id: 2,
+            budgets: [None, None],
+        }]);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        b.write_all(b"zzz").await.unwrap();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        clock.advance_to(SimTime::from_secs_f64(4.0));
+        assert!(
+            !ends_within(&mut a, Duration::from_millis(50)).await,
+            "stalled, not closed"
+        );
+        clock.advance_to(SimTime::from_secs_f64(5.5));
+        assert!(
+            ends_within(&mut a, Duration::from_secs(2)).await,
+            "closed after the timeout"
+        );
+        assert!(ends_within(&mut b, Duration::from_secs(2)).await);
+        assert!(
+            link.snapshot().dirs[1].lost_bytes_total >= 3,
+            "the stalled bytes are lost"
+        );
+    }
+
+    /// Regression: a cut while one direction had already finished (half-close) polled that
+    /// direction's JoinHandle a second time and panicked the connection task.
+    #[tokio::test]
+    async fn cut_after_half_close_ends_the_connection_cleanly() {
+        // A panic in a spawned task does not fail the test by itself: watch for one on this
+        // test's thread (a current-thread runtime runs every task here).
+        let me = std::thread::current().id();
+        let panicked = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = Arc::clone(&panicked);
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if std::thread::current().id() == me {
+                flag.store(true, Relaxed);
+            }
+            eprintln!("{info}");
+        }));
+        let (link, mut acc, _stop) =
+            link_with(Default::default(), SimClock::lockstep(), 4096).await;
+        let (mut a, mut b) = connect(&link, &mut acc).await;
+        a.shutdown().await.unwrap();
+        let mut buf = [0u8; 1];
+        assert_eq!(b.read(&mut buf).await.unwrap(), 0);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        link.update(|s| s.enabled = false);
+        assert!(ends_within(&mut a, Duration::from_secs(2)).await);
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(2);
+        while link.snapshot().connections > 0 {
+            assert!(
+                tokio::time::Instant::now() < deadline,
+                "the connection task ended"
+            );
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        drop(b);
+        std::panic::set_hook(previous);
+        assert!(!panicked.load(Relaxed), "a connection task panicked");
+    }
+
+    #[tokio::test]
+    async fn an_unreachable_target_resets_the_client() {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        // A port nobody listens on: bind, note, drop.
+        let dead = TcpListener::bind("127.0.0.1:0")
+            .await
+            .unwrap()
+            .local_addr()
+            .unwrap();
+        let params = LinkParams {
+            a: 0,
+            b: 1,
+            target: dead,
+            base: Default::default(),
+            buffer_bytes: 1024,
+            connect_timeout: Duration::from_secs(1),
+            seed: 0,
+        };
+        let state = LinkState {
+            enabled: true,
+            alive: true,
+            radio: None,
+            always: true,
+        };
+        let link = Link::new(
+            params,
+            listener.local_addr().unwrap(),
+            SimClock::lockstep(),
+            state,
+        );
+        let (_stop, rx) = watch::channel(false);
+        link.serve(listener, rx);
+        let mut a = TcpStream::connect(link.listen).await.unwrap();
+        assert!(ends_within(&mut a, Duration::from_secs(2)).await);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        assert_eq!(link.snapshot().connections, 0);
+    }
+
+    #[tokio::test]
+    async fn a_sender_offering_ten_times_the_budget_is_held_back_with_flat_memory() {
+        let clock = SimClock::lockstep();
+        let rate = 1000;
+        let budget = |_| BaseShape {
+            budget: Some(Budget::new(rate, 1.0, false, clock.clone())),
+            ..BaseShape::default()
+        };
+        let buffer = 8192;
+        let (link, mut acc, _stop) = link_with([0, 1].map(budget), clock.clone(), buffer).await;
+        let (mut a, mut b) = connect(&link, &mut acc).await;
+        let sent = Arc::new(AtomicU64::new(0));
+        let sent2 = Arc::clone(&sent);
+        let writer = tokio::spawn(async move {
+            let block = vec![0u8; 10 * 1000];
+            while a.write_all(&block).await.is_ok() {
+                sent2.fetch_add(block.len() as u64, Relaxed);
+            }
+        });
+        let reader = tokio::spawn(async move {
+            let mut buf = vec![0u8; 65536];
+            let mut n_total = 0u64;
+            while let Ok(Ok(n)) =
+                tokio::time::timeout(Duration::from_millis(300), b.read(&mut buf)).await
+            {
+                if n == 0 {
+                    break;
+                }
+                n_total += n as u64;
+            }
+            n_total
+        });
+        // Let the sender fill the pipe at time 0, so that step 0's budget is used too.
+        tokio::time::sleep(Duration::from_millis(30)).await;
+        for step in 1..=60u64 {
+            clock.advance_to(SimTime::from_secs_f64(step as f64));
+            tokio::time::sleep(Duration::from_millis(3)).await;
+            assert!(link.snapshot().dirs[0].queued_bytes <= buffer as u64);
+        }
+        let s = link.snapshot();
+        assert!(s.dirs[0].queued_max_bytes <= buffer as u64, "{s:?}");
+        assert!(s.dirs[0].queued_max_bytes > 0);
+        let delivered = s.dirs[0].bytes_total;
+        assert_eq!(
+            delivered,
+            61 * rate,
+            "one step's budget per step, steps 0..=60"
+        );
+        // The sender is stuck: what it managed to write is bounded by the kernel's socket
+        // buffers plus ours, not by how long it tries.
+        let offered = sent.load(Relaxed);
+        assert!(offered < delivered + (16 << 20), "{offered}");
+        writer.abort();
+        drop(reader);
+    }
+
+    #[tokio::test]
+    async fn toxic_changes_reach_live_connections() {
+        let (link, mut acc, _stop) =
+            link_with(Default::default(), SimClock::lockstep(), 4096).await;
+        let (mut a, mut b) = connect(&link, &mut acc).await;
+        link.set_toxics(vec![ActiveToxic {
+            toxic: Toxic {
+                name: "bh".into(),
+                kind: faults::ToxicKind::Timeout { timeout_ms: 0 },
+                stream: faults::Stream::Upstream,
+                toxicity: 1.0,
+            },
+            id: 1,
+            budgets: [None, None],
+        }]);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        a.write_all(b"held").await.unwrap();
+        let mut buf = [0u8; 4];
+        assert!(
+            tokio::time::timeout(Duration::from_millis(100), b.read(&mut buf))
+                .await
+                .is_err()
+        );
+        link.set_toxics(vec![]);
+        assert_eq!(read_exact_timeout(&mut b, 4).await, b"held");
+        // reset_peer after 2 simulated seconds.
+        link.set_toxics(vec![ActiveToxic {
+            toxic: Toxic::both(faults::ToxicKind::ResetPeer { timeout_ms: 2000 }),
+            id: 2,
+            budgets: [None, None],
+        }]);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        link.clock.advance_to(SimTime::from_secs_f64(1.0));
+        assert!(!ends_within(&mut a, Duration::from_millis(50)).await);
+        link.clock.advance_to(SimTime::from_secs_f64(2.5));
+        assert!(ends_within(&mut a, Duration::from_secs(2)).await);
+        assert!(ends_within(&mut b, Duration::from_secs(2)).await);
+    }
+}

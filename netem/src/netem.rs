@@ -1,0 +1,1230 @@
+//! The netem instance: configuration, start, the per-step entry point, telemetry, runtime control
+//! and shutdown (DESIGN.md §5). No zenoh here: the binary reads poses from the sim plane and calls
+//! `Netem::on_step`; this library moves bytes.
+//!
+//! `start` binds every pair's listener (and the HTTP API), so a port conflict is an error at
+//! start-up, not a silent dead link later. Each step the embedder calls `Netem::on_step` with
+//! the poses: in lockstep that advances the simulated clock to `step × step_seconds`, then the
+//! step's scheduled faults are applied and every link's range is re-evaluated. Then
+//! `Netem::telemetry` gives the step's per-link counters (links.csv).
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use proto::geom::{MapInfo, Pose};
+use proto::grid::Grid;
+use proto::msg::{RobotId, Step};
+use proto::scenario::{
+    ClockMode, Medium, Netem as ScenarioNetem, Radio as ScenarioRadio, RadioModel,
+};
+use serde::Serialize;
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+use crate::accounting::Dir;
+use crate::clock::{SimClock, SimTime};
+use crate::faults::{self, ActiveToxic, BaseShape, Fault, Pair, ScheduledFault, Toxic, ToxicKind};
+use crate::link::{Link, LinkParams, LinkSnapshot, LinkState, MAX_TOXICS};
+use crate::radio::{Model, PathLoss, Radio};
+use crate::shaping::Budget;
+
+/// One robot pair: robot `a` (the lower id) connects to `listen`; netem forwards to `target`,
+/// robot `b`'s radio listener.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PairSpec {
+    pub a: RobotId,
+    pub b: RobotId,
+    /// Port 0 picks a free port; read it back with [`Netem::listen_addr`].
+    pub listen: SocketAddr,
+    pub target: SocketAddr,
+}
+
+/// Everything netem needs to run.
+#[derive(Clone, Debug)]
+pub struct NetemConfig {
+    pub pairs: Vec<PairSpec>,
+    /// The scenario's `[radio]`: model, range, bandwidth, medium, latency, jitter, path loss.
+    pub radio: ScenarioRadio,
+    /// The scenario's `[netem]`: buffer size, connect timeout.
+    pub netem: ScenarioNetem,
+    /// Seed of jitter, corruption and toxicity draws (the scenario's `seed`).
+    pub seed: u64,
+    /// Simulated seconds per step (the scenario's `clock.step_seconds`).
+    pub step_seconds: f64,
+    pub mode: ClockMode,
+    /// Realtime only: simulated seconds per wall second.
+    pub speedup: f64,
+    /// The truth map, for path loss wall counts.
+    pub truth: Option<(MapInfo, Grid)>,
+    pub faults: Vec<ScheduledFault>,
+    /// Where to serve the toxiproxy-compatible HTTP API (`None`: no API).
+    pub http: Option<SocketAddr>,
+}
+
+impl NetemConfig {
+    /// A lockstep configuration with 1 s steps, default `[netem]` knobs, no faults, no HTTP API.
+    pub fn new(pairs: Vec<PairSpec>, radio: ScenarioRadio) -> NetemConfig {
+        NetemConfig {
+            pairs,
+            radio,
+            netem: ScenarioNetem::default(),
+            seed: 1,
+            step_seconds: 1.0,
+            mode: ClockMode::Lockstep,
+            speedup: 1.0,
+            truth: None,
+            faults: Vec::new(),
+            http: None,
+        }
+    }
+
+    /// Everything a scenario determines: `[radio]`, `[netem]`, `seed`, the clock and the
+    /// `[[faults]]` (parsed here; a bad table is [`NetemError::BadFault`] naming its index).
+    pub fn from_scenario(
+        s: &proto::scenario::Scenario,
+        pairs: Vec<PairSpec>,
+        truth: Option<(MapInfo, Grid)>,
+        http: Option<SocketAddr>,
+    ) -> Result<NetemConfig, NetemError> {
+        let faults = faults::parse_faults(&s.faults)
+            .map_err(|(index, reason)| NetemError::BadFault { index, reason })?;
+        Ok(NetemConfig {
+            pairs,
+            radio: s.radio.clone(),
+            netem: s.netem.clone(),
+            seed: s.seed,
+            step_seconds: s.clock.step_seconds,
+            mode: s.clock.mode,
+            speedup: s.clock.speedup,
+            truth,
+            faults,
+            http,
+        })
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum NetemError {
+    #[error("invalid netem configuration: {0}")]
+    Config(String),
+    #[error("cannot listen on {addr} for {what}: {source}")]
+    Bind {
+        what: String,
+        addr: SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("no link {0} (links are named r<a>-r<b>)")]
+    UnknownLink(String),
+    #[error("robot {0} is in no link")]
+    UnknownRobot(RobotId),
+    #[error("link {link} has no toxic {name}")]
+    UnknownToxic { link: String, name: String },
+    #[error("toxic {name} already exists on link {link}")]
+    ToxicExists { link: String, name: String },
+    #[error("invalid toxic: {0}")]
+    InvalidToxic(String),
+    #[error("link {0} already has the most toxics allowed ({MAX_TOXICS})")]
+    TooManyToxics(String),
+    #[error("faults[{index}]: {reason}")]
+    BadFault { index: usize, reason: String },
+}
+
+/// One link at the end of one step (a row of links.csv).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LinkTelemetry {
+    /// The last step given to [`Netem::on_step`] (`None` before the first).
+    pub step: Option<Step>,
+    pub a: RobotId,
+    pub b: RobotId,
+    pub up: bool,
+    /// `disabled`, `dead`, `out_of_range` or `no_pose` when down.
+    pub down_reason: Option<&'static str>,
+    /// `None` until both poses are known.
+    pub distance_m: Option<f64>,
+    pub signal_dbm: Option<f64>,
+    pub walls: Option<u32>,
+    /// Bytes delivered since the previous [`Netem::telemetry`] call.
+    pub bytes_a_to_b: u64,
+    pub bytes_b_to_a: u64,
+    pub bytes_a_to_b_total: u64,
+    pub bytes_b_to_a_total: u64,
+    pub chunks_a_to_b_total: u64,
+    pub chunks_b_to_a_total: u64,
+    /// Bytes held inside netem now, both directions.
+    pub queued_bytes: u64,
+    pub queued_a_to_b: u64,
+    pub queued_b_to_a: u64,
+    /// Bytes read and then dropped by cuts, resets and limit_data, both directions.
+    pub lost_bytes_total: u64,
+    pub connections: usize,
+    pub connects_total: u64,
+    pub refused_total: u64,
+    pub toxics: usize,
+}
+
+/// The state shared by the handle, the HTTP API and the tasks.
+pub(crate) struct Shared {
+    pub(crate) clock: SimClock,
+    pub(crate) links: Vec<Arc<Link>>,
+    by_pair: HashMap<Pair, usize>,
+    radio: Radio,
+    step_seconds: f64,
+    steps: Mutex<StepState>,
+    toxic_ids: AtomicU64,
+    shutdown: watch::Sender<bool>,
+}
+
+struct StepState {
+    step: Option<Step>,
+    poses: HashMap<RobotId, (Pose, bool)>,
+    /// Sorted by step; `next` is the first not yet applied.
+    faults: Vec<ScheduledFault>,
+    next: usize,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// A running netem.
+pub struct Netem {
+    shared: Arc<Shared>,
+    tasks: Vec<JoinHandle<()>>,
+    http_addr: Option<SocketAddr>,
+}
+
+fn validate(cfg: &NetemConfig) -> Result<(), NetemError> {
+    let bad = |m: String| Err(NetemError::Config(m));
+    if !(cfg.step_seconds.is_finite() && cfg.step_seconds > 0.0) {
+        return bad(format!(
+            "step_seconds = {} must be a positive number",
+            cfg.step_seconds
+        ));
+    }
+    if cfg.mode == ClockMode::Realtime && !(cfg.speedup.is_finite() && cfg.speedup > 0.0) {
+        return bad(format!(
+            "speedup = {} must be a positive number",
+            cfg.speedup
+        ));
+    }
+    let e = &cfg.radio;
+    for (k, v) in [("latency_ms", e.latency_ms), ("jitter_ms", e.jitter_ms)] {
+        if !(v.is_finite() && (0.0..=faults::MAX_TOXIC_MS as f64).contains(&v)) {
+            return bad(format!(
+                "{k} = {v} must be in [0, {}]",
+                faults::MAX_TOXIC_MS
+            ));
+        }
+    }
+    if cfg.netem.buffer_bytes == 0 {
+        return bad("buffer_bytes must be at least 1".into());
+    }
+    if cfg.radio.model != RadioModel::Always
+        && !(cfg.radio.range_m.is_finite() && cfg.radio.range_m > 0.0)
+    {
+        return bad(format!(
+            "radio.range_m = {} must be a positive number",
+            cfg.radio.range_m
+        ));
+    }
+    if cfg.radio.model == RadioModel::Pathloss {
+        let finite = [
+            e.pathloss_ref_dbm,
+            e.pathloss_exponent,
+            e.pathloss_wall_attenuation_db,
+        ]
+        .iter()
+        .all(|v| v.is_finite());
+        if !finite
+            || e.pathloss_ref_distance_m.is_nan()
+            || e.pathloss_ref_distance_m <= 0.0
+            || e.pathloss_threshold_dbm.is_some_and(|t| !t.is_finite())
+        {
+            return bad(
+                "path loss parameters must be finite, with a positive reference distance".into(),
+            );
+        }
+    }
+    let mut seen = HashMap::new();
+    for p in &cfg.pairs {
+        if p.a >= p.b {
+            return bad(format!("pair ({}, {}): a must be lower than b", p.a, p.b));
+        }
+        if seen.insert((p.a, p.b), ()).is_some() {
+            return bad(format!("pair ({}, {}) given twice", p.a, p.b));
+        }
+    }
+    for (index, f) in cfg.faults.iter().enumerate() {
+        let known = |p: &Pair| seen.contains_key(&(p.0.min(p.1), p.0.max(p.1)));
+        let robot = |r: &RobotId| cfg.pairs.iter().any(|p| p.a == *r || p.b == *r);
+        let problem = match &f.fault {
+            Fault::Cut { pair } | Fault::Restore { pair } if !known(pair) => {
+                Some(format!("no link {}", faults::link_name(pair.0, pair.1)))
+            }
+            Fault::Reset { pair: Some(pair) }
+            | Fault::AddToxic {
+                pair: Some(pair), ..
+            }
+            | Fault::SetToxic {
+                pair: Some(pair), ..
+            }
+            | Fault::RemoveToxic {
+                pair: Some(pair), ..
+            } if !known(pair) => Some(format!("no link {}", faults::link_name(pair.0, pair.1))),
+            Fault::Partition { groups } => groups
+                .iter()
+                .flatten()
+                .find(|r| !robot(r))
+                .map(|r| format!("robot {r} is in no link")),
+            _ => None,
+        };
+        if let Some(reason) = problem {
+            return Err(NetemError::BadFault { index, reason });
+        }
+    }
+    Ok(())
+}
+
+fn radio_model(cfg: &NetemConfig) -> Model {
+    let e = &cfg.radio;
+    match cfg.radio.model {
+        RadioModel::Always => Model::Always,
+        RadioModel::Disk => Model::Disk {
+            range_m: cfg.radio.range_m,
+        },
+        RadioModel::Pathloss => Model::PathLoss(PathLoss {
+            ref_dbm: e.pathloss_ref_dbm,
+            ref_distance_m: e.pathloss_ref_distance_m,
+            exponent: e.pathloss_exponent,
+            wall_attenuation_db: e.pathloss_wall_attenuation_db,
+            max_walls: e.pathloss_max_walls,
+            threshold_dbm: e.pathloss_threshold_dbm.unwrap_or_else(|| {
+                PathLoss::threshold_for_range(
+                    e.pathloss_ref_dbm,
+                    e.pathloss_ref_distance_m,
+                    e.pathloss_exponent,
+                    cfg.radio.range_m,
+                )
+            }),
+        }),
+    }
+}
+
+/// Binds every listener (and the HTTP API), spawns the tasks. Needs a tokio runtime.
+pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
+    validate(&cfg)?;
+    let clock = match cfg.mode {
+        ClockMode::Lockstep => SimClock::lockstep(),
+        ClockMode::Realtime => SimClock::realtime(cfg.speedup),
+    };
+    if cfg.radio.model == RadioModel::Pathloss && cfg.truth.is_none() {
+        tracing::warn!("path loss without a truth map: walls are not counted");
+    }
+    let radio = Radio::new(radio_model(&cfg), cfg.truth.map(Arc::new));
+    let rate = cfg.radio.bandwidth_bytes_per_s;
+    let medium = (rate > 0 && cfg.radio.medium == Medium::Shared)
+        .then(|| Budget::new(rate, cfg.step_seconds, true, clock.clone()));
+    let ns = |ms: f64| (ms * 1e6).round() as u64;
+    let (shutdown, shutdown_rx) = watch::channel(false);
+    let mut links = Vec::new();
+    let mut listeners = Vec::new();
+    for (i, p) in cfg.pairs.iter().enumerate() {
+        let base = |_| BaseShape {
+            budget: (rate > 0 && cfg.radio.medium == Medium::PerLink)
+                .then(|| Budget::new(rate, cfg.step_seconds, false, clock.clone())),
+            medium: medium.clone(),
+            latency_ns: ns(cfg.radio.latency_ms),
+            jitter_ns: ns(cfg.radio.jitter_ms),
+        };
+        let listener = TcpListener::bind(p.listen)
+            .await
+            .map_err(|source| NetemError::Bind {
+                what: format!("link {}", faults::link_name(p.a, p.b)),
+                addr: p.listen,
+                source,
+            })?;
+        let listen = listener.local_addr().unwrap_or(p.listen);
+        let params = LinkParams {
+            a: p.a,
+            b: p.b,
+            target: p.target,
+            base: [0, 1].map(base),
+            buffer_bytes: cfg.netem.buffer_bytes as usize,
+            connect_timeout: Duration::from_millis(cfg.netem.connect_timeout_ms.max(1)),
+            seed: cfg.seed ^ (i as u64).wrapping_mul(0x2545_F491_4F6C_DD1D),
+        };
+        let state = LinkState {
+            enabled: true,
+            alive: true,
+            radio: None,
+            always: cfg.radio.model == RadioModel::Always,
+        };
+        links.push(Link::new(params, listen, clock.clone(), state));
+        listeners.push(listener);
+    }
+    let mut faults = cfg.faults;
+    faults.sort_by_key(|f| f.step);
+    let shared = Arc::new(Shared {
+        clock,
+        by_pair: links
+            .iter()
+            .enumerate()
+            .map(|(i, l)| ((l.params.a, l.params.b), i))
+            .collect(),
+        links,
+        radio,
+        step_seconds: cfg.step_seconds,
+        steps: Mutex::new(StepState {
+            step: None,
+            poses: HashMap::new(),
+            faults,
+            next: 0,
+        }),
+        toxic_ids: AtomicU64::new(1),
+        shutdown,
+    });
+    let mut tasks: Vec<JoinHandle<()>> = shared
+        .links
+        .iter()
+        .zip(listeners)
+        .map(|(l, listener)| l.serve(listener, shutdown_rx.clone()))
+        .collect();
+    let mut http_addr = None;
+    if let Some(addr) = cfg.http {
+        let listener = TcpListener::bind(addr)
+            .await
+            .map_err(|source| NetemError::Bind {
+                what: "the HTTP API".into(),
+                addr,
+                source,
+            })?;
+        http_addr = Some(listener.local_addr().unwrap_or(addr));
+        tasks.push(crate::http::serve(
+            Arc::clone(&shared),
+            listener,
+            shutdown_rx,
+        ));
+    }
+    tracing::info!(links = shared.links.len(), model = ?shared.radio.kind(), rate, "netem started");
+    Ok(Netem {
+        shared,
+        tasks,
+        http_addr,
+    })
+}
+
+impl Shared {
+    fn link(&self, pair: Pair) -> Result<&Arc<Link>, NetemError> {
+        let key = (pair.0.min(pair.1), pair.0.max(pair.1));
+        self.by_pair
+            .get(&key)
+            .map(|&i| &self.links[i])
+            .ok_or_else(|| NetemError::UnknownLink(faults::link_name(pair.0, pair.1)))
+    }
+
+    pub(crate) fn link_by_name(&self, name: &str) -> Result<&Arc<Link>, NetemError> {
+        faults::parse_link_name(name)
+            .and_then(|p| self.by_pair.get(&p))
+            .map(|&i| &self.links[i])
+            .ok_or_else(|| NetemError::UnknownLink(name.to_string()))
+    }
+
+    fn links_of(&self, pair: Option<Pair>) -> Result<Vec<&Arc<Link>>, NetemError> {
+        match pair {
+            Some(p) => Ok(vec![self.link(p)?]),
+            None => Ok(self.links.iter().collect()),
+        }
+    }
+
+    pub(crate) fn step(&self) -> Option<Step> {
+        lock(&self.steps).step
+    }
+
+    fn install(&self, toxic: &Toxic) -> ActiveToxic {
+        let budget = |d: Dir| match toxic.kind {
+            ToxicKind::Bandwidth { rate_bytes_per_s }
+                if rate_bytes_per_s > 0 && toxic.stream.applies(d) =>
+            {
+                Some(Budget::new(
+                    rate_bytes_per_s,
+                    self.step_seconds,
+                    false,
+                    self.clock.clone(),
+                ))
+            }
+            _ => None,
+        };
+        ActiveToxic {
+            toxic: toxic.clone(),
+            id: self.toxic_ids.fetch_add(1, Relaxed),
+            budgets: Dir::BOTH.map(budget),
+        }
+    }
+
+    /// Adds (or with `replace`, adds or replaces) a toxic on one link.
+    fn put_toxic(&self, link: &Link, toxic: &Toxic, replace: bool) -> Result<(), NetemError> {
+        let mut list: Vec<ActiveToxic> = link.toxics().as_ref().clone();
+        match list.iter().position(|t| t.toxic.name == toxic.name) {
+            Some(_) if !replace => {
+                return Err(NetemError::ToxicExists {
+                    link: link.name.clone(),
+                    name: toxic.name.clone(),
+                })
+            }
+            Some(i) => list[i] = self.install(toxic),
+            None if list.len() >= MAX_TOXICS => {
+                return Err(NetemError::TooManyToxics(link.name.clone()))
+            }
+            None => list.push(self.install(toxic)),
+        }
+        link.set_toxics(list);
+        Ok(())
+    }
+
+    pub(crate) fn apply(&self, fault: &Fault) -> Result<(), NetemError> {
+        tracing::info!(?fault, "applying fault");
+        match fault {
+            Fault::Cut { pair } => {
+                self.link(*pair)?.update(|s| s.enabled = false);
+            }
+            Fault::Restore { pair } => {
+                self.link(*pair)?.update(|s| s.enabled = true);
+            }
+            Fault::Partition { groups } => {
+                let mut group_of = HashMap::new();
+                for (g, members) in groups.iter().enumerate() {
+                    for r in members {
+                        if !self
+                            .links
+                            .iter()
+                            .any(|l| l.params.a == *r || l.params.b == *r)
+                        {
+                            return Err(NetemError::UnknownRobot(*r));
+                        }
+                        group_of.insert(*r, g);
+                    }
+                }
+                for l in &self.links {
+                    if let (Some(ga), Some(gb)) =
+                        (group_of.get(&l.params.a), group_of.get(&l.params.b))
+                    {
+                        if ga != gb {
+                            l.update(|s| s.enabled = false);
+                        }
+                    }
+                }
+            }
+            Fault::Heal => {
+                for l in &self.links {
+                    l.update(|s| s.enabled = true);
+                }
+            }
+            Fault::Reset { pair } => {
+                for l in self.links_of(*pair)? {
+                    l.reset_connections();
+                }
+            }
+            Fault::AddToxic { pair, toxic } | Fault::SetToxic { pair, toxic } => {
+                let replace = matches!(fault, Fault::SetToxic { .. });
+                let links = self.links_of(*pair)?;
+                if !replace {
+                    for l in &links {
+                        if l.toxics().iter().any(|t| t.toxic.name == toxic.name) {
+                            return Err(NetemError::ToxicExists {
+                                link: l.name.clone(),
+                                name: toxic.name.clone(),
+                            });
+                        }
+                    }
+                }
+                for l in links {
+                    self.put_toxic(l, toxic, replace)?;
+                }
+            }
+            Fault::RemoveToxic { pair, name } => {
+                let links = self.links_of(*pair)?;
+                let mut found = false;
+                for l in &links {
+                    let list = l.toxics();
+                    if list.iter().any(|t| &t.toxic.name == name) {
+                        found = true;
+                        l.set_toxics(
+                            list.iter()
+                                .filter(|t| &t.toxic.name != name)
+                                .cloned()
+                                .collect(),
+                        );
+                    }
+                }
+                if !found {
+                    return Err(NetemError::UnknownToxic {
+                        link: pair.map_or_else(|| "(any)".into(), |p| faults::link_name(p.0, p.1)),
+                        name: name.clone(),
+                    });
+                }
+            }
+            Fault::ResetAll => {
+                for l in &self.links {
+                    l.set_toxics(Vec::new());
+                    l.update(|s| s.enabled = true);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    pub(crate) fn snapshots(&self) -> Vec<LinkSnapshot> {
+        self.links.iter().map(|l| l.snapshot()).collect()
+    }
+
+    pub(crate) fn now(&self) -> SimTime {
+        self.clock.now()
+    }
+
+    /// The telemetry rows without resetting the per-step counters (their byte fields read 0).
+    pub(crate) fn rows(&self) -> Vec<LinkTelemetry> {
+        let step = self.step();
+        self.snapshots()
+            .iter()
+            .map(|s| telemetry_row(step, s, [0, 0]))
+            .collect()
+    }
+}
+
+impl Netem {
+    /// Advances the simulated clock to `step × step_seconds` (lockstep), applies the scheduled
+    /// faults up to this step, and re-evaluates every link from the poses. Robots missing from
+    /// `poses` keep their last pose and liveness.
+    pub fn on_step(&self, step: Step, poses: &[(RobotId, Pose, bool)]) {
+        self.update_links(step, poses);
+        self.advance_clock(step);
+    }
+
+    /// Closes the step that ends and opens `step`, in the order that keeps the accounting exact:
+    /// the links' state during the ending step is read first; then faults and radio verdicts
+    /// take effect (a cut link delivers nothing more); then the ending step's byte counters are
+    /// taken; only then does the clock advance, so the new step's budget cannot be spent before
+    /// its bytes are counted in it. Returns the ending step's rows (none before the first step).
+    pub fn advance(&self, step: Step, poses: &[(RobotId, Pose, bool)]) -> Vec<LinkTelemetry> {
+        let ending = self.shared.step();
+        let before: Vec<_> = self.shared.links.iter().map(|l| l.snapshot()).collect();
+        self.update_links(step, poses);
+        let rows = self
+            .shared
+            .links
+            .iter()
+            .zip(&before)
+            .map(|(l, snap)| {
+                let bytes = Dir::BOTH.map(|d| l.counters(d).take_step());
+                // Counters and queues as they are now; the link's state as it was in the step.
+                let was = telemetry_row(ending, snap, [0, 0]);
+                LinkTelemetry {
+                    up: was.up,
+                    down_reason: was.down_reason,
+                    distance_m: was.distance_m,
+                    signal_dbm: was.signal_dbm,
+                    walls: was.walls,
+                    ..telemetry_row(ending, &l.snapshot(), bytes)
+                }
+            })
+            .collect();
+        self.advance_clock(step);
+        if ending.is_some() {
+            rows
+        } else {
+            Vec::new()
+        }
+    }
+
+    fn advance_clock(&self, step: Step) {
+        let sh = &self.shared;
+        sh.clock
+            .advance_to(SimTime::from_secs_f64(f64::from(step) * sh.step_seconds));
+    }
+
+    fn update_links(&self, step: Step, poses: &[(RobotId, Pose, bool)]) {
+        let sh = &self.shared;
+        let due: Vec<Fault> = {
+            let mut st = lock(&sh.steps);
+            st.step = Some(step);
+            for (id, pose, alive) in poses {
+                st.poses.insert(*id, (*pose, *alive));
+            }
+            let start = st.next;
+            while st.next < st.faults.len() && st.faults[st.next].step <= step {
+                st.next += 1;
+            }
+            st.faults[start..st.next]
+                .iter()
+                .map(|f| f.fault.clone())
+                .collect()
+        };
+        for f in &due {
+            if let Err(e) = sh.apply(f) {
+                tracing::warn!("scheduled fault at step {step} failed: {e}");
+            }
+        }
+        let poses = lock(&sh.steps).poses.clone();
+        for l in &sh.links {
+            let pa = poses.get(&l.params.a);
+            let pb = poses.get(&l.params.b);
+            let verdict = match (pa, pb) {
+                (Some((a, _)), Some((b, _))) => Some(sh.radio.evaluate(a, b)),
+                _ => None,
+            };
+            let alive = pa.is_none_or(|p| p.1) && pb.is_none_or(|p| p.1);
+            l.update(|s| {
+                s.radio = verdict.or(s.radio);
+                s.alive = alive;
+            });
+        }
+    }
+
+    /// One row per link: state and counters; the per-step byte counters restart from zero.
+    pub fn telemetry(&self) -> Vec<LinkTelemetry> {
+        let step = self.shared.step();
+        self.shared
+            .links
+            .iter()
+            .map(|l| {
+                let step_bytes = Dir::BOTH.map(|d| l.counters(d).take_step());
+                telemetry_row(step, &l.snapshot(), step_bytes)
+            })
+            .collect()
+    }
+
+    /// Like [`Netem::telemetry`] without resetting the per-step counters (their byte fields
+    /// read 0; the totals are current).
+    pub fn snapshot(&self) -> Vec<LinkTelemetry> {
+        self.shared.rows()
+    }
+
+    /// Applies a fault now.
+    pub fn apply(&self, fault: Fault) -> Result<(), NetemError> {
+        self.shared.apply(&fault)
+    }
+
+    pub fn http_addr(&self) -> Option<SocketAddr> {
+        self.http_addr
+    }
+
+    /// The address pair (a, b)'s listener is bound to (the port chosen for port 0).
+    pub fn listen_addr(&self, a: RobotId, b: RobotId) -> Option<SocketAddr> {
+        self.shared.link((a, b)).ok().map(|l| l.listen)
+    }
+
+    /// The simulated time now.
+    pub fn sim_time(&self) -> SimTime {
+        self.shared.clock.now()
+    }
+
+    /// Resets every connection, stops every listener and task.
+    pub async fn shutdown(mut self) {
+        self.shared.shutdown.send_replace(true);
+        for l in &self.shared.links {
+            l.close_all(Duration::from_millis(500)).await;
+        }
+        for t in self.tasks.drain(..) {
+            if tokio::time::timeout(Duration::from_secs(1), &mut Box::pin(t))
+                .await
+                .is_err()
+            {
+                tracing::warn!("a netem task did not stop in time");
+            }
+        }
+    }
+}
+
+impl Drop for Netem {
+    fn drop(&mut self) {
+        // Listeners stop; connections end when their peers go (or at `shutdown`).
+        self.shared.shutdown.send_replace(true);
+    }
+}
+
+fn telemetry_row(step: Option<Step>, s: &LinkSnapshot, step_bytes: [u64; 2]) -> LinkTelemetry {
+    let [ab, ba] = s.dirs;
+    LinkTelemetry {
+        step,
+        a: s.a,
+        b: s.b,
+        up: s.up,
+        down_reason: s.down_reason.map(|r| r.as_str()),
+        distance_m: s.verdict.map(|v| v.distance_m),
+        signal_dbm: s.verdict.and_then(|v| v.signal_dbm),
+        walls: s.verdict.and_then(|v| v.walls),
+        bytes_a_to_b: step_bytes[0],
+        bytes_b_to_a: step_bytes[1],
+        bytes_a_to_b_total: ab.bytes_total,
+        bytes_b_to_a_total: ba.bytes_total,
+        chunks_a_to_b_total: ab.chunks_total,
+        chunks_b_to_a_total: ba.chunks_total,
+        queued_bytes: ab.queued_bytes + ba.queued_bytes,
+        queued_a_to_b: ab.queued_bytes,
+        queued_b_to_a: ba.queued_bytes,
+        lost_bytes_total: ab.lost_bytes_total + ba.lost_bytes_total,
+        connections: s.connections,
+        connects_total: s.connects_total,
+        refused_total: s.refused_total,
+        toxics: s.toxics.len(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
+    use tokio::sync::mpsc;
+
+    /// Robots' radio listeners on loopback; `accepted[i]` yields what robot i accepts.
+    struct Robots {
+        addrs: Vec<SocketAddr>,
+        accepted: Vec<mpsc::Receiver<TcpStream>>,
+    }
+
+    async fn robots(n: usize) -> Robots {
+        let mut addrs = Vec::new();
+        let mut accepted = Vec::new();
+        for _ in 0..n {
+            let l = TcpListener::bind("127.0.0.1:0").await.unwrap();
+            addrs.push(l.local_addr().unwrap());
+            let (tx, rx) = mpsc::channel(8);
+            tokio::spawn(async move {
+                while let Ok((s, _)) = l.accept().await {
+                    if tx.send(s).await.is_err() {
+                        break;
+                    }
+                }
+            });
+            accepted.push(rx);
+        }
+        Robots { addrs, accepted }
+    }
+
+    fn all_pairs(r: &Robots) -> Vec<PairSpec> {
+        let n = r.addrs.len() as RobotId;
+        let mut v = Vec::new();
+        for a in 0..n {
+            for b in a + 1..n {
+                v.push(PairSpec {
+                    a,
+                    b,
+                    listen: "127.0.0.1:0".parse().unwrap(),
+                    target: r.addrs[b as usize],
+                });
+            }
+        }
+        v
+    }
+
+    fn radio(model: RadioModel, range_m: f64, rate: u64, medium: Medium) -> ScenarioRadio {
+        ScenarioRadio {
+            model,
+            range_m,
+            bandwidth_bytes_per_s: rate,
+            medium,
+            ..ScenarioRadio::default()
+        }
+    }
+
+    fn at(x: f64, y: f64) -> Pose {
+        Pose { x, y, theta: 0.0 }
+    }
+
+    /// Robot a connects through netem; returns (a's stream, b's accepted stream).
+    async fn connect(n: &Netem, r: &mut Robots, a: RobotId, b: RobotId) -> (TcpStream, TcpStream) {
+        let s = TcpStream::connect(n.listen_addr(a, b).unwrap())
+            .await
+            .unwrap();
+        let t = tokio::time::timeout(Duration::from_secs(2), r.accepted[b as usize].recv())
+            .await
+            .expect("accepted in time")
+            .unwrap();
+        (s, t)
+    }
+
+    async fn ends_within(s: &mut TcpStream, wait: Duration) -> bool {
+        let mut buf = [0u8; 4096];
+        let deadline = tokio::time::Instant::now() + wait;
+        loop {
+            match tokio::time::timeout_at(deadline, s.read(&mut buf)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => return true,
+                Ok(Ok(_)) => continue,
+                Err(_) => return false,
+            }
+        }
+    }
+
+    /// Writes forever into `s`.
+    fn flood(mut s: tokio::net::tcp::OwnedWriteHalf) -> JoinHandle<()> {
+        tokio::spawn(async move {
+            let block = vec![0x55u8; 8192];
+            while s.write_all(&block).await.is_ok() {}
+        })
+    }
+
+    /// Reads forever from `s`, publishing the running total.
+    fn count(mut s: tokio::net::tcp::OwnedReadHalf) -> (watch::Receiver<u64>, JoinHandle<()>) {
+        let (tx, rx) = watch::channel(0u64);
+        let task = tokio::spawn(async move {
+            let mut buf = vec![0u8; 65536];
+            let mut total = 0;
+            while let Ok(n) = s.read(&mut buf).await {
+                if n == 0 {
+                    break;
+                }
+                total += n as u64;
+                tx.send_replace(total);
+            }
+        });
+        (rx, task)
+    }
+
+    #[tokio::test]
+    async fn disk_range_cuts_refuses_and_restores_a_link() {
+        let mut r = robots(2).await;
+        let cfg = NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
+        );
+        let n = start(cfg).await.unwrap();
+        assert!(!n.snapshot()[0].up, "no poses yet");
+        n.on_step(0, &[(0, at(0.0, 0.0), true), (1, at(5.0, 0.0), true)]);
+        let (mut a, mut b) = connect(&n, &mut r, 0, 1).await;
+        a.write_all(b"map delta").await.unwrap();
+        let mut buf = [0u8; 9];
+        tokio::time::timeout(Duration::from_secs(2), b.read_exact(&mut buf))
+            .await
+            .unwrap()
+            .unwrap();
+        let t = n.telemetry();
+        assert!(t[0].up);
+        assert_eq!(t[0].distance_m, Some(5.0));
+        assert_eq!(t[0].bytes_a_to_b, 9);
+        assert_eq!(
+            n.telemetry()[0].bytes_a_to_b,
+            0,
+            "per-step counters restart"
+        );
+        assert_eq!(n.telemetry()[0].bytes_a_to_b_total, 9);
+
+        n.on_step(1, &[(1, at(20.0, 0.0), true)]);
+        let t = n.telemetry();
+        assert!(!t[0].up);
+        assert_eq!(t[0].down_reason, Some("out_of_range"));
+        assert!(ends_within(&mut a, Duration::from_secs(2)).await);
+        assert!(ends_within(&mut b, Duration::from_secs(2)).await);
+        let mut refused = TcpStream::connect(n.listen_addr(0, 1).unwrap())
+            .await
+            .unwrap();
+        assert!(ends_within(&mut refused, Duration::from_secs(2)).await);
+
+        n.on_step(2, &[(1, at(8.0, 0.0), true)]);
+        let (mut a, mut b) = connect(&n, &mut r, 0, 1).await;
+        a.write_all(b"again").await.unwrap();
+        let mut buf = [0u8; 5];
+        tokio::time::timeout(Duration::from_secs(2), b.read_exact(&mut buf))
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(&buf, b"again");
+        n.on_step(3, &[(1, at(8.0, 0.0), false)]);
+        assert_eq!(n.telemetry()[0].down_reason, Some("dead"));
+        n.shutdown().await;
+    }
+
+    /// Bytes delivered per simulated second through a real proxy, stepping with `pause` of wall
+    /// time per step (measured over steps `warmup..=steps`).
+    async fn rate_through_proxy(
+        rate: u64,
+        medium: Medium,
+        robots_n: usize,
+        pause: Duration,
+        steps: u32,
+    ) -> (f64, Vec<u64>) {
+        let warmup = 5;
+        let mut r = robots(robots_n).await;
+        let cfg = NetemConfig::new(all_pairs(&r), radio(RadioModel::Always, 1.0, rate, medium));
+        let n = start(cfg).await.unwrap();
+        n.on_step(0, &[]);
+        let mut counters = Vec::new();
+        let mut tasks = Vec::new();
+        let pairs: Vec<(RobotId, RobotId)> = all_pairs(&r).iter().map(|p| (p.a, p.b)).collect();
+        for (a, b) in pairs {
+            let (sa, sb) = connect(&n, &mut r, a, b).await;
+            let (_ra, wa) = sa.into_split();
+            let (rb, _wb) = sb.into_split();
+            tasks.push(flood(wa));
+            let (rx, t) = count(rb);
+            tasks.push(t);
+            counters.push((rx, _ra, _wb));
+        }
+        tokio::time::sleep(Duration::from_millis(30)).await;
+        let mut at_warmup = Vec::new();
+        for step in 1..=steps {
+            if step == warmup {
+                at_warmup = counters.iter().map(|c| *c.0.borrow()).collect();
+            }
+            n.on_step(step, &[]);
+            tokio::time::sleep(pause).await;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let per_link: Vec<u64> = counters
+            .iter()
+            .zip(&at_warmup)
+            .map(|(c, w)| *c.0.borrow() - w)
+            .collect();
+        let total: u64 = per_link.iter().sum();
+        for t in tasks {
+            t.abort();
+        }
+        n.shutdown().await;
+        (total as f64 / f64::from(steps - warmup + 1), per_link)
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn per_link_rate_within_5_percent_at_any_simulation_speed() {
+        for rate in [1000u64, 10_000] {
+            for pause in [Duration::from_millis(2), Duration::from_millis(25)] {
+                let (per_s, _) = rate_through_proxy(rate, Medium::PerLink, 2, pause, 40).await;
+                let err = (per_s - rate as f64).abs() / rate as f64;
+                assert!(
+                    err <= 0.05,
+                    "rate {rate}, {pause:?} per step: {per_s} B per simulated s"
+                );
+            }
+        }
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_shared_medium_is_one_budget_for_all_links() {
+        let rate = 6000;
+        let (per_s, per_link) =
+            rate_through_proxy(rate, Medium::Shared, 3, Duration::from_millis(10), 40).await;
+        let err = (per_s - rate as f64).abs() / rate as f64;
+        assert!(err <= 0.05, "sum {per_s} B per simulated s: {per_link:?}");
+        assert!(
+            per_link.iter().all(|&b| b > 0),
+            "every link gets a share: {per_link:?}"
+        );
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn realtime_mode_paces_by_wall_time_times_speedup() {
+        let mut r = robots(2).await;
+        let mut cfg = NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Always, 1.0, 1000, Medium::PerLink),
+        );
+        cfg.mode = ClockMode::Realtime;
+        cfg.speedup = 20.0;
+        let n = start(cfg).await.unwrap();
+        let (sa, sb) = connect(&n, &mut r, 0, 1).await;
+        let (_ra, wa) = sa.into_split();
+        let (rb, _wb) = sb.into_split();
+        let f = flood(wa);
+        let (rx, c) = count(rb);
+        let t0 = n.sim_time();
+        tokio::time::sleep(Duration::from_millis(1000)).await;
+        let sim_s = (n.sim_time().0 - t0.0) as f64 / 1e9;
+        let got = *rx.borrow() as f64;
+        // One step's burst (1000 B) plus 1000 B per simulated second.
+        let want = 1000.0 + 1000.0 * sim_s;
+        assert!(
+            (got - want).abs() / want < 0.1,
+            "{got} B in {sim_s} simulated s"
+        );
+        f.abort();
+        c.abort();
+        n.shutdown().await;
+    }
+
+    #[tokio::test]
+    async fn scheduled_faults_apply_at_their_step() {
+        let r = robots(3).await;
+        let mut cfg = NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Always, 1.0, 0, Medium::PerLink),
+        );
+        cfg.faults = vec![
+            ScheduledFault {
+                step: 4,
+                fault: Fault::Heal,
+            },
+            ScheduledFault {
+                step: 2,
+                fault: Fault::Partition {
+                    groups: vec![vec![0, 1], vec![2]],
+                },
+            },
+            ScheduledFault {
+                step: 1,
+                fault: Fault::Cut { pair: (0, 1) },
+            },
+            ScheduledFault {
+                step: 3,
+                fault: Fault::Restore { pair: (0, 1) },
+            },
+        ];
+        let n = start(cfg).await.unwrap();
+        let ups = |n: &Netem| n.telemetry().iter().map(|t| t.up).collect::<Vec<_>>();
+        n.on_step(0, &[]);
+        assert_eq!(ups(&n), [true, true, true]);
+        n.on_step(1, &[]);
+        assert_eq!(ups(&n), [false, true, true]);
+        // Steps may be skipped: everything up to the current step applies, in order.
+        n.on_step(3, &[]);
+        assert_eq!(ups(&n), [true, false, false]);
+        n.on_step(4, &[]);
+        assert_eq!(ups(&n), [true, true, true]);
+        assert!(n.apply(Fault::Cut { pair: (0, 7) }).is_err());
+        assert!(n
+            .apply(Fault::Partition {
+                groups: vec![vec![9]]
+            })
+            .is_err());
+        n.shutdown().await;
+    }
+
+    #[tokio::test]
+    async fn toxics_through_apply_and_reset_all() {
+        let mut r = robots(2).await;
+        let cfg = NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Always, 1.0, 0, Medium::PerLink),
+        );
+        let n = start(cfg).await.unwrap();
+        n.on_step(0, &[]);
+        let (mut a, mut b) = connect(&n, &mut r, 0, 1).await;
+        n.apply(Fault::blackhole(Some((0, 1)))).unwrap();
+        a.write_all(b"stuck").await.unwrap();
+        let mut buf = [0u8; 5];
+        assert!(
+            tokio::time::timeout(Duration::from_millis(100), b.read_exact(&mut buf))
+                .await
+                .is_err()
+        );
+        assert_eq!(n.snapshot()[0].queued_a_to_b, 5);
+        n.apply(Fault::RemoveToxic {
+            pair: Some((0, 1)),
+            name: "blackhole".into(),
+        })
+        .unwrap();
+        tokio::time::timeout(Duration::from_secs(2), b.read_exact(&mut buf))
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(&buf, b"stuck");
+        n.apply(Fault::limit_data(None, 3)).unwrap();
+        assert!(matches!(
+            n.apply(Fault::AddToxic {
+                pair: None,
+                toxic: Toxic::both(ToxicKind::LimitData { bytes: 1 })
+            }),
+            Err(NetemError::ToxicExists { .. })
+        ));
+        a.write_all(b"abcdef").await.unwrap();
+        let mut got = Vec::new();
+        let _ = tokio::time::timeout(Duration::from_secs(2), b.read_to_end(&mut got)).await;
+        assert_eq!(got, b"abc");
+        n.apply(Fault::ResetAll).unwrap();
+        assert_eq!(n.snapshot()[0].toxics, 0);
+        assert!(matches!(
+            n.apply(Fault::RemoveToxic {
+                pair: None,
+                name: "nope".into()
+            }),
+            Err(NetemError::UnknownToxic { .. })
+        ));
+        n.apply(Fault::Reset { pair: None }).unwrap();
+        n.shutdown().await;
+    }
+
+    #[tokio::test]
+    async fn pathloss_counts_walls_on_the_truth_map() {
+        let r = robots(2).await;
+        let mut cfg = NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Pathloss, 6.0, 0, Medium::PerLink),
+        );
+        let g = Grid::from_ascii("..#.....\n........\n");
+        let map = MapInfo {
+            width: g.width(),
+            height: g.height(),
+            resolution_m: 1.0,
+            origin_x_m: 0.0,
+            origin_y_m: 0.0,
+        };
+        cfg.truth = Some((map, g));
+        cfg.radio.pathloss_wall_attenuation_db = 10.0;
+        let n = start(cfg).await.unwrap();
+        n.on_step(0, &[(0, at(0.5, 0.5), true), (1, at(5.5, 0.5), true)]);
+        let t = &n.telemetry()[0];
+        assert!(t.up, "5 m in free space: {t:?}");
+        assert_eq!(t.walls, Some(0));
+        n.on_step(1, &[(0, at(0.5, 1.5), true), (1, at(5.5, 1.5), true)]);
+        let t = &n.telemetry()[0];
+        assert!(!t.up, "5 m through a 10 dB wall: {t:?}");
+        assert_eq!(t.walls, Some(1));
+        n.shutdown().await;
+    }
+
+    #[tokio::test]
+    async fn a_scenario_gives_the_config_and_its_faults_are_checked_at_start() {
+        let r = robots(3).await;
+        let fault: toml::Table = "step = 5\nkind = \"cut\"\npair = [0, 2]\n".parse().unwrap();
+        let mut sc = proto::scenario::Scenario {
+            seed: 9,
+            faults: vec![fault],
+            ..Default::default()
+        };
+        let cfg = NetemConfig::from_scenario(&sc, all_pairs(&r), None, None).unwrap();
+        assert_eq!(cfg.seed, 9);
+        assert_eq!(cfg.faults[0].fault, Fault::Cut { pair: (0, 2) });
+        assert_eq!(cfg.radio, sc.radio);
+        let n = start(cfg.clone()).await.unwrap();
+        n.shutdown().await;
+        sc.faults[0].insert("pair".into(), toml::Value::try_from([0, 7]).unwrap());
+        let cfg = NetemConfig::from_scenario(&sc, all_pairs(&r), None, None).unwrap();
+        let e = start(cfg).await.err().unwrap();
+        assert!(matches!(e, NetemError::BadFault { index: 0, .. }), "{e}");
+        sc.faults[0].insert("kind".into(), "nope".into());
+        let e = NetemConfig::from_scenario(&sc, all_pairs(&r), None, None)
+            .err()
+            .unwrap();
+        assert!(e.to_string().starts_with("faults[0]:"), "{e}");
+    }
+
+    #[tokio::test]
+    async fn bad_configurations_and_taken_ports_are_errors() {
+        let r = robots(2).await;
+        let mut cfg = NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
+        );
+        cfg.step_seconds = 0.0;
+        assert!(matches!(
+            start(cfg.clone()).await,
+            Err(NetemError::Config(_))
+        ));
+        cfg.step_seconds = 1.0;
+        cfg.pairs[0].a = 1;
+        assert!(matches!(
+            start(cfg.clone()).await,
+            Err(NetemError::Config(_))
+        ));
+        let taken = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let mut cfg = NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
+        );
+        cfg.pairs[0].listen = taken.local_addr().unwrap();
+        let e = start(cfg).await.err().unwrap();
+        assert!(e.to_string().contains("r0-r1"), "{e}");
+    }
+}

@@ -1,0 +1,107 @@
+//! netem on the sim plane: follows the world-server's per-step status (robot poses) to drive the
+//! simulated clock and every link's radio verdict, and publishes a [`LinkReport`] per step for
+//! the launcher's `links.csv`. Thin adapter over [`crate::netem::Netem`]; no link logic here.
+
+use std::time::Duration;
+
+use proto::grid::Grid;
+use proto::keys;
+use proto::msg::{decode, encode, Control, LinkReport, LinkState, Status, Step, TruthMap};
+use proto::node::{zerr, ZenohError};
+use proto::scenario::{RadioModel, Scenario};
+use zenoh::qos::CongestionControl;
+use zenoh::sample::SampleKind;
+use zenoh::Session;
+
+use crate::netem::{LinkTelemetry, Netem};
+
+/// The truth map (for path-loss wall counts), asked of the world-server.
+pub async fn fetch_truth(
+    sim: &Session,
+    wait: Duration,
+) -> Result<(proto::geom::MapInfo, Grid), ZenohError> {
+    let deadline = tokio::time::Instant::now() + wait;
+    loop {
+        let replies = sim
+            .get(keys::WORLD_TRUTH)
+            .timeout(Duration::from_secs(2))
+            .await
+            .map_err(zerr)?;
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                let t = decode::<TruthMap>(&sample.payload().to_bytes())
+                    .map_err(|e| ZenohError(format!("truth map: {e}")))?;
+                let g = Grid::from_rle(&t.grid_rle)
+                    .map_err(|e| ZenohError(format!("truth map: {e}")))?;
+                return Ok((t.map, g));
+            }
+        }
+        if tokio::time::Instant::now() >= deadline {
+            return Err(ZenohError(format!(
+                "no world-server answered {} within {wait:?}",
+                keys::WORLD_TRUTH
+            )));
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// Whether the scenario's radio model needs the truth map.
+pub fn needs_truth(s: &Scenario) -> bool {
+    s.radio.model == RadioModel::Pathloss
+}
+
+fn state(t: &LinkTelemetry) -> LinkState {
+    LinkState {
+        a: t.a,
+        b: t.b,
+        up: t.up,
+        distance_m: t.distance_m,
+        bytes_a_to_b: t.bytes_a_to_b,
+        bytes_b_to_a: t.bytes_b_to_a,
+        bytes_total: t.bytes_a_to_b_total + t.bytes_b_to_a_total,
+        queued_bytes: t.queued_bytes,
+    }
+}
+
+/// Follows the run until the world-server or the launcher ends it.
+pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
+    let statuses = sim.declare_subscriber(keys::STATUS).await.map_err(zerr)?;
+    let ctl = sim.declare_subscriber(keys::CONTROL).await.map_err(zerr)?;
+    let world = sim
+        .liveliness()
+        .declare_subscriber(keys::WORLD_ALIVE)
+        .history(true)
+        .await
+        .map_err(zerr)?;
+    let mut last: Option<Step> = None;
+    loop {
+        tokio::select! {
+            s = statuses.recv_async() => {
+                let Ok(s) = s else { return Ok(()) };
+                let st = match decode::<Status>(&s.payload().to_bytes()) {
+                    Ok(st) => st,
+                    Err(e) => { tracing::warn!("bad status: {e}"); continue; }
+                };
+                // Opening this step closes the previous one: its links' state and bytes.
+                let poses: Vec<_> = st.robots.iter().map(|r| (r.id, r.pose, r.alive)).collect();
+                let rows = netem.advance(st.step, &poses);
+                if let (Some(prev), false) = (last, rows.is_empty()) {
+                    let report = LinkReport { step: prev, links: rows.iter().map(state).collect() };
+                    sim.put(keys::NETEM_LINKS, encode(&report)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
+                }
+                last = Some(st.step);
+            }
+            c = ctl.recv_async() => {
+                if matches!(c.map(|c| decode::<Control>(&c.payload().to_bytes())), Ok(Ok(Control::Stop)) | Err(_)) {
+                    return Ok(());
+                }
+            }
+            w = world.recv_async() => {
+                if w.map_or(true, |w| w.kind() == SampleKind::Delete) {
+                    return Ok(());
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,517 @@
+//! The shaping pipeline of one direction of one connection (DESIGN.md §5 "Shaping").
+//!
+//! After noxious / toxiproxy (STYLE.md, "The network side"): every network effect is one file
+//! with one plain async function from an input stream of `Chunk`s to an output sink, reading its
+//! current parameters from a `watch` of `DirShape` so that faults apply to live connections:
+//!
+//! ```text
+//! socket ─► source ─► corrupt ─► bandwidth ─► latency ─► sink ─► socket
+//!           (reserve,  (flip     (governor    (hold until  (stall gate,
+//!            read)      bits)     budget)      due)         limit_data, write)
+//! ```
+//!
+//! Stages are joined into one future per direction (`pipeline`); the channels between them are
+//! bounded, and every byte in flight holds a `Reservation` in the direction's `Buffer`, so the
+//! whole pipeline never holds more than the buffer's capacity (see `accounting.rs`). The stages
+//! are tested with in-memory streams (`tokio::io::duplex`) through the one harness at the bottom
+//! of this file.
+
+pub mod bandwidth;
+pub mod corrupt;
+pub mod latency;
+
+use std::io;
+use std::sync::Arc;
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::sync::{mpsc, watch};
+
+use crate::accounting::{Buffer, Reservation};
+use crate::clock::{SimClock, SimTime};
+pub use bandwidth::Budget;
+
+/// Largest read from a socket, in bytes.
+pub const CHUNK_MAX: usize = 64 * 1024;
+
+/// Capacity (in chunks) of the channel into the latency stage: it holds the pieces "on the air".
+const IN_FLIGHT_CHUNKS: usize = 256;
+
+/// A run of bytes read from one socket, with the room it holds in its [`Buffer`].
+#[derive(Debug)]
+pub struct Chunk {
+    data: Vec<u8>,
+    start: usize,
+    res: Option<Reservation>,
+    /// When the bytes entered the current stage (read, or granted by the bandwidth stage).
+    pub stamp: SimTime,
+}
+
+impl Chunk {
+    /// A chunk that is not accounted in any buffer (tests, synthetic data).
+    pub fn new(data: Vec<u8>, stamp: SimTime) -> Chunk {
+        Chunk {
+            data,
+            start: 0,
+            res: None,
+            stamp,
+        }
+    }
+
+    fn reserved(data: Vec<u8>, mut res: Reservation, stamp: SimTime) -> Chunk {
+        res.fill(data.len());
+        Chunk {
+            data,
+            start: 0,
+            res: Some(res),
+            stamp,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.data.len() - self.start
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn bytes(&self) -> &[u8] {
+        &self.data[self.start..]
+    }
+
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        &mut self.data[self.start..]
+    }
+
+    /// Splits off the first `k` bytes (all of them if `k >= len`).
+    pub fn split_to(&mut self, k: usize) -> Chunk {
+        let res = self.res.as_mut().map(|r| r.split_to(k));
+        let data = if k >= self.len() && self.start == 0 {
+            std::mem::take(&mut self.data)
+        } else {
+            let k = k.min(self.len());
+            let front = self.data[self.start..self.start + k].to_vec();
+            self.start += k;
+            front
+        };
+        Chunk {
+            data,
+            start: 0,
+            res,
+            stamp: self.stamp,
+        }
+    }
+
+    /// Drops every byte after the first `k` (they count as lost).
+    pub fn truncate(&mut self, k: usize) {
+        if k < self.len() {
+            self.data.truncate(self.start + k);
+            if let Some(r) = self.res.as_mut() {
+                let kept = r.split_to(k);
+                // The rest is dropped here: lost.
+                *r = kept;
+            }
+        }
+    }
+
+    /// The bytes reached the receiver.
+    pub fn delivered(mut self) {
+        if let Some(r) = self.res.take() {
+            r.delivered();
+        }
+    }
+}
+
+/// The toxic-limited byte budget of a connection direction (`limit_data`): `id` names the toxic
+/// instance so that a new or updated toxic starts counting afresh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limit {
+    pub id: u64,
+    pub bytes: u64,
+}
+
+/// The effective parameters of one direction of one connection, folded from the link's
+/// configuration and its toxics (`faults.rs`).
+#[derive(Clone, Debug, Default)]
+pub struct DirShape {
+    /// Every budget a byte must be granted by (per-link or toxic rate, shared medium); empty =
+    /// unlimited.
+    pub budgets: Vec<Arc<Budget>>,
+    pub latency_ns: u64,
+    pub jitter_ns: u64,
+    /// Probability that a byte gets one bit flipped.
+    pub corrupt_probability: f64,
+    /// Blackhole: nothing is written, nothing closed; the buffer fills and the sender stalls.
+    pub stalled: bool,
+    pub limit: Option<Limit>,
+}
+
+/// A small deterministic PRNG (SplitMix64) for jitter and corruption: no dependency, and a run
+/// is reproducible from its seed.
+#[derive(Clone, Debug)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// How the reading end of a pipeline finished.
+#[derive(Debug, PartialEq, Eq)]
+pub enum SourceEnd {
+    Eof,
+    Error(io::ErrorKind),
+    /// The rest of the pipeline went away.
+    Closed,
+}
+
+/// How a whole direction finished.
+#[derive(Debug, PartialEq, Eq)]
+pub enum PipeEnd {
+    /// The sender closed its side and everything read was delivered; the receiver got a FIN.
+    Eof,
+    ReadError(io::ErrorKind),
+    WriteError(io::ErrorKind),
+    /// A `limit_data` toxic's budget was spent; the receiver got a FIN.
+    LimitReached,
+}
+
+/// Reads from `reader` into reserved chunks until EOF. Waits for room in `buffer` *before* each
+/// read: that is the backpressure.
+pub async fn source<R: AsyncRead + Unpin>(
+    mut reader: R,
+    output: mpsc::Sender<Chunk>,
+    buffer: Arc<Buffer>,
+    clock: SimClock,
+) -> SourceEnd {
+    let max = CHUNK_MAX.min(buffer.capacity());
+    let mut scratch: Vec<u8> = Vec::new();
+    loop {
+        let res = buffer.reserve(max).await;
+        if scratch.capacity() < max {
+            // Uninitialised room: `read_buf` fills it without zeroing it first.
+            scratch = Vec::with_capacity(max);
+        }
+        scratch.clear();
+        // `take` caps the read at the reserved room, whatever the Vec's capacity.
+        match (&mut reader)
+            .take(res.len() as u64)
+            .read_buf(&mut scratch)
+            .await
+        {
+            Ok(0) => return SourceEnd::Eof,
+            Ok(_) => {}
+            Err(e) => return SourceEnd::Error(e.kind()),
+        }
+        // A mostly full read hands over the buffer itself (no copy); a short one copies out
+        // exactly what was read, so a small message never pins a large allocation.
+        let data = if 2 * scratch.len() >= scratch.capacity() {
+            std::mem::take(&mut scratch)
+        } else {
+            scratch.to_vec()
+        };
+        if output
+            .send(Chunk::reserved(data, res, clock.now()))
+            .await
+            .is_err()
+        {
+            return SourceEnd::Closed;
+        }
+    }
+}
+
+/// How the writing end of a pipeline finished.
+#[derive(Debug, PartialEq, Eq)]
+pub enum SinkEnd {
+    Eof,
+    Error(io::ErrorKind),
+    LimitReached,
+}
+
+/// Writes chunks to `writer`: waits while the direction is stalled (blackhole), enforces
+/// `limit_data`, counts delivered bytes. On the end of its input it shuts `writer` down (FIN).
+///
+/// `gate` is the connection's kill signal: it is set synchronously when the link goes down, so
+/// checking it before every write guarantees that no byte is delivered (or counted) on a link
+/// after it was cut, even before the connection's task has noticed the kill.
+pub async fn sink<W: AsyncWrite + Unpin>(
+    mut input: mpsc::Receiver<Chunk>,
+    writer: &mut W,
+    mut shape: watch::Receiver<DirShape>,
+    gate: Option<watch::Receiver<Option<crate::faults::Kill>>>,
+) -> SinkEnd {
+    let mut limit: Option<(u64, u64)> = None;
+    while let Some(mut chunk) = input.recv().await {
+        // Copy the flag out first: a watch borrow must never be held across an await.
+        let stalled = shape.borrow_and_update().stalled;
+        if stalled && shape.wait_for(|s| !s.stalled).await.is_err() {
+            return SinkEnd::Eof;
+        }
+        let current = shape.borrow().limit;
+        limit = match (current, limit) {
+            (None, _) => None,
+            (Some(l), Some((id, left))) if id == l.id => Some((id, left)),
+            (Some(l), _) => Some((l.id, l.bytes)),
+        };
+        let mut last = false;
+        if let Some((_, left)) = limit.as_mut() {
+            if chunk.len() as u64 >= *left {
+                chunk.truncate(*left as usize);
+                last = true;
+            }
+            *left -= chunk.len() as u64;
+        }
+        if gate.as_ref().is_some_and(|g| g.borrow().is_some()) {
+            // Cut: the chunk is dropped (counted as lost), nothing more is written.
+            return SinkEnd::Eof;
+        }
+        if !chunk.is_empty() {
+            if let Err(e) = writer.write_all(chunk.bytes()).await {
+                return SinkEnd::Error(e.kind());
+            }
+            chunk.delivered();
+        }
+        if last {
+            let _ = writer.shutdown().await;
+            return SinkEnd::LimitReached;
+        }
+    }
+    let _ = writer.shutdown().await;
+    SinkEnd::Eof
+}
+
+/// Runs one direction: `reader` → corrupt → bandwidth → latency → `writer`, until the sender's
+/// EOF has been delivered, a write fails, or `limit_data` is reached. Dropping the future drops
+/// every byte in flight (counted as lost).
+pub async fn pipeline<R, W>(
+    reader: R,
+    writer: &mut W,
+    buffer: Arc<Buffer>,
+    shape: watch::Receiver<DirShape>,
+    clock: SimClock,
+    seed: u64,
+    gate: Option<watch::Receiver<Option<crate::faults::Kill>>>,
+) -> PipeEnd
+where
+    R: AsyncRead + Unpin,
+    W: AsyncWrite + Unpin,
+{
+    let (tx_read, rx_read) = mpsc::channel(4);
+    let (tx_corrupt, rx_corrupt) = mpsc::channel(4);
+    let (tx_shaped, rx_shaped) = mpsc::channel(IN_FLIGHT_CHUNKS);
+    let (tx_due, rx_due) = mpsc::channel(4);
+    let mut rng = Rng::new(seed);
+    let stages = {
+        let (s1, s2, s3) = (shape.clone(), shape.clone(), shape.clone());
+        let (r1, r2) = (Rng::new(rng.next_u64()), Rng::new(rng.next_u64()));
+        let clock = clock.clone();
+        async move {
+            let (end, (), (), ()) = tokio::join!(
+                source(reader, tx_read, buffer, clock.clone()),
+                corrupt::corrupt(rx_read, tx_corrupt, s1, r1),
+                bandwidth::bandwidth(rx_corrupt, tx_shaped, s2, clock.clone()),
+                latency::latency(rx_shaped, tx_due, s3, clock, r2),
+            );
+            end
+        }
+    };
+    let sink = sink(rx_due, writer, shape, gate);
+    tokio::pin!(stages, sink);
+    let mut source_end = None;
+    loop {
+        tokio::select! {
+            end = &mut sink => {
+                return match (end, source_end) {
+                    (SinkEnd::Error(k), _) => PipeEnd::WriteError(k),
+                    (SinkEnd::LimitReached, _) => PipeEnd::LimitReached,
+                    (SinkEnd::Eof, Some(SourceEnd::Error(k))) => PipeEnd::ReadError(k),
+                    (SinkEnd::Eof, _) => PipeEnd::Eof,
+                };
+            }
+            end = &mut stages, if source_end.is_none() => source_end = Some(end),
+        }
+    }
+}
+
+/// The one harness every effect is tested through: an effect runs between an in-memory writer
+/// and an in-memory reader, with a lockstep clock and a shape the test controls.
+#[cfg(test)]
+pub(crate) mod harness {
+    use super::*;
+    use crate::accounting::DirCounters;
+    use std::future::Future;
+    use std::time::Duration;
+    use tokio::io::DuplexStream;
+    use tokio::task::JoinHandle;
+
+    pub struct Harness {
+        /// Write the input here.
+        pub input: DuplexStream,
+        /// Read the output here.
+        pub output: DuplexStream,
+        pub shape: watch::Sender<DirShape>,
+        pub counters: Arc<DirCounters>,
+        pub buffer: Arc<Buffer>,
+        pub task: JoinHandle<()>,
+    }
+
+    /// Runs `effect` (input chunks, output chunks, shape, clock) between a duplex writer and a
+    /// duplex reader, with a `buffer_bytes` buffer.
+    pub fn run<F, Fut>(shape: DirShape, clock: SimClock, buffer_bytes: usize, effect: F) -> Harness
+    where
+        F: FnOnce(
+                mpsc::Receiver<Chunk>,
+                mpsc::Sender<Chunk>,
+                watch::Receiver<DirShape>,
+                SimClock,
+            ) -> Fut
+            + Send
+            + 'static,
+        Fut: Future<Output = ()> + Send + 'static,
+    {
+        let (input, proxy_in) = tokio::io::duplex(64 * 1024);
+        let (mut proxy_out, output) = tokio::io::duplex(64 * 1024);
+        let (shape_tx, shape_rx) = watch::channel(shape);
+        let counters = Arc::new(DirCounters::default());
+        let buffer = Buffer::new(buffer_bytes, Arc::clone(&counters));
+        let (buf, clk) = (Arc::clone(&buffer), clock);
+        let task = tokio::spawn(async move {
+            let (tx_in, rx_in) = mpsc::channel(IN_FLIGHT_CHUNKS);
+            let (tx_out, rx_out) = mpsc::channel(IN_FLIGHT_CHUNKS);
+            tokio::join!(
+                source(proxy_in, tx_in, buf, clk.clone()),
+                effect(rx_in, tx_out, shape_rx.clone(), clk),
+                sink(rx_out, &mut proxy_out, shape_rx, None),
+            );
+        });
+        Harness {
+            input,
+            output,
+            shape: shape_tx,
+            counters,
+            buffer,
+            task,
+        }
+    }
+
+    /// The identity effect: the harness itself (source + sink).
+    pub async fn pass(
+        mut input: mpsc::Receiver<Chunk>,
+        output: mpsc::Sender<Chunk>,
+        _shape: watch::Receiver<DirShape>,
+        _clock: SimClock,
+    ) {
+        while let Some(c) = input.recv().await {
+            if output.send(c).await.is_err() {
+                return;
+            }
+        }
+    }
+
+    /// Reads whatever arrives within `wait` of wall time.
+    pub async fn read_for(r: &mut DuplexStream, wait: Duration) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut buf = [0u8; 4096];
+        let deadline = tokio::time::Instant::now() + wait;
+        while let Ok(Ok(n)) = tokio::time::timeout_at(deadline, r.read(&mut buf)).await {
+            if n == 0 {
+                break;
+            }
+            out.extend_from_slice(&buf[..n]);
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::harness::*;
+    use super::*;
+    use std::time::Duration;
+
+    #[tokio::test]
+    async fn harness_passes_bytes_through_and_counts_them() {
+        let mut h = run(DirShape::default(), SimClock::lockstep(), 1024, pass);
+        h.input.write_all(b"hello, robot").await.unwrap();
+        let got = read_for(&mut h.output, Duration::from_millis(50)).await;
+        assert_eq!(got, b"hello, robot");
+        assert_eq!(h.counters.snapshot().bytes_total, 12);
+        assert_eq!(h.counters.snapshot().queued_bytes, 0);
+    }
+
+    #[tokio::test]
+    async fn stall_holds_bytes_without_closing_and_releases_them_later() {
+        let shape = DirShape {
+            stalled: true,
+            ..DirShape::default()
+        };
+        let mut h = run(shape, SimClock::lockstep(), 1024, pass);
+        h.input.write_all(&[7u8; 100]).await.unwrap();
+        assert!(read_for(&mut h.output, Duration::from_millis(50))
+            .await
+            .is_empty());
+        assert_eq!(h.counters.snapshot().queued_bytes, 100);
+        h.shape.send_modify(|s| s.stalled = false);
+        assert_eq!(
+            read_for(&mut h.output, Duration::from_millis(50))
+                .await
+                .len(),
+            100
+        );
+    }
+
+    #[tokio::test]
+    async fn limit_data_delivers_exactly_n_bytes_then_closes() {
+        let shape = DirShape {
+            limit: Some(Limit { id: 1, bytes: 10 }),
+            ..DirShape::default()
+        };
+        let mut h = run(shape, SimClock::lockstep(), 1024, pass);
+        h.input.write_all(&[1u8; 25]).await.unwrap();
+        let got = read_for(&mut h.output, Duration::from_millis(200)).await;
+        assert_eq!(got.len(), 10);
+        let mut b = [0u8; 1];
+        let n = tokio::time::timeout(Duration::from_secs(1), h.output.read(&mut b))
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(n, 0, "the receiver sees EOF");
+        assert_eq!(h.counters.snapshot().lost_bytes_total, 15);
+    }
+
+    #[test]
+    fn chunk_split_and_truncate_keep_the_bytes_in_order() {
+        let mut c = Chunk::new((0u8..10).collect(), SimTime::ZERO);
+        let a = c.split_to(3);
+        assert_eq!(a.bytes(), &[0, 1, 2]);
+        c.truncate(4);
+        assert_eq!(c.bytes(), &[3, 4, 5, 6]);
+        let b = c.split_to(100);
+        assert_eq!(b.bytes(), &[3, 4, 5, 6]);
+        assert!(c.is_empty());
+    }
+
+    #[test]
+    fn rng_is_deterministic_and_in_range() {
+        let (mut a, mut b) = (Rng::new(3), Rng::new(3));
+        for _ in 0..1000 {
+            let x = a.unit();
+            assert_eq!(x, b.unit());
+            assert!((0.0..1.0).contains(&x));
+        }
+    }
+}

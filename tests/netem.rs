@@ -1,0 +1,212 @@
+//! netem in whole runs: every robot pair's link obeys the radio range, and the HTTP API (the one
+//! curl and toxiproxy's clients speak) cuts and restores a link while a run goes on.
+
+use std::collections::HashMap;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use crate::support::{stderr, summary, swarm_run, Launcher, TempDir, SWARM};
+
+fn csv(path: &std::path::Path) -> Vec<HashMap<String, String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let head: Vec<String> = lines
+        .next()
+        .unwrap_or_default()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    lines
+        .map(|l| {
+            head.iter()
+                .cloned()
+                .zip(l.split(',').map(str::to_string))
+                .collect()
+        })
+        .collect()
+}
+
+fn num(row: &HashMap<String, String>, k: &str) -> f64 {
+    row.get(k)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("column {k} in {row:?}"))
+}
+
+/// An 8-robot run with a 6 m disk range; returns its run directory (kept by `dir`).
+fn ranged_run(dir: &TempDir) -> std::path::PathBuf {
+    let (out, run) = swarm_run(
+        dir,
+        None,
+        &[
+            "robots.count=8",
+            "world.map=office",
+            "world.width_m=30",
+            "world.height_m=20",
+            "radio.range_m=6",
+            "max_steps=400",
+        ],
+        Duration::from_secs(300),
+    );
+    assert!(
+        out.status.code().is_some_and(|c| c != 1),
+        "{}",
+        stderr(&out)
+    );
+    let s = summary(&run);
+    assert!(
+        s["bytes_wire_total"].as_u64().unwrap_or(0) > 0,
+        "bytes crossed netem: {s}"
+    );
+    run
+}
+
+const RANGE_M: f64 = 6.0;
+
+#[test]
+fn no_link_is_up_while_its_robots_are_out_of_range() {
+    let dir = TempDir::new("range");
+    let run = ranged_run(&dir);
+    // Robot positions per step, from the evaluator's metrics.
+    let mut pos: HashMap<(u64, u64), (f64, f64)> = HashMap::new();
+    for r in csv(&run.join("metrics.csv")) {
+        pos.insert(
+            (num(&r, "step") as u64, num(&r, "robot") as u64),
+            (num(&r, "x"), num(&r, "y")),
+        );
+    }
+    let links = csv(&run.join("links.csv"));
+    let (mut checked, mut down_rows) = (0, 0);
+    for l in &links {
+        let (step, a, b) = (
+            num(l, "step") as u64,
+            num(l, "a") as u64,
+            num(l, "b") as u64,
+        );
+        if num(l, "up") != 1.0 {
+            down_rows += 1;
+            continue;
+        }
+        if let (Some(pa), Some(pb)) = (pos.get(&(step, a)), pos.get(&(step, b))) {
+            let d = (pa.0 - pb.0).hypot(pa.1 - pb.1);
+            assert!(
+                d <= RANGE_M + 1e-6,
+                "link {a}-{b} up at step {step} with the robots {d:.2} m apart"
+            );
+            checked += 1;
+        }
+    }
+    assert!(
+        checked > 100 && down_rows > 0,
+        "checked {checked} up rows, {down_rows} down rows"
+    );
+}
+
+/// Known failure (issue #3 stays open): now and then a link that has been down for two or more
+/// steps still shows a few hundred bytes in `links.csv`. The cause is not found yet.
+#[test]
+#[ignore = "known failure, see issue #3's note: bytes sometimes reported on a link down for 2+ steps"]
+fn no_byte_crosses_a_link_that_is_down() {
+    let dir = TempDir::new("down-bytes");
+    let run = ranged_run(&dir);
+    let mut was_up: HashMap<(u64, u64), bool> = HashMap::new();
+    for l in &csv(&run.join("links.csv")) {
+        let (step, a, b) = (
+            num(l, "step") as u64,
+            num(l, "a") as u64,
+            num(l, "b") as u64,
+        );
+        let up = num(l, "up") == 1.0;
+        let bytes = num(l, "bytes_a_to_b") + num(l, "bytes_b_to_a");
+        let previous = was_up.insert((a, b), up).unwrap_or(false);
+        // A write already under way when the link was cut may complete in the step of the cut.
+        if !up && !previous {
+            assert_eq!(
+                bytes, 0.0,
+                "bytes crossed the down link {a}-{b} at step {step}"
+            );
+        }
+    }
+}
+
+fn curl(args: &[&str]) -> (bool, String) {
+    let out = Command::new("curl")
+        .args(["-s", "-S", "--max-time", "5"])
+        .args(args)
+        .output()
+        .expect("curl runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+    )
+}
+
+#[test]
+fn curl_cuts_and_restores_a_link_during_a_run() {
+    let dir = TempDir::new("curl");
+    let run = dir.path().join("run");
+    let mut cmd = Command::new(SWARM);
+    cmd.args(["run", "--quiet", "--out"]).arg(&run);
+    for s in [
+        "robots.count=3",
+        "world.map=office",
+        "world.width_m=24",
+        "world.height_m=16",
+        "radio.model=always",
+        "clock.mode=realtime",
+        "clock.speedup=20",
+        "max_steps=2000",
+    ] {
+        cmd.arg("--set").arg(s);
+    }
+    let l = Launcher::spawn(cmd);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let addr = loop {
+        if let Ok(a) = std::fs::read_to_string(run.join("netem.addr")) {
+            break a.trim().to_string();
+        }
+        assert!(Instant::now() < deadline, "netem.addr never appeared");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    // The API may take a moment to come up after the address is written.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !curl(&[&format!("http://{addr}/proxies")]).0 {
+        assert!(Instant::now() < deadline, "netem's API never answered");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (ok, body) = curl(&[
+        "-X",
+        "POST",
+        "-d",
+        "{\"enabled\": false}",
+        &format!("http://{addr}/proxies/r0-r1"),
+    ]);
+    assert!(ok, "{body}");
+    let (_, listed) = curl(&[&format!("http://{addr}/proxies/r0-r1")]);
+    let v: serde_json::Value = serde_json::from_str(&listed).expect("JSON");
+    assert_eq!(v["enabled"], false, "{listed}");
+    std::thread::sleep(Duration::from_secs(2));
+    let (ok, body) = curl(&[
+        "-X",
+        "POST",
+        "-d",
+        "{\"enabled\": true}",
+        &format!("http://{addr}/proxies/r0-r1"),
+    ]);
+    assert!(ok, "{body}");
+    let (ok, metrics) = curl(&[&format!("http://{addr}/metrics")]);
+    assert!(ok && metrics.contains("r0-r1"), "{metrics}");
+    let out = l.wait_output(Duration::from_secs(300));
+    let s = summary(&run);
+    assert_eq!(
+        s["complete"],
+        true,
+        "the run completes after the cut and restore: {s}\n{}",
+        stderr(&out)
+    );
+    let links = csv(&run.join("links.csv"));
+    let down = links
+        .iter()
+        .filter(|r| num(r, "a") == 0.0 && num(r, "b") == 1.0 && num(r, "up") == 0.0)
+        .count();
+    assert!(down > 0, "the cut shows in links.csv");
+}
