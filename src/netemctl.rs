@@ -109,7 +109,7 @@ impl ToxicArg {
         };
         (
             name.to_string(),
-            format!("{{\"name\":\"{name}\",\"type\":\"{ty}\",\"attributes\":{attrs}}}"),
+            format!("{{\"name\":\"{name}\",\"type\":\"{ty}\",\"stream\":\"both\",\"attributes\":{attrs}}}"),
         )
     }
 }
