@@ -4,6 +4,7 @@
 
 mod support;
 
+mod bypass;
 mod cli;
 mod lifecycle;
 mod mapping;

@@ -164,3 +164,8 @@ pub fn summary(run: &Path) -> serde_json::Value {
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
+
+/// `n` distinct free loopback ports.
+pub fn free_ports(n: usize) -> Vec<u16> {
+    swarm::ports::free_ports(n).expect("free ports")
+}
