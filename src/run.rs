@@ -148,16 +148,8 @@ async fn fetch_truth(
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         check_started(children, dir)?;
-        let replies = session
-            .get(keys::WORLD_TRUTH)
-            .timeout(Duration::from_secs(2))
-            .await
-            .map_err(zerr)?;
-        while let Ok(reply) = replies.recv_async().await {
-            if let Ok(sample) = reply.result() {
-                return decode::<TruthMap>(&sample.payload().to_bytes())
-                    .context("decoding the truth map");
-            }
+        if let Some(t) = proto::node::query_once::<TruthMap>(session, keys::WORLD_TRUTH).await? {
+            return Ok(t);
         }
         if Instant::now() > deadline {
             bail!(

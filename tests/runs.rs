@@ -10,6 +10,8 @@ fn completes(name: &str, sets: &[&str], max_steps: u64) -> serde_json::Value {
     let steps = format!("max_steps={max_steps}");
     let mut all: Vec<&str> = sets.to_vec();
     all.push(&steps);
+    // Tests run side by side on two cores: a robot may be slow, but it is not dead.
+    all.push("clock.step_timeout_ms=10000");
     let (out, run) = swarm_run(&dir, None, &all, Duration::from_secs(300));
     let s = summary(&run);
     assert!(

@@ -20,30 +20,9 @@ pub async fn fetch_truth(
     sim: &Session,
     wait: Duration,
 ) -> Result<(proto::geom::MapInfo, Grid), ZenohError> {
-    let deadline = tokio::time::Instant::now() + wait;
-    loop {
-        let replies = sim
-            .get(keys::WORLD_TRUTH)
-            .timeout(Duration::from_secs(2))
-            .await
-            .map_err(zerr)?;
-        while let Ok(reply) = replies.recv_async().await {
-            if let Ok(sample) = reply.result() {
-                let t = decode::<TruthMap>(&sample.payload().to_bytes())
-                    .map_err(|e| ZenohError(format!("truth map: {e}")))?;
-                let g = Grid::from_rle(&t.grid_rle)
-                    .map_err(|e| ZenohError(format!("truth map: {e}")))?;
-                return Ok((t.map, g));
-            }
-        }
-        if tokio::time::Instant::now() >= deadline {
-            return Err(ZenohError(format!(
-                "no world-server answered {} within {wait:?}",
-                keys::WORLD_TRUTH
-            )));
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
+    let t: TruthMap = proto::node::query_retry(sim, keys::WORLD_TRUTH, wait).await?;
+    let g = Grid::from_rle(&t.grid_rle).map_err(|e| ZenohError(format!("truth map: {e}")))?;
+    Ok((t.map, g))
 }
 
 /// Whether the scenario's radio model needs the truth map.

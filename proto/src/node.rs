@@ -70,6 +70,46 @@ pub fn zerr(e: zenoh::Error) -> ZenohError {
 #[error("zenoh: {0}")]
 pub struct ZenohError(pub String);
 
+/// Asks `key` once (2 s timeout) and decodes the first good reply; `Ok(None)` when nobody
+/// answered.
+pub async fn query_once<T: serde::de::DeserializeOwned>(
+    session: &zenoh::Session,
+    key: &str,
+) -> Result<Option<T>, ZenohError> {
+    let replies = session
+        .get(key)
+        .timeout(std::time::Duration::from_secs(2))
+        .await
+        .map_err(zerr)?;
+    while let Ok(reply) = replies.recv_async().await {
+        if let Ok(sample) = reply.result() {
+            return crate::msg::decode::<T>(&sample.payload().to_bytes())
+                .map(Some)
+                .map_err(|e| ZenohError(format!("{key}: {e}")));
+        }
+    }
+    Ok(None)
+}
+
+/// [`query_once`] until answered or `wait` has passed (the answering process may still be
+/// starting).
+pub async fn query_retry<T: serde::de::DeserializeOwned>(
+    session: &zenoh::Session,
+    key: &str,
+    wait: std::time::Duration,
+) -> Result<T, ZenohError> {
+    let deadline = tokio::time::Instant::now() + wait;
+    loop {
+        if let Some(v) = query_once(session, key).await? {
+            return Ok(v);
+        }
+        if tokio::time::Instant::now() >= deadline {
+            return Err(ZenohError(format!("nobody answered {key} within {wait:?}")));
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+}
+
 /// Closes a session, giving up after a second: when the other end is already gone (the run is
 /// over), zenoh's orderly close can wait for it much longer, and the process should just exit.
 pub async fn close_quickly(session: zenoh::Session) {

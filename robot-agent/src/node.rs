@@ -9,7 +9,6 @@ use proto::keys;
 use proto::msg::{decode, encode, Control, Hello, RobotId, Scan, ScanDelta, Traffic, WorldInfo};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
-use tokio::time::Instant;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::SampleKind;
 use zenoh::Session;
@@ -28,29 +27,7 @@ pub enum End {
 
 /// Asks the world-server for [`WorldInfo`], retrying until `wait` has passed.
 pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, ZenohError> {
-    let deadline = Instant::now() + wait;
-    loop {
-        let replies = sim
-            .get(keys::WORLD_INFO)
-            .timeout(Duration::from_secs(2))
-            .await
-            .map_err(zerr)?;
-        while let Ok(reply) = replies.recv_async().await {
-            if let Ok(sample) = reply.result() {
-                match decode::<WorldInfo>(&sample.payload().to_bytes()) {
-                    Ok(info) => return Ok(info),
-                    Err(e) => return Err(ZenohError(format!("world info: {e}"))),
-                }
-            }
-        }
-        if Instant::now() >= deadline {
-            return Err(ZenohError(format!(
-                "no world-server answered {} within {wait:?}",
-                keys::WORLD_INFO
-            )));
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
+    proto::node::query_retry(sim, keys::WORLD_INFO, wait).await
 }
 
 /// Sends radio messages, counting payload bytes. A radio link may be gone at any moment:
