@@ -373,7 +373,10 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
             _ = tick.tick() => {
                 let mut world_gone = None;
                 for (name, pid, status) in children.newly_exited() {
-                    let what = format!("{name} (pid {pid}) exited: {}", describe(status));
+                    let mut what = format!("{name} (pid {pid}) exited: {}", describe(status));
+                    if status.code().is_some_and(|c| c != 0) {
+                        what = format!("{what}: {}", last_log_line(&dir.join(format!("logs/{name}.log"))));
+                    }
                     progress.event(&format!("swarm run: {what}"));
                     failed.push(what);
                     if name == "world-server" || name == "netem" { world_gone = Some(name); }
