@@ -52,7 +52,7 @@ fn main() -> ExitCode {
 }
 
 fn replay(args: &swarm::replay::ReplayArgs) -> ExitCode {
-    proto::node::init_logging("swarm");
+    proto::node::init_logging();
     match swarm::replay::replay(args) {
         Ok((dir, s)) => {
             println!(
@@ -82,7 +82,7 @@ fn replay(args: &swarm::replay::ReplayArgs) -> ExitCode {
 }
 
 fn run(args: swarm::run::RunArgs) -> ExitCode {
-    proto::node::init_logging("swarm");
+    proto::node::init_logging();
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,
         Err(e) => {
@@ -95,7 +95,7 @@ fn run(args: swarm::run::RunArgs) -> ExitCode {
             let s = &out.summary;
             let steps = s.exploration_steps.map_or("-".into(), |v| v.to_string());
             println!(
-                "{}: {} after {} steps ({}); exploration steps {steps}; best coverage {:.1}%; {:.1} s wall; radio payload {} bytes; run directory {}",
+                "{}: {} after {} steps ({} robots); exploration steps {steps}; best coverage {:.1}%; {:.1} s wall; radio payload {} bytes; run directory {}",
                 if s.complete { "complete" } else { "INCOMPLETE" },
                 s.exit_reason,
                 s.steps,

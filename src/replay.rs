@@ -18,7 +18,7 @@ use proto::grid::{Grid, Occ};
 use proto::scenario::Scenario;
 use robot_agent::agent::Agent;
 use robot_agent::contour::Kind;
-use robot_agent::mapper::{kind_name, Mapper, StepReport, OP_KINDS, THESIS_BYTES};
+use robot_agent::mapper::{traffic, Mapper, StepReport, OP_KINDS, THESIS_BYTES};
 use robot_agent::qpoint::QPoint;
 use serde::Serialize;
 use world_server::world::World;
@@ -169,7 +169,7 @@ fn summarize(map: &str, steps: u32, reachable: &Grid, own: &Grid, m: &Mapper) ->
                 mean_bytes: m.stats.mean_bytes(i),
                 thesis_bytes: THESIS_BYTES[i],
             };
-            (kind_name(k).to_string(), s)
+            (traffic(k).name().to_string(), s)
         })
         .collect();
     ReplaySummary {

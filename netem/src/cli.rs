@@ -86,7 +86,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
 
 /// The whole process: one tokio runtime, logging, exit code.
 pub fn main(args: Args) -> ExitCode {
-    init_logging("netem");
+    init_logging();
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,
         Err(e) => {

@@ -120,7 +120,7 @@ pub async fn close_quickly(session: zenoh::Session) {
 }
 
 /// Logs to stderr; `RUST_LOG` overrides the default (`warn`, zenoh's own messages from `error`).
-pub fn init_logging(process: &str) {
+pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,zenoh=error"));
     let _ = tracing_subscriber::fmt()
@@ -128,7 +128,6 @@ pub fn init_logging(process: &str) {
         .with_writer(std::io::stderr)
         .with_target(false)
         .try_init();
-    let _ = process;
 }
 
 /// Errors while building a zenoh configuration.

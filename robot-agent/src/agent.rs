@@ -40,6 +40,8 @@ pub struct Agent {
     own_evidence: Evidence,
     /// What peers' scans told it (never overrides G_s in the planning grid).
     others: Grid,
+    /// The planning grid of the last step (built once per step, reused by telemetry).
+    planning: Grid,
     others_evidence: Evidence,
     exchange: RawScanExchange,
     pose: Pose,
@@ -69,6 +71,7 @@ impl Agent {
             own_evidence: Evidence::new(&empty),
             others_evidence: Evidence::new(&empty),
             own: empty.clone(),
+            planning: empty.clone(),
             others: empty,
             exchange: RawScanExchange::new(id),
             pose: Pose::default(),
@@ -132,9 +135,10 @@ impl Agent {
     }
 
     fn plan(&mut self) -> Option<(f64, f64)> {
-        let g = self.planning_grid();
+        self.planning = self.planning_grid();
+        let g = &self.planning;
         let me = self.world.map.cell_of(self.pose.x, self.pose.y);
-        let costs = plan::costs(&g, me);
+        let costs = plan::costs(g, me);
         let step = self.step;
         self.blacklist.retain(|_, until| *until > step);
         if self.rejections >= MAX_REJECTIONS {
@@ -143,22 +147,20 @@ impl Agent {
             }
             self.rejections = 0;
         }
-        let frontiers: Vec<Cell> = plan::frontiers(&g, &costs);
-        let valid = |t: &Cell| *t != me && frontiers.contains(t) && !self.blacklist.contains_key(t);
-        if !self.target.as_ref().is_some_and(valid) {
-            self.target = frontiers
-                .iter()
-                .filter(|c| valid(c))
-                .filter_map(|&c| costs.cost(c).map(|v| (v, c.y, c.x, c)))
-                .min_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal))
-                .map(|(_, _, _, c)| c);
+        let frontiers: Vec<Cell> = plan::frontiers(g, &costs);
+        let usable = |t: &Cell| *t != me && !self.blacklist.contains_key(t);
+        if !self
+            .target
+            .is_some_and(|t| usable(&t) && frontiers.contains(&t))
+        {
+            self.target = plan::nearest(frontiers.iter().copied().filter(usable), &costs);
         }
         self.idle = self.target.is_none();
         let target = self.target?;
         let path = plan::path_to(&costs, target)?;
         let max_cells =
             self.world.max_speed_m_per_s * self.world.step_seconds / self.world.map.resolution_m;
-        let next = plan::next_waypoint(&g, &path, max_cells)?;
+        let next = plan::next_waypoint(g, &path, max_cells)?;
         (next != me).then(|| self.world.map.centre_of(next))
     }
 
@@ -236,9 +238,9 @@ impl Agent {
         }
     }
 
-    /// This step's telemetry for the launcher.
+    /// This step's telemetry for the launcher: the planning grid the robot planned on this step.
     pub fn telemetry(&self) -> Telemetry {
-        let g = self.planning_grid();
+        let g = &self.planning;
         Telemetry {
             robot: self.id,
             step: self.step,
@@ -269,9 +271,5 @@ impl Agent {
     /// G_s, the self-explored grid.
     pub fn own_grid(&self) -> &Grid {
         &self.own
-    }
-
-    pub fn log_len(&self, owner: RobotId) -> usize {
-        self.exchange.log(owner).len()
     }
 }

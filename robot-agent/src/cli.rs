@@ -77,7 +77,7 @@ async fn run(args: Args) -> anyhow::Result<End> {
 
 /// The whole process: one tokio runtime, logging, exit code.
 pub fn main(args: Args) -> ExitCode {
-    init_logging("robot-agent");
+    init_logging();
     let id = args.id;
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,

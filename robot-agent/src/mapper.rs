@@ -7,6 +7,7 @@
 //! and [`crate::error`]; the exchange of the log is another module's job.
 
 use proto::grid::{Grid, Occ};
+use proto::msg::Traffic;
 
 use crate::approx::{Approximation, Approximator};
 use crate::contour::Contours;
@@ -33,15 +34,16 @@ pub fn kind_index(k: OpKind) -> usize {
     OP_KINDS.iter().position(|&x| x == k).unwrap_or(0)
 }
 
-pub fn kind_name(k: OpKind) -> &'static str {
+/// The traffic class an op's bytes are accounted to (its name in every report).
+pub fn traffic(k: OpKind) -> Traffic {
     match k {
-        OpKind::Ins => "ins",
-        OpKind::Rep => "rep",
-        OpKind::Del => "del",
-        OpKind::Em => "em",
-        OpKind::Chg => "chg",
-        OpKind::Rm => "rm",
-        OpKind::Save => "save",
+        OpKind::Ins => Traffic::Ins,
+        OpKind::Rep => Traffic::Rep,
+        OpKind::Del => Traffic::Del,
+        OpKind::Em => Traffic::Em,
+        OpKind::Chg => Traffic::Chg,
+        OpKind::Rm => Traffic::Rm,
+        OpKind::Save => Traffic::Save,
     }
 }
 

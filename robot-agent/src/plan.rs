@@ -178,10 +178,18 @@ pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
 /// The cheapest frontier, ties broken by `(y, x)` (costs equal to within 10⁻⁶ cells count as
 /// ties); `None` when no frontier is reachable.
 pub fn nearest_frontier(g: &Grid, costs: &CostMap) -> Option<Cell> {
-    frontiers(g, costs).into_iter().min_by_key(|&c| {
-        let cost = costs.cost(c).unwrap_or(f64::INFINITY);
-        ((cost / COST_TIE_QUANTUM).round() as i64, c.y, c.x)
-    })
+    nearest(frontiers(g, costs), costs)
+}
+
+/// The cheapest reachable cell among `cells`, with [`nearest_frontier`]'s tie-break.
+pub fn nearest(cells: impl IntoIterator<Item = Cell>, costs: &CostMap) -> Option<Cell> {
+    cells
+        .into_iter()
+        .filter(|&c| costs.cost(c).is_some())
+        .min_by_key(|&c| {
+            let cost = costs.cost(c).unwrap_or(f64::INFINITY);
+            ((cost / COST_TIE_QUANTUM).round() as i64, c.y, c.x)
+        })
 }
 
 /// The cells of a cheapest path from the start of `costs` to `target`, both included, following

@@ -96,7 +96,7 @@ async fn run(args: Args) -> anyhow::Result<End> {
 
 /// The whole process: one tokio runtime, logging, exit code.
 pub fn main(args: Args) -> ExitCode {
-    init_logging("world-server");
+    init_logging();
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,
         Err(e) => {

@@ -8,7 +8,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use proto::geom::{LaserSpec, MapInfo, Pose};
-use proto::grid::{Cell, Grid};
+use proto::grid::Grid;
 use proto::msg::{Cmd, MoveOutcome, RobotId, RobotStatus, Scan, Status, Step, TruthMap, WorldInfo};
 use proto::scenario::Scenario;
 use rand::SeedableRng;
@@ -254,11 +254,5 @@ impl World {
                 .collect(),
             collisions_total: self.collisions_total,
         }
-    }
-
-    /// The cell a robot stands on.
-    pub fn cell_of(&self, id: RobotId) -> Option<Cell> {
-        let b = self.bodies.get(usize::from(id))?;
-        Some(self.truth.info.cell_of(b.pose.x, b.pose.y))
     }
 }
