@@ -117,7 +117,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
             break;
         };
         let cmd = agent.on_scan(&scan);
-        let r = mapper.step(agent.own_grid());
+        let r = mapper.step(agent.own_grid(), agent.own_changes());
         write_row(&mut csv, step, &r);
         if args.png_at.contains(&step) {
             pictures(&dir, step, agent.own_grid(), &mapper, info)?;

@@ -2,7 +2,8 @@
 //! approximation + refinement → delta → encoding → merge of 3 peers' approximations) and each
 //! stage alone, on windows of real maps at their native resolution: 300×300 cells of intel_lab
 //! and 1000×1000 cells of aces3_austin. Contour extraction is also measured on growing windows,
-//! with throughput in contour points, to show it is linear in the number of contour pixels.
+//! with throughput in contour points, and with one fixed room in growing grids, to show it is
+//! linear in the number of contour pixels and independent of the grid's area.
 //!
 //! Run: `cargo bench -p robot-agent` (medians are what the docs report).
 
@@ -12,7 +13,7 @@ use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criteri
 use proto::geom::{LaserSpec, MapInfo, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use robot_agent::approx::{Approximation, Approximator};
-use robot_agent::contour::Contours;
+use robot_agent::contour::{ContourPixels, Contours};
 use robot_agent::delta::diff;
 use robot_agent::grid::Evidence;
 use robot_agent::merge::merge;
@@ -77,6 +78,7 @@ fn poses(truth: &Grid, info: &MapInfo, n: usize) -> Vec<Pose> {
 struct State {
     own: Grid,
     evidence: Evidence,
+    pixels: ContourPixels,
     approximator: Approximator,
     previous: Approximation,
 }
@@ -85,14 +87,16 @@ fn explore(truth: &Grid, info: &MapInfo, path: &[Pose]) -> State {
     let own = Grid::new(truth.width(), truth.height(), Occ::Unknown);
     let mut s = State {
         evidence: Evidence::new(&own),
+        pixels: ContourPixels::scan(&own),
         own,
         approximator: Approximator::new(),
         previous: Approximation::default(),
     };
     for &p in path {
         let ranges = world_server::laser::cast(truth, info, p, &laser(), None);
-        s.evidence.integrate(&mut s.own, info, p, &ranges, &laser());
-        let contours = Contours::extract(&s.own);
+        let changed = s.evidence.integrate(&mut s.own, info, p, &ranges, &laser());
+        s.pixels.update(&s.own, changed);
+        let contours = Contours::extract_at(&s.own, &s.pixels);
         s.previous = s.approximator.step(&contours, &s.own, SPLITS).clone();
     }
     s
@@ -108,8 +112,9 @@ fn full_step(
     peers: &[&Approximation],
 ) -> (usize, Grid) {
     let ranges = world_server::laser::cast(truth, info, p, &laser(), None);
-    s.evidence.integrate(&mut s.own, info, p, &ranges, &laser());
-    let contours = Contours::extract(&s.own);
+    let changed = s.evidence.integrate(&mut s.own, info, p, &ranges, &laser());
+    s.pixels.update(&s.own, changed);
+    let contours = Contours::extract_at(&s.own, &s.pixels);
     let a = s.approximator.step(&contours, &s.own, SPLITS).clone();
     let ops = diff(&s.previous, &a);
     let bytes = encode(&ops).len();
@@ -148,11 +153,21 @@ fn pipeline(c: &mut Criterion, map: &str, size: u32) {
         )
     });
     let mut after = me.clone();
-    after
+    let changed = after
         .evidence
         .integrate(&mut after.own, &info, p, &ranges, &laser());
-    group.bench_function("contour", |b| b.iter(|| Contours::extract(&after.own)));
-    let contours = Contours::extract(&after.own);
+    group.bench_function("contour_pixels_update", |b| {
+        b.iter_batched(
+            || me.pixels.clone(),
+            |mut px| px.update(&after.own, changed.iter().copied()),
+            BatchSize::LargeInput,
+        )
+    });
+    after.pixels.update(&after.own, changed.iter().copied());
+    group.bench_function("contour", |b| {
+        b.iter(|| Contours::extract_at(&after.own, &after.pixels))
+    });
+    let contours = Contours::extract_at(&after.own, &after.pixels);
     group.bench_function("approx_refine", |b| {
         b.iter_batched(
             || after.approximator.clone(),
@@ -177,23 +192,64 @@ fn pipelines(c: &mut Criterion) {
     pipeline(c, "aces3_austin", 1000);
 }
 
-/// Contour extraction on fully known windows of growing size: time per contour point should
-/// stay flat (linear extraction).
+/// Contour extraction on fully known windows of growing size, with the contour pixels known
+/// (kept up to date step by step): time per contour point should stay flat.
 fn contour_scaling(c: &mut Criterion) {
     let mut group = c.benchmark_group("contour_scaling_aces3_austin");
     group.sample_size(20);
     for size in [125u32, 250, 500, 1000] {
         let (truth, _) = window("aces3_austin", size);
-        let points = Contours::extract(&truth).len() as u64;
+        let pixels = ContourPixels::scan(&truth);
+        let points = Contours::extract_at(&truth, &pixels).len() as u64;
         group.throughput(Throughput::Elements(points));
         group.bench_with_input(
             BenchmarkId::from_parameter(format!("{size}x{size} ({points} contour points)")),
             &truth,
-            |b, g| b.iter(|| Contours::extract(g)),
+            |b, g| b.iter(|| Contours::extract_at(g, &pixels)),
         );
     }
     group.finish();
 }
 
-criterion_group!(benches, pipelines, contour_scaling);
+/// One explored 100×100-cell room (walls, a pillar, a doorway into unknown space) in grids of
+/// growing area: extraction from the kept contour pixels costs the same in every grid, while
+/// a scan of every cell (the thesis's Algorithm 3 step 1, [`ContourPixels::scan`]) grows with
+/// the area.
+fn contour_fixed_room(c: &mut Criterion) {
+    let mut group = c.benchmark_group("contour_fixed_room");
+    group.sample_size(20);
+    for size in [250u32, 500, 1000, 2000] {
+        let mut g = Grid::new(size, size, Occ::Unknown);
+        let o = (size / 2 - 50) as i32;
+        for y in 0..100 {
+            for x in 0..100 {
+                let wall = x == 0 || y == 0 || x == 99 || y == 99;
+                let pillar = (40..60).contains(&x) && (40..60).contains(&y);
+                let door = x == 99 && (45..55).contains(&y);
+                let v = if door {
+                    Occ::Free
+                } else if wall || pillar {
+                    Occ::Occupied
+                } else {
+                    Occ::Free
+                };
+                g.set(Cell::new(o + x, o + y), v);
+            }
+        }
+        let pixels = ContourPixels::scan(&g);
+        group.bench_with_input(
+            BenchmarkId::new("extract_at", format!("{size}x{size}")),
+            &g,
+            |b, g| b.iter(|| Contours::extract_at(g, &pixels)),
+        );
+        group.bench_with_input(
+            BenchmarkId::new("scan_every_cell", format!("{size}x{size}")),
+            &g,
+            |b, g| b.iter(|| ContourPixels::scan(g)),
+        );
+    }
+    group.finish();
+}
+
+criterion_group!(benches, pipelines, contour_scaling, contour_fixed_room);
 criterion_main!(benches);

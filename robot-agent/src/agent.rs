@@ -38,6 +38,8 @@ pub struct Agent {
     /// G_s: what this robot sensed itself, and the beam counts behind it.
     own: Grid,
     own_evidence: Evidence,
+    /// Cells of G_s the last scan changed.
+    own_changed: Vec<Cell>,
     /// What peers' scans told it (never overrides G_s in the planning grid).
     others: Grid,
     /// The planning grid of the last step (built once per step, reused by telemetry).
@@ -69,6 +71,7 @@ impl Agent {
             id,
             world,
             own_evidence: Evidence::new(&empty),
+            own_changed: Vec::new(),
             others_evidence: Evidence::new(&empty),
             own: empty.clone(),
             planning: empty.clone(),
@@ -98,7 +101,7 @@ impl Agent {
     pub fn on_scan(&mut self, scan: &Scan) -> Cmd {
         self.step = scan.step;
         self.pose = scan.pose;
-        self.own_evidence.integrate(
+        self.own_changed = self.own_evidence.integrate(
             &mut self.own,
             &self.world.map,
             scan.pose,
@@ -271,5 +274,10 @@ impl Agent {
     /// G_s, the self-explored grid.
     pub fn own_grid(&self) -> &Grid {
         &self.own
+    }
+
+    /// The cells of G_s the last scan changed (for incremental contour pixels).
+    pub fn own_changes(&self) -> &[Cell] {
+        &self.own_changed
     }
 }

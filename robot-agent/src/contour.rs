@@ -14,11 +14,13 @@
 //! border is closed by contour pixels just outside the grid. Every cycle of auxiliary points is
 //! one object: clockwise cycles enclose a free region (**inside objects**, one per 4-connected
 //! free region), counter-clockwise cycles enclose obstacles or unknown islands (**outside
-//! objects**). Extraction is linear: one scan over the cells finds the auxiliary points and a bit
-//! per (cell, direction) marks the ones already traced (the thesis's `auxPointIndex`, where
-//! removal is clearing that bit).
+//! objects**). Extraction is linear in the number of contour pixels: [`ContourPixels`] keeps
+//! the set of contour pixels in scan order and is updated from the cells a scan changed (the
+//! thesis's Algorithm 3 step 1 examines every cell instead), and tracing marks each auxiliary
+//! point in the point index as it goes (the thesis's `auxPointIndex`, where removal is
+//! marking), so nothing is proportional to the grid's area.
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 use std::hash::{BuildHasherDefault, Hasher};
 
 use proto::grid::{Cell, Grid, Occ};
@@ -55,34 +57,25 @@ pub struct Contours {
 
 impl Contours {
     /// Extracts every object of `grid` (Algorithm 3), in the scan order of their first point.
+    /// Examines every cell once; a caller that extracts every step keeps a [`ContourPixels`]
+    /// and calls [`Contours::extract_at`].
     pub fn extract(grid: &Grid) -> Contours {
-        let mut tracer = Tracer::new(grid);
+        Contours::extract_at(grid, &ContourPixels::scan(grid))
+    }
+
+    /// [`Contours::extract`] with the contour pixels of `grid` already known: time linear in
+    /// their number. `pixels` must be up to date for `grid` (see [`ContourPixels::update`]).
+    pub fn extract_at(grid: &Grid, pixels: &ContourPixels) -> Contours {
+        let mut index: HashMap<QPoint, (u32, u32), BuildHasherDefault<QHasher>> =
+            HashMap::with_capacity_and_hasher(pixels.len() * 2, Default::default());
         let mut objects = Vec::new();
-        let (w, h) = (
-            tracer.padded.width,
-            tracer.padded.free.len() / tracer.padded.width,
-        );
-        for y in 0..h {
-            for x in 0..w {
-                let at = y * w + x;
-                if tracer.padded.free[at] {
-                    continue;
+        for c in pixels.iter() {
+            for dir in 0..4 {
+                let start = Aux { at: c, dir };
+                if is_free(grid, step(c, dir)) && !index.contains_key(&start.point()) {
+                    let contour = trace(grid, start, objects.len() as u32, &mut index);
+                    objects.push(contour);
                 }
-                let sides = [x + 1 < w, y + 1 < h, x > 0, y > 0];
-                for (dir, &inside) in sides.iter().enumerate() {
-                    let start = Aux { at, dir };
-                    let aux = inside && tracer.padded.free[tracer.padded.step(at, dir)];
-                    if aux && !tracer.visited(start) {
-                        objects.push(tracer.trace(start));
-                    }
-                }
-            }
-        }
-        let total = objects.iter().map(|c: &Contour| c.points.len()).sum();
-        let mut index = HashMap::with_capacity_and_hasher(total, Default::default());
-        for (obj, c) in objects.iter().enumerate() {
-            for (i, &p) in c.points.iter().enumerate() {
-                index.insert(p, (obj as u32, i as u32));
             }
         }
         Contours { objects, index }
@@ -107,118 +100,142 @@ impl Contours {
     }
 }
 
-/// An auxiliary point: contour pixel (index into the padded grid) and the direction (index
-/// into [`DIRS`]) of its free side.
+/// Whether `c` is a free cell of `grid` (the frame around the grid reads unknown).
+fn is_free(grid: &Grid, c: Cell) -> bool {
+    grid.contains(c) && grid.get(c) == Occ::Free
+}
+
+/// The neighbour of `c` in direction `d` (an index into [`DIRS`]).
+fn step(c: Cell, d: usize) -> Cell {
+    Cell::new(c.x + DIRS[d].0, c.y + DIRS[d].1)
+}
+
+/// Whether `c` is a contour pixel of `grid`: not free, with a free 4-neighbour. Only cells in
+/// the grid or in the one-cell ring around it can be.
+fn is_contour(grid: &Grid, c: Cell) -> bool {
+    !is_free(grid, c) && (0..4).any(|d| is_free(grid, step(c, d)))
+}
+
+/// The contour pixels of a grid in scan order (rows bottom-up, left to right), the ring of
+/// cells just outside the grid included — the starting points of Algorithm 3, kept up to date
+/// from the cells that change instead of found by examining every cell each step.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ContourPixels {
+    width: u32,
+    height: u32,
+    /// (y, x): scan order.
+    set: BTreeSet<(i32, i32)>,
+}
+
+impl ContourPixels {
+    /// The contour pixels of `grid`, examining every cell once.
+    pub fn scan(grid: &Grid) -> ContourPixels {
+        let (w, h) = (grid.width() as i32, grid.height() as i32);
+        let set = (-1..=h)
+            .flat_map(|y| (-1..=w).map(move |x| (y, x)))
+            .filter(|&(y, x)| is_contour(grid, Cell::new(x, y)))
+            .collect();
+        ContourPixels {
+            width: grid.width(),
+            height: grid.height(),
+            set,
+        }
+    }
+
+    /// Brings the set up to date after the cells `changed` of `grid` changed (any other cell
+    /// is as when the set was last up to date). A grid of another size is scanned afresh.
+    pub fn update(&mut self, grid: &Grid, changed: impl IntoIterator<Item = Cell>) {
+        if (grid.width(), grid.height()) != (self.width, self.height) {
+            *self = ContourPixels::scan(grid);
+            return;
+        }
+        for c in changed {
+            for p in std::iter::once(c).chain(c.neighbours4()) {
+                if is_contour(grid, p) {
+                    self.set.insert((p.y, p.x));
+                } else {
+                    self.set.remove(&(p.y, p.x));
+                }
+            }
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.set.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.set.is_empty()
+    }
+
+    /// The contour pixels in scan order.
+    pub fn iter(&self) -> impl Iterator<Item = Cell> + '_ {
+        self.set.iter().map(|&(y, x)| Cell::new(x, y))
+    }
+}
+
+/// An auxiliary point: a contour pixel and the direction (index into [`DIRS`]) of its free
+/// side.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Aux {
-    at: usize,
+    at: Cell,
     dir: usize,
 }
 
-/// The grid's free cells in a frame padded with one ring of non-free cells, so that every
-/// neighbour of a contour pixel is an index step away.
-struct Padded {
-    width: usize,
-    free: Vec<bool>,
-}
-
-impl Padded {
-    fn new(grid: &Grid) -> Padded {
-        let (w, h) = (grid.width() as usize, grid.height() as usize);
-        let mut free = vec![false; (w + 2) * (h + 2)];
-        for (i, &c) in grid.cells().iter().enumerate() {
-            free[(i / w + 1) * (w + 2) + i % w + 1] = c == Occ::Free;
-        }
-        Padded { width: w + 2, free }
+impl Aux {
+    fn point(self) -> QPoint {
+        let (dx, dy) = DIRS[self.dir];
+        QPoint::new(4 * self.at.x + 2 + dx, 4 * self.at.y + 2 + dy)
     }
 
-    /// The neighbour of padded index `at` in direction `d` (callers stay inside the frame:
-    /// the padding ring is never free, so a free cell's neighbours are all in it).
-    fn step(&self, at: usize, d: usize) -> usize {
-        match d {
-            0 => at + 1,
-            1 => at + self.width,
-            2 => at - 1,
-            _ => at - self.width,
-        }
-    }
-
-    fn cell(&self, at: usize) -> Cell {
-        Cell::new((at % self.width) as i32 - 1, (at / self.width) as i32 - 1)
-    }
-
-    fn point(&self, a: Aux) -> QPoint {
-        let (c, (dx, dy)) = (self.cell(a.at), DIRS[a.dir]);
-        QPoint::new(4 * c.x + 2 + dx, 4 * c.y + 2 + dy)
-    }
-}
-
-/// Follows cycles of auxiliary points and remembers which ones it has traced.
-struct Tracer<'g> {
-    grid: &'g Grid,
-    padded: Padded,
-    visited: Vec<u64>,
-}
-
-impl<'g> Tracer<'g> {
-    fn new(grid: &'g Grid) -> Tracer<'g> {
-        let padded = Padded::new(grid);
-        let words = (padded.free.len() * 4).div_ceil(64);
-        Tracer {
-            grid,
-            padded,
-            visited: vec![0; words],
-        }
-    }
-
-    fn visited(&self, a: Aux) -> bool {
-        let b = a.at * 4 + a.dir;
-        self.visited[b / 64] & (1 << (b % 64)) != 0
-    }
-
-    fn mark(&mut self, a: Aux) {
-        let b = a.at * 4 + a.dir;
-        self.visited[b / 64] |= 1 << (b % 64);
-    }
-
-    /// The successor of `a`: 90° right, else straight, else 90° left (Algorithm 1).
-    fn next(&self, a: Aux) -> Aux {
-        let n = a.dir;
+    /// The successor: 90° right, else straight, else 90° left (Algorithm 1, Table 4.1).
+    fn next(self, grid: &Grid) -> Aux {
+        let n = self.dir;
         let m = (n + 1) % 4; // direction of movement: free side on the right
-        let ahead = self.padded.step(a.at, m);
-        let diagonal = self.padded.step(ahead, n);
-        if !self.padded.free[diagonal] {
+        let ahead = step(self.at, m);
+        let diagonal = step(ahead, n);
+        if !is_free(grid, diagonal) {
             Aux {
                 at: diagonal,
                 dir: (m + 2) % 4,
             }
-        } else if !self.padded.free[ahead] {
+        } else if !is_free(grid, ahead) {
             Aux { at: ahead, dir: n }
         } else {
-            Aux { at: a.at, dir: m }
-        }
-    }
-
-    /// Traces the object through `start` (Algorithm 2, iteratively).
-    fn trace(&mut self, start: Aux) -> Contour {
-        let (mut points, mut occ) = (Vec::new(), Vec::new());
-        let mut a = start;
-        loop {
-            self.mark(a);
-            points.push(self.padded.point(a));
-            occ.push(self.grid.get(self.padded.cell(a.at)));
-            a = self.next(a);
-            if a == start {
-                break;
+            Aux {
+                at: self.at,
+                dir: m,
             }
         }
-        let kind = if area2(&points) < 0 {
-            Kind::Inside
-        } else {
-            Kind::Outside
-        };
-        Contour { kind, points, occ }
     }
+}
+
+/// Traces object number `obj` through `start` (Algorithm 2, iteratively), entering each of its
+/// points in `index`.
+fn trace(
+    grid: &Grid,
+    start: Aux,
+    obj: u32,
+    index: &mut HashMap<QPoint, (u32, u32), BuildHasherDefault<QHasher>>,
+) -> Contour {
+    let (mut points, mut occ) = (Vec::new(), Vec::new());
+    let mut a = start;
+    loop {
+        let p = a.point();
+        index.insert(p, (obj, points.len() as u32));
+        points.push(p);
+        occ.push(grid.get(a.at));
+        a = a.next(grid);
+        if a == start {
+            break;
+        }
+    }
+    let kind = if area2(&points) < 0 {
+        Kind::Inside
+    } else {
+        Kind::Outside
+    };
+    Contour { kind, points, occ }
 }
 
 /// FxHash-style hasher for [`QPoint`] keys: the index is rebuilt every step, so hashing speed
@@ -412,5 +429,45 @@ mod tests {
         fn real_map_windows_give_valid_contours(g in arb_map_window(24, 24)) {
             assert_invariants(&g, &Contours::extract(&g));
         }
+
+        /// The incrementally kept contour pixels equal a fresh scan after any sequence of
+        /// cell changes, and extraction from them gives the same objects in the same order.
+        #[test]
+        fn updated_contour_pixels_equal_a_fresh_scan(
+            g in arb_grid(12),
+            edits in proptest::collection::vec(
+                proptest::collection::vec((0i32..12, 0i32..12, 0u8..3), 0..20), 1..6)
+        ) {
+            let mut g = g;
+            let mut pixels = ContourPixels::scan(&g);
+            for batch in edits {
+                let mut changed = Vec::new();
+                for (x, y, v) in batch {
+                    let c = Cell::new(x, y);
+                    let v = [Occ::Free, Occ::Occupied, Occ::Unknown][usize::from(v)];
+                    if g.contains(c) && g.get(c) != v {
+                        g.set(c, v);
+                        changed.push(c);
+                    }
+                }
+                pixels.update(&g, changed);
+                prop_assert_eq!(&pixels, &ContourPixels::scan(&g));
+                let (a, b) = (Contours::extract_at(&g, &pixels), Contours::extract(&g));
+                prop_assert_eq!(a.objects(), b.objects());
+                assert_invariants(&g, &a);
+            }
+        }
+    }
+
+    #[test]
+    fn contour_pixels_include_the_ring_outside_the_grid() {
+        let g = Grid::from_ascii("..\n");
+        let p = ContourPixels::scan(&g);
+        // Every cell of the ring around the 2×1 free strip is a contour pixel except corners.
+        let want = [(0, -1), (1, -1), (-1, 0), (2, 0), (0, 1), (1, 1)];
+        let got: Vec<(i32, i32)> = p.iter().map(|c| (c.x, c.y)).collect();
+        let mut want: Vec<(i32, i32)> = want.to_vec();
+        want.sort_by_key(|&(x, y)| (y, x));
+        assert_eq!(got, want);
     }
 }

@@ -217,8 +217,8 @@ impl Evidence {
         }
     }
 
-    /// Adds a scan's evidence and updates the cells of `g` it touched; returns how many changed.
-    /// `g` must be the grid this evidence was made for (same size).
+    /// Adds a scan's evidence and updates the cells of `g` it touched; returns the cells that
+    /// changed (each once). `g` must be the grid this evidence was made for (same size).
     pub fn integrate(
         &mut self,
         g: &mut Grid,
@@ -226,9 +226,9 @@ impl Evidence {
         pose: Pose,
         ranges: &[f32],
         spec: &LaserSpec,
-    ) -> usize {
+    ) -> Vec<Cell> {
         if g.len() != self.hits.len() {
-            return 0;
+            return Vec::new();
         }
         let beams = trace_scan(g, info, pose, ranges, spec);
         let mut touched = Vec::new();
@@ -242,12 +242,13 @@ impl Evidence {
                 touched.push(i);
             }
         }
-        let mut changed = 0;
+        let mut changed = Vec::new();
+        let w = g.width() as usize;
         for i in touched {
             let v = self.state(i);
             if g.cells()[i] != v {
                 g.cells_mut()[i] = v;
-                changed += 1;
+                changed.push(Cell::new((i % w) as i32, (i / w) as i32));
             }
         }
         changed

@@ -6,11 +6,11 @@
 //! Pure composition of [`crate::contour`], [`crate::approx`], [`crate::oplog`], [`crate::wire`]
 //! and [`crate::error`]; the exchange of the log is another module's job.
 
-use proto::grid::{Grid, Occ};
+use proto::grid::{Cell, Grid, Occ};
 use proto::msg::Traffic;
 
 use crate::approx::{Approximation, Approximator};
-use crate::contour::Contours;
+use crate::contour::{ContourPixels, Contours};
 use crate::delta::OpKind;
 use crate::error::approx_error;
 use crate::oplog::OpLog;
@@ -82,6 +82,8 @@ pub struct StepReport {
 pub struct Mapper {
     approximator: Approximator,
     contours: Option<Contours>,
+    /// The contour pixels of G_s, kept up to date from the changed cells.
+    pixels: Option<ContourPixels>,
     log: OpLog,
     previous: Approximation,
     /// Douglas–Peucker splits per step (fractional values accumulate).
@@ -98,6 +100,7 @@ impl Mapper {
         Mapper {
             approximator: Approximator::new(),
             contours: None,
+            pixels: None,
             log: OpLog::new(),
             previous: Approximation::default(),
             splits_per_step,
@@ -108,9 +111,18 @@ impl Mapper {
         }
     }
 
-    /// Runs steps 2–5 of Algorithm 10 on the current self-explored grid.
-    pub fn step(&mut self, own: &Grid) -> StepReport {
-        let p = Contours::extract(own);
+    /// Runs steps 2–5 of Algorithm 10 on the current self-explored grid `own`, of which only
+    /// the cells `changed` changed since the previous step (all of them count as changed at the
+    /// first step).
+    pub fn step(&mut self, own: &Grid, changed: &[Cell]) -> StepReport {
+        let pixels = match self.pixels.as_mut() {
+            Some(px) => {
+                px.update(own, changed.iter().copied());
+                px
+            }
+            None => self.pixels.insert(ContourPixels::scan(own)),
+        };
+        let p = Contours::extract_at(own, pixels);
         let a = self
             .approximator
             .step(&p, own, self.splits_per_step)
@@ -178,9 +190,17 @@ mod tests {
             "?########?\n?#......#?\n?#..##..#?\n?########?\n",
         ];
         let mut m = Mapper::new(3.0);
+        let mut before = Grid::from_ascii(frames[0]);
         for f in frames {
-            let r = m.step(&Grid::from_ascii(f));
+            let g = Grid::from_ascii(f);
+            let changed: Vec<Cell> = (0..g.len())
+                .filter(|&i| g.cells()[i] != before.cells()[i])
+                .map(|i| Cell::new((i % 10) as i32, (i / 10) as i32))
+                .collect();
+            let r = m.step(&g, &changed);
             assert!(r.vertices > 0);
+            assert_eq!(r.contour_points, Contours::extract(&g).len());
+            before = g;
         }
         let mut replica = Replica::new();
         for op in m.log().since(0) {
