@@ -351,7 +351,7 @@ impl Link {
             shapes[0].subscribe(),
             self.clock.clone(),
             seed,
-            dir_kill_rx.clone(),
+            [kill.clone(), dir_kill_rx.clone()],
         ));
         let mut down = tokio::spawn(direction(
             server_r,
@@ -360,7 +360,7 @@ impl Link {
             shapes[1].subscribe(),
             self.clock.clone(),
             seed.rotate_left(17),
-            dir_kill_rx,
+            [kill.clone(), dir_kill_rx],
         ));
         let mut timers = Timers::default();
         timers.update(&toxics, id, self.clock.now());
@@ -462,6 +462,10 @@ fn on_direction_end(
 
 /// One direction of a connection: the pipeline from `reader` to `writer`, until it ends or a
 /// kill arrives (`None` then). On `Kill::Reset` the writer's socket is closed with RST.
+///
+/// `[link, conn]` are the two kill signals: the link's (set synchronously when the link goes
+/// down; it also gates every write, see [`shaping::sink`]) and the connection's own (toxic
+/// timers, the other direction's end).
 async fn direction(
     reader: OwnedReadHalf,
     mut writer: OwnedWriteHalf,
@@ -469,7 +473,7 @@ async fn direction(
     shape: watch::Receiver<DirShape>,
     clock: SimClock,
     seed: u64,
-    mut kill: watch::Receiver<Option<Kill>>,
+    [mut link, mut conn]: [watch::Receiver<Option<Kill>>; 2],
 ) -> Option<PipeEnd> {
     let killed = {
         let pipe = shaping::pipeline(
@@ -479,12 +483,14 @@ async fn direction(
             shape,
             clock,
             seed,
-            Some(kill.clone()),
+            Some(link.clone()),
         );
         tokio::pin!(pipe);
         tokio::select! {
+            biased;
+            k = killed(&mut link) => k,
+            k = killed(&mut conn) => k,
             end = &mut pipe => return Some(end),
-            k = killed(&mut kill) => k,
         }
     };
     match killed {

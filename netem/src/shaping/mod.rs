@@ -242,17 +242,31 @@ pub enum SinkEnd {
     LimitReached,
 }
 
+/// Completes once `gate` carries a kill (or its sender is gone); never without a gate.
+async fn cut(gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>) {
+    match gate {
+        Some(g) => {
+            let _ = g.wait_for(Option::is_some).await;
+        }
+        None => std::future::pending().await,
+    }
+}
+
 /// Writes chunks to `writer`: waits while the direction is stalled (blackhole), enforces
 /// `limit_data`, counts delivered bytes. On the end of its input it shuts `writer` down (FIN).
 ///
-/// `gate` is the connection's kill signal: it is set synchronously when the link goes down, so
-/// checking it before every write guarantees that no byte is delivered (or counted) on a link
-/// after it was cut, even before the connection's task has noticed the kill.
+/// `gate` is the connection's kill signal, set synchronously by the link when it goes down.
+/// Every write to the socket races it, with the gate polled first: a write that has not
+/// happened when the link is cut never happens (a socket write is cancel-safe), and bytes are
+/// counted as each write returns, so what the counters show is exactly what reached the
+/// socket — no byte is delivered or counted on a link after it was cut, even before the
+/// connection's task has noticed the kill, and a write blocked by a full socket cannot
+/// complete later.
 pub async fn sink<W: AsyncWrite + Unpin>(
     mut input: mpsc::Receiver<Chunk>,
     writer: &mut W,
     mut shape: watch::Receiver<DirShape>,
-    gate: Option<watch::Receiver<Option<crate::faults::Kill>>>,
+    mut gate: Option<watch::Receiver<Option<crate::faults::Kill>>>,
 ) -> SinkEnd {
     let mut limit: Option<(u64, u64)> = None;
     while let Some(mut chunk) = input.recv().await {
@@ -275,15 +289,18 @@ pub async fn sink<W: AsyncWrite + Unpin>(
             }
             *left -= chunk.len() as u64;
         }
-        if gate.as_ref().is_some_and(|g| g.borrow().is_some()) {
-            // Cut: the chunk is dropped (counted as lost), nothing more is written.
-            return SinkEnd::Eof;
-        }
-        if !chunk.is_empty() {
-            if let Err(e) = writer.write_all(chunk.bytes()).await {
-                return SinkEnd::Error(e.kind());
+        while !chunk.is_empty() {
+            let written = tokio::select! {
+                biased;
+                // Cut: the rest of the chunk is dropped (counted as lost), nothing more is written.
+                () = cut(&mut gate) => return SinkEnd::Eof,
+                r = writer.write(chunk.bytes()) => r,
+            };
+            match written {
+                Ok(0) => return SinkEnd::Error(io::ErrorKind::WriteZero),
+                Ok(n) => chunk.split_to(n).delivered(),
+                Err(e) => return SinkEnd::Error(e.kind()),
             }
-            chunk.delivered();
         }
         if last {
             let _ = writer.shutdown().await;
