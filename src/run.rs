@@ -271,6 +271,8 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         sim.clone(),
         "--http".into(),
         http.clone(),
+        "--totals-out".into(),
+        dir.join("link_totals.csv").to_string_lossy().into_owned(),
     ];
     for (k, &(i, j)) in pairs.iter().enumerate() {
         netem_args.push("--pair".into());
@@ -428,7 +430,12 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         coverage_steps: coverage_steps(&eval.coverage_steps),
         best_coverage_pct: eval.best.0,
         reachable_cells: eval.reachable_cells(),
-        bytes_wire_total: Some(links.wire_total()),
+        // netem's final counters when it wrote them (they include what crossed while the
+        // processes stopped), else the last per-step reports.
+        bytes_wire_total: Some(
+            crate::rundir::link_totals_wire(&dir.join("link_totals.csv"))
+                .unwrap_or_else(|| links.wire_total()),
+        ),
         bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum(),
         bytes_by_type: bytes_by_type(&per_robot_types),
         approx_error_avg: None,

@@ -124,6 +124,22 @@ impl LinkLog {
     }
 }
 
+/// Bytes that crossed any link, both ways, from netem's `link_totals.csv` (`None` if it is
+/// missing or not in the expected form: netem did not stop normally).
+pub fn link_totals_wire(path: &Path) -> Option<u64> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let mut lines = text.lines();
+    let head: Vec<&str> = lines.next()?.split(',').collect();
+    let col = |name: &str| head.iter().position(|h| *h == name);
+    let (ab, ba) = (col("bytes_a_to_b")?, col("bytes_b_to_a")?);
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            Some(f.get(ab)?.parse::<u64>().ok()? + f.get(ba)?.parse::<u64>().ok()?)
+        })
+        .sum()
+}
+
 /// `links.csv`: one row per step and robot pair.
 pub fn write_links(dir: &Path, rows: &[(Step, LinkState)]) -> anyhow::Result<()> {
     let mut s =

@@ -10,3 +10,4 @@ mod lifecycle;
 mod mapping;
 mod netem;
 mod runs;
+mod wire;

@@ -723,7 +723,9 @@ impl Netem {
     }
 
     /// Resets every connection, stops every listener and task.
-    pub async fn shutdown(mut self) {
+    /// Stops accepting, closes every connection and returns each link's final row (its
+    /// counters can no longer change).
+    pub async fn shutdown(mut self) -> Vec<LinkTelemetry> {
         self.shared.shutdown.send_replace(true);
         for l in &self.shared.links {
             l.close_all(Duration::from_millis(500)).await;
@@ -736,6 +738,7 @@ impl Netem {
                 tracing::warn!("a netem task did not stop in time");
             }
         }
+        self.shared.rows()
     }
 }
 

@@ -242,6 +242,67 @@ pub enum SinkEnd {
     LimitReached,
 }
 
+/// A writer that can tell how many of the bytes written to it have not left yet — for a TCP
+/// socket, what waits in the kernel's send queue for the receiver's window.
+pub trait Unsent {
+    fn unsent(&self) -> usize {
+        0
+    }
+}
+
+impl Unsent for tokio::net::tcp::OwnedWriteHalf {
+    fn unsent(&self) -> usize {
+        unsent_bytes(self.as_ref())
+    }
+}
+
+/// In-memory streams (tests) hand bytes over at once.
+impl Unsent for tokio::io::DuplexStream {}
+
+/// Bytes written to `s` that the kernel has not sent yet (Linux `SIOCOUTQNSD`; 0 if unknown).
+#[allow(unsafe_code)]
+fn unsent_bytes(s: &tokio::net::TcpStream) -> usize {
+    use std::os::fd::AsRawFd;
+    // linux/sockios.h: SIOCOUTQNSD, "output queue size, not sent only".
+    const SIOCOUTQNSD: libc::Ioctl = 0x894B;
+    let mut n: libc::c_int = 0;
+    // SAFETY: the descriptor is open for as long as `s` is borrowed, and SIOCOUTQNSD writes
+    // exactly one c_int through the pointer, which points to `n`.
+    let r = unsafe { libc::ioctl(s.as_raw_fd(), SIOCOUTQNSD, &mut n as *mut libc::c_int) };
+    if r == 0 {
+        usize::try_from(n).unwrap_or(0)
+    } else {
+        0
+    }
+}
+
+/// Waits until `writer` has sent everything written to it, or `gate` carries a kill; returns
+/// how many written bytes are still unsent (0 unless cut).
+async fn sent<W: Unsent>(
+    writer: &W,
+    gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>,
+) -> usize {
+    let mut polls = 0u32;
+    loop {
+        let unsent = writer.unsent();
+        if unsent == 0 || gate.as_ref().is_some_and(|g| g.borrow().is_some()) {
+            return unsent;
+        }
+        // The receiver's window is full: it is not reading. Look again soon (a few quick
+        // looks, then once a millisecond), or stop at a cut.
+        polls += 1;
+        if polls < 8 {
+            tokio::task::yield_now().await;
+        } else {
+            tokio::select! {
+                biased;
+                () = cut(gate) => {}
+                () = tokio::time::sleep(std::time::Duration::from_millis(1)) => {}
+            }
+        }
+    }
+}
+
 /// Completes once `gate` carries a kill (or its sender is gone); never without a gate.
 async fn cut(gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>) {
     match gate {
@@ -257,12 +318,14 @@ async fn cut(gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>) {
 ///
 /// `gate` is the connection's kill signal, set synchronously by the link when it goes down.
 /// Every write to the socket races it, with the gate polled first: a write that has not
-/// happened when the link is cut never happens (a socket write is cancel-safe), and bytes are
-/// counted as each write returns, so what the counters show is exactly what reached the
-/// socket — no byte is delivered or counted on a link after it was cut, even before the
-/// connection's task has noticed the kill, and a write blocked by a full socket cannot
-/// complete later.
-pub async fn sink<W: AsyncWrite + Unpin>(
+/// happened when the link is cut never happens (a socket write is cancel-safe).
+///
+/// Bytes count as delivered once the kernel has *sent* them, not when it accepted them: after
+/// each write the sink waits until the socket's send queue holds none of them (at once on
+/// loopback while the receiver reads). So the counters equal the TCP payload on the wire: what
+/// a reset discards from the send queue (a cut, a receiver that stopped reading and went away)
+/// never counted, and no byte is counted on a link after it was cut.
+pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
     mut input: mpsc::Receiver<Chunk>,
     writer: &mut W,
     mut shape: watch::Receiver<DirShape>,
@@ -296,10 +359,19 @@ pub async fn sink<W: AsyncWrite + Unpin>(
                 () = cut(&mut gate) => return SinkEnd::Eof,
                 r = writer.write(chunk.bytes()) => r,
             };
-            match written {
+            let n = match written {
                 Ok(0) => return SinkEnd::Error(io::ErrorKind::WriteZero),
-                Ok(n) => chunk.split_to(n).delivered(),
+                Ok(n) => n,
                 Err(e) => return SinkEnd::Error(e.kind()),
+            };
+            let mut piece = chunk.split_to(n);
+            let unsent = sent(&*writer, &mut gate).await;
+            if unsent < n {
+                piece.split_to(n - unsent).delivered();
+            }
+            if unsent > 0 {
+                // Cut while the receiver was not reading: the rest never left (lost).
+                return SinkEnd::Eof;
             }
         }
         if last {
@@ -325,7 +397,7 @@ pub async fn pipeline<R, W>(
 ) -> PipeEnd
 where
     R: AsyncRead + Unpin,
-    W: AsyncWrite + Unpin,
+    W: AsyncWrite + Unsent + Unpin,
 {
     let (tx_read, rx_read) = mpsc::channel(4);
     let (tx_corrupt, rx_corrupt) = mpsc::channel(4);
