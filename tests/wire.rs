@@ -50,7 +50,7 @@ impl Capture {
                 }
             }
         });
-        let mut cap = Capture {
+        let cap = Capture {
             child: Some(child),
             stderr: rx,
         };
