@@ -442,6 +442,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         collisions: last.collisions_total,
         distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
         radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
+        reconnect: (&links.reconnects()).into(),
         failed_processes: failed,
     };
     write_summary(&dir, &summary)?;

@@ -13,7 +13,7 @@ use serde::Serialize;
 use crate::evaluate::{MetricsRow, THRESHOLDS};
 
 /// Version of the run-directory schema, written into `summary.json`.
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;
 
 /// `summary.json`.
 #[derive(Debug, Serialize)]
@@ -39,6 +39,8 @@ pub struct Summary {
     pub collisions: u64,
     pub distance_m: Vec<f64>,
     pub radio_decode_errors: u64,
+    /// How many steps links needed to reconnect after coming back into range or being restored.
+    pub reconnect: ReconnectSummary,
     pub failed_processes: Vec<String>,
 }
 
@@ -122,6 +124,88 @@ impl LinkLog {
     pub fn wire_total(&self) -> u64 {
         self.totals.values().sum()
     }
+
+    /// How long links took to reconnect after coming back up (see [`Reconnects`]).
+    pub fn reconnects(&self) -> Reconnects {
+        let mut by_pair: BTreeMap<(u16, u16), Vec<(Step, bool, bool)>> = BTreeMap::new();
+        for (step, l) in &self.rows {
+            by_pair
+                .entry((l.a, l.b))
+                .or_default()
+                .push((*step, l.up, l.connected));
+        }
+        let mut r = Reconnects::default();
+        for rows in by_pair.values_mut() {
+            rows.sort_by_key(|x| x.0);
+            // (step the link came back up, since when it waits); only after it had been
+            // connected once and then went down.
+            let (mut was_connected, mut was_up, mut waiting) = (false, false, None);
+            for &(step, up, connected) in rows.iter() {
+                if up && !was_up && was_connected {
+                    waiting = Some(step);
+                }
+                if let Some(since) = waiting {
+                    if up && connected {
+                        r.steps.push(step - since);
+                        waiting = None;
+                    } else if !up {
+                        r.lost_before_reconnect += 1;
+                        waiting = None;
+                    }
+                }
+                was_connected |= up && connected;
+                was_up = up;
+            }
+            r.pending_at_end += usize::from(waiting.is_some());
+        }
+        r
+    }
+}
+
+/// Reconnection after a link re-enters range (or is restored): for every time a link that had
+/// been connected went down and came back up, the steps from its first step up again to the
+/// first step whose end finds a connection through netem open (0: reconnected within the step).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Reconnects {
+    pub steps: Vec<Step>,
+    /// The link went down again before a connection was open.
+    pub lost_before_reconnect: usize,
+    /// Still waiting when the run ended.
+    pub pending_at_end: usize,
+}
+
+/// `reconnect` in `summary.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReconnectSummary {
+    /// Down-then-up events that reconnected.
+    pub events: usize,
+    pub mean_steps: Option<f64>,
+    pub max_steps: Option<Step>,
+    /// Steps → events, e.g. {"0": 40, "1": 3}.
+    pub histogram: BTreeMap<String, usize>,
+    pub lost_before_reconnect: usize,
+    pub pending_at_end: usize,
+}
+
+impl From<&Reconnects> for ReconnectSummary {
+    fn from(r: &Reconnects) -> ReconnectSummary {
+        let mut histogram: BTreeMap<Step, usize> = BTreeMap::new();
+        for &s in &r.steps {
+            *histogram.entry(s).or_default() += 1;
+        }
+        ReconnectSummary {
+            events: r.steps.len(),
+            mean_steps: (!r.steps.is_empty())
+                .then(|| r.steps.iter().map(|&s| f64::from(s)).sum::<f64>() / r.steps.len() as f64),
+            max_steps: r.steps.iter().copied().max(),
+            histogram: histogram
+                .into_iter()
+                .map(|(k, v)| (k.to_string(), v))
+                .collect(),
+            lost_before_reconnect: r.lost_before_reconnect,
+            pending_at_end: r.pending_at_end,
+        }
+    }
 }
 
 /// Bytes that crossed any link, both ways, from netem's `link_totals.csv` (`None` if it is
@@ -142,18 +226,20 @@ pub fn link_totals_wire(path: &Path) -> Option<u64> {
 
 /// `links.csv`: one row per step and robot pair.
 pub fn write_links(dir: &Path, rows: &[(Step, LinkState)]) -> anyhow::Result<()> {
-    let mut s =
-        String::from("step,a,b,up,distance_m,bytes_a_to_b,bytes_b_to_a,queued_bytes,bytes_total\n");
+    let mut s = String::from(
+        "step,a,b,up,connected,distance_m,bytes_a_to_b,bytes_b_to_a,queued_bytes,bytes_total\n",
+    );
     let mut sorted: Vec<&(Step, LinkState)> = rows.iter().collect();
     sorted.sort_by_key(|(step, l)| (*step, l.a, l.b));
     for (step, l) in sorted {
         let d = l.distance_m.map_or(String::new(), |d| format!("{d:.3}"));
         let _ = writeln!(
             s,
-            "{step},{},{},{},{d},{},{},{},{}",
+            "{step},{},{},{},{},{d},{},{},{},{}",
             l.a,
             l.b,
             u8::from(l.up),
+            u8::from(l.connected),
             l.bytes_a_to_b,
             l.bytes_b_to_a,
             l.queued_bytes,
@@ -161,4 +247,56 @@ pub fn write_links(dir: &Path, rows: &[(Step, LinkState)]) -> anyhow::Result<()>
         );
     }
     std::fs::write(dir.join("links.csv"), s).context("writing links.csv")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state(up: bool, connected: bool) -> LinkState {
+        LinkState {
+            a: 0,
+            b: 1,
+            up,
+            distance_m: None,
+            bytes_a_to_b: 0,
+            bytes_b_to_a: 0,
+            bytes_total: 0,
+            queued_bytes: 0,
+            connected,
+        }
+    }
+
+    #[test]
+    fn reconnects_count_steps_from_up_again_to_connected() {
+        let mut log = LinkLog::default();
+        // (up, connected) per step: first connection (not counted), down, back up and
+        // connected 2 steps later, down, up and connected at once, down, up but never again.
+        let seq = [
+            (true, false),
+            (true, true),
+            (false, false),
+            (true, false),
+            (true, false),
+            (true, true),
+            (false, false),
+            (true, true),
+            (false, true),
+            (true, false),
+        ];
+        for (step, &(up, c)) in seq.iter().enumerate() {
+            log.add(LinkReport {
+                step: step as Step,
+                links: vec![state(up, c)],
+            });
+        }
+        let r = log.reconnects();
+        assert_eq!(r.steps, vec![2, 0]);
+        assert_eq!((r.lost_before_reconnect, r.pending_at_end), (0, 1));
+        let s = ReconnectSummary::from(&r);
+        assert_eq!(
+            (s.events, s.max_steps, s.mean_steps),
+            (2, Some(2), Some(1.0))
+        );
+    }
 }

@@ -62,6 +62,7 @@ fn ranged_run(dir: &TempDir) -> std::path::PathBuf {
 
 const RANGE_M: f64 = 6.0;
 
+/// Also: links that re-enter range reconnect within two steps.
 #[test]
 fn no_link_is_up_while_its_robots_are_out_of_range() {
     let dir = TempDir::new("range");
@@ -98,6 +99,15 @@ fn no_link_is_up_while_its_robots_are_out_of_range() {
     assert!(
         checked > 100 && down_rows > 0,
         "checked {checked} up rows, {down_rows} down rows"
+    );
+    // Links that come back into range reconnect within two steps (the robots' zenoh retry
+    // period is tuned for it, proto::node::radio_peer).
+    let r = &summary(&run)["reconnect"];
+    let events = r["events"].as_u64().unwrap_or(0);
+    assert!(events >= 5, "too few reconnections to judge: {r}");
+    assert!(
+        r["max_steps"].as_u64().is_some_and(|m| m <= 2),
+        "a link needed more than 2 steps to reconnect: {r}"
     );
 }
 

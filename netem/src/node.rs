@@ -40,6 +40,7 @@ fn state(t: &LinkTelemetry) -> LinkState {
         bytes_b_to_a: t.bytes_b_to_a,
         bytes_total: t.bytes_a_to_b_total + t.bytes_b_to_a_total,
         queued_bytes: t.queued_bytes,
+        connected: t.connections > 0,
     }
 }
 

@@ -11,7 +11,7 @@ use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use crate::geom::{LaserSpec, MapInfo, Pose};
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 1;
+pub const PROTOCOL_VERSION: u16 = 2;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -182,6 +182,9 @@ pub struct LinkState {
     pub bytes_total: u64,
     /// Bytes netem holds for the pair (read from a sender, not yet delivered).
     pub queued_bytes: u64,
+    /// A connection through netem's proxy for the pair is open at the end of the step (the
+    /// robots' radio sessions are connected or handshaking).
+    pub connected: bool,
 }
 
 /// Launcher → everyone on `sim/ctl/**`.
@@ -363,6 +366,7 @@ mod tests {
                 bytes_b_to_a: 20,
                 bytes_total: 300,
                 queued_bytes: 7,
+                connected: true,
             }],
         });
         round_trip(Hello {
