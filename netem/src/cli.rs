@@ -46,7 +46,7 @@ pub struct Args {
 }
 
 /// The header of `--totals-out`.
-pub const TOTALS_HEADER: &str = "a,b,listen,target,bytes_a_to_b,bytes_b_to_a,chunks_a_to_b,chunks_b_to_a,lost_bytes,connects,refused";
+pub const TOTALS_HEADER: &str = "a,b,listen,target,bytes_a_to_b,bytes_b_to_a,chunks_a_to_b,chunks_b_to_a,lost_bytes,connects,established,refused";
 
 /// `--totals-out`'s text: one row per link, final counters (`addrs`: each link's listen and
 /// target address, in the rows' order).
@@ -54,7 +54,7 @@ fn totals_csv(rows: &[LinkTelemetry], addrs: &[(SocketAddr, SocketAddr)]) -> Str
     let mut s = format!("{TOTALS_HEADER}\n");
     for (r, (listen, target)) in rows.iter().zip(addrs) {
         s.push_str(&format!(
-            "{},{},{listen},{target},{},{},{},{},{},{},{}\n",
+            "{},{},{listen},{target},{},{},{},{},{},{},{},{}\n",
             r.a,
             r.b,
             r.bytes_a_to_b_total,
@@ -63,6 +63,7 @@ fn totals_csv(rows: &[LinkTelemetry], addrs: &[(SocketAddr, SocketAddr)]) -> Str
             r.chunks_b_to_a_total,
             r.lost_bytes_total,
             r.connects_total,
+            r.established_total,
             r.refused_total
         ));
     }

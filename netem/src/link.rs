@@ -121,6 +121,8 @@ pub struct Link {
     conns: Mutex<HashMap<u64, ConnEntry>>,
     next_conn: AtomicU64,
     connects_total: AtomicU64,
+    /// Accepted connections that reached the target (robot b's radio listener).
+    established_total: AtomicU64,
     refused_total: AtomicU64,
 }
 
@@ -139,6 +141,7 @@ pub struct LinkSnapshot {
     pub dirs: [DirSnapshot; 2],
     pub connections: usize,
     pub connects_total: u64,
+    pub established_total: u64,
     pub refused_total: u64,
     pub toxics: Vec<Toxic>,
 }
@@ -168,6 +171,7 @@ impl Link {
             conns: Mutex::new(HashMap::new()),
             next_conn: AtomicU64::new(0),
             connects_total: AtomicU64::new(0),
+            established_total: AtomicU64::new(0),
             refused_total: AtomicU64::new(0),
         })
     }
@@ -235,6 +239,7 @@ impl Link {
             dirs: [self.counters[0].snapshot(), self.counters[1].snapshot()],
             connections: lock(&self.conns).len(),
             connects_total: self.connects_total.load(Relaxed),
+            established_total: self.established_total.load(Relaxed),
             refused_total: self.refused_total.load(Relaxed),
             toxics: self.toxics().iter().map(|t| t.toxic.clone()).collect(),
         }
@@ -335,6 +340,7 @@ impl Link {
                 return;
             }
         };
+        self.established_total.fetch_add(1, Relaxed);
         let _ = client.set_nodelay(true);
         let _ = server.set_nodelay(true);
         let (client_r, client_w) = client.into_split();

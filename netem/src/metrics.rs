@@ -78,7 +78,7 @@ pub fn render(links: &[LinkSnapshot], step: Option<Step>, now: SimTime) -> Strin
         }
     }
     type PerLink = fn(&LinkSnapshot) -> Option<f64>;
-    let per_link: [(&str, &str, &str, PerLink); 7] = [
+    let per_link: [(&str, &str, &str, PerLink); 8] = [
         (
             "netem_link_up",
             "gauge",
@@ -102,6 +102,12 @@ pub fn render(links: &[LinkSnapshot], step: Option<Step>, now: SimTime) -> Strin
             "counter",
             "Connections accepted and forwarded.",
             |l| Some(l.connects_total as f64),
+        ),
+        (
+            "netem_link_established_total",
+            "counter",
+            "Accepted connections that reached the higher id's radio listener.",
+            |l| Some(l.established_total as f64),
         ),
         (
             "netem_link_refused_total",
@@ -173,6 +179,7 @@ mod tests {
             ],
             connections: 1,
             connects_total: 2,
+            established_total: 2,
             refused_total: 0,
             toxics: vec![],
         }

@@ -162,6 +162,8 @@ pub struct LinkTelemetry {
     pub lost_bytes_total: u64,
     pub connections: usize,
     pub connects_total: u64,
+    /// Connections that reached robot b's radio listener.
+    pub established_total: u64,
     pub refused_total: u64,
     pub toxics: usize,
 }
@@ -772,6 +774,7 @@ fn telemetry_row(step: Option<Step>, s: &LinkSnapshot, step_bytes: [u64; 2]) -> 
         lost_bytes_total: ab.lost_bytes_total + ba.lost_bytes_total,
         connections: s.connections,
         connects_total: s.connects_total,
+        established_total: s.established_total,
         refused_total: s.refused_total,
         toxics: s.toxics.len(),
     }

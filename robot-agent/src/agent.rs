@@ -8,7 +8,7 @@
 
 use std::collections::{BTreeSet, HashMap};
 
-use proto::geom::Pose;
+use proto::geom::{LaserSpec, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{
     Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Telemetry, Traffic, WorldInfo,
@@ -32,6 +32,26 @@ const MAX_REJECTIONS: u32 = 3;
 /// How long a given-up target stays excluded.
 const BLACKLIST_STEPS: Step = 30;
 
+/// How many steps of unused radio budget a neighbour's credit can hold.
+pub const BURST_STEPS: usize = 4;
+
+/// The encoded size of the largest delta that carries one scan of `laser`.
+fn largest_delta_bytes(laser: &LaserSpec) -> usize {
+    let worst = ScanDelta {
+        from: RobotId::MAX,
+        owner: RobotId::MAX,
+        start: u32::MAX,
+        records: vec![proto::msg::ScanRecord {
+            step: Step::MAX,
+            x_mm: i32::MIN,
+            y_mm: i32::MIN,
+            theta_mrad: i32::MIN,
+            ranges_cm: vec![u16::MAX; laser.beams as usize],
+        }],
+    };
+    proto::msg::encode(&worst).len()
+}
+
 pub struct Agent {
     pub id: RobotId,
     world: WorldInfo,
@@ -54,6 +74,15 @@ pub struct Agent {
     neighbours: BTreeSet<RobotId>,
     /// Radio budget per link and step in bytes (`usize::MAX`: unlimited).
     budget_per_step: usize,
+    /// The sender's own pacing: per neighbour, budget not yet spent. Each step adds
+    /// `budget_per_step`, up to `burst_bytes`; what is sent is taken off. On average a link is
+    /// offered no more than its bandwidth, whatever the robot would like to send, so queues in
+    /// netem and the kernel stay short and keep-alives are not stuck behind data.
+    credit: HashMap<RobotId, usize>,
+    /// The most credit a neighbour can hold: [`BURST_STEPS`] steps of budget, and at least the
+    /// largest single-scan delta (so a scan bigger than one step's budget still goes, every few
+    /// steps, instead of blocking the log forever).
+    burst_bytes: usize,
     hello_every_steps: u32,
     pub bytes_sent: u64,
     pub bytes_received: u64,
@@ -67,6 +96,14 @@ impl Agent {
     pub fn new(id: RobotId, world: WorldInfo, s: &Scenario) -> Agent {
         let empty = Grid::new(world.map.width, world.map.height, Occ::Unknown);
         let per_step = s.radio.bandwidth_bytes_per_s as f64 * world.step_seconds;
+        let budget_per_step = if per_step <= 0.0 {
+            usize::MAX
+        } else {
+            (per_step as usize).max(1)
+        };
+        let burst_bytes = budget_per_step
+            .saturating_mul(BURST_STEPS)
+            .max(largest_delta_bytes(&world.laser));
         Agent {
             id,
             world,
@@ -83,11 +120,9 @@ impl Agent {
             rejections: 0,
             blacklist: HashMap::new(),
             neighbours: BTreeSet::new(),
-            budget_per_step: if per_step <= 0.0 {
-                usize::MAX
-            } else {
-                per_step as usize
-            },
+            budget_per_step,
+            credit: HashMap::new(),
+            burst_bytes,
             hello_every_steps: s.exchange.hello_every_steps,
             bytes_sent: 0,
             bytes_received: 0,
@@ -173,7 +208,10 @@ impl Agent {
         let mut out = Vec::new();
         let peers: Vec<RobotId> = self.neighbours.iter().copied().collect();
         for peer in peers {
-            let mut budget = self.budget_per_step;
+            let credit = self.credit.entry(peer).or_insert(0);
+            let mut budget = credit
+                .saturating_add(self.budget_per_step)
+                .min(self.burst_bytes);
             if self.step.is_multiple_of(self.hello_every_steps) {
                 let msg = self.exchange.knowledge();
                 budget = budget.saturating_sub(proto::msg::encode(&msg).len());
@@ -183,8 +221,10 @@ impl Agent {
                 .exchange
                 .outgoing(peer, budget, |d| proto::msg::encode(d).len())
             {
+                budget = budget.saturating_sub(proto::msg::encode(&msg).len());
                 out.push(RadioOut::Delta { to: peer, msg });
             }
+            *credit = budget;
         }
         out
     }
@@ -202,6 +242,7 @@ impl Agent {
     }
 
     pub fn link_down(&mut self, peer: RobotId) {
+        self.credit.remove(&peer);
         if self.neighbours.remove(&peer) {
             self.exchange.link_down(peer);
         }
