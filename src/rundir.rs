@@ -127,7 +127,9 @@ impl LinkLog {
 
     /// How long links took to reconnect after coming back up (see [`Reconnects`]).
     pub fn reconnects(&self) -> Reconnects {
-        let mut by_pair: BTreeMap<(u16, u16), Vec<(Step, bool, bool)>> = BTreeMap::new();
+        // Per pair: (step, up, connected).
+        type Rows = Vec<(Step, bool, bool)>;
+        let mut by_pair: BTreeMap<(u16, u16), Rows> = BTreeMap::new();
         for (step, l) in &self.rows {
             by_pair
                 .entry((l.a, l.b))

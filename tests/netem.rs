@@ -302,3 +302,153 @@ fn a_link_offered_three_times_its_budget_stays_up_for_120_simulated_seconds() {
         "netem held up to {max_queued} bytes"
     );
 }
+
+/// Every fault type, scheduled in one 4-robot run (radio `always`, so faults are the only cause
+/// of a link going down), with its effect checked in `links.csv` and `link_totals.csv`; the run
+/// goes on to its end with every process alive. Checks skip the step in which a fault starts or
+/// ends: a step's row counts what was delivered until the next step opened, after that step's
+/// faults took effect.
+#[test]
+fn a_run_survives_every_fault_type_and_each_shows_its_effect() {
+    let dir = TempDir::new("faults");
+    let scenario = dir.path().join("faults.toml");
+    let toxic = |step: u32, pair: &str, body: &str| {
+        format!("[[faults]]\nstep = {step}\nkind = \"set_toxic\"\npair = {pair}\ntoxic = {{ {body} }}\n")
+    };
+    let remove = |step: u32, pair: &str, name: &str| {
+        format!("[[faults]]\nstep = {step}\nkind = \"remove_toxic\"\npair = {pair}\nname = \"{name}\"\n")
+    };
+    let mut text = String::from(
+        "max_steps = 300\n[robots]\ncount = 4\n[world]\nmap = \"office\"\nwidth_m = 40.0\nheight_m = 30.0\n\
+         [clock]\nstep_timeout_ms = 10000\n[radio]\nmodel = \"always\"\nbandwidth_bytes_per_s = 1000\n\
+         [[faults]]\nstep = 20\nkind = \"partition\"\ngroups = [[0, 1], [2, 3]]\n\
+         [[faults]]\nstep = 60\nkind = \"heal\"\n",
+    );
+    text += &toxic(
+        80,
+        "[0, 1]",
+        "name = \"bh\", type = \"timeout\", stream = \"both\", attributes = { timeout = 0 }",
+    );
+    text += &remove(110, "[0, 1]", "bh");
+    text += &toxic(120, "[0, 2]", "name = \"slow\", type = \"bandwidth\", stream = \"both\", attributes = { rate_bytes_per_s = 200 }");
+    text += &remove(170, "[0, 2]", "slow");
+    text += &toxic(120, "[1, 3]", "name = \"lim\", type = \"limit_data\", stream = \"downstream\", attributes = { bytes = 2000 }");
+    text += &remove(180, "[1, 3]", "lim");
+    text += &toxic(
+        140,
+        "[2, 3]",
+        "name = \"lag\", type = \"latency\", stream = \"both\", attributes = { latency = 3000 }",
+    );
+    text += &remove(190, "[2, 3]", "lag");
+    text += &toxic(200, "[0, 3]", "name = \"bits\", type = \"corrupt\", stream = \"both\", attributes = { probability = 0.01 }");
+    text += &remove(230, "[0, 3]", "bits");
+    text += "[[faults]]\nstep = 240\nkind = \"reset\"\n";
+    text += "[[faults]]\nstep = 250\nkind = \"cut\"\npair = [1, 2]\n[[faults]]\nstep = 270\nkind = \"restore\"\npair = [1, 2]\n";
+    std::fs::write(&scenario, text).expect("write scenario");
+
+    let (out, run) = swarm_run(&dir, scenario.to_str(), &[], Duration::from_secs(300));
+    assert!(
+        out.status.code().is_some_and(|c| c != 1),
+        "{}",
+        stderr(&out)
+    );
+    let s = summary(&run);
+    assert_eq!(s["failed_processes"], serde_json::json!([]), "{s}");
+    assert!(
+        s["steps"].as_u64().unwrap_or(0) >= 280,
+        "the run ended early: {s}"
+    );
+
+    let links = csv(&run.join("links.csv"));
+    let row = |step: u64, a: u64, b: u64| {
+        links
+            .iter()
+            .find(|l| {
+                num(l, "step") as u64 == step && num(l, "a") as u64 == a && num(l, "b") as u64 == b
+            })
+            .unwrap_or_else(|| panic!("no row for step {step}, {a}-{b}"))
+    };
+    let bytes = |l: &HashMap<String, String>| num(l, "bytes_a_to_b") + num(l, "bytes_b_to_a");
+    let up = |l: &HashMap<String, String>| num(l, "up") == 1.0;
+
+    // partition [[0,1],[2,3]] at 20, heal at 60.
+    for step in 22..59 {
+        for (a, b) in [(0, 2), (0, 3), (1, 2), (1, 3)] {
+            let l = row(step, a, b);
+            assert!(
+                !up(l) && bytes(l) == 0.0,
+                "partition: {a}-{b} at {step}: {l:?}"
+            );
+        }
+        assert!(
+            up(row(step, 0, 1)) && up(row(step, 2, 3)),
+            "partition cut a pair inside a group at {step}"
+        );
+    }
+    for (a, b) in [(0, 2), (0, 3), (1, 2), (1, 3)] {
+        assert!(
+            (60..=64).any(|s| num(row(s, a, b), "connected") == 1.0),
+            "{a}-{b} not back after the heal"
+        );
+    }
+    // blackhole on 0-1 from 80 to 110: up, and nothing delivered.
+    for step in 82..109 {
+        let l = row(step, 0, 1);
+        assert!(up(l) && bytes(l) == 0.0, "blackhole: {l:?}");
+    }
+    assert!(
+        (111..=130).any(|s| bytes(row(s, 0, 1)) > 0.0),
+        "0-1 carried nothing after the blackhole"
+    );
+    // bandwidth 200 B/s on 0-2 from 120 to 170.
+    for step in 122..169 {
+        let l = row(step, 0, 2);
+        for d in ["bytes_a_to_b", "bytes_b_to_a"] {
+            assert!(num(l, d) <= 200.0, "bandwidth toxic: {d} at {step}: {l:?}");
+        }
+    }
+    // latency 3 s on 2-3 from 140: a byte written in step 140 arrives 3 steps later at the
+    // earliest, so the steps right after the toxic appeared carry nothing.
+    for step in 141..143 {
+        let l = row(step, 2, 3);
+        assert_eq!(bytes(l), 0.0, "latency toxic: {l:?}");
+    }
+    assert!(
+        (144..190).any(|s| bytes(row(s, 2, 3)) > 0.0),
+        "2-3 carried nothing under latency"
+    );
+    // cut 1-2 from 250 to 270.
+    for step in 252..269 {
+        let l = row(step, 1, 2);
+        assert!(!up(l) && bytes(l) == 0.0, "cut: {l:?}");
+    }
+    assert!(
+        (270..=274).any(|s| num(row(s, 1, 2), "connected") == 1.0),
+        "1-2 not back after the restore"
+    );
+
+    // limit_data on 1-3, corruption on 0-3 and the reset of every link end connections; the
+    // robots reconnect (the partition and the cut also did, for their pairs).
+    let totals = csv(&run.join("link_totals.csv"));
+    let established = |a: f64, b: f64| {
+        totals
+            .iter()
+            .find(|t| num(t, "a") == a && num(t, "b") == b)
+            .map(|t| num(t, "established"))
+            .unwrap_or(0.0)
+    };
+    // 0-1: first connection + reset; 2-3: first + reset; 1-3: partition + reset + limit_data.
+    assert!(established(0.0, 1.0) >= 2.0, "{totals:?}");
+    assert!(
+        established(1.0, 3.0) >= 4.0,
+        "limit_data did not close 1-3: {totals:?}"
+    );
+    // Flipped bits on 0-3 either break zenoh's framing (the session closes and reconnects:
+    // a fourth connection after the first, the partition and the reset) or reach the robots'
+    // decoders, which count and drop what they cannot decode.
+    let decode_errors = s["radio_decode_errors"].as_u64().unwrap_or(0);
+    assert!(
+        established(0.0, 3.0) >= 4.0 || decode_errors > 0,
+        "corruption left no trace: {decode_errors} decode errors, {totals:?}"
+    );
+}
