@@ -78,6 +78,11 @@ impl DirCounters {
         self.chunks_total.fetch_add(1, Relaxed);
     }
 
+    /// `n` bytes given to the kernel were never sent (a reset discarded them).
+    pub fn lost(&self, n: usize) {
+        self.lost_total.fetch_add(n as u64, Relaxed);
+    }
+
     fn hold(&self, n: usize) {
         let q = self.queued.fetch_add(n as u64, Relaxed) + n as u64;
         self.queued_max.fetch_max(q, Relaxed);
@@ -216,6 +221,16 @@ impl Reservation {
             filled: self.filled,
             delivered: false,
         }
+    }
+
+    /// The bytes were handed to the kernel: free their room without counting them yet; the
+    /// returned counters are where to count them once the kernel has sent them
+    /// ([`DirCounters::delivered`]) or to lose them ([`DirCounters::lost`]).
+    pub fn into_kernel(mut self) -> Arc<DirCounters> {
+        self.buf.release(self.n, self.filled, false);
+        self.n = 0;
+        self.delivered = true;
+        Arc::clone(&self.buf.counters)
     }
 
     /// The bytes were written to the receiver: count them and free their room.

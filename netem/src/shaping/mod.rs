@@ -114,6 +114,12 @@ impl Chunk {
         }
     }
 
+    /// The bytes were handed to the kernel (see [`Reservation::to_kernel`]): their length, and
+    /// the counters to count them in once sent (`None` for an unaccounted chunk).
+    fn into_kernel(mut self) -> (usize, Option<Arc<crate::accounting::DirCounters>>) {
+        (self.len(), self.res.take().map(Reservation::into_kernel))
+    }
+
     /// The bytes reached the receiver.
     pub fn delivered(mut self) {
         if let Some(r) = self.res.take() {
@@ -276,28 +282,71 @@ fn unsent_bytes(s: &tokio::net::TcpStream) -> usize {
     }
 }
 
-/// Waits until `writer` has sent everything written to it, or `gate` carries a kill; returns
-/// how many written bytes are still unsent (0 unless cut).
-async fn sent<W: Unsent>(
-    writer: &W,
-    gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>,
-) -> usize {
-    let mut polls = 0u32;
-    loop {
-        let unsent = writer.unsent();
-        if unsent == 0 || gate.as_ref().is_some_and(|g| g.borrow().is_some()) {
-            return unsent;
+/// Bytes written to a socket that the kernel has not yet confirmed as sent. They are out of
+/// netem's buffer (the kernel holds them, bounded by the socket's send buffer) but counted only
+/// once sent; whatever is still unsent when this is dropped never left and counts as lost.
+#[derive(Default)]
+struct InKernel {
+    counters: Option<Arc<crate::accounting::DirCounters>>,
+    bytes: usize,
+}
+
+impl Drop for InKernel {
+    fn drop(&mut self) {
+        if let (Some(c), true) = (&self.counters, self.bytes > 0) {
+            c.lost(self.bytes);
         }
-        // The receiver's window is full: it is not reading. Look again soon (a few quick
-        // looks, then once a millisecond), or stop at a cut.
-        polls += 1;
-        if polls < 8 {
-            tokio::task::yield_now().await;
-        } else {
-            tokio::select! {
-                biased;
-                () = cut(gate) => {}
-                () = tokio::time::sleep(std::time::Duration::from_millis(1)) => {}
+    }
+}
+
+impl InKernel {
+    fn push(&mut self, piece: Chunk) {
+        let (n, counters) = piece.into_kernel();
+        self.bytes += n;
+        if self.counters.is_none() {
+            self.counters = counters;
+        }
+    }
+
+    /// Counts as delivered whatever of the written bytes has left the socket.
+    fn confirm<W: Unsent>(&mut self, writer: &W) {
+        let unsent = writer.unsent().min(self.bytes);
+        let sent = self.bytes - unsent;
+        if sent > 0 {
+            if let Some(c) = &self.counters {
+                c.delivered(sent);
+            }
+            self.bytes = unsent;
+        }
+    }
+
+    /// Waits until the kernel has sent everything written (true), or `gate` carries a kill
+    /// (false: what is still unsent never leaves and counts as lost when `self` is dropped).
+    async fn drain<W: Unsent>(
+        &mut self,
+        writer: &W,
+        gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>,
+    ) -> bool {
+        let mut polls = 0u32;
+        loop {
+            self.confirm(writer);
+            if self.bytes == 0 {
+                return true;
+            }
+            if gate.as_ref().is_some_and(|g| g.borrow().is_some()) {
+                return false;
+            }
+            // The receiver's window is full: it is not reading. Look again soon (a few quick
+            // looks, then once a millisecond), or stop at a cut.
+            polls += 1;
+            if polls < 8 {
+                tokio::task::yield_now().await;
+            } else {
+                tokio::select! {
+                    biased;
+                    () = cut(gate) => {}
+                    () = tokio::time::sleep(std::time::Duration::from_millis(1)) => {}
+                }
             }
         }
     }
@@ -321,10 +370,11 @@ async fn cut(gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>) {
 /// happened when the link is cut never happens (a socket write is cancel-safe).
 ///
 /// Bytes count as delivered once the kernel has *sent* them, not when it accepted them: after
-/// each write the sink waits until the socket's send queue holds none of them (at once on
-/// loopback while the receiver reads). So the counters equal the TCP payload on the wire: what
-/// a reset discards from the send queue (a cut, a receiver that stopped reading and went away)
-/// never counted, and no byte is counted on a link after it was cut.
+/// each write, and while it waits for the next chunk, the sink asks the socket how much of what
+/// it was given is still queued (`SIOCOUTQNSD`) and counts the rest. So the counters equal the
+/// TCP payload on the wire — what a reset discards from the send queue (a cut, a receiver that
+/// stopped reading and went away) never counted — and no byte is counted on a link after it
+/// was cut.
 pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
     mut input: mpsc::Receiver<Chunk>,
     writer: &mut W,
@@ -332,7 +382,26 @@ pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
     mut gate: Option<watch::Receiver<Option<crate::faults::Kill>>>,
 ) -> SinkEnd {
     let mut limit: Option<(u64, u64)> = None;
-    while let Some(mut chunk) = input.recv().await {
+    let mut in_kernel = InKernel::default();
+    loop {
+        // Take the next chunk; while none is ready, finish counting what was written.
+        let next = if in_kernel.bytes == 0 {
+            input.recv().await
+        } else {
+            tokio::select! {
+                biased;
+                c = input.recv() => c,
+                drained = in_kernel.drain(&*writer, &mut gate) => {
+                    if !drained {
+                        return SinkEnd::Eof;
+                    }
+                    continue;
+                }
+            }
+        };
+        let Some(mut chunk) = next else {
+            break;
+        };
         // Copy the flag out first: a watch borrow must never be held across an await.
         let stalled = shape.borrow_and_update().stalled;
         if stalled && shape.wait_for(|s| !s.stalled).await.is_err() {
@@ -355,31 +424,27 @@ pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
         while !chunk.is_empty() {
             let written = tokio::select! {
                 biased;
-                // Cut: the rest of the chunk is dropped (counted as lost), nothing more is written.
+                // Cut: the rest is dropped (counted as lost), nothing more is written.
                 () = cut(&mut gate) => return SinkEnd::Eof,
                 r = writer.write(chunk.bytes()) => r,
             };
-            let n = match written {
+            match written {
                 Ok(0) => return SinkEnd::Error(io::ErrorKind::WriteZero),
-                Ok(n) => n,
+                Ok(n) => in_kernel.push(chunk.split_to(n)),
                 Err(e) => return SinkEnd::Error(e.kind()),
-            };
-            let mut piece = chunk.split_to(n);
-            let unsent = sent(&*writer, &mut gate).await;
-            if unsent < n {
-                piece.split_to(n - unsent).delivered();
             }
-            if unsent > 0 {
-                // Cut while the receiver was not reading: the rest never left (lost).
-                return SinkEnd::Eof;
-            }
+            in_kernel.confirm(&*writer);
         }
         if last {
-            let _ = writer.shutdown().await;
+            if in_kernel.drain(&*writer, &mut gate).await {
+                let _ = writer.shutdown().await;
+            }
             return SinkEnd::LimitReached;
         }
     }
-    let _ = writer.shutdown().await;
+    if in_kernel.drain(&*writer, &mut gate).await {
+        let _ = writer.shutdown().await;
+    }
     SinkEnd::Eof
 }
 
