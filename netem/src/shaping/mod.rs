@@ -114,7 +114,7 @@ impl Chunk {
         }
     }
 
-    /// The bytes were handed to the kernel (see [`Reservation::to_kernel`]): their length, and
+    /// The bytes were handed to the kernel (see [`Reservation::into_kernel`]): their length, and
     /// the counters to count them in once sent (`None` for an unaccounted chunk).
     fn into_kernel(mut self) -> (usize, Option<Arc<crate::accounting::DirCounters>>) {
         (self.len(), self.res.take().map(Reservation::into_kernel))
