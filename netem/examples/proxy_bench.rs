@@ -77,6 +77,73 @@ async fn plain_proxy(target: SocketAddr) -> Result<SocketAddr, Error> {
     Ok(addr)
 }
 
+/// The ceiling of any proxy on this machine: a zero-copy one. Each direction is a blocking
+/// thread moving bytes socket → pipe → socket with `splice(2)`, so they never enter user space
+/// (what a netem fast path could do while no toxic needs to see the bytes).
+fn splice_proxy(target: SocketAddr) -> Result<SocketAddr, Error> {
+    let l = std::net::TcpListener::bind("127.0.0.1:0")?;
+    let addr = l.local_addr()?;
+    std::thread::spawn(move || {
+        for a in l.incoming().flatten() {
+            let Ok(b) = std::net::TcpStream::connect(target) else {
+                continue;
+            };
+            let _ = a.set_nodelay(true);
+            let _ = b.set_nodelay(true);
+            if let (Ok(a2), Ok(b2)) = (a.try_clone(), b.try_clone()) {
+                std::thread::spawn(move || splice_pump(&a, &b));
+                std::thread::spawn(move || splice_pump(&b2, &a2));
+            }
+        }
+    });
+    Ok(addr)
+}
+
+/// Moves everything from `from` to `to` through a pipe with `splice(2)`, then half-closes `to`.
+#[allow(unsafe_code)]
+fn splice_pump(from: &std::net::TcpStream, to: &std::net::TcpStream) {
+    use std::os::fd::AsRawFd;
+    let null = std::ptr::null_mut::<libc::loff_t>();
+    let mut pipe = [0 as libc::c_int; 2];
+    // SAFETY: pipe() writes two descriptors into the two-element array.
+    if unsafe { libc::pipe(pipe.as_mut_ptr()) } != 0 {
+        return;
+    }
+    let (rd, wr) = (pipe[0], pipe[1]);
+    'pump: loop {
+        // SAFETY: every descriptor is open for the whole call; offsets are null (sockets, pipes).
+        let n = unsafe {
+            libc::splice(
+                from.as_raw_fd(),
+                null,
+                wr,
+                null,
+                1 << 16,
+                libc::SPLICE_F_MOVE,
+            )
+        };
+        if n <= 0 {
+            break;
+        }
+        let mut left = n as usize;
+        while left > 0 {
+            // SAFETY: as above.
+            let m =
+                unsafe { libc::splice(rd, null, to.as_raw_fd(), null, left, libc::SPLICE_F_MOVE) };
+            if m <= 0 {
+                break 'pump;
+            }
+            left -= m as usize;
+        }
+    }
+    let _ = to.shutdown(std::net::Shutdown::Write);
+    // SAFETY: the pipe's descriptors are ours and closed once.
+    unsafe {
+        libc::close(rd);
+        libc::close(wr);
+    }
+}
+
 /// MB/s (10^6 bytes per second) for `bytes` written to `addr`.
 async fn throughput(addr: SocketAddr, bytes: u64) -> Result<f64, Error> {
     let s = TcpStream::connect(addr).await?;
@@ -154,16 +221,18 @@ async fn main() -> Result<(), Error> {
     let via_echo = netem.listen_addr(0, 2).ok_or("no link r0-r2")?;
 
     let (plain_sink, plain_echo) = (plain_proxy(sink).await?, plain_proxy(echo).await?);
+    let zero_copy_sink = splice_proxy(sink)?;
 
     let bytes = mib << 20;
     // Warm up every path once, then alternate and keep the best of five.
-    for addr in [sink, plain_sink, via_sink] {
+    for addr in [sink, plain_sink, zero_copy_sink, via_sink] {
         throughput(addr, bytes / 8).await?;
     }
-    let (mut direct, mut plain, mut proxied) = (0f64, 0f64, 0f64);
+    let (mut direct, mut plain, mut zero_copy, mut proxied) = (0f64, 0f64, 0f64, 0f64);
     for _ in 0..5 {
         direct = direct.max(throughput(sink, bytes).await?);
         plain = plain.max(throughput(plain_sink, bytes).await?);
+        zero_copy = zero_copy.max(throughput(zero_copy_sink, bytes).await?);
         proxied = proxied.max(throughput(via_sink, bytes).await?);
     }
     let pct = |x: f64| 100.0 * x / direct;
@@ -172,6 +241,10 @@ async fn main() -> Result<(), Error> {
     println!(
         "  plain copy proxy      {plain:9.1} MB/s  ({:.1} % of direct)",
         pct(plain)
+    );
+    println!(
+        "  zero-copy proxy       {zero_copy:9.1} MB/s  ({:.1} % of direct; splice(2), the ceiling)",
+        pct(zero_copy)
     );
     println!(
         "  through netem         {proxied:9.1} MB/s  ({:.1} % of direct, {:.1} % of the plain proxy)",
