@@ -213,14 +213,18 @@ pub struct ScanRecord {
     pub ranges_cm: Vec<u16>,
 }
 
-/// Radio: entries `start..start+records.len()` of `owner`'s scan log, sent by `from`.
+/// Radio: entries `start..start+records.len()` of `owner`'s log, sent by `from` (thesis §5.1.2:
+/// the suffix of a log a peer lacks, relayed transitively).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ScanDelta {
+pub struct LogDelta<R> {
     pub from: RobotId,
     pub owner: RobotId,
     pub start: u32,
-    pub records: Vec<ScanRecord>,
+    pub records: Vec<R>,
 }
+
+/// Radio, `raw-scans` exchange: a run of an owner's scan log.
+pub type ScanDelta = LogDelta<ScanRecord>;
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum DecodeError {

@@ -15,9 +15,10 @@ use proto::msg::{
 };
 use proto::scenario::Scenario;
 
+use crate::exchange::DeltaOutcome;
 use crate::grid::Evidence;
 use crate::plan;
-use crate::raw_scans::{scan_ranges, scan_record, DeltaOutcome, RawScanExchange};
+use crate::raw_scans::{scan_ranges, scan_record, RawScanExchange};
 
 /// A message for the radio plane.
 #[derive(Clone, Debug, PartialEq)]

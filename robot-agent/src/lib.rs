@@ -19,6 +19,8 @@ pub mod contour;
 pub mod delta;
 /// The approximation error d_t and e_avg (§6.1, eq. 6.1).
 pub mod error;
+/// Transitive exchange of append-only logs (thesis §5.1.2, Algorithm 8).
+pub mod exchange;
 /// Ternary self-explored grid: laser scan integration.
 pub mod grid;
 /// The mapping pipeline: P_t → A_t → ops + save point, with its costs (Algorithm 10, 2–5).

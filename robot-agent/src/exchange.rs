@@ -1,0 +1,270 @@
+//! The transitive exchange of append-only logs (thesis §5.1.2, Algorithm 8; DESIGN.md §4.4), as
+//! a pure state machine generic over the record type: the caller moves the messages.
+//!
+//! Every robot keeps an append-only log of its own records and a copy of a prefix of every
+//! other robot's log it has heard of, and relays what it knows, so that A's records reach C
+//! through B even if A and C never meet. A sent-index table S[peer][owner] records how far we
+//! believe `peer` knows `owner`'s log; a handshake ([`Hello`], the thesis's `conn`) tells the
+//! truth about the peer and replaces our belief, deltas we send raise it optimistically, and
+//! deltas we receive raise it too (the sender holds what it sends). A receiver appends only
+//! contiguous records, ignores duplicates and reports a gap, on which the caller sends a
+//! handshake so the sender learns where to resume. Messages lost with a dropped link are
+//! harmless: the link's S row is forgotten, and the next handshake re-establishes it.
+//!
+//! [`crate::raw_scans`] instantiates it with laser scans (the baseline); its tests exercise this
+//! module.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+
+use proto::msg::{Hello, LogDelta, RobotId};
+
+/// The log exchange of one robot.
+#[derive(Clone, Debug)]
+pub struct LogExchange<R> {
+    me: RobotId,
+    /// Per owner, the prefix of its log we hold (our own log is complete).
+    logs: BTreeMap<RobotId, Vec<R>>,
+    /// S[peer][owner]: how far we believe `peer` knows `owner`'s log. A peer has a row only after
+    /// its handshake; an owner missing from a row counts as known up to 0.
+    sent: BTreeMap<RobotId, BTreeMap<RobotId, u32>>,
+}
+
+/// What became of a received [`LogDelta`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum DeltaOutcome {
+    /// Records `new` of `owner`'s log (indices into [`LogExchange::log`]) are new; they
+    /// directly follow what we held before.
+    Appended { owner: RobotId, new: Range<u32> },
+    /// Every record was already held (an empty delta too).
+    Duplicate,
+    /// The delta starts beyond our `have` records of `owner`'s log: nothing was appended, and the
+    /// caller should send a handshake ([`LogExchange::knowledge`]) to the delta's sender.
+    Gap {
+        owner: RobotId,
+        have: u32,
+        start: u32,
+    },
+}
+
+impl<R: Clone> LogExchange<R> {
+    /// An exchange for robot `me`, holding nothing yet.
+    pub fn new(me: RobotId) -> LogExchange<R> {
+        LogExchange {
+            me,
+            logs: BTreeMap::from([(me, Vec::new())]),
+            sent: BTreeMap::new(),
+        }
+    }
+
+    /// Our own robot id.
+    pub fn id(&self) -> RobotId {
+        self.me
+    }
+
+    /// Appends a record to our own log.
+    pub fn record_own(&mut self, rec: R) {
+        self.logs.entry(self.me).or_default().push(rec);
+    }
+
+    /// The handshake: how many records of each owner's log we hold.
+    pub fn knowledge(&self) -> Hello {
+        Hello {
+            from: self.me,
+            knowledge: self
+                .logs
+                .iter()
+                .map(|(&owner, log)| (owner, len_u32(log)))
+                .collect(),
+        }
+    }
+
+    /// Takes a peer's handshake as the truth about what it holds: its S row becomes exactly the
+    /// listed indices (owners it does not list are known up to 0). If an owner is listed twice,
+    /// the larger index counts. A handshake claiming to come from ourselves is ignored.
+    pub fn on_hello(&mut self, h: &Hello) {
+        if h.from == self.me {
+            return;
+        }
+        let mut row = BTreeMap::new();
+        for &(owner, index) in &h.knowledge {
+            let known = row.entry(owner).or_insert(0);
+            *known = index.max(*known);
+        }
+        self.sent.insert(h.from, row);
+    }
+
+    /// A link to `peer` came up. Nothing is assumed about the peer until its handshake arrives:
+    /// any S row from an earlier contact is forgotten.
+    pub fn link_up(&mut self, peer: RobotId) {
+        self.sent.remove(&peer);
+    }
+
+    /// The link to `peer` went down: forget its S row, since we cannot know which of the messages
+    /// in flight arrived. The next handshake re-establishes it.
+    pub fn link_down(&mut self, peer: RobotId) {
+        self.sent.remove(&peer);
+    }
+
+    /// The deltas to send `peer` now, within `budget_bytes` as measured by `size_of` (the size of
+    /// one delta on the wire), and updates S optimistically for what is returned.
+    ///
+    /// Each delta carries a contiguous run of one owner's records that the peer lacks by S. Owners
+    /// go in policy order (DESIGN.md §4.4): largest lag first, ties → our own log, then the lowest
+    /// id. Records are added while the deltas' total size stays within the budget; at the first
+    /// record that does not fit, the call stops (later owners wait rather than overtake the
+    /// policy). So a record larger than the whole budget blocks everything behind it until a call
+    /// with a larger budget. Nothing is sent to a peer whose handshake we have not had.
+    pub fn outgoing(
+        &mut self,
+        peer: RobotId,
+        budget_bytes: usize,
+        size_of: impl Fn(&LogDelta<R>) -> usize,
+    ) -> Vec<LogDelta<R>> {
+        let Some(row) = self.sent.get(&peer) else {
+            return Vec::new();
+        };
+        let mut order: Vec<(u64, RobotId, u32)> = self
+            .logs
+            .iter()
+            .filter_map(|(&owner, log)| {
+                let known = row.get(&owner).copied().unwrap_or(0);
+                let lag = u64::from(len_u32(log).saturating_sub(known));
+                (lag > 0).then_some((lag, owner, known))
+            })
+            .collect();
+        let me = self.me;
+        order.sort_by_key(|&(lag, owner, _)| (std::cmp::Reverse(lag), owner != me, owner));
+
+        let mut out = Vec::new();
+        let mut used = 0usize;
+        for (_, owner, start) in order {
+            let Some(log) = self.logs.get(&owner) else {
+                continue;
+            };
+            let (delta, size, full) = fill(
+                me,
+                owner,
+                start,
+                log,
+                budget_bytes.saturating_sub(used),
+                &size_of,
+            );
+            if !delta.records.is_empty() {
+                used += size;
+                out.push(delta);
+            }
+            if full {
+                break;
+            }
+        }
+        let row = self.sent.entry(peer).or_default();
+        for d in &out {
+            row.insert(d.owner, d.start.saturating_add(len_u32(&d.records)));
+        }
+        out
+    }
+
+    /// Takes a received delta: appends the records beyond what we hold if they follow on
+    /// contiguously, and raises S[d.from][d.owner] to the delta's end (the sender holds what it
+    /// sent) if we have had the sender's handshake.
+    ///
+    /// Our own log is treated like any other: a peer can hold more of it than we do only if we
+    /// restarted, and taking those records back restores the indices everyone else already uses.
+    /// (A restarted robot that records before hearing from its peers reuses indices; telling
+    /// incarnations apart is beyond this baseline.)
+    pub fn on_delta(&mut self, d: &LogDelta<R>) -> DeltaOutcome {
+        let end = d.start.saturating_add(len_u32(&d.records));
+        if d.from != self.me {
+            if let Some(row) = self.sent.get_mut(&d.from) {
+                let known = row.entry(d.owner).or_insert(0);
+                *known = end.max(*known);
+            }
+        }
+        let log = self.logs.entry(d.owner).or_default();
+        let have = len_u32(log);
+        if d.start > have {
+            return DeltaOutcome::Gap {
+                owner: d.owner,
+                have,
+                start: d.start,
+            };
+        }
+        if end <= have {
+            return DeltaOutcome::Duplicate;
+        }
+        // `have - start < records.len()` because `end > have`.
+        let skip = (have - d.start) as usize;
+        log.extend(
+            d.records
+                .iter()
+                .skip(skip)
+                .take((end - have) as usize)
+                .cloned(),
+        );
+        DeltaOutcome::Appended {
+            owner: d.owner,
+            new: have..len_u32(log),
+        }
+    }
+
+    /// The prefix of `owner`'s log we hold (empty for an owner we have not heard of).
+    pub fn log(&self, owner: RobotId) -> &[R] {
+        self.logs.get(&owner).map_or(&[], Vec::as_slice)
+    }
+
+    /// The owners whose logs we hold (at least ourselves), in id order.
+    pub fn owners(&self) -> impl Iterator<Item = RobotId> + '_ {
+        self.logs.keys().copied()
+    }
+
+    /// How many records we hold that `peer` lacks by S — the per-peer backlog for telemetry;
+    /// `None` before the peer's handshake.
+    pub fn lag(&self, peer: RobotId) -> Option<u64> {
+        let row = self.sent.get(&peer)?;
+        Some(
+            self.logs
+                .iter()
+                .map(|(owner, log)| {
+                    let known = row.get(owner).copied().unwrap_or(0);
+                    u64::from(len_u32(log).saturating_sub(known))
+                })
+                .sum(),
+        )
+    }
+}
+
+/// One delta of `owner`'s records from `start` on, as many as fit into `budget_bytes`; returns it,
+/// its size, and whether a record was left out for lack of budget.
+fn fill<R: Clone>(
+    me: RobotId,
+    owner: RobotId,
+    start: u32,
+    log: &[R],
+    budget_bytes: usize,
+    size_of: &impl Fn(&LogDelta<R>) -> usize,
+) -> (LogDelta<R>, usize, bool) {
+    let mut delta = LogDelta {
+        from: me,
+        owner,
+        start,
+        records: Vec::new(),
+    };
+    let mut size = 0;
+    for rec in log.iter().skip(start as usize) {
+        delta.records.push(rec.clone());
+        let with = size_of(&delta);
+        if with > budget_bytes {
+            delta.records.pop();
+            return (delta, size, true);
+        }
+        size = with;
+    }
+    (delta, size, false)
+}
+
+/// A log length as the protocol's `u32` index (logs never reach 2³² records in practice; the
+/// index saturates rather than wraps if one did).
+fn len_u32<T>(v: &[T]) -> u32 {
+    u32::try_from(v.len()).unwrap_or(u32::MAX)
+}
