@@ -226,6 +226,17 @@ pub struct LogDelta<R> {
 /// Radio, `raw-scans` exchange: a run of an owner's scan log.
 pub type ScanDelta = LogDelta<ScanRecord>;
 
+/// Radio, `polygon` exchange: ops `start..start+count` of `owner`'s op log, sent by `from`, in
+/// the compact op encoding of `robot_agent::wire` (thesis Table 6.1).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OpChunk {
+    pub from: RobotId,
+    pub owner: RobotId,
+    pub start: u32,
+    pub count: u32,
+    pub ops: Vec<u8>,
+}
+
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum DecodeError {
     #[error("empty payload")]

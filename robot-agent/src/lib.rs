@@ -11,6 +11,8 @@
 pub mod agent;
 /// Polygonal approximations A_t and edge occupancy (§4.2.2).
 pub mod approx;
+/// The polygon exchange: op logs of approximations, replicas shown at save points (§5.1).
+pub mod approx_exchange;
 /// Command line and process entry.
 pub mod cli;
 /// Contour extraction: the exact polygonal model P_t (§4.1).

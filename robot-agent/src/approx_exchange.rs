@@ -1,0 +1,294 @@
+//! The polygon exchange (thesis §5.1, Algorithm 10 step 6; DESIGN.md §4.4): every robot's op log
+//! of its incremental approximation (§4.2.3) travels over the transitive log exchange of
+//! [`crate::exchange`], as [`OpChunk`]s in the compact op encoding of [`crate::wire`]. For every
+//! other owner a robot keeps a [`Replica`] fed with that owner's ops in log order; what it
+//! plans with is the replica's approximation **at its last complete save point** — a step whose
+//! ops arrived only in part is never shown (atomicity).
+//!
+//! A chunk whose ops do not decode, or whose op count disagrees with its header, is refused as a
+//! whole (nothing is appended). An owner whose ops cannot be applied (possible only with bytes
+//! corrupted in transit) keeps its last committed approximation and is ignored from then on.
+
+use std::collections::BTreeMap;
+
+use proto::msg::{Hello, LogDelta, OpChunk, RobotId};
+
+use crate::approx::Approximation;
+use crate::delta::Op;
+use crate::exchange::{DeltaOutcome, LogExchange};
+use crate::oplog::Replica;
+use crate::wire::{self, WireError};
+
+/// Why a received chunk was refused.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum ChunkError {
+    #[error("ops do not decode: {0}")]
+    Wire(#[from] WireError),
+    #[error("header announces {want} ops, {got} decoded")]
+    Count { want: u32, got: usize },
+}
+
+/// One robot's side of the polygon exchange.
+#[derive(Clone, Debug)]
+pub struct ApproxExchange {
+    logs: LogExchange<Op>,
+    /// Per other owner: its approximation rebuilt from its log, and how many ops were applied.
+    replicas: BTreeMap<RobotId, (Replica, usize)>,
+}
+
+impl ApproxExchange {
+    pub fn new(me: RobotId) -> ApproxExchange {
+        ApproxExchange {
+            logs: LogExchange::new(me),
+            replicas: BTreeMap::new(),
+        }
+    }
+
+    pub fn id(&self) -> RobotId {
+        self.logs.id()
+    }
+
+    /// Appends our own ops (one step's edit script and its save point) to our log.
+    pub fn record_own(&mut self, ops: &[Op]) {
+        for &op in ops {
+            self.logs.record_own(op);
+        }
+    }
+
+    /// The handshake (`conn`): how many ops of each owner's log we hold.
+    pub fn knowledge(&self) -> Hello {
+        self.logs.knowledge()
+    }
+
+    pub fn on_hello(&mut self, h: &Hello) {
+        self.logs.on_hello(h);
+    }
+
+    pub fn link_up(&mut self, peer: RobotId) {
+        self.logs.link_up(peer);
+    }
+
+    pub fn link_down(&mut self, peer: RobotId) {
+        self.logs.link_down(peer);
+    }
+
+    /// The chunks to send `peer` now, within `budget_bytes` as measured by `size_of` (the size
+    /// of one encoded chunk message), in the exchange's policy order.
+    pub fn outgoing(
+        &mut self,
+        peer: RobotId,
+        budget_bytes: usize,
+        size_of: impl Fn(&OpChunk) -> usize,
+    ) -> Vec<OpChunk> {
+        self.logs
+            .outgoing(peer, budget_bytes, |d| size_of(&chunk(d)))
+            .iter()
+            .map(chunk)
+            .collect()
+    }
+
+    /// Takes a received chunk: appends the new ops of its owner's log and brings that owner's
+    /// replica up to date. A gap is reported as by [`LogExchange::on_delta`] (the caller answers
+    /// with a handshake).
+    pub fn on_chunk(&mut self, c: &OpChunk) -> Result<DeltaOutcome, ChunkError> {
+        let records = wire::decode(&c.ops)?;
+        if records.len() != c.count as usize {
+            return Err(ChunkError::Count {
+                want: c.count,
+                got: records.len(),
+            });
+        }
+        let outcome = self.logs.on_delta(&LogDelta {
+            from: c.from,
+            owner: c.owner,
+            start: c.start,
+            records,
+        });
+        if let DeltaOutcome::Appended { owner, .. } = outcome {
+            self.catch_up(owner);
+        }
+        Ok(outcome)
+    }
+
+    /// Applies the ops of `owner`'s log the replica has not seen.
+    fn catch_up(&mut self, owner: RobotId) {
+        if owner == self.id() {
+            return;
+        }
+        let log = self.logs.log(owner);
+        let (replica, applied) = self.replicas.entry(owner).or_default();
+        for op in log.get(*applied..).unwrap_or_default() {
+            if let Err(e) = replica.apply(op) {
+                if !matches!(e, crate::oplog::ApplyError::Poisoned) {
+                    tracing::warn!(
+                        "ops of robot {owner} do not apply ({e}): its map stays as it was"
+                    );
+                }
+                break;
+            }
+            *applied += 1;
+        }
+    }
+
+    /// `owner`'s approximation at the last save point we hold (`None` for ourselves and for
+    /// owners we have not heard of).
+    pub fn approximation(&self, owner: RobotId) -> Option<&Approximation> {
+        self.replicas.get(&owner).map(|(r, _)| r.committed())
+    }
+
+    /// Every other owner's approximation at its last save point we hold, in id order.
+    pub fn approximations(&self) -> impl Iterator<Item = (RobotId, &Approximation)> {
+        self.replicas.iter().map(|(&o, (r, _))| (o, r.committed()))
+    }
+
+    /// The prefix of `owner`'s op log we hold.
+    pub fn log(&self, owner: RobotId) -> &[Op] {
+        self.logs.log(owner)
+    }
+
+    /// Ops we hold that `peer` lacks by our sent-index table (`None` before its handshake).
+    pub fn lag(&self, peer: RobotId) -> Option<u64> {
+        self.logs.lag(peer)
+    }
+}
+
+/// A log delta of ops as the radio message.
+fn chunk(d: &LogDelta<Op>) -> OpChunk {
+    OpChunk {
+        from: d.from,
+        owner: d.owner,
+        start: d.start,
+        count: u32::try_from(d.records.len()).unwrap_or(u32::MAX),
+        ops: wire::encode(&d.records),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapper::Mapper;
+    use crate::oplog::OpLog;
+    use proptest::prelude::*;
+    use proto::grid::{Cell, Grid};
+    use proto::msg::encode;
+
+    /// A robot's growing view of a small world, one frame per step.
+    const FRAMES: [&str; 4] = [
+        "????????????\n????????????\n???......???\n????????????\n????????????\n",
+        "????????????\n??#......#??\n??#......#??\n??###..###??\n????????????\n",
+        "?##########?\n?#........#?\n?#..##....#?\n?###....###?\n???#....#???\n",
+        "############\n#..........#\n#..##....#.#\n###......###\n..#......#..\n",
+    ];
+
+    /// Robot 0's op log after mapping the frames, and its approximation after each step.
+    fn owner_log() -> (Vec<Op>, Vec<Approximation>) {
+        let mut m = Mapper::new(2.0);
+        let mut states = Vec::new();
+        let mut before = Grid::from_ascii(FRAMES[0]);
+        for f in FRAMES {
+            let g = Grid::from_ascii(f);
+            let w = g.width() as usize;
+            let changed: Vec<Cell> = (0..g.len())
+                .filter(|&i| g.cells()[i] != before.cells()[i])
+                .map(|i| Cell::new((i % w) as i32, (i / w) as i32))
+                .collect();
+            m.step(&g, &changed);
+            states.push(m.approximation().clone());
+            before = g;
+        }
+        (m.log().since(0).to_vec(), states)
+    }
+
+    fn size(c: &OpChunk) -> usize {
+        encode(c).len()
+    }
+
+    /// Moves everything `from` has for `to` (after handshakes both ways) in chunks of at most
+    /// `budget` bytes; returns the chunks.
+    fn transfer(from: &mut ApproxExchange, to: &mut ApproxExchange, budget: usize) -> Vec<OpChunk> {
+        from.link_up(to.id());
+        to.link_up(from.id());
+        from.on_hello(&to.knowledge());
+        to.on_hello(&from.knowledge());
+        let mut sent = Vec::new();
+        loop {
+            let out = from.outgoing(to.id(), budget, size);
+            if out.is_empty() {
+                return sent;
+            }
+            for c in out {
+                assert!(matches!(to.on_chunk(&c), Ok(DeltaOutcome::Appended { .. })));
+                sent.push(c);
+            }
+        }
+    }
+
+    #[test]
+    fn approximations_travel_transitively_through_a_relay() {
+        let (ops, states) = owner_log();
+        let (mut a, mut b, mut c) = (
+            ApproxExchange::new(0),
+            ApproxExchange::new(1),
+            ApproxExchange::new(2),
+        );
+        a.record_own(&ops);
+        transfer(&mut a, &mut b, 64);
+        // C never meets A: it learns A's map from B.
+        transfer(&mut b, &mut c, 64);
+        let last = states.last().cloned().unwrap_or_default();
+        assert_eq!(b.approximation(0), Some(&last));
+        assert_eq!(c.approximation(0), Some(&last));
+        assert_eq!(c.log(0), ops.as_slice());
+        assert!(a.approximation(0).is_none(), "no replica of ourselves");
+    }
+
+    proptest! {
+        /// However the log is cut into chunks and wherever the transfer stops, the receiver shows
+        /// exactly the owner's approximation at the last save point it holds, never part of a step.
+        #[test]
+        fn a_receiver_only_ever_shows_a_complete_step(budget in 8usize..120, stop in 0usize..40) {
+            let (ops, _) = owner_log();
+            let mut log = OpLog::new();
+            ops.iter().for_each(|&op| log.push(op));
+            let (mut a, mut b) = (ApproxExchange::new(0), ApproxExchange::new(1));
+            a.record_own(&ops);
+            a.link_up(1);
+            b.link_up(0);
+            a.on_hello(&b.knowledge());
+            for c in a.outgoing(1, budget, size).into_iter().take(stop.max(1)) {
+                b.on_chunk(&c).map_err(|e| TestCaseError::fail(e.to_string()))?;
+                let held = b.log(0).len();
+                let want = log.state_at(held).map_err(|e| TestCaseError::fail(e.to_string()))?;
+                prop_assert_eq!(b.approximation(0), Some(&want));
+            }
+        }
+
+        /// Nothing a peer sends can crash the receiver: garbage is refused whole.
+        #[test]
+        fn arbitrary_chunks_are_refused_or_taken_never_a_panic(
+            start in 0u32..50, count in 0u32..50, bytes in proptest::collection::vec(any::<u8>(), 0..200)
+        ) {
+            let mut b = ApproxExchange::new(1);
+            let c = OpChunk { from: 0, owner: 0, start, count, ops: bytes };
+            let before = b.log(0).len();
+            if b.on_chunk(&c).is_err() {
+                prop_assert_eq!(b.log(0).len(), before);
+            }
+        }
+    }
+
+    #[test]
+    fn a_chunk_whose_count_disagrees_is_refused() {
+        let (ops, _) = owner_log();
+        let c = OpChunk {
+            from: 0,
+            owner: 0,
+            start: 0,
+            count: 3,
+            ops: wire::encode(&ops[..2]),
+        };
+        let mut b = ApproxExchange::new(1);
+        assert_eq!(b.on_chunk(&c), Err(ChunkError::Count { want: 3, got: 2 }));
+        assert!(b.log(0).is_empty());
+    }
+}
