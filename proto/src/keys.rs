@@ -56,6 +56,11 @@ pub fn radio_delta(to: RobotId) -> String {
     format!("radio/{to}/delta")
 }
 
+/// Radio: op chunks of the polygon exchange addressed to robot `to`.
+pub fn radio_ops(to: RobotId) -> String {
+    format!("radio/{to}/ops")
+}
+
 /// The robot id at the end of a key such as `sim/alive/3` or `sim/telemetry/3`, or the middle
 /// of `sim/robot/3/cmd`.
 pub fn robot_of(key: &str) -> Option<RobotId> {

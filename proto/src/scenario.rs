@@ -432,11 +432,11 @@ impl Scenario {
     /// Values the schema reserves for features that are not built yet are refused by name,
     /// rather than silently running something else.
     fn check_implemented(&self) -> Result<(), ScenarioError> {
-        if self.exchange.mode != ExchangeMode::RawScans {
+        if self.exchange.mode == ExchangeMode::GridSnapshots {
             return Err(invalid(
                 "exchange.mode",
                 format!("{:?}", self.exchange.mode),
-                "only \"raw-scans\" is implemented so far (polygon: issue #5)",
+                "\"raw-scans\" and \"polygon\" are implemented; \"grid-snapshots\" is not yet (issue #5)",
             ));
         }
         if self.coordination.strategy != Strategy::Uncoordinated {

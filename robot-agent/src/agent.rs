@@ -2,9 +2,8 @@
 //! exist so far): integrate the scan into G_s, exchange over the radio, build the planning grid,
 //! pick a target, plan, move. [`crate::node`] feeds it from zenoh and sends what it returns.
 //!
-//! The exchange is the `raw-scans` baseline (DESIGN.md §4.8): peers' scans are integrated into a
-//! grid of their own, and the planning grid is that grid overlaid with every known cell of G_s
-//! (self-explored data wins, thesis §5.2).
+//! What is exchanged is [`crate::sharing`]'s business (`raw-scans` or `polygon`, DESIGN.md §4.8);
+//! the planning grid never lets a peer's data override a cell of G_s (thesis §5.2).
 
 use std::collections::{BTreeSet, HashMap};
 
@@ -15,16 +14,15 @@ use proto::msg::{
 };
 use proto::scenario::Scenario;
 
-use crate::exchange::DeltaOutcome;
 use crate::grid::Evidence;
 use crate::plan;
-use crate::raw_scans::{scan_ranges, scan_record, RawScanExchange};
+use crate::sharing::{Share, Sharing};
 
 /// A message for the radio plane.
 #[derive(Clone, Debug, PartialEq)]
 pub enum RadioOut {
     Hello { to: RobotId, msg: Hello },
-    Delta { to: RobotId, msg: ScanDelta },
+    Share { to: RobotId, msg: Share },
 }
 
 /// After this many rejected moves in a row the robot gives up its target for a while (another
@@ -61,12 +59,10 @@ pub struct Agent {
     own_evidence: Evidence,
     /// Cells of G_s the last scan changed.
     own_changed: Vec<Cell>,
-    /// What peers' scans told it (never overrides G_s in the planning grid).
-    others: Grid,
     /// The planning grid of the last step (built once per step, reused by telemetry).
     planning: Grid,
-    others_evidence: Evidence,
-    exchange: RawScanExchange,
+    /// What it shares and how peers' shares reach its planning grid (by exchange mode).
+    sharing: Sharing,
     pose: Pose,
     step: Step,
     target: Option<Cell>,
@@ -110,11 +106,9 @@ impl Agent {
             world,
             own_evidence: Evidence::new(&empty),
             own_changed: Vec::new(),
-            others_evidence: Evidence::new(&empty),
+            sharing: Sharing::new(s.exchange.mode, id, &empty),
             own: empty.clone(),
-            planning: empty.clone(),
-            others: empty,
-            exchange: RawScanExchange::new(id),
+            planning: empty,
             pose: Pose::default(),
             step: 0,
             target: None,
@@ -144,10 +138,8 @@ impl Agent {
             &scan.ranges,
             &self.world.laser,
         );
-        match scan_record(scan.step, scan.pose, &scan.ranges, &self.world.laser) {
-            Ok(rec) => self.exchange.record_own(rec),
-            Err(e) => tracing::warn!("scan of step {} not shared: {e}", scan.step),
-        }
+        self.sharing
+            .after_scan(scan, &self.world.laser, &self.own, &self.own_changed);
         match scan.last_move {
             MoveOutcome::Blocked | MoveOutcome::Collision { .. } | MoveOutcome::OutOfMap => {
                 self.rejections += 1
@@ -162,15 +154,9 @@ impl Agent {
         }
     }
 
-    /// The planning grid: peers' knowledge overlaid with every known cell of G_s.
+    /// The planning grid: G_s with what peers shared filling its unknown cells.
     pub fn planning_grid(&self) -> Grid {
-        let mut g = self.others.clone();
-        for (p, &o) in g.cells_mut().iter_mut().zip(self.own.cells()) {
-            if o != Occ::Unknown {
-                *p = o;
-            }
-        }
-        g
+        self.sharing.planning_grid(&self.own)
     }
 
     fn plan(&mut self) -> Option<(f64, f64)> {
@@ -214,16 +200,17 @@ impl Agent {
                 .saturating_add(self.budget_per_step)
                 .min(self.burst_bytes);
             if self.step.is_multiple_of(self.hello_every_steps) {
-                let msg = self.exchange.knowledge();
+                let msg = self.sharing.knowledge();
                 budget = budget.saturating_sub(proto::msg::encode(&msg).len());
                 out.push(RadioOut::Hello { to: peer, msg });
             }
-            for msg in self
-                .exchange
-                .outgoing(peer, budget, |d| proto::msg::encode(d).len())
-            {
-                budget = budget.saturating_sub(proto::msg::encode(&msg).len());
-                out.push(RadioOut::Delta { to: peer, msg });
+            for msg in self.sharing.outgoing(peer, budget) {
+                let len = match &msg {
+                    Share::Scans(d) => proto::msg::encode(d).len(),
+                    Share::Ops(c) => proto::msg::encode(c).len(),
+                };
+                budget = budget.saturating_sub(len);
+                out.push(RadioOut::Share { to: peer, msg });
             }
             *credit = budget;
         }
@@ -235,52 +222,47 @@ impl Agent {
         if peer == self.id || !self.neighbours.insert(peer) {
             return Vec::new();
         }
-        self.exchange.link_up(peer);
+        self.sharing.link_up(peer);
         vec![RadioOut::Hello {
             to: peer,
-            msg: self.exchange.knowledge(),
+            msg: self.sharing.knowledge(),
         }]
     }
 
     pub fn link_down(&mut self, peer: RobotId) {
         self.credit.remove(&peer);
         if self.neighbours.remove(&peer) {
-            self.exchange.link_down(peer);
+            self.sharing.link_down(peer);
         }
     }
 
     pub fn on_hello(&mut self, h: &Hello) {
-        self.exchange.on_hello(h);
+        self.sharing.on_hello(h);
     }
 
-    /// Integrates the new records of a delta; a gap is answered with a handshake.
-    pub fn on_delta(&mut self, d: &ScanDelta) -> Vec<RadioOut> {
-        let first_new = self.exchange.log(d.owner).len();
-        match self.exchange.on_delta(d) {
-            DeltaOutcome::Appended { .. } => {
-                if d.owner != self.id {
-                    let log = self.exchange.log(d.owner);
-                    for rec in log.get(first_new..).unwrap_or_default() {
-                        let (pose, ranges) = scan_ranges(rec, &self.world.laser);
-                        self.others_evidence.integrate(
-                            &mut self.others,
-                            &self.world.map,
-                            pose,
-                            &ranges,
-                            &self.world.laser,
-                        );
-                    }
-                }
+    /// Takes a peer's share (scans or ops, relayed from any owner); a gap is answered with a
+    /// handshake to its sender. A share that cannot be taken counts as a decode error.
+    pub fn on_share(&mut self, from: RobotId, share: &Share) -> Vec<RadioOut> {
+        match self
+            .sharing
+            .on_share(share, &self.world.map, &self.world.laser)
+        {
+            Ok(true) => vec![RadioOut::Hello {
+                to: from,
+                msg: self.sharing.knowledge(),
+            }],
+            Ok(false) => Vec::new(),
+            Err(e) => {
+                self.decode_errors += 1;
+                tracing::debug!("share from robot {from} refused: {e}");
                 Vec::new()
             }
-            DeltaOutcome::Duplicate => Vec::new(),
-            DeltaOutcome::Gap { .. } => {
-                vec![RadioOut::Hello {
-                    to: d.from,
-                    msg: self.exchange.knowledge(),
-                }]
-            }
         }
+    }
+
+    /// e_avg of the own approximation so far (polygon mode).
+    pub fn approx_error_avg(&self) -> Option<f64> {
+        self.sharing.approx_error_avg()
     }
 
     /// This step's telemetry for the launcher: the planning grid the robot planned on this step.
@@ -306,6 +288,17 @@ impl Agent {
     pub fn count_sent(&mut self, class: Traffic, bytes: usize) {
         self.bytes_sent += bytes as u64;
         self.sent_by_type[class as usize] += bytes as u64;
+    }
+
+    /// Accounts an op chunk of `bytes` encoded bytes: each op's bytes to its package type, the
+    /// chunk's header (ids, start index, count) to `conn`, the exchange's own overhead.
+    pub fn count_ops_sent(&mut self, c: &proto::msg::OpChunk, bytes: usize) {
+        let mut ops = 0;
+        for (kind, n) in crate::approx_exchange::op_bytes(c) {
+            self.count_sent(crate::mapper::traffic(kind), n);
+            ops += n;
+        }
+        self.count_sent(Traffic::Conn, bytes.saturating_sub(ops));
     }
 
     /// The robot saw no reachable frontier at its last step.

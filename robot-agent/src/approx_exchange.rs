@@ -152,6 +152,15 @@ impl ApproxExchange {
     }
 }
 
+/// The encoded bytes of each op in a chunk, by package type (for accounting).
+pub fn op_bytes(c: &OpChunk) -> Vec<(crate::delta::OpKind, usize)> {
+    let Ok(ops) = wire::decode(&c.ops) else {
+        return Vec::new();
+    };
+    let mut e = wire::Encoder::new();
+    ops.iter().map(|op| (op.kind(), e.push(op))).collect()
+}
+
 /// A log delta of ops as the radio message.
 fn chunk(d: &LogDelta<Op>) -> OpChunk {
     OpChunk {

@@ -43,6 +43,8 @@ pub mod raster;
 pub mod raw_scans;
 /// Douglas–Peucker refinement over all polygons with one priority queue (§4.3).
 pub mod refine;
+/// What a robot shares over the radio, by exchange mode (DESIGN §4.8).
+pub mod sharing;
 /// The compact wire encoding of delta ops (Table 6.1).
 pub mod wire;
 

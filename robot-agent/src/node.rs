@@ -6,7 +6,9 @@
 use std::time::Duration;
 
 use proto::keys;
-use proto::msg::{decode, encode, Control, Hello, RobotId, Scan, ScanDelta, Traffic, WorldInfo};
+use proto::msg::{
+    decode, encode, Control, Hello, OpChunk, RobotId, Scan, ScanDelta, Traffic, WorldInfo,
+};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
 use zenoh::qos::CongestionControl;
@@ -14,6 +16,7 @@ use zenoh::sample::SampleKind;
 use zenoh::Session;
 
 use crate::agent::{Agent, RadioOut};
+use crate::sharing::Share;
 
 /// Why the robot stopped.
 #[derive(Debug, PartialEq, Eq)]
@@ -35,11 +38,29 @@ pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, Zeno
 /// handshakes make losses harmless.
 async fn send_radio(radio: &Session, agent: &mut Agent, out: Vec<RadioOut>) {
     for m in out {
-        let (key, bytes, class) = match &m {
-            RadioOut::Hello { to, msg } => (keys::radio_hello(*to), encode(msg), Traffic::Conn),
-            RadioOut::Delta { to, msg } => (keys::radio_delta(*to), encode(msg), Traffic::Scan),
+        let (key, bytes) = match &m {
+            RadioOut::Hello { to, msg } => {
+                let b = encode(msg);
+                agent.count_sent(Traffic::Conn, b.len());
+                (keys::radio_hello(*to), b)
+            }
+            RadioOut::Share {
+                to,
+                msg: Share::Scans(d),
+            } => {
+                let b = encode(d);
+                agent.count_sent(Traffic::Scan, b.len());
+                (keys::radio_delta(*to), b)
+            }
+            RadioOut::Share {
+                to,
+                msg: Share::Ops(c),
+            } => {
+                let b = encode(c);
+                agent.count_ops_sent(c, b.len());
+                (keys::radio_ops(*to), b)
+            }
         };
-        agent.count_sent(class, bytes.len());
         if let Err(e) = radio
             .put(&key, bytes)
             .congestion_control(CongestionControl::Drop)
@@ -74,6 +95,10 @@ pub async fn run_robot(
         .map_err(zerr)?;
     let deltas = radio
         .declare_subscriber(keys::radio_delta(id))
+        .await
+        .map_err(zerr)?;
+    let chunks = radio
+        .declare_subscriber(keys::radio_ops(id))
         .await
         .map_err(zerr)?;
     let peers = radio
@@ -123,7 +148,16 @@ pub async fn run_robot(
                 let bytes = sample.payload().to_bytes();
                 agent.bytes_received += bytes.len() as u64;
                 match decode::<ScanDelta>(&bytes) {
-                    Ok(d) => { let out = agent.on_delta(&d); send_radio(&radio, &mut agent, out).await; }
+                    Ok(d) => { let out = agent.on_share(d.from, &Share::Scans(d)); send_radio(&radio, &mut agent, out).await; }
+                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
+                }
+            }
+            sample = chunks.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped) };
+                let bytes = sample.payload().to_bytes();
+                agent.bytes_received += bytes.len() as u64;
+                match decode::<OpChunk>(&bytes) {
+                    Ok(c) => { let out = agent.on_share(c.from, &Share::Ops(c)); send_radio(&radio, &mut agent, out).await; }
                     Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
                 }
             }

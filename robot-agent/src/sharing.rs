@@ -1,0 +1,191 @@
+//! What a robot shares over the radio and how its peers' shares become part of its planning
+//! grid (DESIGN.md §4.8; `exchange.mode`):
+//!
+//! * `raw-scans` — the baseline: every robot's laser scans, relayed transitively; received
+//!   scans are integrated into a grid of the peers' knowledge (never overriding G_s).
+//! * `polygon` — the thesis: every robot's op log of its incremental approximation A_t
+//!   (Algorithm 10 steps 2–6, [`crate::mapper`]), relayed transitively; the planning grid is
+//!   merged from G_s and every peer's approximation at its last save point (Algorithm 9).
+//!
+//! Both speak the same handshake (`conn`) and budget rules; only the records differ.
+
+use proto::geom::{LaserSpec, MapInfo};
+use proto::grid::{Cell, Grid, Occ};
+use proto::msg::{encode, Hello, OpChunk, RobotId, Scan, ScanDelta};
+use proto::scenario::ExchangeMode;
+
+use crate::approx_exchange::ApproxExchange;
+use crate::exchange::DeltaOutcome;
+use crate::grid::Evidence;
+use crate::mapper::Mapper;
+use crate::merge::merge;
+use crate::raw_scans::{scan_ranges, scan_record, RawScanExchange};
+
+/// Douglas–Peucker splits per step of the polygon mapper (the thesis's s; fixed until the
+/// splitting-frequency control of issue #5 lands).
+pub const SPLITS_PER_STEP: f64 = 2.0;
+
+/// One message to a neighbour.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Share {
+    Scans(ScanDelta),
+    Ops(OpChunk),
+}
+
+/// A robot's side of the exchange, by mode.
+#[derive(Clone, Debug)]
+pub enum Sharing {
+    RawScans {
+        exchange: RawScanExchange,
+        /// What peers' scans told this robot, and the beam counts behind it.
+        others: Grid,
+        evidence: Evidence,
+    },
+    Polygon {
+        exchange: ApproxExchange,
+        mapper: Box<Mapper>,
+    },
+}
+
+impl Sharing {
+    /// Robot `me`'s sharing in `mode` for a map of `empty`'s size.
+    pub fn new(mode: ExchangeMode, me: RobotId, empty: &Grid) -> Sharing {
+        match mode {
+            ExchangeMode::Polygon => Sharing::Polygon {
+                exchange: ApproxExchange::new(me),
+                mapper: Box::new(Mapper::new(SPLITS_PER_STEP)),
+            },
+            // grid-snapshots is refused by the scenario check before a robot starts.
+            ExchangeMode::RawScans | ExchangeMode::GridSnapshots => Sharing::RawScans {
+                exchange: RawScanExchange::new(me),
+                others: empty.clone(),
+                evidence: Evidence::new(empty),
+            },
+        }
+    }
+
+    /// Records this step's own contribution: the scan (raw-scans), or the mapping pipeline's
+    /// ops for G_s after the scan (polygon; `changed` are the cells the scan changed).
+    pub fn after_scan(&mut self, scan: &Scan, laser: &LaserSpec, own: &Grid, changed: &[Cell]) {
+        match self {
+            Sharing::RawScans { exchange, .. } => {
+                match scan_record(scan.step, scan.pose, &scan.ranges, laser) {
+                    Ok(rec) => exchange.record_own(rec),
+                    Err(e) => tracing::warn!("scan of step {} not shared: {e}", scan.step),
+                }
+            }
+            Sharing::Polygon { exchange, mapper } => {
+                let first = mapper.log().len();
+                mapper.step(own, changed);
+                exchange.record_own(mapper.log().since(first));
+            }
+        }
+    }
+
+    pub fn knowledge(&self) -> Hello {
+        match self {
+            Sharing::RawScans { exchange, .. } => exchange.knowledge(),
+            Sharing::Polygon { exchange, .. } => exchange.knowledge(),
+        }
+    }
+
+    pub fn on_hello(&mut self, h: &Hello) {
+        match self {
+            Sharing::RawScans { exchange, .. } => exchange.on_hello(h),
+            Sharing::Polygon { exchange, .. } => exchange.on_hello(h),
+        }
+    }
+
+    pub fn link_up(&mut self, peer: RobotId) {
+        match self {
+            Sharing::RawScans { exchange, .. } => exchange.link_up(peer),
+            Sharing::Polygon { exchange, .. } => exchange.link_up(peer),
+        }
+    }
+
+    pub fn link_down(&mut self, peer: RobotId) {
+        match self {
+            Sharing::RawScans { exchange, .. } => exchange.link_down(peer),
+            Sharing::Polygon { exchange, .. } => exchange.link_down(peer),
+        }
+    }
+
+    /// What to send `peer` now within `budget` bytes (as encoded on the radio).
+    pub fn outgoing(&mut self, peer: RobotId, budget: usize) -> Vec<Share> {
+        match self {
+            Sharing::RawScans { exchange, .. } => exchange
+                .outgoing(peer, budget, |d| encode(d).len())
+                .into_iter()
+                .map(Share::Scans)
+                .collect(),
+            Sharing::Polygon { exchange, .. } => exchange
+                .outgoing(peer, budget, |c| encode(c).len())
+                .into_iter()
+                .map(Share::Ops)
+                .collect(),
+        }
+    }
+
+    /// Takes a received share; returns whether its sender should get a handshake (a gap).
+    /// A share of the other mode, or one that cannot be taken, is `Err` with the reason.
+    pub fn on_share(
+        &mut self,
+        s: &Share,
+        map: &MapInfo,
+        laser: &LaserSpec,
+    ) -> Result<bool, String> {
+        let outcome = match (self, s) {
+            (
+                Sharing::RawScans {
+                    exchange,
+                    others,
+                    evidence,
+                },
+                Share::Scans(d),
+            ) => {
+                let first_new = exchange.log(d.owner).len();
+                let outcome = exchange.on_delta(d);
+                if matches!(outcome, DeltaOutcome::Appended { .. }) && d.owner != exchange.id() {
+                    for rec in exchange.log(d.owner).get(first_new..).unwrap_or_default() {
+                        let (pose, ranges) = scan_ranges(rec, laser);
+                        evidence.integrate(others, map, pose, &ranges, laser);
+                    }
+                }
+                outcome
+            }
+            (Sharing::Polygon { exchange, .. }, Share::Ops(c)) => {
+                exchange.on_chunk(c).map_err(|e| e.to_string())?
+            }
+            _ => return Err("a share of the other exchange mode".into()),
+        };
+        Ok(matches!(outcome, DeltaOutcome::Gap { .. }))
+    }
+
+    /// The planning grid: G_s with what peers shared filling its unknown cells — never
+    /// overriding a cell this robot sensed itself.
+    pub fn planning_grid(&self, own: &Grid) -> Grid {
+        match self {
+            Sharing::RawScans { others, .. } => {
+                let mut g = others.clone();
+                for (p, &o) in g.cells_mut().iter_mut().zip(own.cells()) {
+                    if o != Occ::Unknown {
+                        *p = o;
+                    }
+                }
+                g
+            }
+            Sharing::Polygon { exchange, .. } => {
+                let peers: Vec<_> = exchange.approximations().map(|(_, a)| a).collect();
+                merge(own, &peers)
+            }
+        }
+    }
+
+    /// e_avg of the own approximation so far (polygon mode, thesis eq. 6.1).
+    pub fn approx_error_avg(&self) -> Option<f64> {
+        match self {
+            Sharing::Polygon { mapper, .. } => mapper.error_avg(),
+            Sharing::RawScans { .. } => None,
+        }
+    }
+}
