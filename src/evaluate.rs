@@ -137,6 +137,8 @@ mod tests {
 
     fn telemetry(robot: RobotId, step: Step, grid: &Grid) -> Telemetry {
         Telemetry {
+            logs: Vec::new(),
+            approx_error_avg: None,
             robot,
             step,
             pose: Pose::default(),

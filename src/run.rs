@@ -438,7 +438,25 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         ),
         bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum(),
         bytes_by_type: bytes_by_type(&per_robot_types),
-        approx_error_avg: None,
+        // Mean over the robots of their own e_avg (polygon exchange only).
+        approx_error_avg: {
+            let e: Vec<f64> = eval
+                .last
+                .values()
+                .filter_map(|(_, t)| t.approx_error_avg)
+                .collect();
+            (!e.is_empty()).then(|| e.iter().sum::<f64>() / e.len() as f64)
+        },
+        logs_held: eval
+            .last
+            .iter()
+            .map(|(r, (_, t))| {
+                (
+                    r.to_string(),
+                    t.logs.iter().map(|(o, n)| (o.to_string(), *n)).collect(),
+                )
+            })
+            .collect(),
         collisions: last.collisions_total,
         distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
         radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),

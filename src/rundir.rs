@@ -34,8 +34,11 @@ pub struct Summary {
     pub bytes_wire_total: Option<u64>,
     pub bytes_payload_total: u64,
     pub bytes_by_type: BTreeMap<String, u64>,
-    /// Thesis eq. 6.1; `null` unless `exchange.mode = "polygon"`.
+    /// Thesis eq. 6.1, the mean over the robots of their own approximation's e_avg; `null`
+    /// unless `exchange.mode = "polygon"`.
     pub approx_error_avg: Option<f64>,
+    /// Per robot, per owner: how many records of the owner's log the robot held at the end.
+    pub logs_held: BTreeMap<String, BTreeMap<String, u32>>,
     pub collisions: u64,
     pub distance_m: Vec<f64>,
     pub radio_decode_errors: u64,

@@ -9,5 +9,6 @@ mod cli;
 mod lifecycle;
 mod mapping;
 mod netem;
+mod polygon;
 mod runs;
 mod wire;

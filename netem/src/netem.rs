@@ -370,6 +370,8 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     }
     let mut faults = cfg.faults;
     faults.sort_by_key(|f| f.step);
+    // Faults scheduled for step 0 hold from the start, before any robot can connect.
+    let initial = faults.iter().take_while(|f| f.step == 0).count();
     let shared = Arc::new(Shared {
         clock,
         by_pair: links
@@ -384,11 +386,18 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
             step: None,
             poses: HashMap::new(),
             faults,
-            next: 0,
+            next: initial,
         }),
         toxic_ids: AtomicU64::new(1),
         shutdown,
     });
+    let due: Vec<Fault> = lock(&shared.steps).faults[..initial]
+        .iter()
+        .map(|f| f.fault.clone())
+        .collect();
+    for f in &due {
+        shared.apply(f)?;
+    }
     let mut tasks: Vec<JoinHandle<()>> = shared
         .links
         .iter()

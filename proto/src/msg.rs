@@ -114,6 +114,11 @@ pub struct Telemetry {
     pub decode_errors: u64,
     /// Payload bytes sent so far per traffic class, in [`Traffic::ALL`] order.
     pub sent_by_type: Vec<u64>,
+    /// Per owner, how many records of its log this robot holds (its own included): the
+    /// knowledge vector of the exchange.
+    pub logs: Vec<(RobotId, u32)>,
+    /// e_avg of the robot's own approximation so far (polygon exchange; eq. 6.1).
+    pub approx_error_avg: Option<f64>,
 }
 
 /// The classes every radio payload byte is accounted to: the nine package types of thesis
@@ -368,6 +373,8 @@ mod tests {
             neighbours: vec![0, 1],
             decode_errors: 0,
             sent_by_type: vec![0, 0, 0, 0, 0, 0, 40, 0, 0, 960],
+            logs: vec![(0, 12), (1, 3)],
+            approx_error_avg: Some(0.05),
         });
         round_trip(Control::Stop);
         round_trip(LinkReport {

@@ -281,6 +281,8 @@ impl Agent {
             neighbours: self.neighbours.iter().copied().collect(),
             decode_errors: self.decode_errors,
             sent_by_type: self.sent_by_type.to_vec(),
+            logs: self.sharing.knowledge().knowledge,
+            approx_error_avg: self.sharing.approx_error_avg(),
         }
     }
 
