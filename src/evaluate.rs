@@ -29,6 +29,8 @@ pub struct MetricsRow {
     pub coverage_pct: f64,
     pub idle: bool,
     pub neighbours: usize,
+    /// Payload bytes sent so far per traffic class ([`proto::msg::Traffic::ALL`] order).
+    pub sent_by_type: Vec<u64>,
 }
 
 pub struct Evaluator {
@@ -125,6 +127,7 @@ impl Evaluator {
             coverage_pct: pct,
             idle: t.idle,
             neighbours: t.neighbours.len(),
+            sent_by_type: t.sent_by_type.clone(),
         });
         self.last.insert(t.robot, (grid, t));
     }

@@ -465,6 +465,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     };
     write_summary(&dir, &summary)?;
     write_metrics(&dir, &eval.rows)?;
+    crate::rundir::write_traffic(&dir, &eval.rows)?;
     write_links(&dir, &links.rows)?;
     let mut truth_pic = Picture::of_grid(&truth_grid, truth.map);
     for (i, t) in trajectories.iter().enumerate() {

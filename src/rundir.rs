@@ -213,6 +213,38 @@ impl From<&Reconnects> for ReconnectSummary {
     }
 }
 
+/// `traffic_by_type.csv`: per step and robot, the payload bytes the robot sent during the step
+/// by traffic class (thesis Table 6.1's package types, `conn`, `targ`, and `scan`).
+pub fn write_traffic(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
+    let mut s = String::from("step,robot");
+    for t in Traffic::ALL {
+        s.push(',');
+        s.push_str(t.name());
+    }
+    s.push('\n');
+    let mut sorted: Vec<&MetricsRow> = rows.iter().collect();
+    sorted.sort_by_key(|r| (r.robot, r.step));
+    let mut before: Option<(u16, &[u64])> = None;
+    let mut lines: Vec<(Step, u16, String)> = Vec::new();
+    for r in sorted {
+        let prev = before
+            .filter(|(robot, _)| *robot == r.robot)
+            .map(|(_, v)| v);
+        let mut line = String::new();
+        for (i, &now) in r.sent_by_type.iter().enumerate() {
+            let was = prev.and_then(|p| p.get(i)).copied().unwrap_or(0);
+            let _ = write!(line, ",{}", now.saturating_sub(was));
+        }
+        lines.push((r.step, r.robot, line));
+        before = Some((r.robot, &r.sent_by_type));
+    }
+    lines.sort_by_key(|(step, robot, _)| (*step, *robot));
+    for (step, robot, line) in lines {
+        let _ = writeln!(s, "{step},{robot}{line}");
+    }
+    std::fs::write(dir.join("traffic_by_type.csv"), s).context("writing traffic_by_type.csv")
+}
+
 /// Bytes that crossed any link, both ways, from netem's `link_totals.csv` (`None` if it is
 /// missing or not in the expected form: netem did not stop normally).
 pub fn link_totals_wire(path: &Path) -> Option<u64> {
@@ -270,6 +302,55 @@ mod tests {
             queued_bytes: 0,
             connected,
         }
+    }
+
+    #[test]
+    fn traffic_rows_are_per_step_differences_per_robot() {
+        let row = |step: Step, robot: u16, ins: u64, scan: u64| {
+            let mut v = vec![0; Traffic::ALL.len()];
+            v[Traffic::Ins as usize] = ins;
+            v[Traffic::Scan as usize] = scan;
+            MetricsRow {
+                step,
+                robot,
+                x: 0.0,
+                y: 0.0,
+                known_cells: 0,
+                correct_known_cells: 0,
+                target: None,
+                bytes_sent: 0,
+                bytes_received: 0,
+                coverage_pct: 0.0,
+                idle: false,
+                neighbours: 0,
+                sent_by_type: v,
+            }
+        };
+        let dir = std::env::temp_dir().join(format!("swarm-traffic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let rows = [
+            row(1, 1, 5, 0),
+            row(0, 0, 10, 1),
+            row(1, 0, 25, 1),
+            row(0, 1, 2, 0),
+        ];
+        write_traffic(&dir, &rows).unwrap_or_else(|e| panic!("{e}"));
+        let text = std::fs::read_to_string(dir.join("traffic_by_type.csv")).unwrap_or_default();
+        let _ = std::fs::remove_dir_all(&dir);
+        let got: Vec<&str> = text.lines().collect();
+        assert_eq!(
+            got[0],
+            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan"
+        );
+        assert_eq!(
+            &got[1..],
+            [
+                "0,0,10,0,0,0,0,0,0,0,0,1",
+                "0,1,2,0,0,0,0,0,0,0,0,0",
+                "1,0,15,0,0,0,0,0,0,0,0,0",
+                "1,1,3,0,0,0,0,0,0,0,0,0",
+            ]
+        );
     }
 
     #[test]

@@ -10,6 +10,26 @@ fn wire_bytes(sets: &[&str]) -> (u64, serde_json::Value) {
     let (out, run) = swarm_run(&dir, None, sets, Duration::from_secs(300));
     assert!(out.status.code() == Some(0), "{sets:?}: {}", stderr(&out));
     let s = summary(&run);
+    // traffic_by_type.csv's per-step rows add up to the summary's totals per class.
+    let text =
+        std::fs::read_to_string(run.join("traffic_by_type.csv")).expect("traffic_by_type.csv");
+    let mut lines = text.lines();
+    let head: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let mut sums = vec![0u64; head.len()];
+    for l in lines {
+        for (i, v) in l.split(',').enumerate().skip(2) {
+            sums[i] += v
+                .parse::<u64>()
+                .unwrap_or_else(|_| panic!("bad value in {l}"));
+        }
+    }
+    for (i, class) in head.iter().enumerate().skip(2) {
+        assert_eq!(
+            sums[i],
+            s["bytes_by_type"][class].as_u64().unwrap_or(u64::MAX),
+            "{class}"
+        );
+    }
     (s["bytes_wire_total"].as_u64().unwrap_or(0), s)
 }
 
