@@ -11,7 +11,8 @@ use proto::msg::RobotId;
 use proto::node::{close_quickly, init_logging, zerr, ZenohArgs};
 use proto::scenario::Scenario;
 
-use crate::netem::{start, LinkTelemetry, NetemConfig, PairSpec};
+use crate::link::LinkSnapshot;
+use crate::netem::{start, NetemConfig, PairSpec};
 use crate::node::{fetch_truth, follow, needs_truth};
 
 /// The link emulator of swarm-explore: one TCP proxy per robot pair, between the lower id's
@@ -48,23 +49,25 @@ pub struct Args {
 /// The header of `--totals-out`.
 pub const TOTALS_HEADER: &str = "a,b,listen,target,bytes_a_to_b,bytes_b_to_a,chunks_a_to_b,chunks_b_to_a,lost_bytes,connects,established,refused";
 
-/// `--totals-out`'s text: one row per link, final counters (`addrs`: each link's listen and
-/// target address, in the rows' order).
-fn totals_csv(rows: &[LinkTelemetry], addrs: &[(SocketAddr, SocketAddr)]) -> String {
+/// `--totals-out`'s text: one row per link, its addresses and final counters.
+fn totals_csv(links: &[LinkSnapshot]) -> String {
     let mut s = format!("{TOTALS_HEADER}\n");
-    for (r, (listen, target)) in rows.iter().zip(addrs) {
+    for l in links {
+        let [ab, ba] = l.dirs;
         s.push_str(&format!(
-            "{},{},{listen},{target},{},{},{},{},{},{},{},{}\n",
-            r.a,
-            r.b,
-            r.bytes_a_to_b_total,
-            r.bytes_b_to_a_total,
-            r.chunks_a_to_b_total,
-            r.chunks_b_to_a_total,
-            r.lost_bytes_total,
-            r.connects_total,
-            r.established_total,
-            r.refused_total
+            "{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            l.a,
+            l.b,
+            l.listen,
+            l.target,
+            ab.bytes_total,
+            ba.bytes_total,
+            ab.chunks_total,
+            ba.chunks_total,
+            ab.lost_bytes_total + ba.lost_bytes_total,
+            l.connects_total,
+            l.established_total,
+            l.refused_total
         ));
     }
     s
@@ -108,24 +111,10 @@ async fn run(args: Args) -> anyhow::Result<()> {
     let cfg = NetemConfig::from_scenario(&scenario, args.pairs.clone(), truth, args.http)?;
     let netem = start(cfg).await.context("starting the link proxies")?;
     let result = follow(&sim, &netem).await;
-    let addrs: Vec<(SocketAddr, SocketAddr)> = netem
-        .snapshot()
-        .iter()
-        .map(|r| {
-            let target = args.pairs.iter().find(|p| (p.a, p.b) == (r.a, r.b));
-            let listen = netem.listen_addr(r.a, r.b);
-            (
-                listen
-                    .or(target.map(|p| p.listen))
-                    .unwrap_or(([0, 0, 0, 0], 0).into()),
-                target.map_or(([0, 0, 0, 0], 0).into(), |p| p.target),
-            )
-        })
-        .collect();
-    let rows = netem.shutdown().await;
+    let links = netem.shutdown().await;
     close_quickly(sim).await;
     if let Some(path) = &args.totals_out {
-        std::fs::write(path, totals_csv(&rows, &addrs))
+        std::fs::write(path, totals_csv(&links))
             .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(result?)

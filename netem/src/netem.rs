@@ -734,9 +734,9 @@ impl Netem {
     }
 
     /// Resets every connection, stops every listener and task.
-    /// Stops accepting, closes every connection and returns each link's final row (its
+    /// Stops accepting, closes every connection and returns each link's final snapshot (its
     /// counters can no longer change).
-    pub async fn shutdown(mut self) -> Vec<LinkTelemetry> {
+    pub async fn shutdown(mut self) -> Vec<LinkSnapshot> {
         self.shared.shutdown.send_replace(true);
         for l in &self.shared.links {
             l.close_all(Duration::from_millis(500)).await;
@@ -749,7 +749,7 @@ impl Netem {
                 tracing::warn!("a netem task did not stop in time");
             }
         }
-        self.shared.rows()
+        self.shared.snapshots()
     }
 }
 

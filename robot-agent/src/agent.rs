@@ -21,8 +21,16 @@ use crate::sharing::{Share, Sharing};
 /// A message for the radio plane.
 #[derive(Clone, Debug, PartialEq)]
 pub enum RadioOut {
-    Hello { to: RobotId, msg: Hello },
-    Share { to: RobotId, msg: Share },
+    Hello {
+        to: RobotId,
+        msg: Hello,
+    },
+    /// `bytes`: the share as encoded for the radio ([`Share::encode`]).
+    Share {
+        to: RobotId,
+        msg: Share,
+        bytes: Vec<u8>,
+    },
 }
 
 /// After this many rejected moves in a row the robot gives up its target for a while (another
@@ -205,12 +213,13 @@ impl Agent {
                 out.push(RadioOut::Hello { to: peer, msg });
             }
             for msg in self.sharing.outgoing(peer, budget) {
-                let len = match &msg {
-                    Share::Scans(d) => proto::msg::encode(d).len(),
-                    Share::Ops(c) => proto::msg::encode(c).len(),
-                };
-                budget = budget.saturating_sub(len);
-                out.push(RadioOut::Share { to: peer, msg });
+                let bytes = msg.encode();
+                budget = budget.saturating_sub(bytes.len());
+                out.push(RadioOut::Share {
+                    to: peer,
+                    msg,
+                    bytes,
+                });
             }
             *credit = budget;
         }
@@ -292,15 +301,21 @@ impl Agent {
         self.sent_by_type[class as usize] += bytes as u64;
     }
 
-    /// Accounts an op chunk of `bytes` encoded bytes: each op's bytes to its package type, the
-    /// chunk's header (ids, start index, count) to `conn`, the exchange's own overhead.
-    pub fn count_ops_sent(&mut self, c: &proto::msg::OpChunk, bytes: usize) {
-        let mut ops = 0;
-        for (kind, n) in crate::approx_exchange::op_bytes(c) {
-            self.count_sent(crate::mapper::traffic(kind), n);
-            ops += n;
+    /// Accounts a share of `bytes` encoded bytes: a scan delta to `scan`; an op chunk's ops each
+    /// to its package type and the chunk's header (ids, start index, count) to `conn`, the
+    /// exchange's own overhead.
+    pub fn count_share_sent(&mut self, share: &Share, bytes: usize) {
+        match share {
+            Share::Scans(_) => self.count_sent(Traffic::Scan, bytes),
+            Share::Ops(c) => {
+                let mut ops = 0;
+                for (kind, n) in crate::approx_exchange::op_bytes(c) {
+                    self.count_sent(crate::mapper::traffic(kind), n);
+                    ops += n;
+                }
+                self.count_sent(Traffic::Conn, bytes.saturating_sub(ops));
+            }
         }
-        self.count_sent(Traffic::Conn, bytes.saturating_sub(ops));
     }
 
     /// The robot saw no reachable frontier at its last step.

@@ -38,27 +38,15 @@ pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, Zeno
 /// handshakes make losses harmless.
 async fn send_radio(radio: &Session, agent: &mut Agent, out: Vec<RadioOut>) {
     for m in out {
-        let (key, bytes) = match &m {
+        let (key, bytes) = match m {
             RadioOut::Hello { to, msg } => {
-                let b = encode(msg);
+                let b = encode(&msg);
                 agent.count_sent(Traffic::Conn, b.len());
-                (keys::radio_hello(*to), b)
+                (keys::radio_hello(to), b)
             }
-            RadioOut::Share {
-                to,
-                msg: Share::Scans(d),
-            } => {
-                let b = encode(d);
-                agent.count_sent(Traffic::Scan, b.len());
-                (keys::radio_delta(*to), b)
-            }
-            RadioOut::Share {
-                to,
-                msg: Share::Ops(c),
-            } => {
-                let b = encode(c);
-                agent.count_ops_sent(c, b.len());
-                (keys::radio_ops(*to), b)
+            RadioOut::Share { to, msg, bytes } => {
+                agent.count_share_sent(&msg, bytes.len());
+                (msg.key(to), bytes)
             }
         };
         if let Err(e) = radio

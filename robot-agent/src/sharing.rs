@@ -32,6 +32,24 @@ pub enum Share {
     Ops(OpChunk),
 }
 
+impl Share {
+    /// The message as sent on the radio.
+    pub fn encode(&self) -> Vec<u8> {
+        match self {
+            Share::Scans(d) => encode(d),
+            Share::Ops(c) => encode(c),
+        }
+    }
+
+    /// The radio key it is sent on to robot `to`.
+    pub fn key(&self, to: RobotId) -> String {
+        match self {
+            Share::Scans(_) => proto::keys::radio_delta(to),
+            Share::Ops(_) => proto::keys::radio_ops(to),
+        }
+    }
+}
+
 /// A robot's side of the exchange, by mode.
 #[derive(Clone, Debug)]
 pub enum Sharing {
