@@ -31,6 +31,10 @@ pub struct MetricsRow {
     pub neighbours: usize,
     /// Payload bytes sent so far per traffic class ([`proto::msg::Traffic::ALL`] order).
     pub sent_by_type: Vec<u64>,
+    /// The splitting frequency for the next step (polygon exchange).
+    pub splits_per_step: Option<f64>,
+    /// The largest backlog of any neighbour after the step's sending (bytes that waited).
+    pub backlog_bytes: u64,
 }
 
 pub struct Evaluator {
@@ -128,6 +132,8 @@ impl Evaluator {
             idle: t.idle,
             neighbours: t.neighbours.len(),
             sent_by_type: t.sent_by_type.clone(),
+            splits_per_step: t.splits_per_step,
+            backlog_bytes: t.backlog_bytes.iter().map(|&(_, b)| b).max().unwrap_or(0),
         });
         self.last.insert(t.robot, (grid, t));
     }
@@ -154,6 +160,8 @@ mod tests {
             neighbours: vec![],
             decode_errors: 0,
             sent_by_type: vec![],
+            splits_per_step: None,
+            backlog_bytes: vec![],
         }
     }
 

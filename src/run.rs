@@ -418,6 +418,13 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         .values()
         .map(|(_, t)| t.sent_by_type.clone())
         .collect();
+    let by_type = bytes_by_type(&per_robot_types);
+    let backlogs: Vec<u64> = eval
+        .rows
+        .iter()
+        .filter(|r| r.neighbours > 0)
+        .map(|r| r.backlog_bytes)
+        .collect();
     let summary = Summary {
         schema_version: SCHEMA_VERSION,
         complete: eval.exploration_step.is_some(),
@@ -437,7 +444,19 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
                 .unwrap_or_else(|| links.wire_total()),
         ),
         bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum(),
-        bytes_by_type: bytes_by_type(&per_robot_types),
+        traffic_shares_pct: crate::rundir::traffic_shares(&by_type),
+        bytes_by_type: by_type,
+        splits_per_step_final: eval
+            .last
+            .iter()
+            .map(|(r, (_, t))| (r.to_string(), t.splits_per_step))
+            .collect(),
+        backlog_max_bytes: backlogs.iter().copied().max().unwrap_or(0),
+        backlog_mean_bytes: if backlogs.is_empty() {
+            0.0
+        } else {
+            backlogs.iter().sum::<u64>() as f64 / backlogs.len() as f64
+        },
         // Mean over the robots of their own e_avg (polygon exchange only).
         approx_error_avg: {
             let e: Vec<f64> = eval

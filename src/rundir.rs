@@ -13,7 +13,7 @@ use serde::Serialize;
 use crate::evaluate::{MetricsRow, THRESHOLDS};
 
 /// Version of the run-directory schema, written into `summary.json`.
-pub const SCHEMA_VERSION: u32 = 2;
+pub const SCHEMA_VERSION: u32 = 3;
 
 /// `summary.json`.
 #[derive(Debug, Serialize)]
@@ -37,6 +37,15 @@ pub struct Summary {
     /// Thesis eq. 6.1, the mean over the robots of their own approximation's e_avg; `null`
     /// unless `exchange.mode = "polygon"`.
     pub approx_error_avg: Option<f64>,
+    /// Thesis Tables 6.2–6.6: each package type's share of the polygon exchange's payload bytes,
+    /// in percent, with the vertex / object / overhead sums; `null` without polygon traffic.
+    pub traffic_shares_pct: Option<BTreeMap<String, f64>>,
+    /// Per robot, the splitting frequency s it ended with (polygon exchange; thesis §5.3).
+    pub splits_per_step_final: BTreeMap<String, Option<f64>>,
+    /// What waited for links: the largest backlog (bytes of log entries a neighbour lacked after
+    /// a robot's sending) over the run, and its mean over robot-steps that had neighbours.
+    pub backlog_max_bytes: u64,
+    pub backlog_mean_bytes: f64,
     /// Per robot, per owner: how many records of the owner's log the robot held at the end.
     pub logs_held: BTreeMap<String, BTreeMap<String, u32>>,
     pub collisions: u64,
@@ -52,6 +61,43 @@ pub fn coverage_steps(reached: &BTreeMap<u32, u32>) -> BTreeMap<String, Option<u
         .iter()
         .map(|t| (t.to_string(), reached.get(t).copied()))
         .collect()
+}
+
+/// The groups of Tables 6.2–6.6 and their members.
+const SHARE_GROUPS: [(&str, [&str; 3]); 3] = [
+    ("vertex", ["ins", "rep", "del"]),
+    ("object", ["em", "chg", "rm"]),
+    ("overhead", ["conn", "targ", "save"]),
+];
+
+/// Each package type's share of the polygon exchange's bytes (`by_type` as in `summary.json`),
+/// with the group sums, in percent; `None` if no vertex or object bytes were sent.
+pub fn traffic_shares(by_type: &BTreeMap<String, u64>) -> Option<BTreeMap<String, f64>> {
+    let get = |k: &str| by_type.get(k).copied().unwrap_or(0) as f64;
+    let polygon: f64 = SHARE_GROUPS[..2]
+        .iter()
+        .flat_map(|(_, m)| m.iter())
+        .map(|k| get(k))
+        .sum();
+    if polygon == 0.0 {
+        return None;
+    }
+    let total: f64 = SHARE_GROUPS
+        .iter()
+        .flat_map(|(_, m)| m.iter())
+        .map(|k| get(k))
+        .sum();
+    let mut out = BTreeMap::new();
+    for (group, members) in SHARE_GROUPS {
+        let mut sum = 0.0;
+        for k in members {
+            let pct = 100.0 * get(k) / total;
+            sum += pct;
+            out.insert(k.to_string(), pct);
+        }
+        out.insert(group.to_string(), sum);
+    }
+    Some(out)
 }
 
 pub fn bytes_by_type(per_robot: &[Vec<u64>]) -> BTreeMap<String, u64> {
@@ -78,7 +124,7 @@ pub fn write_summary(dir: &Path, s: &Summary) -> anyhow::Result<()> {
 /// `metrics.csv`: one row per robot and step, in the order telemetry arrived.
 pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
     let mut s = String::from(
-        "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours\n",
+        "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes\n",
     );
     let mut sorted: Vec<&MetricsRow> = rows.iter().collect();
     sorted.sort_by_key(|r| (r.step, r.robot));
@@ -88,7 +134,7 @@ pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
         });
         let _ = writeln!(
             s,
-            "{},{},{:.3},{:.3},{},{},{},{},{},{},{:.3},{},{}",
+            "{},{},{:.3},{:.3},{},{},{},{},{},{},{:.3},{},{},{},{}",
             r.step,
             r.robot,
             r.x,
@@ -101,7 +147,10 @@ pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
             r.bytes_received,
             r.coverage_pct,
             u8::from(r.idle),
-            r.neighbours
+            r.neighbours,
+            r.splits_per_step
+                .map_or(String::new(), |s| format!("{s:.4}")),
+            r.backlog_bytes
         );
     }
     std::fs::write(dir.join("metrics.csv"), s).context("writing metrics.csv")

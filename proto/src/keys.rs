@@ -61,6 +61,11 @@ pub fn radio_ops(to: RobotId) -> String {
     format!("radio/{to}/ops")
 }
 
+/// Radio: target announcements (`targ`) addressed to robot `to`.
+pub fn radio_targ(to: RobotId) -> String {
+    format!("radio/{to}/targ")
+}
+
 /// The robot id at the end of a key such as `sim/alive/3` or `sim/telemetry/3`, or the middle
 /// of `sim/robot/3/cmd`.
 pub fn robot_of(key: &str) -> Option<RobotId> {

@@ -11,7 +11,7 @@ use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use crate::geom::{LaserSpec, MapInfo, Pose};
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -119,6 +119,11 @@ pub struct Telemetry {
     pub logs: Vec<(RobotId, u32)>,
     /// e_avg of the robot's own approximation so far (polygon exchange; eq. 6.1).
     pub approx_error_avg: Option<f64>,
+    /// The splitting frequency s for the next step (polygon exchange; thesis §5.3).
+    pub splits_per_step: Option<f64>,
+    /// Per neighbour, the bytes of log entries it still lacked after this step's sending: what
+    /// waits for that link.
+    pub backlog_bytes: Vec<(RobotId, u64)>,
 }
 
 /// The classes every radio payload byte is accounted to: the nine package types of thesis
@@ -204,6 +209,15 @@ pub enum Control {
 pub struct Hello {
     pub from: RobotId,
     pub knowledge: Vec<(RobotId, u32)>,
+}
+
+/// Radio: the target a robot chose (thesis `targ`), sent to the robots in range when it changes
+/// and on link-up; `cell` is `None` while the robot has no target. Not relayed.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Target {
+    pub from: RobotId,
+    pub step: Step,
+    pub cell: Option<(i32, i32)>,
 }
 
 /// One laser scan as shared on the radio in the `raw-scans` exchange. Ranges are quantized to
@@ -375,6 +389,8 @@ mod tests {
             sent_by_type: vec![0, 0, 0, 0, 0, 0, 40, 0, 0, 960],
             logs: vec![(0, 12), (1, 3)],
             approx_error_avg: Some(0.05),
+            splits_per_step: Some(1.5),
+            backlog_bytes: vec![(0, 300), (1, 0)],
         });
         round_trip(Control::Stop);
         round_trip(LinkReport {
@@ -394,6 +410,16 @@ mod tests {
         round_trip(Hello {
             from: 1,
             knowledge: vec![(0, 5), (1, 7)],
+        });
+        round_trip(Target {
+            from: 2,
+            step: 40,
+            cell: Some((-3, 120)),
+        });
+        round_trip(Target {
+            from: 2,
+            step: 41,
+            cell: None,
         });
         round_trip(ScanDelta {
             from: 1,
@@ -427,6 +453,8 @@ mod tests {
             let _ = decode::<Telemetry>(&bytes);
             let _ = decode::<ScanDelta>(&bytes);
             let _ = decode::<Hello>(&bytes);
+            let _ = decode::<Target>(&bytes);
+            let _ = decode::<OpChunk>(&bytes);
             let _ = decode::<Scan>(&bytes);
             let _ = decode::<Status>(&bytes);
         }

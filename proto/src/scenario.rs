@@ -24,6 +24,7 @@ pub struct Scenario {
     pub sensor: Sensor,
     pub radio: Radio,
     pub exchange: Exchange,
+    pub bandwidth: Bandwidth,
     pub coordination: Coordination,
     pub netem: Netem,
     /// Faults netem applies when the run reaches a step: `[[faults]]` tables with `step`, `kind`
@@ -142,6 +143,51 @@ pub enum ExchangeMode {
     GridSnapshots,
 }
 
+/// How the polygon exchange's splitting frequency s follows the bandwidth (thesis §5.3;
+/// DESIGN.md §4.7).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Bandwidth {
+    pub control: SplitControl,
+    /// u, the desired medium usage rate of eq. 5.5.
+    pub usage: f64,
+    /// s of the `fixed` control, and where `adaptive` starts when the formula has no value.
+    pub splits_per_step: f64,
+    /// Bounds on s (the formula's value under unlimited bandwidth is the maximum).
+    pub min_splits_per_step: f64,
+    pub max_splits_per_step: f64,
+    /// d before the robot has measured it: bytes of op log per split.
+    pub split_bytes_prior: f64,
+    /// p_comm of eq. 5.5; `None`: eq. 5.6 from the range and the map's extent.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub p_comm: Option<f64>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SplitControl {
+    /// Eq. 5.5 with d measured online (open loop in everything but d).
+    Formula,
+    /// Closed loop: s follows the measured backlog of what neighbours lack.
+    Adaptive,
+    /// s = `splits_per_step` throughout.
+    Fixed,
+}
+
+impl Default for Bandwidth {
+    fn default() -> Self {
+        Bandwidth {
+            control: SplitControl::Formula,
+            usage: 0.5,
+            splits_per_step: 2.0,
+            min_splits_per_step: 0.05,
+            max_splits_per_step: 8.0,
+            split_bytes_prior: 10.0,
+            p_comm: None,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Coordination {
@@ -171,6 +217,7 @@ impl Default for Scenario {
             sensor: Sensor::default(),
             radio: Radio::default(),
             exchange: Exchange::default(),
+            bandwidth: Bandwidth::default(),
             coordination: Coordination::default(),
             netem: Netem::default(),
             faults: Vec::new(),
@@ -426,6 +473,32 @@ impl Scenario {
             f64::from(s.exchange.hello_every_steps),
             1.0,
         )?;
+        let b = &s.bandwidth;
+        if !(b.usage > 0.0 && b.usage <= 1.0) {
+            return Err(invalid("bandwidth.usage", b.usage, "must be in (0, 1]"));
+        }
+        positive("bandwidth.min_splits_per_step", b.min_splits_per_step)?;
+        at_least(
+            "bandwidth.max_splits_per_step",
+            b.max_splits_per_step,
+            b.min_splits_per_step,
+        )?;
+        if !(b.splits_per_step >= b.min_splits_per_step
+            && b.splits_per_step <= b.max_splits_per_step)
+        {
+            return Err(invalid(
+                "bandwidth.splits_per_step",
+                b.splits_per_step,
+                &format!(
+                    "must be within [min_splits_per_step, max_splits_per_step] = [{}, {}]",
+                    b.min_splits_per_step, b.max_splits_per_step
+                ),
+            ));
+        }
+        positive("bandwidth.split_bytes_prior", b.split_bytes_prior)?;
+        if let Some(p) = b.p_comm.filter(|p| !(*p > 0.0 && *p <= 1.0)) {
+            return Err(invalid("bandwidth.p_comm", p, "must be in (0, 1]"));
+        }
         s.check_implemented()
     }
 

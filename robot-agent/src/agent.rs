@@ -10,11 +10,13 @@ use std::collections::{BTreeSet, HashMap};
 use proto::geom::{LaserSpec, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{
-    Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Telemetry, Traffic, WorldInfo,
+    Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Target, Telemetry, Traffic,
+    WorldInfo,
 };
 use proto::scenario::Scenario;
 
 use crate::grid::Evidence;
+use crate::pacing::Pacer;
 use crate::plan;
 use crate::sharing::{Share, Sharing};
 
@@ -24,6 +26,11 @@ pub enum RadioOut {
     Hello {
         to: RobotId,
         msg: Hello,
+    },
+    /// The robot's target (`targ`), to a robot in range.
+    Target {
+        to: RobotId,
+        msg: Target,
     },
     /// `bytes`: the share as encoded for the radio ([`Share::encode`]).
     Share {
@@ -77,17 +84,19 @@ pub struct Agent {
     rejections: u32,
     blacklist: HashMap<Cell, Step>,
     neighbours: BTreeSet<RobotId>,
-    /// Radio budget per link and step in bytes (`usize::MAX`: unlimited).
-    budget_per_step: usize,
-    /// The sender's own pacing: per neighbour, budget not yet spent. Each step adds
-    /// `budget_per_step`, up to `burst_bytes`; what is sent is taken off. On average a link is
-    /// offered no more than its bandwidth, whatever the robot would like to send, so queues in
-    /// netem and the kernel stay short and keep-alives are not stuck behind data.
-    credit: HashMap<RobotId, usize>,
-    /// The most credit a neighbour can hold: [`BURST_STEPS`] steps of budget, and at least the
-    /// largest single-scan delta (so a scan bigger than one step's budget still goes, every few
-    /// steps, instead of blocking the log forever).
-    burst_bytes: usize,
+    /// The sender's own pacing: per neighbour, a budget on the simulated clock of the link's
+    /// bandwidth with bursts of [`BURST_STEPS`] steps (and at least the largest single-scan
+    /// delta). On average a link is offered no more than its bandwidth, whatever the robot
+    /// would like to send, so queues in netem and the kernel stay short and keep-alives are not
+    /// stuck behind data.
+    pacer: Pacer,
+    /// Per neighbour, the bytes that waited for it after the last step's sending.
+    backlog: Vec<(RobotId, u64)>,
+    /// The target last announced to the robots in range (`None`: none announced yet).
+    announced: Option<Option<Cell>>,
+    /// Other robots' last announced targets and the step they were chosen at (thesis §4.5.1's
+    /// table; heard directly from robots in range).
+    pub others_targets: std::collections::BTreeMap<RobotId, (Option<Cell>, Step)>,
     hello_every_steps: u32,
     pub bytes_sent: u64,
     pub bytes_received: u64,
@@ -100,21 +109,21 @@ pub struct Agent {
 impl Agent {
     pub fn new(id: RobotId, world: WorldInfo, s: &Scenario) -> Agent {
         let empty = Grid::new(world.map.width, world.map.height, Occ::Unknown);
-        let per_step = s.radio.bandwidth_bytes_per_s as f64 * world.step_seconds;
-        let budget_per_step = if per_step <= 0.0 {
-            usize::MAX
-        } else {
-            (per_step as usize).max(1)
-        };
-        let burst_bytes = budget_per_step
-            .saturating_mul(BURST_STEPS)
-            .max(largest_delta_bytes(&world.laser));
+        let rate = Some(s.radio.bandwidth_bytes_per_s).filter(|&b| b > 0);
+        let per_step = rate.map(|b| b as f64 * world.step_seconds);
+        let burst_bytes = per_step
+            .map_or(0, |b| (b * BURST_STEPS as f64) as u64)
+            .max(largest_delta_bytes(&world.laser) as u64);
         Agent {
             id,
-            world,
             own_evidence: Evidence::new(&empty),
             own_changed: Vec::new(),
-            sharing: Sharing::new(s.exchange.mode, id, &empty),
+            sharing: Sharing::new(s, id, &world, per_step),
+            pacer: Pacer::new(rate, burst_bytes, world.step_seconds),
+            backlog: Vec::new(),
+            announced: None,
+            others_targets: Default::default(),
+            world,
             own: empty.clone(),
             planning: empty,
             pose: Pose::default(),
@@ -123,9 +132,6 @@ impl Agent {
             rejections: 0,
             blacklist: HashMap::new(),
             neighbours: BTreeSet::new(),
-            budget_per_step,
-            credit: HashMap::new(),
-            burst_bytes,
             hello_every_steps: s.exchange.hello_every_steps,
             bytes_sent: 0,
             bytes_received: 0,
@@ -202,44 +208,86 @@ impl Agent {
     pub fn radio_step(&mut self) -> Vec<RadioOut> {
         let mut out = Vec::new();
         let peers: Vec<RobotId> = self.neighbours.iter().copied().collect();
-        for peer in peers {
-            let credit = self.credit.entry(peer).or_insert(0);
-            let mut budget = credit
-                .saturating_add(self.budget_per_step)
-                .min(self.burst_bytes);
-            if self.step.is_multiple_of(self.hello_every_steps) {
+        self.pacer.at_step(self.step);
+        let hello_due = self.step.is_multiple_of(self.hello_every_steps);
+        let targ = (self.announced != Some(self.target)).then(|| self.target_msg());
+        self.announced = Some(self.target);
+        for &peer in &peers {
+            if !hello_due && targ.is_none() && !self.sharing.has_pending(peer) {
+                continue;
+            }
+            let budget = self.pacer.available(peer);
+            let mut spent = 0usize;
+            if let Some(msg) = &targ {
+                spent += proto::msg::encode(msg).len();
+                out.push(RadioOut::Target {
+                    to: peer,
+                    msg: msg.clone(),
+                });
+            }
+            if hello_due {
                 let msg = self.sharing.knowledge();
-                budget = budget.saturating_sub(proto::msg::encode(&msg).len());
+                spent += proto::msg::encode(&msg).len();
                 out.push(RadioOut::Hello { to: peer, msg });
             }
-            for msg in self.sharing.outgoing(peer, budget) {
+            for msg in self.sharing.outgoing(peer, budget.saturating_sub(spent)) {
                 let bytes = msg.encode();
-                budget = budget.saturating_sub(bytes.len());
+                spent += bytes.len();
                 out.push(RadioOut::Share {
                     to: peer,
                     msg,
                     bytes,
                 });
             }
-            *credit = budget;
+            self.pacer.spend(peer, spent);
         }
+        self.backlog = peers
+            .iter()
+            .filter_map(|&p| Some((p, self.sharing.backlog_bytes(p)?)))
+            .collect();
+        let largest = self.backlog.iter().map(|&(_, b)| b).max();
+        self.sharing.after_sending(largest);
         out
     }
 
-    /// A peer's radio liveliness token appeared: greet it with our knowledge vector.
+    /// The `targ` message for the current target.
+    fn target_msg(&self) -> Target {
+        Target {
+            from: self.id,
+            step: self.step,
+            cell: self.target.map(|c| (c.x, c.y)),
+        }
+    }
+
+    /// A peer's radio liveliness token appeared: greet it with our knowledge vector and target.
     pub fn link_up(&mut self, peer: RobotId) -> Vec<RadioOut> {
         if peer == self.id || !self.neighbours.insert(peer) {
             return Vec::new();
         }
         self.sharing.link_up(peer);
-        vec![RadioOut::Hello {
+        let mut out = vec![RadioOut::Hello {
             to: peer,
             msg: self.sharing.knowledge(),
-        }]
+        }];
+        if self.announced.is_some() {
+            out.push(RadioOut::Target {
+                to: peer,
+                msg: self.target_msg(),
+            });
+        }
+        out
+    }
+
+    /// A robot in range announced its target.
+    pub fn on_target(&mut self, t: &Target) {
+        if t.from != self.id {
+            let cell = t.cell.map(|(x, y)| Cell::new(x, y));
+            self.others_targets.insert(t.from, (cell, t.step));
+        }
     }
 
     pub fn link_down(&mut self, peer: RobotId) {
-        self.credit.remove(&peer);
+        self.pacer.forget(peer);
         if self.neighbours.remove(&peer) {
             self.sharing.link_down(peer);
         }
@@ -292,6 +340,8 @@ impl Agent {
             sent_by_type: self.sent_by_type.to_vec(),
             logs: self.sharing.knowledge().knowledge,
             approx_error_avg: self.sharing.approx_error_avg(),
+            splits_per_step: self.sharing.splits_per_step(),
+            backlog_bytes: self.backlog.clone(),
         }
     }
 

@@ -150,6 +150,13 @@ impl ApproxExchange {
     pub fn lag(&self, peer: RobotId) -> Option<u64> {
         self.logs.lag(peer)
     }
+
+    /// Encoded bytes of the ops we hold that `peer` lacks (one chunk per owner, headers aside):
+    /// what waits for that link. `None` before its handshake.
+    pub fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {
+        self.logs
+            .backlog(peer, |_, ops| wire::encode(ops).len() as u64)
+    }
 }
 
 /// The encoded bytes of each op in a chunk, by package type (for accounting).

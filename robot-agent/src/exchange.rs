@@ -218,16 +218,22 @@ impl<R: Clone> LogExchange<R> {
         self.logs.keys().copied()
     }
 
-    /// How many records we hold that `peer` lacks by S — the per-peer backlog for telemetry;
-    /// `None` before the peer's handshake.
+    /// How many records we hold that `peer` lacks by S — the per-peer backlog; `None` before
+    /// the peer's handshake.
     pub fn lag(&self, peer: RobotId) -> Option<u64> {
+        self.backlog(peer, |_, recs| recs.len() as u64)
+    }
+
+    /// What we hold that `peer` lacks by S, weighed per owner by `weigh` (given the lacking
+    /// suffix of that owner's log; e.g. its encoded bytes); `None` before the peer's handshake.
+    pub fn backlog(&self, peer: RobotId, weigh: impl Fn(RobotId, &[R]) -> u64) -> Option<u64> {
         let row = self.sent.get(&peer)?;
         Some(
             self.logs
                 .iter()
-                .map(|(owner, log)| {
-                    let known = row.get(owner).copied().unwrap_or(0);
-                    u64::from(len_u32(log).saturating_sub(known))
+                .map(|(&owner, log)| {
+                    let known = row.get(&owner).copied().unwrap_or(0) as usize;
+                    log.get(known..).map_or(0, |rest| weigh(owner, rest))
                 })
                 .sum(),
         )

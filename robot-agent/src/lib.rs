@@ -33,6 +33,8 @@ pub mod merge;
 pub mod node;
 /// The op log with save points and a receiver's replica (§4.2.3).
 pub mod oplog;
+/// Pacing: per-link byte budgets with governor on the simulated clock (§4.4).
+pub mod pacing;
 /// Path planning: Dijkstra costs, frontiers, waypoints.
 pub mod plan;
 /// Quarter-cell integer coordinates of contour vertices.
@@ -45,6 +47,8 @@ pub mod raw_scans;
 pub mod refine;
 /// What a robot shares over the radio, by exchange mode (DESIGN §4.8).
 pub mod sharing;
+/// The splitting frequency s from the bandwidth: eq. 5.5/5.6 or closed loop (§5.3).
+pub mod splitting;
 /// The compact wire encoding of delta ops (Table 6.1).
 pub mod wire;
 

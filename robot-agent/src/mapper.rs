@@ -72,6 +72,8 @@ pub struct StepReport {
     /// Ops appended this step (0 when A_t = A_{t−1}), and their encoded bytes in one chunk.
     pub ops: usize,
     pub bytes: usize,
+    /// Douglas–Peucker splits made this step.
+    pub splits: usize,
     /// d_t: cells where G_s and the rendered A_t differ (eq. 6.1).
     pub error_cells: usize,
     /// Cells of G_s that are not unknown.
@@ -148,6 +150,7 @@ impl Mapper {
             vertices: a.vertex_count(),
             ops,
             bytes,
+            splits: self.approximator.last_refinement().splits,
             error_cells,
             known_cells,
         };

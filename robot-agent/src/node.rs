@@ -7,7 +7,8 @@ use std::time::Duration;
 
 use proto::keys;
 use proto::msg::{
-    decode, encode, Control, Hello, OpChunk, RobotId, Scan, ScanDelta, Traffic, WorldInfo,
+    decode, encode, Control, Hello, OpChunk, RobotId, Scan, ScanDelta, Target, Traffic,
+    WorldInfo,
 };
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
@@ -43,6 +44,11 @@ async fn send_radio(radio: &Session, agent: &mut Agent, out: Vec<RadioOut>) {
                 let b = encode(&msg);
                 agent.count_sent(Traffic::Conn, b.len());
                 (keys::radio_hello(to), b)
+            }
+            RadioOut::Target { to, msg } => {
+                let b = encode(&msg);
+                agent.count_sent(Traffic::Targ, b.len());
+                (keys::radio_targ(to), b)
             }
             RadioOut::Share { to, msg, bytes } => {
                 agent.count_share_sent(&msg, bytes.len());
@@ -87,6 +93,10 @@ pub async fn run_robot(
         .map_err(zerr)?;
     let chunks = radio
         .declare_subscriber(keys::radio_ops(id))
+        .await
+        .map_err(zerr)?;
+    let targets = radio
+        .declare_subscriber(keys::radio_targ(id))
         .await
         .map_err(zerr)?;
     let peers = radio
@@ -146,6 +156,15 @@ pub async fn run_robot(
                 agent.bytes_received += bytes.len() as u64;
                 match decode::<OpChunk>(&bytes) {
                     Ok(c) => { let out = agent.on_share(c.from, &Share::Ops(c)); send_radio(&radio, &mut agent, out).await; }
+                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
+                }
+            }
+            sample = targets.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped) };
+                let bytes = sample.payload().to_bytes();
+                agent.bytes_received += bytes.len() as u64;
+                match decode::<Target>(&bytes) {
+                    Ok(t) => agent.on_target(&t),
                     Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
                 }
             }

@@ -11,8 +11,8 @@
 
 use proto::geom::{LaserSpec, MapInfo};
 use proto::grid::{Cell, Grid, Occ};
-use proto::msg::{encode, Hello, OpChunk, RobotId, Scan, ScanDelta};
-use proto::scenario::ExchangeMode;
+use proto::msg::{encode, Hello, OpChunk, RobotId, Scan, ScanDelta, WorldInfo};
+use proto::scenario::{ExchangeMode, RadioModel, Scenario};
 
 use crate::approx_exchange::ApproxExchange;
 use crate::exchange::DeltaOutcome;
@@ -20,10 +20,7 @@ use crate::grid::Evidence;
 use crate::mapper::Mapper;
 use crate::merge::merge;
 use crate::raw_scans::{scan_ranges, scan_record, RawScanExchange};
-
-/// Douglas–Peucker splits per step of the polygon mapper (the thesis's s; fixed until the
-/// splitting-frequency control of issue #5 lands).
-pub const SPLITS_PER_STEP: f64 = 2.0;
+use crate::splitting::{p_comm, SplittingFrequency};
 
 /// One message to a neighbour.
 #[derive(Clone, Debug, PartialEq)]
@@ -62,22 +59,40 @@ pub enum Sharing {
     Polygon {
         exchange: ApproxExchange,
         mapper: Box<Mapper>,
+        splitting: SplittingFrequency,
     },
 }
 
 impl Sharing {
-    /// Robot `me`'s sharing in `mode` for a map of `empty`'s size.
-    pub fn new(mode: ExchangeMode, me: RobotId, empty: &Grid) -> Sharing {
-        match mode {
-            ExchangeMode::Polygon => Sharing::Polygon {
-                exchange: ApproxExchange::new(me),
-                mapper: Box::new(Mapper::new(SPLITS_PER_STEP)),
-            },
+    /// Robot `me`'s sharing in scenario `s`'s exchange mode, in `world`, with a link budget of
+    /// `budget` bytes per step (`None`: unlimited).
+    pub fn new(s: &Scenario, me: RobotId, world: &WorldInfo, budget: Option<f64>) -> Sharing {
+        let empty = Grid::new(world.map.width, world.map.height, Occ::Unknown);
+        match s.exchange.mode {
+            ExchangeMode::Polygon => {
+                let m = &world.map;
+                let p = match s.radio.model {
+                    RadioModel::Always => 1.0,
+                    RadioModel::Disk | RadioModel::Pathloss => p_comm(
+                        s.radio.range_m,
+                        f64::from(m.width) * m.resolution_m,
+                        f64::from(m.height) * m.resolution_m,
+                        u32::from(world.robots),
+                    ),
+                };
+                let splitting =
+                    SplittingFrequency::new(&s.bandwidth, u32::from(world.robots), budget, p);
+                Sharing::Polygon {
+                    exchange: ApproxExchange::new(me),
+                    mapper: Box::new(Mapper::new(splitting.current())),
+                    splitting,
+                }
+            }
             // grid-snapshots is refused by the scenario check before a robot starts.
             ExchangeMode::RawScans | ExchangeMode::GridSnapshots => Sharing::RawScans {
                 exchange: RawScanExchange::new(me),
-                others: empty.clone(),
-                evidence: Evidence::new(empty),
+                evidence: Evidence::new(&empty),
+                others: empty,
             },
         }
     }
@@ -92,9 +107,15 @@ impl Sharing {
                     Err(e) => tracing::warn!("scan of step {} not shared: {e}", scan.step),
                 }
             }
-            Sharing::Polygon { exchange, mapper } => {
+            Sharing::Polygon {
+                exchange,
+                mapper,
+                splitting,
+            } => {
                 let first = mapper.log().len();
-                mapper.step(own, changed);
+                mapper.splits_per_step = splitting.current();
+                let report = mapper.step(own, changed);
+                splitting.record(report.splits, report.bytes);
                 exchange.record_own(mapper.log().since(first));
             }
         }
@@ -196,6 +217,42 @@ impl Sharing {
                 let peers: Vec<_> = exchange.approximations().map(|(_, a)| a).collect();
                 merge(own, &peers)
             }
+        }
+    }
+
+    /// Whether we hold log entries `peer` lacks (`false` before its handshake).
+    pub fn has_pending(&self, peer: RobotId) -> bool {
+        let lag = match self {
+            Sharing::RawScans { exchange, .. } => exchange.lag(peer),
+            Sharing::Polygon { exchange, .. } => exchange.lag(peer),
+        };
+        lag.is_some_and(|n| n > 0)
+    }
+
+    /// What waits for `peer`: encoded bytes of the log entries we hold that it lacks (`None`
+    /// before its handshake).
+    pub fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {
+        match self {
+            Sharing::RawScans { exchange, .. } => exchange.backlog(peer, |_, recs| {
+                recs.iter().map(|r| encode(r).len() as u64).sum()
+            }),
+            Sharing::Polygon { exchange, .. } => exchange.backlog_bytes(peer),
+        }
+    }
+
+    /// The end of a step's sending: the largest backlog of any neighbour (`None`: no
+    /// neighbour) feeds the adaptive splitting control.
+    pub fn after_sending(&mut self, largest_backlog: Option<u64>) {
+        if let Sharing::Polygon { splitting, .. } = self {
+            splitting.backlog(largest_backlog);
+        }
+    }
+
+    /// The splitting frequency s for the next step (polygon mode).
+    pub fn splits_per_step(&self) -> Option<f64> {
+        match self {
+            Sharing::Polygon { splitting, .. } => Some(splitting.current()),
+            Sharing::RawScans { .. } => None,
         }
     }
 

@@ -1,0 +1,200 @@
+//! Pacing (DESIGN.md §4.4): a robot never offers a link more than its budget. Per neighbour, a
+//! governor rate limiter (GCRA) on the **simulated** clock meters the bytes the robot sends: the
+//! rate is the link's bandwidth, the burst a few steps of it (and at least one whole log entry,
+//! so an entry larger than one step's budget still goes every few steps instead of blocking the
+//! log forever). What does not fit waits in the logs; [`crate::sharing`] reports how much.
+//!
+//! Governor answers "may these n bytes pass now?", while the exchange needs "how many bytes may
+//! pass now?" to fill a message. So [`Pacer::available`] takes one byte as a probe, which tells
+//! the remaining burst capacity, and holds that byte for the next [`Pacer::spend`]: nothing is
+//! lost or granted twice.
+
+use std::collections::HashMap;
+use std::num::NonZeroU32;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use governor::clock::Clock;
+use governor::middleware::StateInformationMiddleware;
+use governor::nanos::Nanos;
+use governor::state::{InMemoryState, NotKeyed};
+use governor::{Quota, RateLimiter};
+use proto::msg::{RobotId, Step};
+
+/// The robot's simulated time: the step it is at times the step length.
+#[derive(Clone, Debug, Default)]
+pub struct SimClock(Arc<AtomicU64>);
+
+impl SimClock {
+    pub fn set_ns(&self, ns: u64) {
+        self.0.store(ns, Ordering::Relaxed);
+    }
+}
+
+impl Clock for SimClock {
+    type Instant = Nanos;
+
+    fn now(&self) -> Nanos {
+        Nanos::from(self.0.load(Ordering::Relaxed))
+    }
+}
+
+type Limiter = RateLimiter<NotKeyed, InMemoryState, SimClock, StateInformationMiddleware>;
+
+/// Cell rates above this are metered in multi-byte cells (governor's period is whole ns).
+const MAX_CELLS_PER_S: u64 = 1_000_000;
+
+/// Per-neighbour byte budgets on the simulated clock.
+pub struct Pacer {
+    /// `None`: unlimited bandwidth, nothing is metered.
+    quota: Option<(Quota, u64)>,
+    step_ns: u64,
+    clock: SimClock,
+    /// Per neighbour: its limiter and the probe bytes held for the next spend.
+    links: HashMap<RobotId, (Limiter, u64)>,
+}
+
+impl Pacer {
+    /// Budgets of `rate_bytes_per_s` (`None`: unlimited) per link with bursts of `burst_bytes`,
+    /// for steps of `step_seconds` simulated seconds.
+    pub fn new(rate_bytes_per_s: Option<u64>, burst_bytes: u64, step_seconds: f64) -> Pacer {
+        let quota = rate_bytes_per_s.filter(|&r| r > 0).map(|rate| {
+            let cell_bytes = rate.div_ceil(MAX_CELLS_PER_S);
+            let period_ns = ((1e9 * cell_bytes as f64 / rate as f64).round() as u64).max(1);
+            let burst_cells = burst_bytes.div_ceil(cell_bytes).clamp(1, u64::from(u32::MAX)) as u32;
+            let q = Quota::with_period(std::time::Duration::from_nanos(period_ns))
+                .unwrap_or_else(|| Quota::per_second(NonZeroU32::MIN))
+                .allow_burst(NonZeroU32::new(burst_cells).unwrap_or(NonZeroU32::MIN));
+            (q, cell_bytes)
+        });
+        Pacer {
+            quota,
+            step_ns: (step_seconds.max(0.0) * 1e9).round() as u64,
+            clock: SimClock::default(),
+            links: HashMap::new(),
+        }
+    }
+
+    /// Simulated time moves on to `step`.
+    pub fn at_step(&self, step: Step) {
+        self.clock.set_ns(u64::from(step).saturating_mul(self.step_ns));
+    }
+
+    /// Bytes `peer`'s link may carry now (`usize::MAX` if unlimited).
+    pub fn available(&mut self, peer: RobotId) -> usize {
+        let Some((quota, cell)) = self.quota else {
+            return usize::MAX;
+        };
+        let (lim, held) = self.links.entry(peer).or_insert_with(|| {
+            let lim = RateLimiter::direct_with_clock(quota, self.clock.clone())
+                .with_middleware::<StateInformationMiddleware>();
+            (lim, 0)
+        });
+        match lim.check_n(NonZeroU32::MIN) {
+            Ok(Ok(snap)) => {
+                *held += cell;
+                usize::try_from(*held + u64::from(snap.remaining_burst_capacity()) * cell)
+                    .unwrap_or(usize::MAX)
+            }
+            _ => usize::try_from(*held).unwrap_or(usize::MAX),
+        }
+    }
+
+    /// `bytes` were sent to `peer`: they are taken off its budget, as far as it reaches (a
+    /// handshake is sent even when the budget is spent). Call after [`Pacer::available`].
+    pub fn spend(&mut self, peer: RobotId, bytes: usize) {
+        let Some((_, cell)) = self.quota else { return };
+        let Some((lim, held)) = self.links.get_mut(&peer) else {
+            return;
+        };
+        let bytes = bytes as u64;
+        let from_held = bytes.min(*held);
+        *held -= from_held;
+        let mut cells = (bytes - from_held).div_ceil(cell);
+        while cells > 0 {
+            let n = u32::try_from(cells).unwrap_or(u32::MAX);
+            match lim.check_n(NonZeroU32::new(n).unwrap_or(NonZeroU32::MIN)) {
+                Ok(Ok(_)) => cells -= u64::from(n),
+                // Over the budget: take what is left, one probe at a time tells how much.
+                _ => match lim.check_n(NonZeroU32::MIN) {
+                    Ok(Ok(snap)) => {
+                        let rest = snap.remaining_burst_capacity().min(n.saturating_sub(1));
+                        if let Some(r) = NonZeroU32::new(rest) {
+                            let _ = lim.check_n(r);
+                        }
+                        break;
+                    }
+                    _ => break,
+                },
+            }
+        }
+    }
+
+    /// The link to `peer` went down: its budget starts afresh at the next contact.
+    pub fn forget(&mut self, peer: RobotId) {
+        self.links.remove(&peer);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_link_gets_its_rate_per_simulated_second_and_no_more() {
+        // 1000 B/s, bursts of 4 steps of 1 s.
+        let mut p = Pacer::new(Some(1000), 4000, 1.0);
+        p.at_step(0);
+        assert_eq!(p.available(1), 4000, "a new link starts with a full burst");
+        p.spend(1, 4000);
+        assert_eq!(p.available(1), 0);
+        p.at_step(1);
+        let a = p.available(1);
+        assert_eq!(a, 1000);
+        p.spend(1, 300);
+        assert_eq!(p.available(1), 700, "the probe byte is not lost");
+        // Over 100 steps of sending all it may, a link carries 100 × rate (plus the start burst).
+        let mut sent = 0;
+        for step in 2..102 {
+            p.at_step(step);
+            let n = p.available(1);
+            p.spend(1, n);
+            sent += n;
+        }
+        assert_eq!(sent, 100 * 1000 + 700);
+        // Idle steps save up at most the burst.
+        p.at_step(200);
+        assert_eq!(p.available(1), 4000);
+    }
+
+    #[test]
+    fn spending_beyond_the_budget_empties_it_and_links_are_independent() {
+        let mut p = Pacer::new(Some(500), 1000, 1.0);
+        p.at_step(3);
+        assert_eq!(p.available(2), 1000);
+        p.spend(2, 5000);
+        assert_eq!(p.available(2), 0);
+        assert_eq!(p.available(3), 1000);
+        p.forget(2);
+        assert_eq!(p.available(2), 1000);
+    }
+
+    #[test]
+    fn unlimited_meters_nothing() {
+        let mut p = Pacer::new(None, 0, 1.0);
+        assert_eq!(p.available(1), usize::MAX);
+        p.spend(1, 1 << 30);
+        assert_eq!(p.available(1), usize::MAX);
+    }
+
+    #[test]
+    fn fast_links_use_multi_byte_cells_and_keep_their_rate() {
+        let mut p = Pacer::new(Some(10_000_000), 40_000_000, 1.0);
+        p.at_step(0);
+        let a = p.available(1);
+        p.spend(1, a);
+        p.at_step(1);
+        let b = p.available(1);
+        assert!((b as f64 - 1e7).abs() < 1e7 * 0.001, "{b}");
+    }
+}
