@@ -2,14 +2,17 @@
 //!
 //! Exploration time is the first step at which some robot knows at least `done_pct` % of the
 //! truth's reachable free cells (the thesis: the first robot that knows the full map); the
-//! steps to 50/90/95/100 % are kept too. A cell counts as known-correct when the robot's state
+//! steps to 50/90/95/100 % are kept too. A reachable free cell is *known* when the robot's
+//! planning grid has it free or occupied: the polygon exchange's approximations may put a wall a
+//! cell off (that is their error e_avg, eq. 6.1), and the cell was explored all the same. Whether
+//! a known cell is also right is counted apart: a cell is known-correct when the robot's state
 //! agrees with the truth (truth-unknown space is opaque in the simulation, so a robot that marks
 //! it occupied is right).
 
 use std::collections::BTreeMap;
 
 use proto::grid::{Grid, Occ};
-use proto::msg::{RobotId, Step, Telemetry};
+use proto::msg::{RobotId, Step, Telemetry, View};
 
 /// Coverage thresholds reported in `summary.json` (`coverage_steps`).
 pub const THRESHOLDS: [u32; 4] = [50, 90, 95, 100];
@@ -51,6 +54,11 @@ pub struct Evaluator {
     /// The last decoded grid and telemetry of every robot.
     pub last: BTreeMap<RobotId, (Grid, Telemetry)>,
     pub bad_telemetry: u64,
+    /// Polygon exchange, for `saves.csv`: every save point a robot reported of its own log
+    /// (step, robot, log length, digest of A_t).
+    pub saves: Vec<(Step, RobotId, u32, u64)>,
+    /// For `views.csv`: every change of what a robot shows of another owner.
+    pub views: Vec<(Step, RobotId, View)>,
 }
 
 impl Evaluator {
@@ -68,6 +76,8 @@ impl Evaluator {
             best: (0.0, 0),
             last: BTreeMap::new(),
             bad_telemetry: 0,
+            saves: Vec::new(),
+            views: Vec::new(),
         }
     }
 
@@ -91,7 +101,7 @@ impl Evaluator {
             .zip(self.truth.cells())
             .zip(grid.cells())
         {
-            if r && seen == Occ::Free {
+            if r && seen != Occ::Unknown {
                 covered += 1;
             }
             let agrees = match seen {
@@ -135,6 +145,18 @@ impl Evaluator {
             splits_per_step: t.splits_per_step,
             backlog_bytes: t.backlog_bytes.iter().map(|&(_, b)| b).max().unwrap_or(0),
         });
+        let before = self.last.get(&t.robot).map(|(_, b)| b);
+        if let Some((len, digest)) = t.save {
+            if before.and_then(|b| b.save).map(|(l, _)| l) != Some(len) {
+                self.saves.push((t.step, t.robot, len, digest));
+            }
+        }
+        for v in &t.views {
+            let same = before.is_some_and(|b| b.views.iter().any(|w| w == v));
+            if !same {
+                self.views.push((t.step, t.robot, *v));
+            }
+        }
         self.last.insert(t.robot, (grid, t));
     }
 }
@@ -162,6 +184,9 @@ mod tests {
             sent_by_type: vec![],
             splits_per_step: None,
             backlog_bytes: vec![],
+            own_rle: vec![],
+            save: None,
+            views: vec![],
         }
     }
 

@@ -485,6 +485,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     write_summary(&dir, &summary)?;
     write_metrics(&dir, &eval.rows)?;
     crate::rundir::write_traffic(&dir, &eval.rows)?;
+    crate::rundir::write_saves_and_views(&dir, &eval.saves, &eval.views)?;
     write_links(&dir, &links.rows)?;
     let mut truth_pic = Picture::of_grid(&truth_grid, truth.map);
     for (i, t) in trajectories.iter().enumerate() {
@@ -504,6 +505,18 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
             }
         }
         pic.save(&dir.join(format!("robot_{id}.png")))?;
+    }
+    // Every robot's final planning grid and G_s as maps (grids/robot_<id>_{planning,own}.pgm).
+    let grids = dir.join("grids");
+    std::fs::create_dir_all(&grids).context("creating grids/")?;
+    for (id, (planning, t)) in &eval.last {
+        crate::rundir::write_pgm(&grids.join(format!("robot_{id}_planning.pgm")), planning)?;
+        match Grid::from_rle(&t.own_rle) {
+            Ok(own) => crate::rundir::write_pgm(&grids.join(format!("robot_{id}_own.pgm")), &own)?,
+            Err(e) => progress.event(&format!(
+                "swarm run: robot {id}'s own grid is unreadable: {e}"
+            )),
+        }
     }
     Ok(Outcome { dir, summary })
 }

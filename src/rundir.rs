@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::Context;
-use proto::msg::{LinkReport, LinkState, Step, Traffic};
+use proto::msg::{LinkReport, LinkState, RobotId, Step, Traffic};
 use serde::Serialize;
 
 use crate::evaluate::{MetricsRow, THRESHOLDS};
@@ -262,6 +262,31 @@ impl From<&Reconnects> for ReconnectSummary {
     }
 }
 
+/// `saves.csv` and `views.csv` (polygon exchange): every save point of every robot's own log
+/// (its length and the digest of the approximation there), and every change of what a robot
+/// shows of another owner (ops held, ops shown — up to a save point — and the digest of what it
+/// shows). A view is atomic when its (owner, shown, digest) is one of the owner's save points.
+pub fn write_saves_and_views(
+    dir: &Path,
+    saves: &[(Step, RobotId, u32, u64)],
+    views: &[(Step, RobotId, proto::msg::View)],
+) -> anyhow::Result<()> {
+    let mut s = String::from("step,robot,log_len,digest\n");
+    for (step, robot, len, digest) in saves {
+        let _ = writeln!(s, "{step},{robot},{len},{digest:016x}");
+    }
+    std::fs::write(dir.join("saves.csv"), s).context("writing saves.csv")?;
+    let mut s = String::from("step,robot,owner,held,shown,digest\n");
+    for (step, robot, v) in views {
+        let _ = writeln!(
+            s,
+            "{step},{robot},{},{},{},{:016x}",
+            v.owner, v.held, v.shown, v.digest
+        );
+    }
+    std::fs::write(dir.join("views.csv"), s).context("writing views.csv")
+}
+
 /// `traffic_by_type.csv`: per step and robot, the payload bytes the robot sent during the step
 /// by traffic class (thesis Table 6.1's package types, `conn`, `targ`, and `scan`).
 pub fn write_traffic(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
@@ -434,4 +459,23 @@ mod tests {
             (2, Some(2), Some(1.0))
         );
     }
+}
+
+/// Writes `grid` as a map_server PGM (P5; free 254, occupied 0, unknown 205; the top row is the
+/// largest y), so that a robot's final map can be loaded like any other map.
+pub fn write_pgm(path: &Path, grid: &proto::grid::Grid) -> anyhow::Result<()> {
+    use proto::grid::{Cell, Occ};
+    let (w, h) = (grid.width(), grid.height());
+    let mut out = format!("P5\n{w} {h}\n255\n").into_bytes();
+    out.reserve(w as usize * h as usize);
+    for y in (0..h as i32).rev() {
+        for x in 0..w as i32 {
+            out.push(match grid.get(Cell::new(x, y)) {
+                Occ::Free => 254,
+                Occ::Occupied => 0,
+                Occ::Unknown => 205,
+            });
+        }
+    }
+    std::fs::write(path, out).with_context(|| format!("writing {}", path.display()))
 }

@@ -5,32 +5,7 @@ use std::collections::HashMap;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use crate::support::{stderr, summary, swarm_run, Launcher, TempDir, SWARM};
-
-fn csv(path: &std::path::Path) -> Vec<HashMap<String, String>> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut lines = text.lines();
-    let head: Vec<String> = lines
-        .next()
-        .unwrap_or_default()
-        .split(',')
-        .map(str::to_string)
-        .collect();
-    lines
-        .map(|l| {
-            head.iter()
-                .cloned()
-                .zip(l.split(',').map(str::to_string))
-                .collect()
-        })
-        .collect()
-}
-
-fn num(row: &HashMap<String, String>, k: &str) -> f64 {
-    row.get(k)
-        .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| panic!("column {k} in {row:?}"))
-}
+use crate::support::{csv, num, stderr, summary, swarm_run, Launcher, TempDir, SWARM};
 
 /// An 8-robot run with a 6 m disk range; returns its run directory (kept by `dir`).
 fn ranged_run(dir: &TempDir) -> std::path::PathBuf {

@@ -169,3 +169,49 @@ pub fn stderr(o: &Output) -> String {
 pub fn free_ports(n: usize) -> Vec<u16> {
     swarm::ports::free_ports(n).expect("free ports")
 }
+
+/// A CSV file of the run directory as rows of column → value.
+pub fn csv(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let head: Vec<String> = lines
+        .next()
+        .unwrap_or_default()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    lines
+        .map(|l| {
+            head.iter()
+                .cloned()
+                .zip(l.split(',').map(str::to_string))
+                .collect()
+        })
+        .collect()
+}
+
+/// A numeric column of a [`csv`] row.
+pub fn num(row: &std::collections::HashMap<String, String>, k: &str) -> f64 {
+    row.get(k)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("column {k} in {row:?}"))
+}
+
+/// The cells of a map_server PGM the launcher wrote (`grids/…`): 254 free, 0 occupied, 205
+/// unknown.
+pub fn pgm(path: &Path) -> Vec<u8> {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut fields = 0;
+    let mut i = 0;
+    // Header: magic, width, height, maxval, each followed by whitespace.
+    while fields < 4 && i < bytes.len() {
+        while i < bytes.len() && bytes[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        while i < bytes.len() && !bytes[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        fields += 1;
+    }
+    bytes[i + 1..].to_vec()
+}

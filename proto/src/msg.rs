@@ -124,6 +124,25 @@ pub struct Telemetry {
     /// Per neighbour, the bytes of log entries it still lacked after this step's sending: what
     /// waits for that link.
     pub backlog_bytes: Vec<(RobotId, u64)>,
+    /// G_s, the self-explored grid, run-length encoded like `grid_rle` (what the robot sensed
+    /// itself, against which the launcher shows what it learned from others).
+    pub own_rle: Vec<u8>,
+    /// Polygon exchange: the robot's own log length after this step's save point and the digest
+    /// of its approximation A_t there.
+    pub save: Option<(u32, u64)>,
+    /// Polygon exchange: what the robot shows of every other owner.
+    pub views: Vec<View>,
+}
+
+/// A receiver's view of another owner's approximation (telemetry): `held` ops of the owner's
+/// log, of which the first `shown` end at a save point and make up the approximation shown
+/// (digest `digest`, comparable with the owner's [`Telemetry::save`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct View {
+    pub owner: RobotId,
+    pub held: u32,
+    pub shown: u32,
+    pub digest: u64,
 }
 
 /// The classes every radio payload byte is accounted to: the nine package types of thesis
@@ -391,6 +410,14 @@ mod tests {
             approx_error_avg: Some(0.05),
             splits_per_step: Some(1.5),
             backlog_bytes: vec![(0, 300), (1, 0)],
+            own_rle: vec![9, 9],
+            save: Some((40, 0xdead_beef)),
+            views: vec![View {
+                owner: 0,
+                held: 12,
+                shown: 10,
+                digest: 7,
+            }],
         });
         round_trip(Control::Stop);
         round_trip(LinkReport {

@@ -10,8 +10,7 @@ use std::collections::{BTreeSet, HashMap};
 use proto::geom::{LaserSpec, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{
-    Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Target, Telemetry, Traffic,
-    WorldInfo,
+    Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Target, Telemetry, Traffic, WorldInfo,
 };
 use proto::scenario::Scenario;
 
@@ -342,6 +341,9 @@ impl Agent {
             approx_error_avg: self.sharing.approx_error_avg(),
             splits_per_step: self.sharing.splits_per_step(),
             backlog_bytes: self.backlog.clone(),
+            own_rle: self.own.to_rle(),
+            save: self.sharing.own_save(),
+            views: self.sharing.views(),
         }
     }
 

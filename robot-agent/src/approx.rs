@@ -52,6 +52,30 @@ pub struct Approximation {
 }
 
 impl Approximation {
+    /// A 64-bit FNV-1a digest of the objects (ids, kinds, vertices and f_occ, in id order):
+    /// equal approximations have equal digests, so an owner and a receiver can compare theirs
+    /// from afar (telemetry) without shipping the polygons.
+    pub fn digest(&self) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            for &b in bytes {
+                h ^= u64::from(b);
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        for (id, poly) in &self.objects {
+            eat(&id.to_le_bytes());
+            eat(&[u8::from(poly.kind == Kind::Outside)]);
+            eat(&(poly.vertices.len() as u64).to_le_bytes());
+            for v in &poly.vertices {
+                eat(&v.p.x.to_le_bytes());
+                eat(&v.p.y.to_le_bytes());
+                eat(&[v.occ as u8]);
+            }
+        }
+        h
+    }
+
     /// The unsimplified approximation: every point of P_t is a vertex (ids are object indices).
     pub fn exact(p: &Contours) -> Approximation {
         let objects = p

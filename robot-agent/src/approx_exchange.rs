@@ -11,7 +11,7 @@
 
 use std::collections::BTreeMap;
 
-use proto::msg::{Hello, LogDelta, OpChunk, RobotId};
+use proto::msg::{Hello, LogDelta, OpChunk, RobotId, View};
 
 use crate::approx::Approximation;
 use crate::delta::Op;
@@ -32,8 +32,18 @@ pub enum ChunkError {
 #[derive(Clone, Debug)]
 pub struct ApproxExchange {
     logs: LogExchange<Op>,
-    /// Per other owner: its approximation rebuilt from its log, and how many ops were applied.
-    replicas: BTreeMap<RobotId, (Replica, usize)>,
+    /// Per other owner: its approximation rebuilt from its log.
+    replicas: BTreeMap<RobotId, Follower>,
+}
+
+/// Another owner's approximation as rebuilt here.
+#[derive(Clone, Debug, Default)]
+struct Follower {
+    replica: Replica,
+    /// Ops of the owner's log applied, and how many of them up to the last save point (what
+    /// the committed approximation reflects).
+    applied: usize,
+    shown: usize,
 }
 
 impl ApproxExchange {
@@ -116,9 +126,9 @@ impl ApproxExchange {
             return;
         }
         let log = self.logs.log(owner);
-        let (replica, applied) = self.replicas.entry(owner).or_default();
-        for op in log.get(*applied..).unwrap_or_default() {
-            if let Err(e) = replica.apply(op) {
+        let f = self.replicas.entry(owner).or_default();
+        for op in log.get(f.applied..).unwrap_or_default() {
+            if let Err(e) = f.replica.apply(op) {
                 if !matches!(e, crate::oplog::ApplyError::Poisoned) {
                     tracing::warn!(
                         "ops of robot {owner} do not apply ({e}): its map stays as it was"
@@ -126,19 +136,38 @@ impl ApproxExchange {
                 }
                 break;
             }
-            *applied += 1;
+            f.applied += 1;
+            if *op == Op::Save {
+                f.shown = f.applied;
+            }
         }
+    }
+
+    /// Per other owner: how many ops of its log we hold, how many of them the approximation we
+    /// show reflects (up to the last save point), and that approximation's digest.
+    pub fn views(&self) -> Vec<View> {
+        self.replicas
+            .iter()
+            .map(|(&owner, f)| View {
+                owner,
+                held: u32::try_from(self.logs.log(owner).len()).unwrap_or(u32::MAX),
+                shown: u32::try_from(f.shown).unwrap_or(u32::MAX),
+                digest: f.replica.committed().digest(),
+            })
+            .collect()
     }
 
     /// `owner`'s approximation at the last save point we hold (`None` for ourselves and for
     /// owners we have not heard of).
     pub fn approximation(&self, owner: RobotId) -> Option<&Approximation> {
-        self.replicas.get(&owner).map(|(r, _)| r.committed())
+        self.replicas.get(&owner).map(|f| f.replica.committed())
     }
 
     /// Every other owner's approximation at its last save point we hold, in id order.
     pub fn approximations(&self) -> impl Iterator<Item = (RobotId, &Approximation)> {
-        self.replicas.iter().map(|(&o, (r, _))| (o, r.committed()))
+        self.replicas
+            .iter()
+            .map(|(&o, f)| (o, f.replica.committed()))
     }
 
     /// The prefix of `owner`'s op log we hold.

@@ -7,8 +7,7 @@ use std::time::Duration;
 
 use proto::keys;
 use proto::msg::{
-    decode, encode, Control, Hello, OpChunk, RobotId, Scan, ScanDelta, Target, Traffic,
-    WorldInfo,
+    decode, encode, Control, Hello, OpChunk, RobotId, Scan, ScanDelta, Target, Traffic, WorldInfo,
 };
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;

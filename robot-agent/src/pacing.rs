@@ -61,7 +61,9 @@ impl Pacer {
         let quota = rate_bytes_per_s.filter(|&r| r > 0).map(|rate| {
             let cell_bytes = rate.div_ceil(MAX_CELLS_PER_S);
             let period_ns = ((1e9 * cell_bytes as f64 / rate as f64).round() as u64).max(1);
-            let burst_cells = burst_bytes.div_ceil(cell_bytes).clamp(1, u64::from(u32::MAX)) as u32;
+            let burst_cells = burst_bytes
+                .div_ceil(cell_bytes)
+                .clamp(1, u64::from(u32::MAX)) as u32;
             let q = Quota::with_period(std::time::Duration::from_nanos(period_ns))
                 .unwrap_or_else(|| Quota::per_second(NonZeroU32::MIN))
                 .allow_burst(NonZeroU32::new(burst_cells).unwrap_or(NonZeroU32::MIN));
@@ -77,7 +79,8 @@ impl Pacer {
 
     /// Simulated time moves on to `step`.
     pub fn at_step(&self, step: Step) {
-        self.clock.set_ns(u64::from(step).saturating_mul(self.step_ns));
+        self.clock
+            .set_ns(u64::from(step).saturating_mul(self.step_ns));
     }
 
     /// Bytes `peer`'s link may carry now (`usize::MAX` if unlimited).

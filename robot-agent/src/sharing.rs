@@ -256,6 +256,25 @@ impl Sharing {
         }
     }
 
+    /// Polygon mode: our own log length after the last save point and the digest of A_t there.
+    pub fn own_save(&self) -> Option<(u32, u64)> {
+        match self {
+            Sharing::Polygon { mapper, .. } => Some((
+                u32::try_from(mapper.log().len()).unwrap_or(u32::MAX),
+                mapper.approximation().digest(),
+            )),
+            Sharing::RawScans { .. } => None,
+        }
+    }
+
+    /// Polygon mode: what we show of every other owner.
+    pub fn views(&self) -> Vec<proto::msg::View> {
+        match self {
+            Sharing::Polygon { exchange, .. } => exchange.views(),
+            Sharing::RawScans { .. } => Vec::new(),
+        }
+    }
+
     /// e_avg of the own approximation so far (polygon mode, thesis eq. 6.1).
     pub fn approx_error_avg(&self) -> Option<f64> {
         match self {

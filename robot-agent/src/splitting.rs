@@ -101,8 +101,14 @@ impl SplittingFrequency {
         if self.robots < 2 {
             return Some(self.max);
         }
-        formula(b, self.p_comm, self.usage, self.robots, self.bytes_per_split())
-            .map(|s| s.clamp(self.min, self.max))
+        formula(
+            b,
+            self.p_comm,
+            self.usage,
+            self.robots,
+            self.bytes_per_split(),
+        )
+        .map(|s| s.clamp(self.min, self.max))
     }
 
     /// The mapper made `splits` splits and appended `bytes` bytes of ops this step: d is
@@ -179,8 +185,14 @@ mod tests {
     #[test]
     fn unlimited_bandwidth_and_a_lone_robot_get_the_maximum() {
         let c = cfg(SplitControl::Formula);
-        assert_eq!(SplittingFrequency::new(&c, 4, None, 0.5).current(), c.max_splits_per_step);
-        assert_eq!(SplittingFrequency::new(&c, 1, Some(10.0), 0.5).current(), c.max_splits_per_step);
+        assert_eq!(
+            SplittingFrequency::new(&c, 4, None, 0.5).current(),
+            c.max_splits_per_step
+        );
+        assert_eq!(
+            SplittingFrequency::new(&c, 1, Some(10.0), 0.5).current(),
+            c.max_splits_per_step
+        );
     }
 
     #[test]
@@ -203,7 +215,10 @@ mod tests {
             f.backlog(Some(5000));
         }
         let low = f.current();
-        assert!(low < start * 0.1 && low >= c.min_splits_per_step, "{start} → {low}");
+        assert!(
+            low < start * 0.1 && low >= c.min_splits_per_step,
+            "{start} → {low}"
+        );
         f.backlog(None);
         assert_eq!(f.current(), low, "no neighbour, no change");
         f.backlog(Some(1000));
