@@ -398,6 +398,8 @@ mod tests {
                 idle: false,
                 neighbours: 0,
                 sent_by_type: v,
+                splits_per_step: None,
+                backlog_bytes: 0,
             }
         };
         let dir = std::env::temp_dir().join(format!("swarm-traffic-{}", std::process::id()));
@@ -414,15 +416,15 @@ mod tests {
         let got: Vec<&str> = text.lines().collect();
         assert_eq!(
             got[0],
-            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan"
+            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells"
         );
         assert_eq!(
             &got[1..],
             [
-                "0,0,10,0,0,0,0,0,0,0,0,1",
-                "0,1,2,0,0,0,0,0,0,0,0,0",
-                "1,0,15,0,0,0,0,0,0,0,0,0",
-                "1,1,3,0,0,0,0,0,0,0,0,0",
+                "0,0,10,0,0,0,0,0,0,0,0,1,0",
+                "0,1,2,0,0,0,0,0,0,0,0,0,0",
+                "1,0,15,0,0,0,0,0,0,0,0,0,0",
+                "1,1,3,0,0,0,0,0,0,0,0,0,0",
             ]
         );
     }

@@ -72,6 +72,28 @@ fn three_robots_explore_a_small_office_and_share_scans() {
     assert!(s["bytes_by_type"]["conn"].as_u64().unwrap_or(0) > 0, "{s}");
 }
 
+/// The second baseline: robots share the cells each scan changed (`grid-snapshots`).
+#[test]
+fn three_robots_explore_a_small_office_sharing_grid_patches() {
+    let s = completes(
+        "patches",
+        &[
+            "world.map=office",
+            "world.width_m=14",
+            "world.height_m=10",
+            "robots.count=3",
+            "seed=3",
+            "exchange.mode=grid-snapshots",
+        ],
+        400,
+    );
+    let by = &s["bytes_by_type"];
+    assert!(by["cells"].as_u64().unwrap_or(0) > 0, "{s}");
+    assert_eq!(by["scan"], 0, "{s}");
+    assert_eq!(by["ins"], 0, "{s}");
+    assert_eq!(s["radio_decode_errors"], 0, "{s}");
+}
+
 #[test]
 fn eight_robots_explore_a_small_real_map() {
     completes("eight", &["world.map=fr101", "robots.count=8"], 400);

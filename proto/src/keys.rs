@@ -61,6 +61,11 @@ pub fn radio_ops(to: RobotId) -> String {
     format!("radio/{to}/ops")
 }
 
+/// Radio: grid patches of the `grid-snapshots` exchange addressed to robot `to`.
+pub fn radio_patch(to: RobotId) -> String {
+    format!("radio/{to}/patch")
+}
+
 /// Radio: target announcements (`targ`) addressed to robot `to`.
 pub fn radio_targ(to: RobotId) -> String {
     format!("radio/{to}/targ")

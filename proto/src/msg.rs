@@ -159,10 +159,11 @@ pub enum Traffic {
     Targ,
     Save,
     Scan,
+    Cells,
 }
 
 impl Traffic {
-    pub const ALL: [Traffic; 10] = [
+    pub const ALL: [Traffic; 11] = [
         Traffic::Ins,
         Traffic::Rep,
         Traffic::Del,
@@ -173,6 +174,7 @@ impl Traffic {
         Traffic::Targ,
         Traffic::Save,
         Traffic::Scan,
+        Traffic::Cells,
     ];
 
     /// The name used in `summary.json` and `traffic_by_type.csv`.
@@ -188,6 +190,7 @@ impl Traffic {
             Traffic::Targ => "targ",
             Traffic::Save => "save",
             Traffic::Scan => "scan",
+            Traffic::Cells => "cells",
         }
     }
 }
@@ -263,6 +266,19 @@ pub struct LogDelta<R> {
 
 /// Radio, `raw-scans` exchange: a run of an owner's scan log.
 pub type ScanDelta = LogDelta<ScanRecord>;
+
+/// The cells of a robot's self-explored grid that one step changed, as shared in the
+/// `grid-snapshots` exchange (DESIGN.md §4.8): `cells` is a run of varints, each
+/// `(index gap) << 2 | state`, the gap counted from the previous changed cell's row-major index
+/// plus one (the first from 0), the state 0 unknown, 1 free, 2 occupied.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GridPatch {
+    pub step: Step,
+    pub cells: Vec<u8>,
+}
+
+/// Radio: a run of an owner's grid patches (the `grid-snapshots` exchange).
+pub type PatchDelta = LogDelta<GridPatch>;
 
 /// Radio, `polygon` exchange: ops `start..start+count` of `owner`'s op log, sent by `from`, in
 /// the compact op encoding of `robot_agent::wire` (thesis Table 6.1).
@@ -438,6 +454,15 @@ mod tests {
             from: 1,
             knowledge: vec![(0, 5), (1, 7)],
         });
+        round_trip(PatchDelta {
+            from: 1,
+            owner: 2,
+            start: 0,
+            records: vec![GridPatch {
+                step: 3,
+                cells: vec![5, 9, 2],
+            }],
+        });
         round_trip(Target {
             from: 2,
             step: 40,
@@ -479,6 +504,7 @@ mod tests {
         fn decoding_arbitrary_bytes_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..256)) {
             let _ = decode::<Telemetry>(&bytes);
             let _ = decode::<ScanDelta>(&bytes);
+            let _ = decode::<PatchDelta>(&bytes);
             let _ = decode::<Hello>(&bytes);
             let _ = decode::<Target>(&bytes);
             let _ = decode::<OpChunk>(&bytes);

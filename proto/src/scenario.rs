@@ -505,13 +505,6 @@ impl Scenario {
     /// Values the schema reserves for features that are not built yet are refused by name,
     /// rather than silently running something else.
     fn check_implemented(&self) -> Result<(), ScenarioError> {
-        if self.exchange.mode == ExchangeMode::GridSnapshots {
-            return Err(invalid(
-                "exchange.mode",
-                format!("{:?}", self.exchange.mode),
-                "\"raw-scans\" and \"polygon\" are implemented; \"grid-snapshots\" is not yet (issue #5)",
-            ));
-        }
         if self.coordination.strategy != Strategy::Uncoordinated {
             return Err(invalid(
                 "coordination.strategy",

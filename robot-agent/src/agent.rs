@@ -359,6 +359,7 @@ impl Agent {
     pub fn count_share_sent(&mut self, share: &Share, bytes: usize) {
         match share {
             Share::Scans(_) => self.count_sent(Traffic::Scan, bytes),
+            Share::Patches(_) => self.count_sent(Traffic::Cells, bytes),
             Share::Ops(c) => {
                 let mut ops = 0;
                 for (kind, n) in crate::approx_exchange::op_bytes(c) {

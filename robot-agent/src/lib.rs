@@ -25,6 +25,8 @@ pub mod error;
 pub mod exchange;
 /// Ternary self-explored grid: laser scan integration.
 pub mod grid;
+/// The grid-snapshots baseline exchange: per-step changed cells of G_s (DESIGN §4.8).
+pub mod grid_snapshots;
 /// The mapping pipeline: P_t → A_t → ops + save point, with its costs (Algorithm 10, 2–5).
 pub mod mapper;
 /// The planning grid: Algorithm 9 (§5.2).

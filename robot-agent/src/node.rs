@@ -7,7 +7,8 @@ use std::time::Duration;
 
 use proto::keys;
 use proto::msg::{
-    decode, encode, Control, Hello, OpChunk, RobotId, Scan, ScanDelta, Target, Traffic, WorldInfo,
+    decode, encode, Control, Hello, OpChunk, PatchDelta, RobotId, Scan, ScanDelta, Target, Traffic,
+    WorldInfo,
 };
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
@@ -94,6 +95,10 @@ pub async fn run_robot(
         .declare_subscriber(keys::radio_ops(id))
         .await
         .map_err(zerr)?;
+    let patches = radio
+        .declare_subscriber(keys::radio_patch(id))
+        .await
+        .map_err(zerr)?;
     let targets = radio
         .declare_subscriber(keys::radio_targ(id))
         .await
@@ -155,6 +160,15 @@ pub async fn run_robot(
                 agent.bytes_received += bytes.len() as u64;
                 match decode::<OpChunk>(&bytes) {
                     Ok(c) => { let out = agent.on_share(c.from, &Share::Ops(c)); send_radio(&radio, &mut agent, out).await; }
+                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
+                }
+            }
+            sample = patches.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped) };
+                let bytes = sample.payload().to_bytes();
+                agent.bytes_received += bytes.len() as u64;
+                match decode::<PatchDelta>(&bytes) {
+                    Ok(d) => { let out = agent.on_share(d.from, &Share::Patches(d)); send_radio(&radio, &mut agent, out).await; }
                     Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
                 }
             }

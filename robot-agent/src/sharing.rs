@@ -7,16 +7,21 @@
 //!   (Algorithm 10 steps 2–6, [`crate::mapper`]), relayed transitively; the planning grid is
 //!   merged from G_s and every peer's approximation at its last save point (Algorithm 9).
 //!
-//! Both speak the same handshake (`conn`) and budget rules; only the records differ.
+//! * `grid-snapshots` — the second baseline: per step, the cells of G_s the scan changed,
+//!   relayed transitively and written into a grid of the peers' knowledge (never overriding
+//!   G_s).
+//!
+//! All speak the same handshake (`conn`) and budget rules; only the records differ.
 
 use proto::geom::{LaserSpec, MapInfo};
 use proto::grid::{Cell, Grid, Occ};
-use proto::msg::{encode, Hello, OpChunk, RobotId, Scan, ScanDelta, WorldInfo};
+use proto::msg::{encode, Hello, OpChunk, PatchDelta, RobotId, Scan, ScanDelta, WorldInfo};
 use proto::scenario::{ExchangeMode, RadioModel, Scenario};
 
 use crate::approx_exchange::ApproxExchange;
 use crate::exchange::DeltaOutcome;
 use crate::grid::Evidence;
+use crate::grid_snapshots::{apply_patch, patch_of, GridPatchExchange};
 use crate::mapper::Mapper;
 use crate::merge::merge;
 use crate::raw_scans::{scan_ranges, scan_record, RawScanExchange};
@@ -27,6 +32,7 @@ use crate::splitting::{p_comm, SplittingFrequency};
 pub enum Share {
     Scans(ScanDelta),
     Ops(OpChunk),
+    Patches(PatchDelta),
 }
 
 impl Share {
@@ -35,6 +41,7 @@ impl Share {
         match self {
             Share::Scans(d) => encode(d),
             Share::Ops(c) => encode(c),
+            Share::Patches(d) => encode(d),
         }
     }
 
@@ -43,6 +50,7 @@ impl Share {
         match self {
             Share::Scans(_) => proto::keys::radio_delta(to),
             Share::Ops(_) => proto::keys::radio_ops(to),
+            Share::Patches(_) => proto::keys::radio_patch(to),
         }
     }
 }
@@ -60,6 +68,11 @@ pub enum Sharing {
         exchange: ApproxExchange,
         mapper: Box<Mapper>,
         splitting: SplittingFrequency,
+    },
+    GridSnapshots {
+        exchange: GridPatchExchange,
+        /// What peers' patches told this robot.
+        others: Grid,
     },
 }
 
@@ -88,8 +101,11 @@ impl Sharing {
                     splitting,
                 }
             }
-            // grid-snapshots is refused by the scenario check before a robot starts.
-            ExchangeMode::RawScans | ExchangeMode::GridSnapshots => Sharing::RawScans {
+            ExchangeMode::GridSnapshots => Sharing::GridSnapshots {
+                exchange: GridPatchExchange::new(me),
+                others: empty,
+            },
+            ExchangeMode::RawScans => Sharing::RawScans {
                 exchange: RawScanExchange::new(me),
                 evidence: Evidence::new(&empty),
                 others: empty,
@@ -118,6 +134,11 @@ impl Sharing {
                 splitting.record(report.splits, report.bytes);
                 exchange.record_own(mapper.log().since(first));
             }
+            Sharing::GridSnapshots { exchange, .. } => {
+                if !changed.is_empty() {
+                    exchange.record_own(patch_of(scan.step, own, changed));
+                }
+            }
         }
     }
 
@@ -125,6 +146,7 @@ impl Sharing {
         match self {
             Sharing::RawScans { exchange, .. } => exchange.knowledge(),
             Sharing::Polygon { exchange, .. } => exchange.knowledge(),
+            Sharing::GridSnapshots { exchange, .. } => exchange.knowledge(),
         }
     }
 
@@ -132,6 +154,7 @@ impl Sharing {
         match self {
             Sharing::RawScans { exchange, .. } => exchange.on_hello(h),
             Sharing::Polygon { exchange, .. } => exchange.on_hello(h),
+            Sharing::GridSnapshots { exchange, .. } => exchange.on_hello(h),
         }
     }
 
@@ -139,6 +162,7 @@ impl Sharing {
         match self {
             Sharing::RawScans { exchange, .. } => exchange.link_up(peer),
             Sharing::Polygon { exchange, .. } => exchange.link_up(peer),
+            Sharing::GridSnapshots { exchange, .. } => exchange.link_up(peer),
         }
     }
 
@@ -146,6 +170,7 @@ impl Sharing {
         match self {
             Sharing::RawScans { exchange, .. } => exchange.link_down(peer),
             Sharing::Polygon { exchange, .. } => exchange.link_down(peer),
+            Sharing::GridSnapshots { exchange, .. } => exchange.link_down(peer),
         }
     }
 
@@ -161,6 +186,11 @@ impl Sharing {
                 .outgoing(peer, budget, |c| encode(c).len())
                 .into_iter()
                 .map(Share::Ops)
+                .collect(),
+            Sharing::GridSnapshots { exchange, .. } => exchange
+                .outgoing(peer, budget, |d| encode(d).len())
+                .into_iter()
+                .map(Share::Patches)
                 .collect(),
         }
     }
@@ -195,6 +225,16 @@ impl Sharing {
             (Sharing::Polygon { exchange, .. }, Share::Ops(c)) => {
                 exchange.on_chunk(c).map_err(|e| e.to_string())?
             }
+            (Sharing::GridSnapshots { exchange, others }, Share::Patches(d)) => {
+                let first_new = exchange.log(d.owner).len();
+                let outcome = exchange.on_delta(d);
+                if matches!(outcome, DeltaOutcome::Appended { .. }) && d.owner != exchange.id() {
+                    for p in exchange.log(d.owner).get(first_new..).unwrap_or_default() {
+                        apply_patch(others, p).map_err(|e| e.to_string())?;
+                    }
+                }
+                outcome
+            }
             _ => return Err("a share of the other exchange mode".into()),
         };
         Ok(matches!(outcome, DeltaOutcome::Gap { .. }))
@@ -204,7 +244,7 @@ impl Sharing {
     /// overriding a cell this robot sensed itself.
     pub fn planning_grid(&self, own: &Grid) -> Grid {
         match self {
-            Sharing::RawScans { others, .. } => {
+            Sharing::RawScans { others, .. } | Sharing::GridSnapshots { others, .. } => {
                 let mut g = others.clone();
                 for (p, &o) in g.cells_mut().iter_mut().zip(own.cells()) {
                     if o != Occ::Unknown {
@@ -225,6 +265,7 @@ impl Sharing {
         let lag = match self {
             Sharing::RawScans { exchange, .. } => exchange.lag(peer),
             Sharing::Polygon { exchange, .. } => exchange.lag(peer),
+            Sharing::GridSnapshots { exchange, .. } => exchange.lag(peer),
         };
         lag.is_some_and(|n| n > 0)
     }
@@ -237,6 +278,9 @@ impl Sharing {
                 recs.iter().map(|r| encode(r).len() as u64).sum()
             }),
             Sharing::Polygon { exchange, .. } => exchange.backlog_bytes(peer),
+            Sharing::GridSnapshots { exchange, .. } => exchange.backlog(peer, |_, recs| {
+                recs.iter().map(|r| encode(r).len() as u64).sum()
+            }),
         }
     }
 
@@ -252,7 +296,7 @@ impl Sharing {
     pub fn splits_per_step(&self) -> Option<f64> {
         match self {
             Sharing::Polygon { splitting, .. } => Some(splitting.current()),
-            Sharing::RawScans { .. } => None,
+            Sharing::RawScans { .. } | Sharing::GridSnapshots { .. } => None,
         }
     }
 
@@ -263,7 +307,7 @@ impl Sharing {
                 u32::try_from(mapper.log().len()).unwrap_or(u32::MAX),
                 mapper.approximation().digest(),
             )),
-            Sharing::RawScans { .. } => None,
+            Sharing::RawScans { .. } | Sharing::GridSnapshots { .. } => None,
         }
     }
 
@@ -271,7 +315,7 @@ impl Sharing {
     pub fn views(&self) -> Vec<proto::msg::View> {
         match self {
             Sharing::Polygon { exchange, .. } => exchange.views(),
-            Sharing::RawScans { .. } => Vec::new(),
+            Sharing::RawScans { .. } | Sharing::GridSnapshots { .. } => Vec::new(),
         }
     }
 
@@ -279,7 +323,7 @@ impl Sharing {
     pub fn approx_error_avg(&self) -> Option<f64> {
         match self {
             Sharing::Polygon { mapper, .. } => mapper.error_avg(),
-            Sharing::RawScans { .. } => None,
+            Sharing::RawScans { .. } | Sharing::GridSnapshots { .. } => None,
         }
     }
 }
