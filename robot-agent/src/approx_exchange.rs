@@ -6,8 +6,11 @@
 //! ops arrived only in part is never shown (atomicity).
 //!
 //! A chunk whose ops do not decode, or whose op count disagrees with its header, is refused as a
-//! whole (nothing is appended). An owner whose ops cannot be applied (possible only with bytes
-//! corrupted in transit) keeps its last committed approximation and is ignored from then on.
+//! whole (nothing is appended). Ops that decode but cannot be applied (possible only with bytes
+//! corrupted in transit) are dropped from the owner's log back to its last save point, and the
+//! sender is asked again (a handshake, as on a gap): the replica keeps showing the last committed
+//! approximation meanwhile. Corrupted ops that happen to apply cannot be told from good ones
+//! (the op encoding carries no checksum).
 
 use std::collections::BTreeMap;
 
@@ -115,32 +118,44 @@ impl ApproxExchange {
             records,
         });
         if let DeltaOutcome::Appended { owner, .. } = outcome {
-            self.catch_up(owner);
+            if let Some(have) = self.catch_up(owner) {
+                return Ok(DeltaOutcome::Gap {
+                    owner,
+                    have,
+                    start: c.start,
+                });
+            }
         }
         Ok(outcome)
     }
 
-    /// Applies the ops of `owner`'s log the replica has not seen.
-    fn catch_up(&mut self, owner: RobotId) {
+    /// Applies the ops of `owner`'s log the replica has not seen. If one does not apply, the
+    /// log is cut back to the last save point and its length returned (to be asked for again).
+    fn catch_up(&mut self, owner: RobotId) -> Option<u32> {
         if owner == self.id() {
-            return;
+            return None;
         }
         let log = self.logs.log(owner);
         let f = self.replicas.entry(owner).or_default();
         for op in log.get(f.applied..).unwrap_or_default() {
             if let Err(e) = f.replica.apply(op) {
-                if !matches!(e, crate::oplog::ApplyError::Poisoned) {
-                    tracing::warn!(
-                        "ops of robot {owner} do not apply ({e}): its map stays as it was"
-                    );
-                }
-                break;
+                tracing::warn!(
+                    "ops of robot {owner} do not apply ({e}): dropped back to its save point at \
+                     op {} and asked again",
+                    f.shown
+                );
+                f.replica.rewind();
+                f.applied = f.shown;
+                let have = u32::try_from(f.shown).unwrap_or(u32::MAX);
+                self.logs.truncate(owner, have);
+                return Some(have);
             }
             f.applied += 1;
             if *op == Op::Save {
                 f.shown = f.applied;
             }
         }
+        None
     }
 
     /// Per other owner: how many ops of its log we hold, how many of them the approximation we
@@ -320,6 +335,46 @@ mod tests {
                 prop_assert_eq!(b.log(0).len(), before);
             }
         }
+    }
+
+    /// Ops corrupted in transit that still decode but do not apply: the receiver drops them back
+    /// to the last save point, asks again, and recovers from the good copy.
+    #[test]
+    fn ops_that_do_not_apply_are_dropped_to_the_save_point_and_asked_again() {
+        let (ops, states) = owner_log();
+        let saves: Vec<usize> = (0..ops.len()).filter(|&i| ops[i] == Op::Save).collect();
+        assert!(saves.len() >= 3, "{saves:?}");
+        // Corrupt an op inside the third step (after the second save point).
+        let bad_at = saves[1] + 1;
+        let mut bad = ops.clone();
+        bad[bad_at] = Op::Remove { id: 9999 };
+        let chunk = |ops: &[Op], start: usize| OpChunk {
+            from: 0,
+            owner: 0,
+            start: start as u32,
+            count: ops.len() as u32,
+            ops: wire::encode(ops),
+        };
+        let mut b = ApproxExchange::new(1);
+        let out = b.on_chunk(&chunk(&bad, 0));
+        let have = (saves[1] + 1) as u32;
+        assert_eq!(
+            out,
+            Ok(DeltaOutcome::Gap {
+                owner: 0,
+                have,
+                start: 0
+            })
+        );
+        assert_eq!(b.log(0).len(), have as usize, "cut back to the save point");
+        assert_eq!(b.approximation(0), Some(&states[1]), "still shows step 2");
+        // The sender, told by the handshake, resends from there.
+        let again = b.on_chunk(&chunk(&ops[have as usize..], have as usize));
+        assert!(
+            matches!(again, Ok(DeltaOutcome::Appended { .. })),
+            "{again:?}"
+        );
+        assert_eq!(b.approximation(0), states.last());
     }
 
     #[test]

@@ -208,6 +208,16 @@ impl<R: Clone> LogExchange<R> {
         }
     }
 
+    /// Drops `owner`'s records from index `len` on (records found to be corrupt); our next
+    /// handshake asks for them again. Our own log is never cut.
+    pub fn truncate(&mut self, owner: RobotId, len: u32) {
+        if owner != self.me {
+            if let Some(log) = self.logs.get_mut(&owner) {
+                log.truncate(len as usize);
+            }
+        }
+    }
+
     /// The prefix of `owner`'s log we hold (empty for an owner we have not heard of).
     pub fn log(&self, owner: RobotId) -> &[R] {
         self.logs.get(&owner).map_or(&[], Vec::as_slice)
@@ -242,6 +252,11 @@ impl<R: Clone> LogExchange<R> {
 
 /// One delta of `owner`'s records from `start` on, as many as fit into `budget_bytes`; returns it,
 /// its size, and whether a record was left out for lack of budget.
+///
+/// A delta's size grows with every record it carries, so the largest run that fits is found by
+/// bisection: O(log n) encodings of at most n records, where adding one record at a time would
+/// encode the growing delta n times (quadratic in a long suffix, as after a long separation on
+/// an unlimited link).
 fn fill<R: Clone>(
     me: RobotId,
     owner: RobotId,
@@ -250,23 +265,31 @@ fn fill<R: Clone>(
     budget_bytes: usize,
     size_of: &impl Fn(&LogDelta<R>) -> usize,
 ) -> (LogDelta<R>, usize, bool) {
-    let mut delta = LogDelta {
+    let rest = log.get(start as usize..).unwrap_or_default();
+    let delta = |n: usize| LogDelta {
         from: me,
         owner,
         start,
-        records: Vec::new(),
+        records: rest[..n].to_vec(),
     };
-    let mut size = 0;
-    for rec in log.iter().skip(start as usize) {
-        delta.records.push(rec.clone());
-        let with = size_of(&delta);
-        if with > budget_bytes {
-            delta.records.pop();
-            return (delta, size, true);
-        }
-        size = with;
+    let all = delta(rest.len());
+    let size = size_of(&all);
+    if size <= budget_bytes {
+        return (all, size, false);
     }
-    (delta, size, false)
+    // Invariant: `lo` records fit (0 always does: nothing is sent then), `hi` do not.
+    let (mut lo, mut hi) = (0usize, rest.len());
+    let mut lo_size = 0;
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        let s = size_of(&delta(mid));
+        if s <= budget_bytes {
+            (lo, lo_size) = (mid, s);
+        } else {
+            hi = mid;
+        }
+    }
+    (delta(lo), lo_size, true)
 }
 
 /// A log length as the protocol's `u32` index (logs never reach 2³² records in practice; the

@@ -46,6 +46,14 @@ impl Replica {
         &self.committed
     }
 
+    /// Forgets every op applied since the last save point, an error included: the replica is
+    /// the committed approximation again, ready for the ops that follow that save point.
+    pub fn rewind(&mut self) {
+        self.working = self.committed.clone();
+        self.selected = None;
+        self.poisoned = false;
+    }
+
     /// Applies one op. On error the replica refuses every further op (a later step's delta
     /// would apply to the wrong base); its committed state stays valid.
     pub fn apply(&mut self, op: &Op) -> Result<(), ApplyError> {
