@@ -48,6 +48,10 @@ const MAX_CELLS_PER_S: u64 = 1_000_000;
 pub struct Pacer {
     /// `None`: unlimited bandwidth, nothing is metered.
     quota: Option<(Quota, u64)>,
+    burst_bytes: u64,
+    /// Cells a new link's limiter is drained by at once, so that it starts with one step's
+    /// budget rather than a whole burst (a fresh connection is not flooded).
+    start_drain: u32,
     step_ns: u64,
     clock: SimClock,
     /// Per neighbour: its limiter and the probe bytes held for the next spend.
@@ -56,14 +60,17 @@ pub struct Pacer {
 
 impl Pacer {
     /// Budgets of `rate_bytes_per_s` (`None`: unlimited) per link with bursts of `burst_bytes`,
-    /// for steps of `step_seconds` simulated seconds.
+    /// for steps of `step_seconds` simulated seconds. A link starts with one step's budget.
     pub fn new(rate_bytes_per_s: Option<u64>, burst_bytes: u64, step_seconds: f64) -> Pacer {
+        let mut start_drain = 0;
         let quota = rate_bytes_per_s.filter(|&r| r > 0).map(|rate| {
             let cell_bytes = rate.div_ceil(MAX_CELLS_PER_S);
             let period_ns = ((1e9 * cell_bytes as f64 / rate as f64).round() as u64).max(1);
             let burst_cells = burst_bytes
                 .div_ceil(cell_bytes)
                 .clamp(1, u64::from(u32::MAX)) as u32;
+            let step_cells = ((rate as f64 * step_seconds.max(0.0)) / cell_bytes as f64) as u64;
+            start_drain = u64::from(burst_cells).saturating_sub(step_cells.max(1)) as u32;
             let q = Quota::with_period(std::time::Duration::from_nanos(period_ns))
                 .unwrap_or_else(|| Quota::per_second(NonZeroU32::MIN))
                 .allow_burst(NonZeroU32::new(burst_cells).unwrap_or(NonZeroU32::MIN));
@@ -71,6 +78,8 @@ impl Pacer {
         });
         Pacer {
             quota,
+            burst_bytes,
+            start_drain,
             step_ns: (step_seconds.max(0.0) * 1e9).round() as u64,
             clock: SimClock::default(),
             links: HashMap::new(),
@@ -88,16 +97,22 @@ impl Pacer {
         let Some((quota, cell)) = self.quota else {
             return usize::MAX;
         };
+        let drain = self.start_drain;
         let (lim, held) = self.links.entry(peer).or_insert_with(|| {
             let lim = RateLimiter::direct_with_clock(quota, self.clock.clone())
                 .with_middleware::<StateInformationMiddleware>();
+            if let Some(n) = NonZeroU32::new(drain) {
+                let _ = lim.check_n(n);
+            }
             (lim, 0)
         });
         match lim.check_n(NonZeroU32::MIN) {
             Ok(Ok(snap)) => {
+                // Probe bytes held from calls that sent nothing are the link's all the same, but
+                // never lift what one step may send above the burst.
                 *held += cell;
-                usize::try_from(*held + u64::from(snap.remaining_burst_capacity()) * cell)
-                    .unwrap_or(usize::MAX)
+                let avail = *held + u64::from(snap.remaining_burst_capacity()) * cell;
+                usize::try_from(avail.min(self.burst_bytes.max(cell))).unwrap_or(usize::MAX)
             }
             _ => usize::try_from(*held).unwrap_or(usize::MAX),
         }
@@ -148,8 +163,12 @@ mod tests {
         // 1000 B/s, bursts of 4 steps of 1 s.
         let mut p = Pacer::new(Some(1000), 4000, 1.0);
         p.at_step(0);
-        assert_eq!(p.available(1), 4000, "a new link starts with a full burst");
-        p.spend(1, 4000);
+        assert_eq!(
+            p.available(1),
+            1000,
+            "a new link starts with one step's budget"
+        );
+        p.spend(1, 1000);
         assert_eq!(p.available(1), 0);
         p.at_step(1);
         let a = p.available(1);
@@ -174,12 +193,14 @@ mod tests {
     fn spending_beyond_the_budget_empties_it_and_links_are_independent() {
         let mut p = Pacer::new(Some(500), 1000, 1.0);
         p.at_step(3);
-        assert_eq!(p.available(2), 1000);
+        assert_eq!(p.available(2), 500);
         p.spend(2, 5000);
         assert_eq!(p.available(2), 0);
-        assert_eq!(p.available(3), 1000);
+        assert_eq!(p.available(3), 500);
         p.forget(2);
-        assert_eq!(p.available(2), 1000);
+        assert_eq!(p.available(2), 500);
+        p.at_step(10);
+        assert_eq!(p.available(2), 1000, "idle steps fill up to the burst");
     }
 
     #[test]
@@ -195,6 +216,7 @@ mod tests {
         let mut p = Pacer::new(Some(10_000_000), 40_000_000, 1.0);
         p.at_step(0);
         let a = p.available(1);
+        assert!((a as f64 - 1e7).abs() < 1e7 * 0.001, "{a}");
         p.spend(1, a);
         p.at_step(1);
         let b = p.available(1);
