@@ -114,72 +114,74 @@ fn the_default_scenario_completes_with_the_polygon_exchange() {
 /// The shipped relay scenario: robots 0 and 2 never talk (their link is cut before anyone
 /// connects), both talk to robot 1. Not a byte crosses 0–2, yet robot 2 holds robot 0's op log up
 /// to a save point, and its planning grid knows the area that only robot 0 sensed.
+///
+/// Where the robots go varies from run to run (messages and steps are not synchronised), and in
+/// some runs robots 1 and 2 see nearly everything robot 0 sees (12 to 3 714 cells seen by robot 0
+/// alone, measured). The planning-grid check needs an area only robot 0 saw, so the scenario runs
+/// with seeds 1, 2, 3, … until one gives 300 such cells (at most 4 runs).
 #[test]
 fn a_robot_learns_the_map_of_a_robot_it_never_meets_through_a_third() {
-    let dir = TempDir::new("poly-relay");
-    let (out, run) = swarm_run(&dir, Some(RELAY), &[], Duration::from_secs(300));
-    assert!(
-        out.status.code().is_some_and(|c| c != 1),
-        "{}",
-        stderr(&out)
-    );
-    let row = link_total(&run, 0, 2);
-    assert_eq!(
-        (num(&row, "bytes_a_to_b"), num(&row, "bytes_b_to_a")),
-        (0.0, 0.0),
-        "bytes crossed the cut link: {row:?}"
-    );
-    let s = summary(&run);
-    let held = |robot: &str, owner: &str| s["logs_held"][robot][owner].as_u64().unwrap_or(0);
-    let own0 = held("0", "0");
-    assert!(own0 > 50, "robot 0 logged only {own0} ops: {s}");
-    assert!(held("0", "2") > 0, "robot 0 never got robot 2's log: {s}");
-    // Robot 2 shows robot 0 up to a save point (every view is one, checked against saves.csv).
-    let (views, _) = views_are_atomic(&run);
-    let shown = views
-        .iter()
-        .filter(|v| v["robot"] == "2" && v["owner"] == "0")
-        .map(|v| num(v, "shown"))
-        .fold(0.0, f64::max);
-    assert!(
-        shown > own0 as f64 / 2.0,
-        "robot 2 shows {shown} of robot 0's {own0} ops"
-    );
-    // The planning grids: of the cells robot 0 sensed and robot 2 did not, robot 2's planning
-    // grid knows most and agrees with robot 0 on them. (Which of them robot 1 sensed too varies
-    // from run to run; the cells only robot 0 sensed are reported.)
-    let grid = |name: &str| pgm(&run.join("grids").join(name));
-    let (own0, own1, own2) = (
-        grid("robot_0_own.pgm"),
-        grid("robot_1_own.pgm"),
-        grid("robot_2_own.pgm"),
-    );
-    let plan2 = grid("robot_2_planning.pgm");
-    let area: Vec<usize> = (0..own0.len())
-        .filter(|&i| own0[i] != 205 && own2[i] == 205)
-        .collect();
-    assert!(
-        area.len() > 500,
-        "robot 0 sensed only {} cells robot 2 did not",
-        area.len()
-    );
-    let agree = |cells: &[usize]| {
-        cells.iter().filter(|&&i| plan2[i] == own0[i]).count() as f64 / cells.len().max(1) as f64
-    };
-    let share = agree(&area);
-    let only0: Vec<usize> = area.iter().copied().filter(|&i| own1[i] == 205).collect();
-    eprintln!(
-        "robot 2's planning grid agrees with robot 0 on {:.1} % of the {} cells robot 0 sensed and \
-         robot 2 did not, and on {:.1} % of the {} that only robot 0 sensed",
-        100.0 * share,
-        area.len(),
-        100.0 * agree(&only0),
-        only0.len()
-    );
-    assert!(
-        share > 0.7,
-        "robot 2 knows {share:.3} of robot 0's own area"
-    );
+    for seed in 1..=4 {
+        let dir = TempDir::new("poly-relay");
+        let seed_set = format!("seed={seed}");
+        let (out, run) = swarm_run(&dir, Some(RELAY), &[&seed_set], Duration::from_secs(300));
+        assert!(
+            out.status.code().is_some_and(|c| c != 1),
+            "{}",
+            stderr(&out)
+        );
+        let row = link_total(&run, 0, 2);
+        assert_eq!(
+            (num(&row, "bytes_a_to_b"), num(&row, "bytes_b_to_a")),
+            (0.0, 0.0),
+            "bytes crossed the cut link: {row:?}"
+        );
+        let s = summary(&run);
+        let held = |robot: &str, owner: &str| s["logs_held"][robot][owner].as_u64().unwrap_or(0);
+        let own0 = held("0", "0");
+        assert!(own0 > 50, "robot 0 logged only {own0} ops: {s}");
+        assert!(held("0", "2") > 0, "robot 0 never got robot 2's log: {s}");
+        // Robot 2 shows robot 0 up to a save point (every view is one, checked against
+        // saves.csv).
+        let (views, _) = views_are_atomic(&run);
+        let shown = views
+            .iter()
+            .filter(|v| v["robot"] == "2" && v["owner"] == "0")
+            .map(|v| num(v, "shown"))
+            .fold(0.0, f64::max);
+        assert!(
+            shown > own0 as f64 / 2.0,
+            "robot 2 shows {shown} of robot 0's {own0} ops"
+        );
+        // The planning grids: of the cells only robot 0 sensed, robot 2's planning grid knows
+        // most, and agrees with robot 0 on them.
+        let grid = |name: &str| pgm(&run.join("grids").join(name));
+        let (own0, own1, own2) = (
+            grid("robot_0_own.pgm"),
+            grid("robot_1_own.pgm"),
+            grid("robot_2_own.pgm"),
+        );
+        let plan2 = grid("robot_2_planning.pgm");
+        let only0: Vec<usize> = (0..own0.len())
+            .filter(|&i| own0[i] != 205 && own1[i] == 205 && own2[i] == 205)
+            .collect();
+        let agree = only0.iter().filter(|&&i| plan2[i] == own0[i]).count() as f64
+            / only0.len().max(1) as f64;
+        eprintln!(
+            "seed {seed}: robot 2's planning grid agrees with robot 0 on {:.1} % of the {} cells \
+             only robot 0 sensed",
+            100.0 * agree,
+            only0.len()
+        );
+        if only0.len() >= 300 {
+            assert!(
+                agree > 0.7,
+                "robot 2 knows {agree:.3} of robot 0's own area"
+            );
+            return;
+        }
+    }
+    panic!("in 4 runs robot 0 never sensed 300 cells that robots 1 and 2 did not");
 }
 
 /// Atomicity under real cuts: the 0–1 link is cut for 30 steps, so a backlog builds up; on its
