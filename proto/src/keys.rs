@@ -66,6 +66,11 @@ pub fn radio_patch(to: RobotId) -> String {
     format!("radio/{to}/patch")
 }
 
+/// Radio: sub-team tables (`burgard` coordination) addressed to robot `to`.
+pub fn radio_team(to: RobotId) -> String {
+    format!("radio/{to}/team")
+}
+
 /// Radio: target announcements (`targ`) addressed to robot `to`.
 pub fn radio_targ(to: RobotId) -> String {
     format!("radio/{to}/targ")

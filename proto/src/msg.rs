@@ -242,6 +242,24 @@ pub struct Target {
     pub cell: Option<(i32, i32)>,
 }
 
+/// Radio (`burgard` coordination): what a robot knows of the robots it can reach, relayed from
+/// neighbour to neighbour so that every member of a sub-team knows the sub-team: each entry is
+/// one robot's own report (its step, cell, target and radio neighbours then). Accounted as `targ`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Team {
+    pub from: RobotId,
+    pub entries: Vec<TeamEntry>,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TeamEntry {
+    pub robot: RobotId,
+    pub step: Step,
+    pub cell: (i32, i32),
+    pub target: Option<(i32, i32)>,
+    pub neighbours: Vec<RobotId>,
+}
+
 /// One laser scan as shared on the radio in the `raw-scans` exchange. Ranges are quantized to
 /// centimetres (`u16::MAX` = no return) so the baseline is not inflated by float noise.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -473,6 +491,16 @@ mod tests {
             step: 41,
             cell: None,
         });
+        round_trip(Team {
+            from: 1,
+            entries: vec![TeamEntry {
+                robot: 3,
+                step: 9,
+                cell: (4, -5),
+                target: Some((10, 11)),
+                neighbours: vec![1, 2],
+            }],
+        });
         round_trip(ScanDelta {
             from: 1,
             owner: 0,
@@ -507,6 +535,7 @@ mod tests {
             let _ = decode::<PatchDelta>(&bytes);
             let _ = decode::<Hello>(&bytes);
             let _ = decode::<Target>(&bytes);
+            let _ = decode::<Team>(&bytes);
             let _ = decode::<OpChunk>(&bytes);
             let _ = decode::<Scan>(&bytes);
             let _ = decode::<Status>(&bytes);

@@ -192,6 +192,18 @@ impl Default for Bandwidth {
 #[serde(deny_unknown_fields, default)]
 pub struct Coordination {
     pub strategy: Strategy,
+    /// β of the utility/cost trade-off U − β·V (thesis eq. 4.6; V normalized to [0, 1]).
+    pub beta: f64,
+    /// `decentralized`: a heard target's discount halves every this many steps; 0 = never
+    /// (the thesis).
+    pub target_half_life_steps: f64,
+    /// `burgard`: Algorithm 2's randomized permutation search instead of greedy Algorithm 1.
+    pub burgard_search: bool,
+    /// `burgard`: random changes tried by the permutation search.
+    pub search_tries: u32,
+    /// `burgard`: the sub-team reassigns at least this often (and whenever a member's target is
+    /// reached or the sub-team changes).
+    pub replan_every_steps: u32,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -302,7 +314,12 @@ impl Default for Exchange {
 impl Default for Coordination {
     fn default() -> Self {
         Coordination {
-            strategy: Strategy::Uncoordinated,
+            strategy: Strategy::Decentralized,
+            beta: 1.0,
+            target_half_life_steps: 0.0,
+            burgard_search: false,
+            search_tries: 200,
+            replan_every_steps: 10,
         }
     }
 }
@@ -496,6 +513,18 @@ impl Scenario {
             ));
         }
         positive("bandwidth.split_bytes_prior", b.split_bytes_prior)?;
+        let c = &s.coordination;
+        at_least("coordination.beta", c.beta, 0.0)?;
+        at_least(
+            "coordination.target_half_life_steps",
+            c.target_half_life_steps,
+            0.0,
+        )?;
+        at_least(
+            "coordination.replan_every_steps",
+            f64::from(c.replan_every_steps),
+            1.0,
+        )?;
         if let Some(p) = b.p_comm.filter(|p| !(*p > 0.0 && *p <= 1.0)) {
             return Err(invalid("bandwidth.p_comm", p, "must be in (0, 1]"));
         }
@@ -505,11 +534,14 @@ impl Scenario {
     /// Values the schema reserves for features that are not built yet are refused by name,
     /// rather than silently running something else.
     fn check_implemented(&self) -> Result<(), ScenarioError> {
-        if self.coordination.strategy != Strategy::Uncoordinated {
+        if !matches!(
+            self.coordination.strategy,
+            Strategy::Uncoordinated | Strategy::Decentralized | Strategy::Burgard
+        ) {
             return Err(invalid(
                 "coordination.strategy",
                 format!("{:?}", self.coordination.strategy),
-                "only \"uncoordinated\" is implemented so far (issue #6)",
+                "\"decentralized\", \"burgard\" and \"uncoordinated\" are implemented; \"bids\", \"roles\" and \"pack\" are not yet",
             ));
         }
         Ok(())

@@ -2,18 +2,24 @@
 //! exist so far): integrate the scan into G_s, exchange over the radio, build the planning grid,
 //! pick a target, plan, move. [`crate::node`] feeds it from zenoh and sends what it returns.
 //!
-//! What is exchanged is [`crate::sharing`]'s business (`raw-scans` or `polygon`, DESIGN.md §4.8);
-//! the planning grid never lets a peer's data override a cell of G_s (thesis §5.2).
+//! What is exchanged is [`crate::sharing`]'s business (`raw-scans`, `polygon` or
+//! `grid-snapshots`, DESIGN.md §4.8); the planning grid never lets a peer's data override a cell
+//! of G_s (thesis §5.2). Which frontier to go to is [`crate::coord`]'s (`coordination.strategy`):
+//! the agent keeps what it heard of other robots (their `targ` announcements; for `burgard` the
+//! sub-team table relayed between neighbours) and replans when its target is reached, gone or no
+//! longer a frontier (`burgard` also when its sub-team changes or every few steps).
 
 use std::collections::{BTreeSet, HashMap};
 
 use proto::geom::{LaserSpec, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{
-    Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Target, Telemetry, Traffic, WorldInfo,
+    Cmd, Hello, MoveOutcome, RobotId, Scan, ScanDelta, Step, Target, Team, TeamEntry, Telemetry,
+    Traffic, WorldInfo,
 };
-use proto::scenario::Scenario;
+use proto::scenario::{Scenario, Strategy};
 
+use crate::coord;
 use crate::grid::Evidence;
 use crate::pacing::Pacer;
 use crate::plan;
@@ -31,6 +37,11 @@ pub enum RadioOut {
         to: RobotId,
         msg: Target,
     },
+    /// The sub-team table (`burgard`), to a robot in range.
+    Team {
+        to: RobotId,
+        msg: Team,
+    },
     /// `bytes`: the share as encoded for the radio ([`Share::encode`]).
     Share {
         to: RobotId,
@@ -47,6 +58,10 @@ const BLACKLIST_STEPS: Step = 30;
 
 /// How many steps of unused radio budget a neighbour's credit can hold.
 pub const BURST_STEPS: usize = 4;
+
+/// A sub-team table entry older than this many steps no longer counts (its robot is gone from
+/// the sub-team).
+const TEAM_FRESH_STEPS: Step = 3;
 
 /// The encoded size of the largest delta that carries one scan of `laser`.
 fn largest_delta_bytes(laser: &LaserSpec) -> usize {
@@ -96,6 +111,16 @@ pub struct Agent {
     /// Other robots' last announced targets and the step they were chosen at (thesis §4.5.1's
     /// table; heard directly from robots in range).
     pub others_targets: std::collections::BTreeMap<RobotId, (Option<Cell>, Step)>,
+    /// How this robot picks its target (`coordination.*`).
+    strategy: Strategy,
+    params: coord::Params,
+    burgard_search: bool,
+    search_tries: u32,
+    replan_every_steps: u32,
+    /// `burgard`: the latest report of every robot heard of, directly or relayed.
+    team: std::collections::BTreeMap<RobotId, TeamEntry>,
+    /// `burgard`: the sub-team of the last assignment and its step.
+    assigned: (Vec<RobotId>, Step),
     hello_every_steps: u32,
     pub bytes_sent: u64,
     pub bytes_received: u64,
@@ -122,6 +147,17 @@ impl Agent {
             backlog: Vec::new(),
             announced: None,
             others_targets: Default::default(),
+            strategy: s.coordination.strategy,
+            params: coord::Params {
+                beta: s.coordination.beta,
+                max_range_cells: world.laser.max_range_m / world.map.resolution_m,
+                half_life_steps: Some(s.coordination.target_half_life_steps).filter(|&h| h > 0.0),
+            },
+            burgard_search: s.coordination.burgard_search,
+            search_tries: s.coordination.search_tries,
+            replan_every_steps: s.coordination.replan_every_steps,
+            team: Default::default(),
+            assigned: (Vec::new(), 0),
             world,
             own: empty.clone(),
             planning: empty,
@@ -187,11 +223,34 @@ impl Agent {
         }
         let frontiers: Vec<Cell> = plan::frontiers(g, &costs);
         let usable = |t: &Cell| *t != me && !self.blacklist.contains_key(t);
-        if !self
+        let valid = self
             .target
-            .is_some_and(|t| usable(&t) && frontiers.contains(&t))
-        {
-            self.target = plan::nearest(frontiers.iter().copied().filter(usable), &costs);
+            .is_some_and(|t| usable(&t) && frontiers.contains(&t));
+        // A robot never stops while it sees a reachable frontier: when every one is blacklisted
+        // (given up for a while after repeated rejected moves), they count again.
+        let mut candidates: Vec<Cell> = frontiers.iter().copied().filter(usable).collect();
+        if candidates.is_empty() {
+            candidates = frontiers.into_iter().filter(|&t| t != me).collect();
+        }
+        match self.strategy {
+            Strategy::Decentralized if !valid => {
+                let others: Vec<(Cell, f64)> = self
+                    .others_targets
+                    .values()
+                    .filter_map(|&(c, at)| Some((c?, f64::from(step.saturating_sub(at)))))
+                    .collect();
+                self.target = coord::decentralized(g, &candidates, &costs, &others, &self.params);
+            }
+            Strategy::Burgard => {
+                let team = self.sub_team();
+                let due = step >= self.assigned.1 + self.replan_every_steps;
+                if !valid || due || team != self.assigned.0 {
+                    self.target = self.assign(g, &candidates, &costs, &team);
+                    self.assigned = (team, step);
+                }
+            }
+            _ if !valid => self.target = plan::nearest(candidates, &costs),
+            _ => {}
         }
         self.idle = self.target.is_none();
         let target = self.target?;
@@ -200,6 +259,125 @@ impl Agent {
             self.world.max_speed_m_per_s * self.world.step_seconds / self.world.map.resolution_m;
         let next = plan::next_waypoint(g, &path, max_cells)?;
         (next != me).then(|| self.world.map.centre_of(next))
+    }
+
+    /// `burgard`: the robots this one can reach over current links, transitively (itself
+    /// included, sorted), from its own neighbours and the fresh entries of its team table.
+    fn sub_team(&self) -> Vec<RobotId> {
+        let fresh = |e: &&TeamEntry| e.step + TEAM_FRESH_STEPS >= self.step;
+        let mut edges: Vec<(RobotId, RobotId)> =
+            self.neighbours.iter().map(|&n| (self.id, n)).collect();
+        for e in self.team.values().filter(fresh) {
+            edges.extend(e.neighbours.iter().map(|&n| (e.robot, n)));
+        }
+        let mut team = vec![self.id];
+        let mut i = 0;
+        while i < team.len() {
+            let r = team[i];
+            for &(a, b) in &edges {
+                let other = if a == r {
+                    b
+                } else if b == r {
+                    a
+                } else {
+                    continue;
+                };
+                if !team.contains(&other) {
+                    team.push(other);
+                }
+            }
+            i += 1;
+        }
+        // A member counts once its report (and so its cell) is known.
+        team.retain(|r| *r == self.id || self.team.get(r).is_some_and(|e| fresh(&e)));
+        team.sort_unstable();
+        team
+    }
+
+    /// `burgard`: this robot's target in the sub-team's assignment, computed on its own
+    /// planning grid from every member's cell; targets of robots outside the sub-team (last
+    /// heard) discount the utilities first.
+    fn assign(
+        &self,
+        g: &Grid,
+        frontiers: &[Cell],
+        mine: &plan::CostMap,
+        team: &[RobotId],
+    ) -> Option<Cell> {
+        let maps: Vec<plan::CostMap> = team
+            .iter()
+            .filter(|&&r| r != self.id)
+            .filter_map(|r| self.team.get(r))
+            .map(|e| plan::costs(g, Cell::new(e.cell.0, e.cell.1)))
+            .collect();
+        let mut costs: Vec<&plan::CostMap> = Vec::with_capacity(team.len());
+        let mut others = maps.iter();
+        let mut me_at = 0;
+        for (k, &r) in team.iter().enumerate() {
+            if r == self.id {
+                me_at = k;
+                costs.push(mine);
+            } else if let Some(m) = others.next() {
+                costs.push(m);
+            }
+        }
+        let fixed: Vec<(Cell, f64)> = self
+            .team
+            .values()
+            .filter(|e| !team.contains(&e.robot))
+            .filter_map(|e| {
+                let (x, y) = e.target?;
+                Some((Cell::new(x, y), f64::from(self.step.saturating_sub(e.step))))
+            })
+            .collect();
+        let targets = if self.burgard_search {
+            let seed = u64::from(self.step) << 16 | team.len() as u64;
+            coord::permutation_search(
+                g,
+                frontiers,
+                &costs,
+                &self.params,
+                self.search_tries as usize,
+                seed,
+            )
+        } else {
+            coord::greedy_assignment(g, frontiers, &costs, &fixed, &self.params)
+        };
+        targets.get(me_at).copied().flatten()
+    }
+
+    /// `burgard`: the team table to send: this robot's own entry and every fresh one it holds.
+    fn team_msg(&self) -> Team {
+        let me = self.world.map.cell_of(self.pose.x, self.pose.y);
+        let mut entries = vec![TeamEntry {
+            robot: self.id,
+            step: self.step,
+            cell: (me.x, me.y),
+            target: self.target.map(|c| (c.x, c.y)),
+            neighbours: self.neighbours.iter().copied().collect(),
+        }];
+        entries.extend(
+            self.team
+                .values()
+                .filter(|e| e.step + TEAM_FRESH_STEPS >= self.step)
+                .cloned(),
+        );
+        Team {
+            from: self.id,
+            entries,
+        }
+    }
+
+    /// A neighbour's team table: newer reports replace older ones.
+    pub fn on_team(&mut self, t: &Team) {
+        for e in &t.entries {
+            if e.robot == self.id {
+                continue;
+            }
+            if self.team.get(&e.robot).is_none_or(|old| old.step < e.step) {
+                self.team.insert(e.robot, e.clone());
+            }
+        }
     }
 
     /// Messages to send this step: periodic handshakes and the log suffixes each neighbour lacks,
@@ -211,12 +389,20 @@ impl Agent {
         let hello_due = self.step.is_multiple_of(self.hello_every_steps);
         let targ = (self.announced != Some(self.target)).then(|| self.target_msg());
         self.announced = Some(self.target);
+        let team = (self.strategy == Strategy::Burgard).then(|| self.team_msg());
         for &peer in &peers {
-            if !hello_due && targ.is_none() && !self.sharing.has_pending(peer) {
+            if !hello_due && targ.is_none() && team.is_none() && !self.sharing.has_pending(peer) {
                 continue;
             }
             let budget = self.pacer.available(peer);
             let mut spent = 0usize;
+            if let Some(msg) = &team {
+                spent += proto::msg::encode(msg).len();
+                out.push(RadioOut::Team {
+                    to: peer,
+                    msg: msg.clone(),
+                });
+            }
             if let Some(msg) = &targ {
                 spent += proto::msg::encode(msg).len();
                 out.push(RadioOut::Target {

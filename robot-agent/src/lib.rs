@@ -17,6 +17,8 @@ pub mod approx_exchange;
 pub mod cli;
 /// Contour extraction: the exact polygonal model P_t (§4.1).
 pub mod contour;
+/// Coordination strategies: utilities, discounts, decentralized and Burgard (§4.4–4.5).
+pub mod coord;
 /// Edit scripts between approximations: the delta ops (§4.2.3, Algorithms 4–5).
 pub mod delta;
 /// The approximation error d_t and e_avg (§6.1, eq. 6.1).

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use proto::keys;
 use proto::msg::{
-    decode, encode, Control, Hello, OpChunk, PatchDelta, RobotId, Scan, ScanDelta, Target, Traffic,
-    WorldInfo,
+    decode, encode, Control, Hello, OpChunk, PatchDelta, RobotId, Scan, ScanDelta, Target, Team,
+    Traffic, WorldInfo,
 };
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
@@ -49,6 +49,11 @@ async fn send_radio(radio: &Session, agent: &mut Agent, out: Vec<RadioOut>) {
                 let b = encode(&msg);
                 agent.count_sent(Traffic::Targ, b.len());
                 (keys::radio_targ(to), b)
+            }
+            RadioOut::Team { to, msg } => {
+                let b = encode(&msg);
+                agent.count_sent(Traffic::Targ, b.len());
+                (keys::radio_team(to), b)
             }
             RadioOut::Share { to, msg, bytes } => {
                 agent.count_share_sent(&msg, bytes.len());
@@ -101,6 +106,10 @@ pub async fn run_robot(
         .map_err(zerr)?;
     let targets = radio
         .declare_subscriber(keys::radio_targ(id))
+        .await
+        .map_err(zerr)?;
+    let teams = radio
+        .declare_subscriber(keys::radio_team(id))
         .await
         .map_err(zerr)?;
     let peers = radio
@@ -178,6 +187,15 @@ pub async fn run_robot(
                 agent.bytes_received += bytes.len() as u64;
                 match decode::<Target>(&bytes) {
                     Ok(t) => agent.on_target(&t),
+                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
+                }
+            }
+            sample = teams.recv_async() => {
+                let Ok(sample) = sample else { return Ok(End::Stopped) };
+                let bytes = sample.payload().to_bytes();
+                agent.bytes_received += bytes.len() as u64;
+                match decode::<Team>(&bytes) {
+                    Ok(t) => agent.on_team(&t),
                     Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
                 }
             }
