@@ -94,6 +94,24 @@ fn three_robots_explore_a_small_office_sharing_grid_patches() {
     assert_eq!(s["radio_decode_errors"], 0, "{s}");
 }
 
+/// Burgard et al.'s team assignment over the radio: the sub-team tables travel (as `targ`).
+#[test]
+fn three_robots_coordinated_by_burgard_assignment_explore_a_small_office() {
+    let s = completes(
+        "burgard",
+        &[
+            "world.map=office",
+            "world.width_m=14",
+            "world.height_m=10",
+            "robots.count=3",
+            "seed=3",
+            "coordination.strategy=burgard",
+        ],
+        400,
+    );
+    assert!(s["bytes_by_type"]["targ"].as_u64().unwrap_or(0) > 0, "{s}");
+}
+
 #[test]
 fn eight_robots_explore_a_small_real_map() {
     completes("eight", &["world.map=fr101", "robots.count=8"], 400);

@@ -748,6 +748,22 @@ mod tests {
             (err("[sensor]\nbeams = 1.5\n", &[]), "sensor.beams"),
             (err("", &["novalue"]), "novalue"),
             (err("seed = [", &[]), "TOML"),
+            (
+                err("", &["coordination.strategy=\"bids\""]),
+                "coordination.strategy",
+            ),
+            (err("", &["coordination.beta=-1"]), "coordination.beta"),
+            (
+                err("", &["coordination.replan_every_steps=0"]),
+                "coordination.replan_every_steps",
+            ),
+            (err("", &["bandwidth.usage=0"]), "bandwidth.usage"),
+            (err("", &["bandwidth.control=\"magic\""]), "magic"),
+            (err("", &["bandwidth.p_comm=2"]), "bandwidth.p_comm"),
+            (
+                err("", &["bandwidth.splits_per_step=100"]),
+                "bandwidth.splits_per_step",
+            ),
         ];
         for (msg, needle) in cases {
             assert!(msg.contains(needle), "{msg:?} should name {needle:?}");
