@@ -197,6 +197,10 @@ pub struct Coordination {
     /// `decentralized`: a heard target's discount halves every this many steps; 0 = never
     /// (the thesis).
     pub target_half_life_steps: f64,
+    /// Path costs punish cells near obstacles: a step into a cell costs (1 + weight × the
+    /// Gaussian-blurred (σ cells) occupancy there) times its length; 0 = off.
+    pub obstacle_penalty: f64,
+    pub obstacle_sigma_cells: f64,
     /// `burgard`: Algorithm 2's randomized permutation search instead of greedy Algorithm 1.
     pub burgard_search: bool,
     /// `burgard`: random changes tried by the permutation search.
@@ -317,6 +321,8 @@ impl Default for Coordination {
             strategy: Strategy::Decentralized,
             beta: 1.0,
             target_half_life_steps: 0.0,
+            obstacle_penalty: 0.0,
+            obstacle_sigma_cells: 2.0,
             burgard_search: false,
             search_tries: 200,
             replan_every_steps: 10,
@@ -520,6 +526,8 @@ impl Scenario {
             c.target_half_life_steps,
             0.0,
         )?;
+        at_least("coordination.obstacle_penalty", c.obstacle_penalty, 0.0)?;
+        positive("coordination.obstacle_sigma_cells", c.obstacle_sigma_cells)?;
         at_least(
             "coordination.replan_every_steps",
             f64::from(c.replan_every_steps),

@@ -116,6 +116,8 @@ pub struct Agent {
     params: coord::Params,
     burgard_search: bool,
     search_tries: u32,
+    /// Obstacle penalty of path costs: (weight, σ in cells); weight 0 = off.
+    obstacle: (f64, f64),
     replan_every_steps: u32,
     /// `burgard`: the latest report of every robot heard of, directly or relayed.
     team: std::collections::BTreeMap<RobotId, TeamEntry>,
@@ -154,6 +156,10 @@ impl Agent {
                 half_life_steps: Some(s.coordination.target_half_life_steps).filter(|&h| h > 0.0),
             },
             burgard_search: s.coordination.burgard_search,
+            obstacle: (
+                s.coordination.obstacle_penalty,
+                s.coordination.obstacle_sigma_cells,
+            ),
             search_tries: s.coordination.search_tries,
             replan_every_steps: s.coordination.replan_every_steps,
             team: Default::default(),
@@ -212,7 +218,9 @@ impl Agent {
         self.planning = self.planning_grid();
         let g = &self.planning;
         let me = self.world.map.cell_of(self.pose.x, self.pose.y);
-        let costs = plan::costs(g, me);
+        let penalty = (self.obstacle.0 > 0.0)
+            .then(|| plan::obstacle_penalty(g, self.obstacle.1, self.obstacle.0));
+        let costs = plan::costs_with(g, me, penalty.as_deref());
         let step = self.step;
         self.blacklist.retain(|_, until| *until > step);
         if self.rejections >= MAX_REJECTIONS {
@@ -245,7 +253,7 @@ impl Agent {
                 let team = self.sub_team();
                 let due = step >= self.assigned.1 + self.replan_every_steps;
                 if !valid || due || team != self.assigned.0 {
-                    self.target = self.assign(g, &candidates, &costs, &team);
+                    self.target = self.assign(g, &candidates, &costs, &team, penalty.as_deref());
                     self.assigned = (team, step);
                 }
             }
@@ -303,12 +311,13 @@ impl Agent {
         frontiers: &[Cell],
         mine: &plan::CostMap,
         team: &[RobotId],
+        penalty: Option<&[f32]>,
     ) -> Option<Cell> {
         let maps: Vec<plan::CostMap> = team
             .iter()
             .filter(|&&r| r != self.id)
             .filter_map(|r| self.team.get(r))
-            .map(|e| plan::costs(g, Cell::new(e.cell.0, e.cell.1)))
+            .map(|e| plan::costs_with(g, Cell::new(e.cell.0, e.cell.1), penalty))
             .collect();
         let mut costs: Vec<&plan::CostMap> = Vec::with_capacity(team.len());
         let mut others = maps.iter();

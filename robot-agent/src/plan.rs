@@ -124,6 +124,56 @@ fn moves(g: &Grid, c: Cell) -> impl Iterator<Item = (Cell, f64)> + '_ {
 /// cutting). The start cell itself is traversable whatever its value — the robot stands on it —
 /// but every other cell on a path is free. A start outside the grid reaches nothing.
 pub fn costs(g: &Grid, start: Cell) -> CostMap {
+    costs_with(g, start, None)
+}
+
+/// The penalty of being near obstacles (thesis §4.4.1: the planning map smoothed with a Gaussian
+/// kernel, so that robots are punished for moving close to objects or through narrow corridors):
+/// per cell, the occupied indicator blurred with a Gaussian of `sigma` cells (radius 3σ, a
+/// separable filter), scaled by `weight`. A step into a cell costs (1 + penalty) times its length.
+pub fn obstacle_penalty(g: &Grid, sigma: f64, weight: f64) -> Vec<f32> {
+    let (w, h) = (g.width() as usize, g.height() as usize);
+    if sigma <= 0.0 || weight <= 0.0 || w == 0 || h == 0 {
+        return vec![0.0; g.len()];
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let kernel: Vec<f64> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let sum: f64 = kernel.iter().sum();
+    let kernel: Vec<f64> = kernel.iter().map(|k| k / sum).collect();
+    let occ: Vec<f64> = g
+        .cells()
+        .iter()
+        .map(|&c| if c == Occ::Occupied { 1.0 } else { 0.0 })
+        .collect();
+    let blur = |src: &[f64], horizontal: bool| -> Vec<f64> {
+        let mut out = vec![0.0; src.len()];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = 0.0;
+                for (k, kv) in kernel.iter().enumerate() {
+                    let o = k as isize - r;
+                    let (sx, sy) = if horizontal {
+                        (x as isize + o, y as isize)
+                    } else {
+                        (x as isize, y as isize + o)
+                    };
+                    if sx >= 0 && sy >= 0 && (sx as usize) < w && (sy as usize) < h {
+                        acc += kv * src[sy as usize * w + sx as usize];
+                    }
+                }
+                out[y * w + x] = acc;
+            }
+        }
+        out
+    };
+    let smooth = blur(&blur(&occ, true), false);
+    smooth.iter().map(|&v| (v * weight) as f32).collect()
+}
+
+/// [`costs`] with a per-cell penalty ([`obstacle_penalty`]; `None`: none).
+pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
     let mut map = CostMap {
         width: g.width(),
         height: g.height(),
@@ -146,7 +196,10 @@ pub fn costs(g: &Grid, start: Cell) -> CostMap {
         for (n, step) in moves(g, map.cell_of(index)) {
             // `moves` yields only free cells, which lie inside the grid.
             let Some(ni) = map.index(n) else { continue };
-            let next = cost + step;
+            let extra = penalty
+                .and_then(|p| p.get(ni))
+                .map_or(0.0, |&p| f64::from(p));
+            let next = cost + step * (1.0 + extra);
             if next < map.dist[ni] {
                 map.dist[ni] = next;
                 map.pred[ni] = index as u32;
@@ -238,6 +291,41 @@ pub fn next_waypoint(g: &Grid, path: &[Cell], max_cells: f64) -> Option<Cell> {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn the_obstacle_penalty_keeps_paths_off_walls() {
+        // A wide corridor with a wall along its bottom: with the penalty, the path from left to
+        // right runs along the middle rather than hugging the wall.
+        let g = Grid::from_ascii(
+            "\
+############
+#..........#
+#..........#
+#..........#
+#..........#
+#..........#
+############
+",
+        );
+        let p = obstacle_penalty(&g, 1.0, 5.0);
+        let mid = p[3 * 12 + 5];
+        let edge = p[12 + 5];
+        assert!(edge > mid && mid >= 0.0, "edge {edge} mid {mid}");
+        let (a, b) = (Cell::new(1, 1), Cell::new(10, 1));
+        let plain = path_to(&costs(&g, a), b).unwrap_or_default();
+        let careful = path_to(&costs_with(&g, a, Some(&p)), b).unwrap_or_default();
+        let max_y = |path: &[Cell]| path.iter().map(|c| c.y).max().unwrap_or(0);
+        assert_eq!(
+            max_y(&plain),
+            1,
+            "the shortest path hugs the wall: {plain:?}"
+        );
+        assert!(
+            max_y(&careful) >= 2,
+            "the penalised path moves away: {careful:?}"
+        );
+        assert_eq!(obstacle_penalty(&g, 0.0, 5.0), vec![0.0; g.len()]);
+    }
 
     /// The cells marked with one of `marks` in an ASCII picture (top line = top row), bottom row
     /// first.
