@@ -76,6 +76,20 @@ pub fn radio_targ(to: RobotId) -> String {
     format!("radio/{to}/targ")
 }
 
+/// Everything on the radio addressed to robot `to` (`radio/<to>/<kind>`).
+pub fn radio_inbox(to: RobotId) -> String {
+    format!("radio/{to}/*")
+}
+
+/// The `<kind>` of a `radio/<to>/<kind>` key (`hello`, `delta`, `ops`, `patch`, `targ`, `team`).
+pub fn radio_kind(key: &str) -> Option<&str> {
+    let mut parts = key.split('/');
+    match (parts.next(), parts.next(), parts.next(), parts.next()) {
+        (Some("radio"), Some(_), Some(kind), None) => Some(kind),
+        _ => None,
+    }
+}
+
 /// The robot id at the end of a key such as `sim/alive/3` or `sim/telemetry/3`, or the middle
 /// of `sim/robot/3/cmd`.
 pub fn robot_of(key: &str) -> Option<RobotId> {
@@ -90,6 +104,15 @@ pub fn robot_of(key: &str) -> Option<RobotId> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn radio_kinds_are_the_last_segment_of_our_radio_keys() {
+        assert_eq!(radio_kind(&radio_hello(3)), Some("hello"));
+        assert_eq!(radio_kind(&radio_ops(3)), Some("ops"));
+        assert_eq!(radio_kind(&radio_team(0)), Some("team"));
+        assert_eq!(radio_kind("radio/3"), None);
+        assert_eq!(radio_kind("sim/robot/3/cmd"), None);
+    }
 
     #[test]
     fn robot_of_parses_our_keys() {

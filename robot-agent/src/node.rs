@@ -70,6 +70,28 @@ async fn send_radio(radio: &Session, agent: &mut Agent, out: Vec<RadioOut>) {
     }
 }
 
+/// Decodes a radio payload, counting its bytes as received; one that does not decode counts as a
+/// decode error (the first one is logged) and yields nothing.
+fn radio_msg<T: serde::de::DeserializeOwned>(
+    agent: &mut Agent,
+    sample: &zenoh::sample::Sample,
+    logged_bad: &mut bool,
+) -> Option<T> {
+    let bytes = sample.payload().to_bytes();
+    agent.bytes_received += bytes.len() as u64;
+    match decode::<T>(&bytes) {
+        Ok(m) => Some(m),
+        Err(e) => {
+            agent.decode_errors += 1;
+            if !*logged_bad {
+                *logged_bad = true;
+                tracing::warn!("undecodable radio payload: {e}");
+            }
+            None
+        }
+    }
+}
+
 /// Runs one robot until the launcher stops it or the world falls silent.
 pub async fn run_robot(
     id: RobotId,
@@ -88,28 +110,9 @@ pub async fn run_robot(
         .history(true)
         .await
         .map_err(zerr)?;
-    let hellos = radio
-        .declare_subscriber(keys::radio_hello(id))
-        .await
-        .map_err(zerr)?;
-    let deltas = radio
-        .declare_subscriber(keys::radio_delta(id))
-        .await
-        .map_err(zerr)?;
-    let chunks = radio
-        .declare_subscriber(keys::radio_ops(id))
-        .await
-        .map_err(zerr)?;
-    let patches = radio
-        .declare_subscriber(keys::radio_patch(id))
-        .await
-        .map_err(zerr)?;
-    let targets = radio
-        .declare_subscriber(keys::radio_targ(id))
-        .await
-        .map_err(zerr)?;
-    let teams = radio
-        .declare_subscriber(keys::radio_team(id))
+    // Everything addressed to this robot on the radio, told apart by the key's last segment.
+    let inbox = radio
+        .declare_subscriber(keys::radio_inbox(id))
         .await
         .map_err(zerr)?;
     let peers = radio
@@ -145,59 +148,36 @@ pub async fn run_robot(
                 send_radio(&radio, &mut agent, out).await;
                 sim.put(keys::telemetry(id), encode(&agent.telemetry())).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
             }
-            sample = hellos.recv_async() => {
+            sample = inbox.recv_async() => {
                 let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let bytes = sample.payload().to_bytes();
-                agent.bytes_received += bytes.len() as u64;
-                match decode::<Hello>(&bytes) {
-                    Ok(h) => agent.on_hello(&h),
-                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
-                }
-            }
-            sample = deltas.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let bytes = sample.payload().to_bytes();
-                agent.bytes_received += bytes.len() as u64;
-                match decode::<ScanDelta>(&bytes) {
-                    Ok(d) => { let out = agent.on_share(d.from, &Share::Scans(d)); send_radio(&radio, &mut agent, out).await; }
-                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
-                }
-            }
-            sample = chunks.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let bytes = sample.payload().to_bytes();
-                agent.bytes_received += bytes.len() as u64;
-                match decode::<OpChunk>(&bytes) {
-                    Ok(c) => { let out = agent.on_share(c.from, &Share::Ops(c)); send_radio(&radio, &mut agent, out).await; }
-                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
-                }
-            }
-            sample = patches.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let bytes = sample.payload().to_bytes();
-                agent.bytes_received += bytes.len() as u64;
-                match decode::<PatchDelta>(&bytes) {
-                    Ok(d) => { let out = agent.on_share(d.from, &Share::Patches(d)); send_radio(&radio, &mut agent, out).await; }
-                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
-                }
-            }
-            sample = targets.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let bytes = sample.payload().to_bytes();
-                agent.bytes_received += bytes.len() as u64;
-                match decode::<Target>(&bytes) {
-                    Ok(t) => agent.on_target(&t),
-                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
-                }
-            }
-            sample = teams.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let bytes = sample.payload().to_bytes();
-                agent.bytes_received += bytes.len() as u64;
-                match decode::<Team>(&bytes) {
-                    Ok(t) => agent.on_team(&t),
-                    Err(e) => { agent.decode_errors += 1; if !logged_bad { logged_bad = true; tracing::warn!("undecodable radio payload: {e}"); } }
-                }
+                let bad = &mut logged_bad;
+                let out = match keys::radio_kind(sample.key_expr().as_str()) {
+                    Some("hello") => {
+                        if let Some(m) = radio_msg::<Hello>(&mut agent, &sample, bad) { agent.on_hello(&m); }
+                        Vec::new()
+                    }
+                    Some("delta") => radio_msg::<ScanDelta>(&mut agent, &sample, bad)
+                        .map(|m| agent.on_share(m.from, &Share::Scans(m))).unwrap_or_default(),
+                    Some("ops") => radio_msg::<OpChunk>(&mut agent, &sample, bad)
+                        .map(|m| agent.on_share(m.from, &Share::Ops(m))).unwrap_or_default(),
+                    Some("patch") => radio_msg::<PatchDelta>(&mut agent, &sample, bad)
+                        .map(|m| agent.on_share(m.from, &Share::Patches(m))).unwrap_or_default(),
+                    Some("targ") => {
+                        if let Some(m) = radio_msg::<Target>(&mut agent, &sample, bad) { agent.on_target(&m); }
+                        Vec::new()
+                    }
+                    Some("team") => {
+                        if let Some(m) = radio_msg::<Team>(&mut agent, &sample, bad) { agent.on_team(&m); }
+                        Vec::new()
+                    }
+                    _ => {
+                        // Not a kind this build knows: counted, and refused like bad bytes.
+                        agent.bytes_received += sample.payload().len() as u64;
+                        agent.decode_errors += 1;
+                        Vec::new()
+                    }
+                };
+                send_radio(&radio, &mut agent, out).await;
             }
             sample = peers.recv_async() => {
                 let Ok(sample) = sample else { return Ok(End::Stopped) };
