@@ -19,3 +19,5 @@ pub mod replay;
 pub mod run;
 /// The run directory's files.
 pub mod rundir;
+/// `swarm sweep`: grids of runs × seeds, aggregated (issue #7, in progress).
+pub mod sweep;

@@ -23,6 +23,9 @@ enum Command {
     /// (contours, incremental approximation, edit ops): writes PNGs of G_s, P_t and A_t,
     /// replay.csv per step and replay.json with bytes per package type and e_avg.
     Replay(swarm::replay::ReplayArgs),
+    /// Run an experiment: every combination of its grid of scenario overrides × seeds, a few
+    /// runs at a time; resumable (finished runs are skipped); writes runs.csv and results.csv.
+    Sweep(swarm::sweep::SweepArgs),
     /// Run a world-server process (what `swarm run` starts; use it to spread a run over machines).
     WorldServer(world_server::cli::Args),
     /// Run one robot-agent process (what `swarm run` starts, once per robot).
@@ -38,6 +41,16 @@ fn main() -> ExitCode {
     match Cli::parse().command {
         Command::Run(args) => run(args),
         Command::Replay(args) => replay(&args),
+        Command::Sweep(args) => match swarm::sweep::sweep(&args) {
+            Ok(dir) => {
+                println!("sweep written to {}", dir.display());
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("swarm sweep: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
         Command::WorldServer(args) => world_server::cli::main(args),
         Command::RobotAgent(args) => robot_agent::cli::main(args),
         Command::Netem(swarm::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),

@@ -11,4 +11,5 @@ mod mapping;
 mod netem;
 mod polygon;
 mod runs;
+mod sweep;
 mod wire;
