@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use proto::grid::Grid;
+use proto::grid::{Grid, Occ};
 use proto::keys;
 use proto::msg::{decode, encode, Control, LinkReport, RobotId, Status, Telemetry, TruthMap};
 use proto::node::{zerr, ZenohArgs};
@@ -74,10 +74,36 @@ fn load_scenario(args: &RunArgs) -> anyhow::Result<(Scenario, PathBuf)> {
             .with_context(|| format!("resolving {}", map.display()))?;
         s.world.map = map.to_string_lossy().into_owned();
     }
+    if let Some(pct) = s.radio.range_pct_of_diagonal {
+        s.radio.range_m = pct / 100.0 * environment_diagonal_m(&s)?;
+    }
     let name = Path::new(&s.world.map)
         .file_stem()
         .map_or("run".into(), |n| n.to_string_lossy().into_owned());
     Ok((s, PathBuf::from(name)))
+}
+
+/// The diagonal of the environment's rectangle: a generated world's extent, or the bounding box
+/// of a map's known (free or occupied) cells — the thesis's "maximum communication range".
+fn environment_diagonal_m(s: &Scenario) -> anyhow::Result<f64> {
+    if s.world_is_generated() {
+        return Ok(s.world.width_m.hypot(s.world.height_m));
+    }
+    let map = world_server::map::load_ros_map(Path::new(&s.world.map))?;
+    let g = &map.grid;
+    let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
+    for (i, &v) in g.cells().iter().enumerate() {
+        if v != Occ::Unknown {
+            let c = g.cell_of(i);
+            (x0, y0) = (x0.min(c.x.unsigned_abs()), y0.min(c.y.unsigned_abs()));
+            (x1, y1) = (x1.max(c.x.unsigned_abs()), y1.max(c.y.unsigned_abs()));
+        }
+    }
+    if x0 > x1 {
+        bail!("{}: the map has no known cell", s.world.map);
+    }
+    let cells = f64::from(x1 - x0 + 1).hypot(f64::from(y1 - y0 + 1));
+    Ok(cells * map.info.resolution_m)
 }
 
 fn run_dir(args: &RunArgs, name: &Path, robots: u16) -> anyhow::Result<PathBuf> {

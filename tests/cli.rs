@@ -1,8 +1,9 @@
 //! The command line: help texts and errors for bad input.
 
 use std::process::Command;
+use std::time::Duration;
 
-use crate::support::{stderr, TempDir, SWARM};
+use crate::support::{stderr, swarm_run, TempDir, SWARM};
 
 fn help(args: &[&str]) -> String {
     let out = Command::new(SWARM)
@@ -114,4 +115,34 @@ fn malformed_map_files_are_reported_not_panicked() {
         "the error names the file: {err}"
     );
     assert!(!err.contains("panicked"), "{err}");
+}
+
+/// The thesis gives ranges as a share of the environment's diagonal; `swarm run` turns that into
+/// metres before any process starts, for a generated world (its extent) and a map (its known
+/// area), and the run directory's scenario.toml shows both.
+#[test]
+fn a_range_given_as_a_share_of_the_diagonal_becomes_metres() {
+    let range = |map: &str| {
+        let dir = TempDir::new("pct");
+        let (out, run) = swarm_run(
+            &dir,
+            None,
+            &[
+                &format!("world.map={map}"),
+                "radio.range_pct_of_diagonal=50",
+                "max_steps=1",
+            ],
+            Duration::from_secs(60),
+        );
+        assert!(out.status.code().is_some_and(|c| c != 1), "{}", stderr(&out));
+        let text = std::fs::read_to_string(run.join("scenario.toml")).unwrap_or_default();
+        let s: toml::Value = text.parse().unwrap_or_else(|e| panic!("{e}: {text}"));
+        assert_eq!(s["radio"]["range_pct_of_diagonal"].as_float(), Some(50.0));
+        s["radio"]["range_m"].as_float().unwrap_or(-1.0)
+    };
+    // The generated office is 40 m × 30 m by default: a 50 m diagonal.
+    assert!((range("office") - 25.0).abs() < 1e-9);
+    // The Intel lab's known area is about 28 m × 28 m (not its whole image).
+    let intel = range("intel_lab");
+    assert!((15.0..25.0).contains(&intel), "{intel}");
 }

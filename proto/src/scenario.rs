@@ -82,6 +82,11 @@ pub struct Sensor {
 pub struct Radio {
     pub model: RadioModel,
     pub range_m: f64,
+    /// The range as a percentage of the environment's diagonal (the thesis's axis, §6.2). `swarm
+    /// run` resolves it into `range_m` before it starts any process; processes started by hand
+    /// use `range_m`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub range_pct_of_diagonal: Option<f64>,
     pub bandwidth_bytes_per_s: u64,
     pub medium: Medium,
     pub latency_ms: f64,
@@ -292,6 +297,7 @@ impl Default for Radio {
         Radio {
             model: RadioModel::Disk,
             range_m: 10.0,
+            range_pct_of_diagonal: None,
             bandwidth_bytes_per_s: 1000,
             medium: Medium::PerLink,
             latency_ms: 0.0,
@@ -455,6 +461,9 @@ impl Scenario {
         positive("sensor.max_range_m", s.sensor.max_range_m)?;
         at_least("sensor.noise_std_m", s.sensor.noise_std_m, 0.0)?;
         positive("radio.range_m", s.radio.range_m)?;
+        if let Some(p) = s.radio.range_pct_of_diagonal {
+            positive("radio.range_pct_of_diagonal", p)?;
+        }
         at_least("radio.latency_ms", s.radio.latency_ms, 0.0)?;
         at_least("radio.jitter_ms", s.radio.jitter_ms, 0.0)?;
         positive(
@@ -655,7 +664,10 @@ fn type_name(v: &toml::Value) -> &'static str {
 }
 
 /// Keys without a default value (absent from the serialized default), accepted as numbers.
-const OPTIONAL_FLOAT_KEYS: [&str; 1] = ["radio.pathloss_threshold_dbm"];
+const OPTIONAL_FLOAT_KEYS: [&str; 2] = [
+    "radio.pathloss_threshold_dbm",
+    "radio.range_pct_of_diagonal",
+];
 
 /// Checks every key of `user` against `schema` (the serialized default scenario), naming the
 /// full dotted key of the first unknown key or wrong type. Integers are accepted where floats are
