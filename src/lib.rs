@@ -9,15 +9,21 @@ pub mod children;
 pub mod evaluate;
 /// `swarm netem`: the netem process and runtime link control over its HTTP API.
 pub mod netemctl;
+/// Charts (SVG and PNG) of a sweep's results.
+pub mod plot;
 /// Free loopback ports.
 pub mod ports;
 /// PNG pictures of grids and trajectories.
 pub mod render;
 /// `swarm replay`: one robot, no network, the mapping pipeline measured.
 pub mod replay;
+/// A sweep's report: plots, tables, report.md.
+pub mod report;
+/// A sweep's results: runs.csv and results.csv (means, std, 95 % intervals).
+pub mod results;
 /// `swarm run`.
 pub mod run;
 /// The run directory's files.
 pub mod rundir;
-/// `swarm sweep`: grids of runs × seeds, aggregated (issue #7, in progress).
+/// `swarm sweep`: grids of runs × seeds, run a few at a time, resumable.
 pub mod sweep;

@@ -112,15 +112,20 @@ impl Picture {
     }
 
     pub fn save(&self, path: &Path) -> anyhow::Result<()> {
-        let file = File::create(path).with_context(|| format!("creating {}", path.display()))?;
-        let mut enc = png::Encoder::new(BufWriter::new(file), self.width, self.height);
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut w = enc
-            .write_header()
-            .with_context(|| format!("writing {}", path.display()))?;
-        w.write_image_data(&self.rgb)
-            .with_context(|| format!("writing {}", path.display()))?;
-        Ok(())
+        write_png(path, self.width, self.height, &self.rgb)
     }
+}
+
+/// Writes 8-bit RGB pixels (row 0 at the top) as a PNG file.
+pub fn write_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> anyhow::Result<()> {
+    let file = File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let mut enc = png::Encoder::new(BufWriter::new(file), width, height);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc
+        .write_header()
+        .with_context(|| format!("writing {}", path.display()))?;
+    w.write_image_data(rgb)
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
 }

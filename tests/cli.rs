@@ -134,7 +134,11 @@ fn a_range_given_as_a_share_of_the_diagonal_becomes_metres() {
             ],
             Duration::from_secs(60),
         );
-        assert!(out.status.code().is_some_and(|c| c != 1), "{}", stderr(&out));
+        assert!(
+            out.status.code().is_some_and(|c| c != 1),
+            "{}",
+            stderr(&out)
+        );
         let text = std::fs::read_to_string(run.join("scenario.toml")).unwrap_or_default();
         let s: toml::Value = text.parse().unwrap_or_else(|e| panic!("{e}: {text}"));
         assert_eq!(s["radio"]["range_pct_of_diagonal"].as_float(), Some(50.0));

@@ -212,7 +212,10 @@ fn a_robot_learns_the_map_of_a_robot_it_never_meets_through_a_third() {
             .filter(|&i| own0.cells[i] != 205 && own1.cells[i] == 205 && own2.cells[i] == 205)
             .collect();
         let before: Vec<usize> = only0.iter().copied().filter(|&i| !lately(i)).collect();
-        let agree = before.iter().filter(|&&i| plan2[i] == own0.cells[i]).count() as f64
+        let agree = before
+            .iter()
+            .filter(|&&i| plan2[i] == own0.cells[i])
+            .count() as f64
             / before.len().max(1) as f64;
         eprintln!(
             "seed {seed}: robot 2 shows robot 0's save point of step {saved_at} at the end \

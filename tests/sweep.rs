@@ -1,5 +1,6 @@
-//! `swarm sweep` (issue #7, in progress): a tiny sweep of 2 grid points × 2 seeds writes one
-//! `runs.csv` row per run and one `results.csv` row per point; running it again runs nothing.
+//! `swarm sweep`: a tiny sweep of 2 grid points × 2 seeds writes one `runs.csv` row per run, one
+//! `results.csv` row per point, its plots (SVG and PNG) and `report.md`; running it again runs
+//! nothing, and a directory of other settings is refused.
 
 use std::process::Command;
 use std::time::Duration;
@@ -14,7 +15,11 @@ fn a_tiny_sweep_writes_its_tables_and_resumes() {
         &exp,
         "name = \"tiny\"\nseeds = 2\n\
          set = [\"world.map=office\", \"world.width_m=14\", \"world.height_m=10\", \"robots.count=2\", \"clock.step_timeout_ms=10000\"]\n\
-         [grid]\n\"exchange.mode\" = [\"raw-scans\", \"polygon\"]\n",
+         fields = [\"traffic_shares_pct.vertex\"]\n\
+         [grid]\n\"exchange.mode\" = [\"raw-scans\", \"polygon\"]\n\
+         [[plot]]\nname = \"time\"\ntitle = \"Exploration time\"\nx = \"exchange.mode\"\ny = \"exploration_steps\"\n\
+         [[timeline]]\nname = \"channel\"\ntitle = \"Channel load\"\nseries = \"exchange.mode\"\n\
+         [[table]]\ntitle = \"Vertex share\"\nrows = [\"exchange.mode\"]\ncolumns = [\"traffic_shares_pct.vertex\"]\n",
     )
     .expect("write experiment");
     let out = dir.path().join("out");
@@ -60,10 +65,51 @@ fn a_tiny_sweep_writes_its_tables_and_resumes() {
         );
         assert_eq!(num(r, "complete"), 2.0);
     }
+    // The polygon runs have a vertex share; raw scans have none.
+    for r in &runs {
+        let share = r["traffic_shares_pct.vertex"].parse::<f64>();
+        match r["exchange.mode"].as_str() {
+            "polygon" => assert!(share.is_ok_and(|v| v > 0.0 && v <= 100.0), "{r:?}"),
+            _ => assert!(share.is_err() || share == Ok(0.0), "{r:?}"),
+        }
+    }
+    // The report embeds a chart per plot and two per timeline facet, and each exists as SVG
+    // and PNG.
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    let charts: Vec<&str> = report
+        .lines()
+        .filter_map(|l| l.strip_prefix("![").and_then(|l| l.split("](").nth(1)))
+        .map(|l| l.trim_end_matches(')'))
+        .collect();
+    assert_eq!(charts.len(), 3, "{report}");
+    for c in &charts {
+        let svg = std::fs::read_to_string(out.join(c)).expect("svg");
+        assert!(svg.starts_with("<svg") && svg.contains("<text"), "{c}");
+        let png = std::fs::read(out.join(c.replace(".svg", ".png"))).expect("png");
+        assert!(
+            png.starts_with(b"\x89PNG\r\n\x1a\n") && png.len() > 5_000,
+            "{c}"
+        );
+    }
+    assert!(report.contains("| polygon | 2 |"), "{report}");
     let again = sweep();
     let said = String::from_utf8_lossy(&again.stderr).into_owned();
     assert!(
         again.status.success() && said.contains("4 already done"),
+        "{said}"
+    );
+    // Another set of overrides in the same directory would mix runs of other settings.
+    std::fs::write(
+        &exp,
+        std::fs::read_to_string(&exp)
+            .unwrap_or_default()
+            .replace("robots.count=2", "robots.count=3"),
+    )
+    .expect("write experiment");
+    let other = sweep();
+    let said = String::from_utf8_lossy(&other.stderr).into_owned();
+    assert!(
+        !other.status.success() && said.contains("other settings"),
         "{said}"
     );
 }

@@ -1,0 +1,284 @@
+//! A sweep's results: each run's summary fields, and per grid point their mean, standard
+//! deviation and 95 % interval. Writes `runs.csv` (one row per run) and `results.csv` (one row
+//! per grid point).
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+
+/// The summary fields every sweep reports per run and aggregates per point.
+pub const FIELDS: [&str; 7] = [
+    "exploration_steps",
+    "steps",
+    "bytes_wire_total",
+    "bytes_payload_total",
+    "approx_error_avg",
+    "backlog_max_bytes",
+    "wall_seconds",
+];
+
+/// One grid point: its overrides, as `KEY=VALUE`, in key order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Point(pub Vec<(String, String)>);
+
+impl Point {
+    /// A directory-safe id, e.g. `exchange.mode=polygon,robots.count=3`.
+    pub fn id(&self) -> String {
+        let s: Vec<String> = self.0.iter().map(|(k, v)| format!("{k}={v}")).collect();
+        s.join(",")
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || "=.,-_".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect()
+    }
+
+    /// The value of one grid key at this point.
+    pub fn get(&self, key: &str) -> Option<&str> {
+        self.0
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+}
+
+/// Every combination of the grid's values, in key order (the last key varies fastest).
+pub fn points(grid: &BTreeMap<String, Vec<String>>) -> Vec<Point> {
+    let mut out = vec![Point(Vec::new())];
+    for (k, values) in grid {
+        out = out
+            .into_iter()
+            .flat_map(|p| {
+                values.iter().map(move |v| {
+                    let mut q = p.0.clone();
+                    q.push((k.clone(), v.clone()));
+                    Point(q)
+                })
+            })
+            .collect();
+    }
+    out
+}
+
+/// Mean, sample standard deviation and the half-width of the 95 % t-interval.
+pub fn stats(xs: &[f64]) -> Option<(f64, f64, f64)> {
+    let n = xs.len();
+    if n == 0 {
+        return None;
+    }
+    let mean = xs.iter().sum::<f64>() / n as f64;
+    if n == 1 {
+        return Some((mean, 0.0, 0.0));
+    }
+    let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    let sd = var.sqrt();
+    Some((mean, sd, t95(n - 1) * sd / (n as f64).sqrt()))
+}
+
+/// Two-sided 95 % quantile of Student's t with `df` degrees of freedom.
+fn t95(df: usize) -> f64 {
+    const T: [f64; 30] = [
+        12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160,
+        2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056,
+        2.052, 2.048, 2.045, 2.042,
+    ];
+    T.get(df.saturating_sub(1)).copied().unwrap_or(1.96)
+}
+
+/// A summary field by dotted path (`traffic_shares_pct.vertex`), as a number.
+pub fn field(summary: &serde_json::Value, path: &str) -> Option<f64> {
+    path.split('.')
+        .try_fold(summary, |v, k| v.get(k))
+        .and_then(serde_json::Value::as_f64)
+}
+
+/// One run of a sweep: where it is, and its summary once it has finished.
+pub struct Run {
+    pub point: usize,
+    pub seed: u32,
+    pub dir: PathBuf,
+    pub summary: Option<serde_json::Value>,
+}
+
+impl Run {
+    pub fn load(point: usize, seed: u32, dir: PathBuf) -> Run {
+        let summary = std::fs::read_to_string(dir.join("summary.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+        Run {
+            point,
+            seed,
+            dir,
+            summary,
+        }
+    }
+
+    pub fn complete(&self) -> bool {
+        self.summary
+            .as_ref()
+            .is_some_and(|s| s["complete"].as_bool() == Some(true))
+    }
+
+    /// A field of this run, as the sweep counts it: exploration time only for complete runs.
+    pub fn value(&self, f: &str) -> Option<f64> {
+        if f == "exploration_steps" && !self.complete() {
+            return None;
+        }
+        field(self.summary.as_ref()?, f)
+    }
+}
+
+/// The aggregated results of a sweep.
+pub struct Results {
+    pub points: Vec<Point>,
+    pub fields: Vec<String>,
+    pub runs: Vec<Run>,
+}
+
+impl Results {
+    /// Runs, complete runs and per-field values of one point.
+    pub fn of_point(&self, i: usize) -> impl Iterator<Item = &Run> {
+        self.runs.iter().filter(move |r| r.point == i)
+    }
+
+    /// Mean, std and 95 % half-width of a field over the runs of the points `which` selects.
+    pub fn stats_where(&self, which: impl Fn(&Point) -> bool, f: &str) -> Option<(f64, f64, f64)> {
+        let xs: Vec<f64> = self
+            .runs
+            .iter()
+            .filter(|r| which(&self.points[r.point]))
+            .filter_map(|r| r.value(f))
+            .collect();
+        stats(&xs)
+    }
+
+    pub fn keys(&self) -> Vec<String> {
+        self.points
+            .first()
+            .map(|p| p.0.iter().map(|(k, _)| k.clone()).collect())
+            .unwrap_or_default()
+    }
+
+    /// Writes `runs.csv` and `results.csv` into `out`.
+    pub fn write_tables(&self, out: &Path) -> anyhow::Result<()> {
+        let mut head: Vec<String> = self.keys();
+        head.extend(["seed", "status", "complete", "exit_reason"].map(String::from));
+        head.extend(self.fields.iter().cloned());
+        let mut runs = head.join(",");
+        runs.push('\n');
+        for r in &self.runs {
+            for (_, v) in &self.points[r.point].0 {
+                runs.push_str(v);
+                runs.push(',');
+            }
+            let _ = write!(runs, "{}", r.seed);
+            let Some(s) = &r.summary else {
+                let _ = writeln!(runs, ",failed,,{}", ",".repeat(self.fields.len()));
+                continue;
+            };
+            let _ = write!(
+                runs,
+                ",ok,{},{}",
+                r.complete(),
+                s["exit_reason"].as_str().unwrap_or("")
+            );
+            for f in &self.fields {
+                runs.push(',');
+                if let Some(v) = field(s, f) {
+                    let _ = write!(runs, "{v}");
+                }
+            }
+            runs.push('\n');
+        }
+        std::fs::write(out.join("runs.csv"), runs).context("writing runs.csv")?;
+
+        let mut head: Vec<String> = self.keys();
+        head.extend(["runs", "complete"].map(String::from));
+        for f in &self.fields {
+            head.extend([format!("{f}_mean"), format!("{f}_std"), format!("{f}_ci95")]);
+        }
+        let mut res = head.join(",");
+        res.push('\n');
+        for (i, p) in self.points.iter().enumerate() {
+            for (_, v) in &p.0 {
+                res.push_str(v);
+                res.push(',');
+            }
+            let n = self.of_point(i).count();
+            let complete = self.of_point(i).filter(|r| r.complete()).count();
+            let _ = write!(res, "{n},{complete}");
+            for f in &self.fields {
+                let xs: Vec<f64> = self.of_point(i).filter_map(|r| r.value(f)).collect();
+                match stats(&xs) {
+                    Some((m, sd, h)) => {
+                        let _ = write!(res, ",{m},{sd},{h}");
+                    }
+                    None => res.push_str(",,,"),
+                }
+            }
+            res.push('\n');
+        }
+        std::fs::write(out.join("results.csv"), res).context("writing results.csv")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_grid_is_every_combination() {
+        let g = BTreeMap::from([
+            ("a".to_string(), vec!["1".to_string(), "2".to_string()]),
+            (
+                "b".to_string(),
+                vec!["x".to_string(), "y".to_string(), "z".to_string()],
+            ),
+        ]);
+        let p = points(&g);
+        assert_eq!(p.len(), 6);
+        assert_eq!(p[0].id(), "a=1,b=x");
+        assert_eq!(p[5].id(), "a=2,b=z");
+        assert_eq!(p[5].get("b"), Some("z"));
+        assert_eq!(points(&BTreeMap::new()), vec![Point(Vec::new())]);
+    }
+
+    #[test]
+    fn stats_give_the_t_interval() {
+        let (m, sd, h) = stats(&[1.0, 2.0, 3.0]).unwrap_or_default();
+        assert!((m - 2.0).abs() < 1e-12 && (sd - 1.0).abs() < 1e-12);
+        assert!((h - 4.303 / 3f64.sqrt()).abs() < 1e-9);
+        assert_eq!(stats(&[]), None);
+        assert_eq!(stats(&[5.0]), Some((5.0, 0.0, 0.0)));
+    }
+
+    #[test]
+    fn fields_are_found_by_dotted_path() {
+        let s = serde_json::json!({"a": 3, "b": {"c": 0.5}, "d": null});
+        assert_eq!(field(&s, "a"), Some(3.0));
+        assert_eq!(field(&s, "b.c"), Some(0.5));
+        assert_eq!(field(&s, "d"), None);
+        assert_eq!(field(&s, "b.x"), None);
+    }
+
+    #[test]
+    fn exploration_time_counts_complete_runs_only() {
+        let run = |complete: bool| Run {
+            point: 0,
+            seed: 1,
+            dir: PathBuf::new(),
+            summary: Some(
+                serde_json::json!({"complete": complete, "exploration_steps": 10, "steps": 20}),
+            ),
+        };
+        assert_eq!(run(true).value("exploration_steps"), Some(10.0));
+        assert_eq!(run(false).value("exploration_steps"), None);
+        assert_eq!(run(false).value("steps"), Some(20.0));
+    }
+}
