@@ -26,15 +26,15 @@ pub struct Children {
     procs: Vec<Proc>,
 }
 
-/// Asks the kernel to SIGKILL the calling process when its parent thread dies. Runs in the
-/// forked child before exec.
-#[allow(unsafe_code)]
-fn die_with_parent(cmd: &mut Command) {
+/// What a child runs between fork and exec: asks the kernel to SIGKILL it when the spawning
+/// thread dies, and exits at once if the parent is already gone.
+fn parent_death_hook() -> impl FnMut() -> std::io::Result<()> + Send + Sync + 'static {
     let parent = std::process::id() as libc::pid_t;
-    // SAFETY: the closure runs between fork and exec and only calls the async-signal-safe
-    // functions prctl, getppid and _exit.
-    unsafe {
-        cmd.pre_exec(move || {
+    move || {
+        // SAFETY: runs between fork and exec and only calls the async-signal-safe functions
+        // prctl, getppid and _exit.
+        #[allow(unsafe_code)]
+        unsafe {
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
                 return Err(std::io::Error::last_os_error());
             }
@@ -42,8 +42,27 @@ fn die_with_parent(cmd: &mut Command) {
             if libc::getppid() != parent {
                 libc::_exit(1);
             }
-            Ok(())
-        });
+        }
+        Ok(())
+    }
+}
+
+/// The child dies with its parent thread (see [`parent_death_hook`]).
+#[allow(unsafe_code)]
+fn die_with_parent(cmd: &mut Command) {
+    // SAFETY: the hook only calls async-signal-safe functions.
+    unsafe {
+        cmd.pre_exec(parent_death_hook());
+    }
+}
+
+/// [`die_with_parent`] for a `std` command (the sweep's runs).
+#[allow(unsafe_code)]
+pub fn die_with_parent_std(cmd: &mut std::process::Command) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: the hook only calls async-signal-safe functions.
+    unsafe {
+        cmd.pre_exec(parent_death_hook());
     }
 }
 

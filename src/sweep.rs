@@ -193,6 +193,15 @@ fn hms(s: f64) -> String {
     }
 }
 
+/// A run is finished when it wrote its summary, unless it was interrupted (Ctrl-C reaches the
+/// runs too, and each writes an `interrupted` summary): that one runs again.
+fn finished(dir: &Path) -> bool {
+    std::fs::read_to_string(dir.join("summary.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .is_some_and(|s| s["exit_reason"] != "interrupted")
+}
+
 /// Runs a sweep; returns the output directory.
 pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
     let text = std::fs::read_to_string(&args.experiment)
@@ -266,10 +275,8 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
         std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1))
     });
     let exe = std::env::current_exe().context("finding the swarm binary")?;
-    let todo: Vec<&(usize, u32, PathBuf)> = jobs
-        .iter()
-        .filter(|(_, _, dir)| !dir.join("summary.json").exists())
-        .collect();
+    let todo: Vec<&(usize, u32, PathBuf)> =
+        jobs.iter().filter(|(_, _, dir)| !finished(dir)).collect();
     eprintln!(
         "swarm sweep {}: {} points × {seeds} seeds = {} runs, {} already done, {parallel} at a time; output {}",
         exp.name,
@@ -305,6 +312,8 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
             }
             cmd.arg("--set").arg(format!("seed={seed}"));
             cmd.stdout(Stdio::null()).stderr(Stdio::null());
+            // Killing the sweep kills its runs; each run takes its own processes with it.
+            crate::children::die_with_parent_std(&mut cmd);
             let child = cmd.spawn().context("starting swarm run")?;
             running.push((child, job));
         }
@@ -317,7 +326,7 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
             if running[i].0.try_wait().ok().flatten().is_some() {
                 let (_, (point, seed, dir)) = running.swap_remove(i);
                 done += 1;
-                let ok = dir.join("summary.json").exists();
+                let ok = finished(dir);
                 failed += usize::from(!ok);
                 let note = format!(
                     "{} seed {seed}{}",

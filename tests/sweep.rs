@@ -3,9 +3,9 @@
 //! nothing, and a directory of other settings is refused.
 
 use std::process::Command;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use crate::support::{csv, num, Launcher, TempDir, SWARM};
+use crate::support::{csv, descendants, num, running, Launcher, TempDir, SWARM};
 
 #[test]
 fn a_tiny_sweep_writes_its_tables_and_resumes() {
@@ -112,4 +112,86 @@ fn a_tiny_sweep_writes_its_tables_and_resumes() {
         !other.status.success() && said.contains("other settings"),
         "{said}"
     );
+}
+
+/// Ctrl-C in the middle of a sweep (SIGINT to its process group, as a terminal sends it) stops
+/// the sweep and every run it started; running it again keeps the finished runs and runs only
+/// the missing ones.
+#[test]
+fn an_interrupted_sweep_runs_only_what_is_missing() {
+    use std::os::unix::process::CommandExt;
+    let dir = TempDir::new("sweep-int");
+    let exp = dir.path().join("int.toml");
+    std::fs::write(
+        &exp,
+        "name = \"int\"\nseeds = 2\n\
+         set = [\"world.map=office\", \"world.width_m=24\", \"world.height_m=16\", \"robots.count=3\", \
+         \"exchange.mode=polygon\", \"clock.step_timeout_ms=10000\"]\n\
+         [grid]\n\"robots.speed_m_per_s\" = [0.4, 0.5]\n",
+    )
+    .expect("write experiment");
+    let out = dir.path().join("out");
+    let sweep = |group: bool| {
+        let mut cmd = Command::new(SWARM);
+        cmd.arg("sweep")
+            .arg(&exp)
+            .arg("--out")
+            .arg(&out)
+            .arg("--jobs")
+            .arg("1");
+        if group {
+            cmd.process_group(0);
+        }
+        Launcher::spawn(cmd)
+    };
+    let finished = || -> usize {
+        std::fs::read_dir(out.join("runs"))
+            .map(|d| {
+                d.flatten()
+                    .filter(|e| {
+                        std::fs::read_to_string(e.path().join("summary.json"))
+                            .is_ok_and(|t| !t.contains("\"interrupted\""))
+                    })
+                    .count()
+            })
+            .unwrap_or(0)
+    };
+    let first = sweep(true);
+    let deadline = Instant::now() + Duration::from_secs(120);
+    // Interrupt once a run has finished and the next one is under way.
+    let procs = loop {
+        assert!(Instant::now() < deadline, "no run finished within 120 s");
+        std::thread::sleep(Duration::from_millis(50));
+        let procs = descendants(first.pid);
+        if finished() >= 1 && procs.len() >= 3 {
+            break procs;
+        }
+    };
+    kill_group(first.pid, 2);
+    let said = first.wait_output(Duration::from_secs(30));
+    let kept = finished();
+    assert!((1..4).contains(&kept), "{kept} runs finished before the interrupt: {said:?}");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while procs.iter().any(|&p| running(p)) {
+        assert!(Instant::now() < deadline, "processes left after Ctrl-C: {procs:?}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let again = sweep(false).wait_output(Duration::from_secs(240));
+    let said = String::from_utf8_lossy(&again.stderr).into_owned();
+    assert!(
+        again.status.success() && said.contains(&format!("{kept} already done")),
+        "{said}"
+    );
+    let runs = csv(&out.join("runs.csv"));
+    assert_eq!(runs.len(), 4, "{runs:?}");
+    assert!(runs.iter().all(|r| r["status"] == "ok"), "{runs:?}");
+}
+
+/// Sends `sig` to the process group `pgid` (what a terminal does on Ctrl-C).
+fn kill_group(pgid: u32, sig: i32) {
+    let _ = Command::new("kill")
+        .arg(format!("-{sig}"))
+        .arg("--")
+        .arg(format!("-{pgid}"))
+        .status();
 }
