@@ -361,6 +361,13 @@ fn timeline(r: &Results, spec: &TimelineSpec, dir: &Path) -> anyhow::Result<Vec<
 fn table(r: &Results, spec: &TableSpec) -> String {
     let values = values_of(&r.points);
     let mut md = format!("### {}\n\n", spec.title);
+    if !spec.average_over.is_empty() {
+        let _ = writeln!(
+            md,
+            "Each row pools the runs over {}.\n",
+            spec.average_over.join(", ")
+        );
+    }
     let mut head: Vec<String> = spec.rows.clone();
     head.push("runs".into());
     head.extend(spec.columns.iter().map(|c| short_field(c)));
@@ -379,13 +386,6 @@ fn table(r: &Results, spec: &TableSpec) -> String {
                 })
             })
             .collect();
-    }
-    if !spec.average_over.is_empty() {
-        let _ = writeln!(
-            md,
-            "Each row pools the runs over {}.\n",
-            spec.average_over.join(", ")
-        );
     }
     for row in rows {
         let runs = r

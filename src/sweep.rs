@@ -46,7 +46,9 @@ use anyhow::{bail, Context};
 use serde::Deserialize;
 
 use crate::report::{PlotSpec, Spec, TableSpec, TimelineSpec};
-use crate::results::{points, Results, Run, FIELDS};
+use crate::results::{points, Point, Results, Run, FIELDS};
+use crate::run::DEFAULT_SCENARIO;
+use proto::scenario::Scenario;
 
 /// `swarm sweep` flags.
 #[derive(clap::Args, Debug)]
@@ -193,6 +195,56 @@ fn hms(s: f64) -> String {
     }
 }
 
+/// The seeds, overrides and grid of an experiment, or of its quick variant.
+fn variant(
+    exp: &Experiment,
+    quick: bool,
+) -> anyhow::Result<(u32, Vec<String>, BTreeMap<String, Vec<String>>)> {
+    let mut seeds = exp.seeds;
+    let mut sets = exp.set.clone();
+    let mut grid = exp.grid.clone();
+    if quick {
+        let Some(q) = &exp.quick else {
+            bail!("no [quick] table");
+        };
+        seeds = q.seeds.unwrap_or(seeds);
+        sets.extend(q.set.iter().cloned());
+        for (k, vs) in &q.grid {
+            if !grid.contains_key(k) {
+                bail!("[quick] grid key {k:?} is not in [grid]");
+            }
+            grid.insert(k.clone(), vs.clone());
+        }
+    }
+    let grid = grid
+        .iter()
+        .map(|(k, vs)| (k.clone(), vs.iter().map(value_text).collect()))
+        .collect();
+    Ok((seeds, sets, grid))
+}
+
+/// Every point's scenario must load (keys, types, ranges) before any run starts: a typo would
+/// otherwise fail every run.
+fn check_points(scenario: Option<&Path>, sets: &[String], points: &[Point]) -> anyhow::Result<()> {
+    for p in points {
+        let mut all = sets.to_vec();
+        all.extend(p.0.iter().map(|(k, v)| format!("{k}={v}")));
+        let loaded = match scenario {
+            Some(path) => Scenario::load(path, &all),
+            None => Scenario::from_toml(DEFAULT_SCENARIO, &all),
+        };
+        if let Err(e) = loaded {
+            let at = if p.0.is_empty() {
+                String::new()
+            } else {
+                format!(" at grid point {}", p.id())
+            };
+            bail!("the scenario{at}: {e}");
+        }
+    }
+    Ok(())
+}
+
 /// A run is finished when it wrote its summary, unless it was interrupted (Ctrl-C reaches the
 /// runs too, and each writes an `interrupted` summary): that one runs again.
 fn finished(dir: &Path) -> bool {
@@ -210,27 +262,9 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
         .with_context(|| format!("experiment {}", args.experiment.display()))?;
     let base_dir = args.experiment.parent().unwrap_or(Path::new("."));
     let scenario = exp.scenario.as_ref().map(|s| base_dir.join(s));
-    let mut seeds = exp.seeds;
-    let mut sets = exp.set.clone();
-    let mut grid_values = exp.grid.clone();
-    if args.quick {
-        let Some(q) = &exp.quick else {
-            bail!("{} has no [quick] table", args.experiment.display());
-        };
-        seeds = q.seeds.unwrap_or(seeds);
-        sets.extend(q.set.iter().cloned());
-        for (k, vs) in &q.grid {
-            if !grid_values.contains_key(k) {
-                bail!("[quick] grid key {k:?} is not in [grid]");
-            }
-            grid_values.insert(k.clone(), vs.clone());
-        }
-    }
-    seeds = args.seeds.unwrap_or(seeds).max(1);
-    let grid: BTreeMap<String, Vec<String>> = grid_values
-        .iter()
-        .map(|(k, vs)| (k.clone(), vs.iter().map(value_text).collect()))
-        .collect();
+    let (seeds, sets, grid) = variant(&exp, args.quick)
+        .with_context(|| format!("experiment {}", args.experiment.display()))?;
+    let seeds = args.seeds.unwrap_or(seeds).max(1);
     let points = points(&grid);
     let spec = Spec {
         name: exp.name.clone(),
@@ -240,6 +274,7 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
         tables: exp.table.clone(),
     };
     crate::report::check(&spec, &grid.keys().cloned().collect::<Vec<_>>())?;
+    check_points(scenario.as_deref(), &sets, &points)?;
     let out = args.out.clone().unwrap_or_else(|| {
         let name = if args.quick {
             format!("{}-quick", exp.name)
@@ -363,6 +398,40 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_shipped_experiments_and_their_quick_variants_are_valid() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/experiments");
+        let mut n = 0;
+        for e in std::fs::read_dir(&dir).into_iter().flatten().flatten() {
+            let text = std::fs::read_to_string(e.path()).unwrap_or_default();
+            let exp: Experiment =
+                toml::from_str(&text).unwrap_or_else(|err| panic!("{}: {err}", e.path().display()));
+            for quick in [false, true] {
+                let (_, sets, grid) = variant(&exp, quick)
+                    .unwrap_or_else(|err| panic!("{}: {err}", e.path().display()));
+                let spec = Spec {
+                    plots: exp.plot.clone(),
+                    timelines: exp.timeline.clone(),
+                    tables: exp.table.clone(),
+                    ..Spec::default()
+                };
+                let keys: Vec<String> = grid.keys().cloned().collect();
+                crate::report::check(&spec, &keys)
+                    .and_then(|()| check_points(None, &sets, &points(&grid)))
+                    .unwrap_or_else(|err| panic!("{} (quick {quick}): {err}", e.path().display()));
+            }
+            n += 1;
+        }
+        assert!(n >= 6, "{n} experiment files");
+    }
+
+    #[test]
+    fn a_typo_in_an_override_is_found_before_any_run() {
+        let p = Point(vec![("robots.cont".into(), "3".into())]);
+        let err = check_points(None, &[], &[p]).map_err(|e| e.to_string());
+        assert!(err.is_err_and(|e| e.contains("robots.cont") && e.contains("grid point")));
+    }
 
     #[test]
     fn durations_read_short() {

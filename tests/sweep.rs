@@ -2,10 +2,23 @@
 //! `results.csv` row per point, its plots (SVG and PNG) and `report.md`; running it again runs
 //! nothing, and a directory of other settings is refused.
 
+use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use crate::support::{csv, descendants, num, running, Launcher, TempDir, SWARM};
+
+/// `swarm sweep EXP --out OUT --jobs N`.
+fn sweep_cmd(exp: &Path, out: &Path, jobs: usize) -> Command {
+    let mut cmd = Command::new(SWARM);
+    cmd.arg("sweep")
+        .arg(exp)
+        .arg("--out")
+        .arg(out)
+        .arg("--jobs")
+        .arg(jobs.to_string());
+    cmd
+}
 
 #[test]
 fn a_tiny_sweep_writes_its_tables_and_resumes() {
@@ -24,16 +37,7 @@ fn a_tiny_sweep_writes_its_tables_and_resumes() {
     .expect("write experiment");
     let out = dir.path().join("out");
     // The launcher handle kills the sweep and every run it started if the test fails.
-    let sweep = || {
-        let mut cmd = Command::new(SWARM);
-        cmd.arg("sweep")
-            .arg(&exp)
-            .arg("--out")
-            .arg(&out)
-            .arg("--jobs")
-            .arg("2");
-        Launcher::spawn(cmd).wait_output(Duration::from_secs(240))
-    };
+    let sweep = || Launcher::spawn(sweep_cmd(&exp, &out, 2)).wait_output(Duration::from_secs(240));
     let first = sweep();
     let said = String::from_utf8_lossy(&first.stderr).into_owned();
     assert!(first.status.success(), "{said}");
@@ -132,13 +136,7 @@ fn an_interrupted_sweep_runs_only_what_is_missing() {
     .expect("write experiment");
     let out = dir.path().join("out");
     let sweep = |group: bool| {
-        let mut cmd = Command::new(SWARM);
-        cmd.arg("sweep")
-            .arg(&exp)
-            .arg("--out")
-            .arg(&out)
-            .arg("--jobs")
-            .arg("1");
+        let mut cmd = sweep_cmd(&exp, &out, 1);
         if group {
             cmd.process_group(0);
         }
@@ -170,10 +168,16 @@ fn an_interrupted_sweep_runs_only_what_is_missing() {
     kill_group(first.pid, 2);
     let said = first.wait_output(Duration::from_secs(30));
     let kept = finished();
-    assert!((1..4).contains(&kept), "{kept} runs finished before the interrupt: {said:?}");
+    assert!(
+        (1..4).contains(&kept),
+        "{kept} runs finished before the interrupt: {said:?}"
+    );
     let deadline = Instant::now() + Duration::from_secs(10);
     while procs.iter().any(|&p| running(p)) {
-        assert!(Instant::now() < deadline, "processes left after Ctrl-C: {procs:?}");
+        assert!(
+            Instant::now() < deadline,
+            "processes left after Ctrl-C: {procs:?}"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
     let again = sweep(false).wait_output(Duration::from_secs(240));
