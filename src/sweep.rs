@@ -195,11 +195,11 @@ fn hms(s: f64) -> String {
     }
 }
 
-/// The seeds, overrides and grid of an experiment, or of its quick variant.
-fn variant(
-    exp: &Experiment,
-    quick: bool,
-) -> anyhow::Result<(u32, Vec<String>, BTreeMap<String, Vec<String>>)> {
+/// The seeds, overrides for every run, and grid (values as override text) of an experiment, or
+/// of its quick variant.
+type Variant = (u32, Vec<String>, BTreeMap<String, Vec<String>>);
+
+fn variant(exp: &Experiment, quick: bool) -> anyhow::Result<Variant> {
     let mut seeds = exp.seeds;
     let mut sets = exp.set.clone();
     let mut grid = exp.grid.clone();
