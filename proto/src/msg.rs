@@ -48,9 +48,11 @@ pub enum MoveOutcome {
     Missed,
     /// The straight segment crosses a cell that is not free.
     Blocked,
-    /// The end point is too close to another robot.
+    /// The end point is too close to another robot: which, and where it stands (millimetres; the
+    /// robot feels what it bumped into, and needs to know where to plan around it).
     Collision {
         with: RobotId,
+        at_mm: (i32, i32),
     },
     OutOfMap,
     /// The command named another step than the current one.
@@ -396,7 +398,10 @@ mod tests {
             MoveOutcome::Stayed,
             MoveOutcome::Missed,
             MoveOutcome::Blocked,
-            MoveOutcome::Collision { with: 3 },
+            MoveOutcome::Collision {
+                with: 3,
+                at_mm: (-1200, 45_000),
+            },
             MoveOutcome::OutOfMap,
             MoveOutcome::WrongStep,
         ] {

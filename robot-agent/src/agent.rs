@@ -56,6 +56,12 @@ const MAX_REJECTIONS: u32 = 3;
 /// How long a given-up target stays excluded.
 const BLACKLIST_STEPS: Step = 30;
 
+/// How many steps a collision with another robot shapes this robot's moves: it gives way
+/// ([`plan::give_way`]) when the other has the right of way (a lower id and a target, or a
+/// target not heard of), and plans around it ([`plan::around`]) when the other has no target
+/// (an idle robot never moves, so it never learns it stands in somebody's way).
+const BUMP_STEPS: Step = 10;
+
 /// How many steps of unused radio budget a neighbour's credit can hold.
 pub const BURST_STEPS: usize = 4;
 
@@ -80,6 +86,14 @@ fn largest_delta_bytes(laser: &LaserSpec) -> usize {
     proto::msg::encode(&worst).len()
 }
 
+/// A robot this one bumped into: where, and until when that counts.
+#[derive(Clone, Copy, Debug)]
+struct Bump {
+    other: RobotId,
+    at: Cell,
+    until: Step,
+}
+
 pub struct Agent {
     pub id: RobotId,
     world: WorldInfo,
@@ -97,6 +111,11 @@ pub struct Agent {
     target: Option<Cell>,
     rejections: u32,
     blacklist: HashMap<Cell, Step>,
+    /// The last collision with another robot, while it counts.
+    bump: Option<Bump>,
+    /// How far (in cells) robot centres keep apart: a robot's diameter and half a cell for
+    /// positions inside cells.
+    clearance_cells: f64,
     neighbours: BTreeSet<RobotId>,
     /// The sender's own pacing: per neighbour, a budget on the simulated clock of the link's
     /// bandwidth with bursts of [`BURST_STEPS`] steps (and at least the largest single-scan
@@ -137,6 +156,7 @@ impl Agent {
         let empty = Grid::new(world.map.width, world.map.height, Occ::Unknown);
         let rate = Some(s.radio.bandwidth_bytes_per_s).filter(|&b| b > 0);
         let per_step = rate.map(|b| b as f64 * world.step_seconds);
+        let clearance_cells = 2.0 * s.robots.radius_m / world.map.resolution_m + 0.5;
         let burst_bytes = per_step
             .map_or(0, |b| (b * BURST_STEPS as f64) as u64)
             .max(largest_delta_bytes(&world.laser) as u64);
@@ -172,6 +192,8 @@ impl Agent {
             target: None,
             rejections: 0,
             blacklist: HashMap::new(),
+            bump: None,
+            clearance_cells,
             neighbours: BTreeSet::new(),
             hello_every_steps: s.exchange.hello_every_steps,
             bytes_sent: 0,
@@ -201,12 +223,45 @@ impl Agent {
             }
             _ => self.rejections = 0,
         }
+        if let MoveOutcome::Collision { with, at_mm } = scan.last_move {
+            let m = |v: i32| f64::from(v) / 1000.0;
+            self.bump = Some(Bump {
+                other: with,
+                at: self.world.map.cell_of(m(at_mm.0), m(at_mm.1)),
+                until: scan.step + BUMP_STEPS,
+            });
+        }
         let waypoint = self.plan();
         Cmd {
             step: scan.step,
             robot: self.id,
             waypoint,
         }
+    }
+
+    /// The robot last bumped into, while that counts, and its target as last heard (`None`: it
+    /// announced none; never heard: it counts as having one, somewhere unknown).
+    fn bumped(&self) -> Option<(Bump, Option<Option<Cell>>)> {
+        let b = self.bump.filter(|b| b.until > self.step)?;
+        let theirs = match self.others_targets.get(&b.other) {
+            Some(&(c, _)) => c.map(Some),
+            None => Some(None),
+        };
+        Some((b, theirs))
+    }
+
+    /// Giving way: the waypoint toward the nearest cell out of the way of a robot with the right
+    /// of way (`None` inside: stay); no decision when there is none to give way to, or no such
+    /// cell.
+    fn give_way(&self, g: &Grid, me: Cell, max_cells: f64) -> Option<Option<(f64, f64)>> {
+        let (b, theirs) = self.bumped().filter(|(b, _)| b.other < self.id)?;
+        let theirs = theirs?;
+        let (blocked, path) = plan::give_way(g, me, b.at, theirs, self.clearance_cells)?;
+        let next = plan::next_waypoint(&blocked, &path, max_cells);
+        Some(
+            next.filter(|&n| n != me)
+                .map(|n| self.world.map.centre_of(n)),
+        )
     }
 
     /// The planning grid: G_s with what peers shared filling its unknown cells.
@@ -220,7 +275,13 @@ impl Agent {
         let me = self.world.map.cell_of(self.pose.x, self.pose.y);
         let penalty = (self.obstacle.0 > 0.0)
             .then(|| plan::obstacle_penalty(g, self.obstacle.1, self.obstacle.0));
-        let costs = plan::costs_with(g, me, penalty.as_deref());
+        // A robot bumped into that has no target stays where it is: plan around it.
+        let around = self
+            .bumped()
+            .filter(|(_, theirs)| theirs.is_none())
+            .map(|(b, _)| plan::around(g, me, b.at, self.clearance_cells));
+        let free = around.as_ref().unwrap_or(g);
+        let costs = plan::costs_with(free, me, penalty.as_deref());
         let step = self.step;
         self.blacklist.retain(|_, until| *until > step);
         if self.rejections >= MAX_REJECTIONS {
@@ -260,12 +321,16 @@ impl Agent {
             _ if !valid => self.target = plan::nearest(candidates, &costs),
             _ => {}
         }
+        let max_cells =
+            self.world.max_speed_m_per_s * self.world.step_seconds / self.world.map.resolution_m;
+        if let Some(aside) = self.give_way(g, me, max_cells) {
+            self.idle = false;
+            return aside;
+        }
         self.idle = self.target.is_none();
         let target = self.target?;
         let path = plan::path_to(&costs, target)?;
-        let max_cells =
-            self.world.max_speed_m_per_s * self.world.step_seconds / self.world.map.resolution_m;
-        let next = plan::next_waypoint(g, &path, max_cells)?;
+        let next = plan::next_waypoint(free, &path, max_cells)?;
         (next != me).then(|| self.world.map.centre_of(next))
     }
 
@@ -579,5 +644,122 @@ impl Agent {
     /// The cells of G_s the last scan changed (for incremental contour pixels).
     pub fn own_changes(&self) -> &[Cell] {
         &self.own_changed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proto::geom::MapInfo;
+    use world_server::{laser, motion};
+
+    /// Two rooms joined by a corridor one cell wide and longer than the laser reaches; robot 0
+    /// starts in the left room, robot 1 in the right one.
+    fn two_rooms() -> (Grid, [Cell; 2]) {
+        let mut g = Grid::new(50, 11, Occ::Occupied);
+        for y in 1..=9 {
+            for x in (1..=10).chain(39..=48) {
+                g.set(Cell::new(x, y), Occ::Free);
+            }
+        }
+        for x in 11..=38 {
+            g.set(Cell::new(x, 5), Occ::Free);
+        }
+        (g, [Cell::new(5, 5), Cell::new(44, 5)])
+    }
+
+    /// Runs two agents in lockstep on `truth` (laser and motion as the world-server computes
+    /// them; only `targ` messages pass between them, so each has to see the other's room for
+    /// itself) until both know every free cell; returns the steps that took, or `None` if they
+    /// did not within `max_steps`.
+    fn explore_together(truth: &Grid, starts: [Cell; 2], max_steps: Step) -> Option<Step> {
+        let mut s = Scenario::default();
+        s.sensor.max_range_m = 2.0;
+        s.coordination.strategy = Strategy::Decentralized;
+        let info = MapInfo {
+            width: truth.width(),
+            height: truth.height(),
+            resolution_m: 0.2,
+            origin_x_m: 0.0,
+            origin_y_m: 0.0,
+        };
+        let world = WorldInfo {
+            map: info,
+            laser: s.laser(),
+            step_seconds: s.clock.step_seconds,
+            robots: 2,
+            max_speed_m_per_s: s.robots.speed_m_per_s,
+        };
+        let mut agents = [Agent::new(0, world.clone(), &s), Agent::new(1, world, &s)];
+        agents[0].link_up(1);
+        agents[1].link_up(0);
+        let mut poses = starts.map(|c| {
+            let (x, y) = info.centre_of(c);
+            Pose { x, y, theta: 0.0 }
+        });
+        let mut last = [MoveOutcome::Start; 2];
+        let free: Vec<Cell> = (0..truth.len())
+            .map(|i| truth.cell_of(i))
+            .filter(|&c| truth.get(c) == Occ::Free)
+            .collect();
+        for step in 0..max_steps {
+            let mut cmds = Vec::new();
+            for (i, agent) in agents.iter_mut().enumerate() {
+                let scan = Scan {
+                    step,
+                    pose: poses[i],
+                    ranges: laser::cast(truth, &info, poses[i], &s.laser(), None),
+                    last_move: last[i],
+                };
+                cmds.push(agent.on_scan(&scan));
+            }
+            let knows_all = |a: &Agent| free.iter().all(|&c| a.own_grid().get(c) != Occ::Unknown);
+            if agents.iter().all(knows_all) {
+                return Some(step);
+            }
+            for i in 0..2 {
+                for out in agents[i].radio_step() {
+                    if let RadioOut::Target { to, msg } = out {
+                        agents[usize::from(to)].on_target(&msg);
+                    }
+                }
+            }
+            for i in 0..2 {
+                let other = poses[1 - i];
+                last[i] = match cmds[i].waypoint {
+                    None => MoveOutcome::Stayed,
+                    Some(to) => match motion::validate_move(
+                        truth,
+                        &info,
+                        poses[i],
+                        to,
+                        s.robots.speed_m_per_s * s.clock.step_seconds,
+                        &[(1 - i as RobotId, (other.x, other.y))],
+                        s.robots.radius_m,
+                    ) {
+                        Ok(p) => {
+                            poses[i] = p;
+                            MoveOutcome::Moved
+                        }
+                        Err(why) => why,
+                    },
+                };
+            }
+        }
+        None
+    }
+
+    #[test]
+    fn robots_meeting_head_on_in_a_narrow_corridor_get_past_each_other() {
+        // Each explores its own room, then heads for the other's room down the same corridor:
+        // they meet in it. Robot 1 gives way to robot 0 (back into its room, the nearest place
+        // out of robot 0's way); robot 0, done, stops near the corridor's end, and robot 1
+        // plans around it. Without either rule they block each other for good.
+        let (truth, starts) = two_rooms();
+        let steps = explore_together(&truth, starts, 600);
+        assert!(
+            steps.is_some(),
+            "the robots did not get past each other in 600 steps"
+        );
     }
 }

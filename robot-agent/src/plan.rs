@@ -287,6 +287,81 @@ pub fn next_waypoint(g: &Grid, path: &[Cell], max_cells: f64) -> Option<Cell> {
     })
 }
 
+/// Where a robot that must give way goes (robots are discs to each other, and a narrow passage
+/// holds only one): the cheapest cell, reachable from `me` without coming within `clearance`
+/// cells of `other`, that keeps at least `clearance` cells from the other robot's way — its
+/// path over `g` to `their_target` when that is known and reachable, else the straight line
+/// from `other` through `me` and on for [`GIVE_WAY_LINE_CELLS`] (it was coming this way).
+/// Returns the path to that cell on the grid with the other robot's disc blocked, starting at
+/// `me` (a single cell when `me` is already clear); `None` when no cell is clear.
+pub fn give_way(
+    g: &Grid,
+    me: Cell,
+    other: Cell,
+    their_target: Option<Cell>,
+    clearance: f64,
+) -> Option<(Grid, Vec<Cell>)> {
+    let way: Vec<Cell> = match their_target.and_then(|t| path_to(&costs(g, other), t)) {
+        Some(path) => path,
+        None => {
+            let (dx, dy) = (f64::from(me.x - other.x), f64::from(me.y - other.y));
+            let len = dx.hypot(dy).max(1.0);
+            let steps = ((len + GIVE_WAY_LINE_CELLS) * 2.0).ceil() as i32;
+            (0..=steps)
+                .map(|k| {
+                    let t = f64::from(k) * 0.5 / len;
+                    let x = f64::from(other.x) + dx * t;
+                    let y = f64::from(other.y) + dy * t;
+                    Cell::new(x.round() as i32, y.round() as i32)
+                })
+                .collect()
+        }
+    };
+    let mut in_the_way = vec![false; g.len()];
+    for &at in std::iter::once(&other).chain(&way) {
+        for c in disc(g, at, clearance) {
+            if let Some(i) = g.index(c) {
+                in_the_way[i] = true;
+            }
+        }
+    }
+    let blocked = around(g, me, other, clearance);
+    let from_me = costs(&blocked, me);
+    let aside = (0..g.len())
+        .filter(|&i| !in_the_way[i] && (g.cells()[i] == Occ::Free || g.cell_of(i) == me))
+        .map(|i| g.cell_of(i))
+        .filter(|&c| from_me.cost(c).is_some());
+    let aside = nearest(aside, &from_me)?;
+    Some((blocked, path_to(&from_me, aside)?))
+}
+
+/// `g` with the robot at `other` in it: the cells nearer than `clearance` to it are occupied,
+/// except `me` (for planning around another robot).
+pub fn around(g: &Grid, me: Cell, other: Cell, clearance: f64) -> Grid {
+    let mut blocked = g.clone();
+    for c in disc(g, other, clearance) {
+        if c != me {
+            blocked.set(c, Occ::Occupied);
+        }
+    }
+    blocked
+}
+
+/// The cells of `g` whose centres lie nearer than `radius` cells to the centre of `at`.
+fn disc(g: &Grid, at: Cell, radius: f64) -> impl Iterator<Item = Cell> + '_ {
+    let r = radius.ceil() as i32;
+    (-r..=r)
+        .flat_map(move |dy| (-r..=r).map(move |dx| Cell::new(at.x + dx, at.y + dy)))
+        .filter(move |&c| {
+            let (dx, dy) = (f64::from(c.x - at.x), f64::from(c.y - at.y));
+            g.contains(c) && dx.hypot(dy) < radius
+        })
+}
+
+/// How far beyond the giving-way robot the other robot's way is assumed to go when its target
+/// is not known ([`give_way`]).
+pub const GIVE_WAY_LINE_CELLS: f64 = 10.0;
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -551,6 +626,55 @@ mod tests {
         );
     }
 
+    /// Gives way from `S` to a robot at `O` heading for `T` (no `T`: unknown) with a clearance
+    /// of 2 cells, and compares where it goes with `A` in `expected` (no `A`: nowhere).
+    fn check_give_way(pic: &str, expected: &str) {
+        let (g, me, target) = parse(&pic.replace('O', "."));
+        let other = marked(pic, &['O'])[0];
+        let got = give_way(&g, me, other, target, 2.0).map(|(_, path)| path);
+        let want = marked(expected, &['A']).first().copied();
+        assert_eq!(
+            got.as_ref().and_then(|p| p.last().copied()),
+            want,
+            "path {got:?}"
+        );
+    }
+
+    #[test]
+    fn giving_way_in_a_corridor() {
+        // The other robot comes from the left and goes to T: the niche ahead of it, on its way
+        // but off its path, is the nearest place clear of it.
+        let niche = "##########.#####
+                     ##########.#####
+                     ......OS......T.";
+        check_give_way(
+            niche,
+            "##########A#####
+             ##########.#####
+             ................",
+        );
+        // Its target unknown: it is assumed to come on through; the same niche.
+        check_give_way(
+            &niche.replace('T', "."),
+            "##########A#####
+             ##########.#####
+             ................",
+        );
+        // Its target behind it: one step back keeps the clearance.
+        check_give_way("T.....OS........", "T.......A.......");
+        // A dead end, and the other robot's way runs to its end: nowhere to go.
+        check_give_way("......OS.T", "..........");
+        // The niche lies behind the other robot: out of reach past it.
+        check_give_way(
+            "##.#############
+             ##.#############
+             ......OS......T.",
+            "##.#############
+             ##.#############
+             ................",
+        );
+    }
+
     fn arb_grid() -> impl Strategy<Value = Grid> {
         (1u32..14, 1u32..14).prop_flat_map(|(w, h)| {
             proptest::collection::vec(0u8..10, (w * h) as usize).prop_map(move |v| {
@@ -594,6 +718,29 @@ mod tests {
                 match map.cost(g.cell_of(i)) {
                     Some(c) => prop_assert!((c - w).abs() < 1e-9),
                     None => prop_assert!(w.is_infinite()),
+                }
+            }
+        }
+
+        #[test]
+        fn giving_way_keeps_clear(
+            g in arb_grid(),
+            cells in proptest::collection::vec((0i32..14, 0i32..14), 3),
+            known in any::<bool>(),
+            clearance in 0.5f64..3.0,
+        ) {
+            let cell = |(x, y): (i32, i32)| Cell::new(x % g.width() as i32, y % g.height() as i32);
+            let (me, other, target) = (cell(cells[0]), cell(cells[1]), cell(cells[2]));
+            if let Some((blocked, path)) = give_way(&g, me, other, known.then_some(target), clearance) {
+                prop_assert_eq!(path.first(), Some(&me));
+                for pair in path.windows(2) {
+                    prop_assert!(moves(&blocked, pair[0]).any(|(n, _)| n == pair[1]));
+                }
+                let aside = *path.last().unwrap_or(&me);
+                let far = |a: Cell, b: Cell| f64::from(a.x - b.x).hypot(f64::from(a.y - b.y)) >= clearance;
+                prop_assert!(far(aside, other), "{:?} is too near the other robot", aside);
+                if let Some(way) = known.then(|| path_to(&costs(&g, other), target)).flatten() {
+                    prop_assert!(way.iter().all(|&w| far(aside, w)), "{:?} is in the way", aside);
                 }
             }
         }

@@ -20,7 +20,7 @@ use proto::msg::{MoveOutcome, RobotId};
 /// the new pose, heading along the motion, or why the robot stays: [`MoveOutcome::OutOfMap`]
 /// (the end point, or the robot itself, lies outside the grid, or a coordinate is not finite),
 /// [`MoveOutcome::Blocked`] (the segment touches a cell that is not free) or
-/// [`MoveOutcome::Collision`] with the nearest robot whose position is closer than
+/// [`MoveOutcome::Collision`] with (and at) the nearest robot whose position is closer than
 /// `2 × robot_radius_m` to the end point. A move of length zero (or a zero step limit) returns
 /// `from` unchanged, heading included.
 pub fn validate_move(
@@ -59,11 +59,15 @@ pub fn validate_move(
     }
     let nearest = others
         .iter()
-        .map(|&(id, (x, y))| (id, (x - end.0).hypot(y - end.1)))
-        .filter(|&(_, d)| d < 2.0 * robot_radius_m)
-        .min_by(|a, b| a.1.total_cmp(&b.1));
-    if let Some((with, _)) = nearest {
-        return Err(MoveOutcome::Collision { with });
+        .map(|&(id, at)| (id, at, (at.0 - end.0).hypot(at.1 - end.1)))
+        .filter(|&(_, _, d)| d < 2.0 * robot_radius_m)
+        .min_by(|a, b| a.2.total_cmp(&b.2));
+    if let Some((with, (x, y), _)) = nearest {
+        let mm = |v: f64| (v * 1000.0).round() as i32;
+        return Err(MoveOutcome::Collision {
+            with,
+            at_mm: (mm(x), mm(y)),
+        });
     }
     Ok(Pose {
         x: end.0,
@@ -247,7 +251,13 @@ mod tests {
         let (g, i) = setup();
         let others = [(3, (2.2, 2.25)), (7, (2.05, 2.25)), (9, (4.0, 0.75))];
         let got = validate_move(&g, &i, pose(2.25, 1.25), (2.25, 2.25), 2.0, &others, 0.2);
-        assert_eq!(got, Err(MoveOutcome::Collision { with: 3 }));
+        assert_eq!(
+            got,
+            Err(MoveOutcome::Collision {
+                with: 3,
+                at_mm: (2200, 2250)
+            })
+        );
         let touching = [(7, (2.25, 2.75))];
         assert!(
             validate_move(&g, &i, pose(2.25, 1.25), (2.25, 2.25), 2.0, &touching, 0.25).is_ok(),
