@@ -86,6 +86,16 @@ fn largest_delta_bytes(laser: &LaserSpec) -> usize {
     proto::msg::encode(&worst).len()
 }
 
+/// What a robot knows of the target of a robot it bumped into (from its `targ` announcements).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Heading {
+    /// It announced no target: it stays where it is.
+    Idle,
+    /// Never heard of: it counts as having a target, somewhere unknown.
+    Unknown,
+    To(Cell),
+}
+
 /// A robot this one bumped into: where, and until when that counts.
 #[derive(Clone, Copy, Debug)]
 struct Bump {
@@ -239,23 +249,27 @@ impl Agent {
         }
     }
 
-    /// The robot last bumped into, while that counts, and its target as last heard (`None`: it
-    /// announced none; never heard: it counts as having one, somewhere unknown).
-    fn bumped(&self) -> Option<(Bump, Option<Option<Cell>>)> {
+    /// The robot last bumped into, while that counts, and where it is heading.
+    fn bumped(&self) -> Option<(Bump, Heading)> {
         let b = self.bump.filter(|b| b.until > self.step)?;
-        let theirs = match self.others_targets.get(&b.other) {
-            Some(&(c, _)) => c.map(Some),
-            None => Some(None),
+        let heading = match self.others_targets.get(&b.other) {
+            Some(&(Some(c), _)) => Heading::To(c),
+            Some(&(None, _)) => Heading::Idle,
+            None => Heading::Unknown,
         };
-        Some((b, theirs))
+        Some((b, heading))
     }
 
     /// Giving way: the waypoint toward the nearest cell out of the way of a robot with the right
     /// of way (`None` inside: stay); no decision when there is none to give way to, or no such
     /// cell.
     fn give_way(&self, g: &Grid, me: Cell, max_cells: f64) -> Option<Option<(f64, f64)>> {
-        let (b, theirs) = self.bumped().filter(|(b, _)| b.other < self.id)?;
-        let theirs = theirs?;
+        let (b, heading) = self.bumped().filter(|(b, _)| b.other < self.id)?;
+        let theirs = match heading {
+            Heading::Idle => return None,
+            Heading::Unknown => None,
+            Heading::To(c) => Some(c),
+        };
         let (blocked, path) = plan::give_way(g, me, b.at, theirs, self.clearance_cells)?;
         let next = plan::next_waypoint(&blocked, &path, max_cells);
         Some(
@@ -278,7 +292,7 @@ impl Agent {
         // A robot bumped into that has no target stays where it is: plan around it.
         let around = self
             .bumped()
-            .filter(|(_, theirs)| theirs.is_none())
+            .filter(|&(_, heading)| heading == Heading::Idle)
             .map(|(b, _)| plan::around(g, me, b.at, self.clearance_cells));
         let free = around.as_ref().unwrap_or(g);
         let costs = plan::costs_with(free, me, penalty.as_deref());

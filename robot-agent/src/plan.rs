@@ -317,8 +317,9 @@ pub fn give_way(
                 .collect()
         }
     };
+    // Both ways start at `other`.
     let mut in_the_way = vec![false; g.len()];
-    for &at in std::iter::once(&other).chain(&way) {
+    for &at in &way {
         for c in disc(g, at, clearance) {
             if let Some(i) = g.index(c) {
                 in_the_way[i] = true;
