@@ -315,7 +315,7 @@ impl Default for Radio {
 impl Default for Exchange {
     fn default() -> Self {
         Exchange {
-            mode: ExchangeMode::RawScans,
+            mode: ExchangeMode::Polygon,
             hello_every_steps: 10,
         }
     }
