@@ -2,9 +2,12 @@
 //!
 //! Only this crate's types derive serde for the wire; the algorithm crates use them as plain
 //! values. Besides the wire, it holds the little geometry every process agrees on: grids and the
-//! one way a line walks through them ([`traverse`]). See ARCHITECTURE.md for the map of processes
+//! one way a line walks through them ([`traverse`]), and (feature `budget`) the byte budget on a
+//! simulated clock that robots and netem meter bandwidth with. See ARCHITECTURE.md for the map of processes
 //! and planes.
 
+#[cfg(feature = "budget")]
+pub mod budget;
 pub mod geom;
 pub mod grid;
 pub mod keys;

@@ -37,7 +37,7 @@ pub mod merge;
 pub mod node;
 /// The op log with save points and a receiver's replica (§4.2.3).
 pub mod oplog;
-/// Pacing: per-link byte budgets with governor on the simulated clock (§4.4).
+/// Pacing: per-link byte budgets on the simulated clock (§4.4, `proto::budget`).
 pub mod pacing;
 /// Path planning: Dijkstra costs, frontiers, waypoints.
 pub mod plan;
