@@ -11,8 +11,8 @@
 //! * **realtime**: simulated time is the wall time since the clock was made, times `speedup`; a
 //!   waiter sleeps the corresponding wall duration (tokio's clock, so paused-time tests work).
 //!
-//! The governor rate limiter reads this clock through `governor::clock::Clock`, implemented in
-//! `shaping/bandwidth.rs` (the one file that knows governor).
+//! The byte budgets of `shaping/bandwidth.rs` ([`proto::budget`]) read this clock through
+//! [`proto::budget::SimNow`].
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -65,6 +65,12 @@ enum Mode {
         start: tokio::time::Instant,
         speedup: f64,
     },
+}
+
+impl proto::budget::SimNow for SimClock {
+    fn now_ns(&self) -> u64 {
+        self.now().0
+    }
 }
 
 impl SimClock {

@@ -14,7 +14,8 @@
 //!   `range_m` and walls only shorten it.
 //!
 //! A wall is a maximal run of non-free cells along the segment, so a thick wall counts once. The
-//! segment is walked cell by cell (Amanatides & Woo), clipped to the map first, so the work is
+//! segment is walked cell by cell with the workspace's grid traversal ([`proto::traverse`], the
+//! plain variant: one side cell at an exact corner), clipped to the map first, so the work is
 //! bounded by the map size whatever the poses.
 
 use std::sync::Arc;
@@ -22,6 +23,7 @@ use std::sync::Arc;
 use proto::geom::{MapInfo, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::scenario::RadioModel;
+use proto::traverse::{clip, Corners, Traversal};
 use serde::Serialize;
 
 /// Parameters of the path loss model (defaults: free space, RADAR's wall factor and cap).
@@ -147,88 +149,31 @@ pub fn count_walls(map: &MapInfo, grid: &Grid, a: (f64, f64), b: (f64, f64)) -> 
     let to_cell = |p: (f64, f64)| ((p.0 - map.origin_x_m) / res, (p.1 - map.origin_y_m) / res);
     let (p0, p1) = (to_cell(a), to_cell(b));
     let (w, h) = (f64::from(grid.width()), f64::from(grid.height()));
-    let Some((p0, p1)) = clip(p0, p1, w, h) else {
+    let Some((t0, t1)) = clip(p0, p1, (0.0, 0.0), (w, h)) else {
         return 0;
     };
-    let last = |v: f64, n: f64| (v.floor() as i64).clamp(0, n as i64 - 1) as i32;
-    let mut cell = Cell::new(last(p0.0, w), last(p0.1, h));
-    let end = Cell::new(last(p1.0, w), last(p1.1, h));
     let (dx, dy) = (p1.0 - p0.0, p1.1 - p0.1);
-    let step_x = if dx > 0.0 { 1 } else { -1 };
-    let step_y = if dy > 0.0 { 1 } else { -1 };
-    let t_delta_x = if dx != 0.0 {
-        1.0 / dx.abs()
-    } else {
-        f64::INFINITY
-    };
-    let t_delta_y = if dy != 0.0 {
-        1.0 / dy.abs()
-    } else {
-        f64::INFINITY
-    };
-    let boundary = |c: i32, p: f64, step: i32| f64::from(c) + if step > 0 { 1.0 } else { 0.0 } - p;
-    let mut t_max_x = if dx != 0.0 {
-        boundary(cell.x, p0.0, step_x) / dx
-    } else {
-        f64::INFINITY
-    };
-    let mut t_max_y = if dy != 0.0 {
-        boundary(cell.y, p0.1, step_y) / dy
-    } else {
-        f64::INFINITY
-    };
-    // Exactly |Δcell x| + |Δcell y| steps from the start cell to the end cell.
-    let steps = (end.x - cell.x).unsigned_abs() + (end.y - cell.y).unsigned_abs();
+    let (p0, p1) = (
+        (p0.0 + t0 * dx, p0.1 + t0 * dy),
+        (p0.0 + t1 * dx, p0.1 + t1 * dy),
+    );
+    // A clipped end on the map's far border lies in the last column (row), not beyond it.
+    let last = |v: f64, n: f64| (v.floor() as i64).clamp(0, n as i64 - 1) as i32;
+    let start = Cell::new(last(p0.0, w), last(p0.1, h));
+    let end = Cell::new(last(p1.0, w), last(p1.1, h));
+    // The plain traversal: a wall is counted where the line enters it, and a line through a
+    // corner between two wall cells crosses one of them.
+    let cells = Traversal::between(p0, start, p1, end, Corners::Thin).map(|x| x.cell);
     let mut walls = 0;
     let mut in_wall = false;
-    for i in 0..=steps {
+    for cell in std::iter::once(start).chain(cells) {
         let solid = grid.get(cell) != Occ::Free;
         if solid && !in_wall {
             walls += 1;
         }
         in_wall = solid;
-        if i == steps {
-            break;
-        }
-        // Step along the axis whose boundary comes first, but never past the end cell on it.
-        let x_left = cell.x != end.x;
-        let y_left = cell.y != end.y;
-        if x_left && (!y_left || t_max_x < t_max_y) {
-            cell.x += step_x;
-            t_max_x += t_delta_x;
-        } else {
-            cell.y += step_y;
-            t_max_y += t_delta_y;
-        }
     }
     walls
-}
-
-/// Liang–Barsky: the part of segment p0–p1 inside [0, w] × [0, h], if any.
-fn clip(p0: (f64, f64), p1: (f64, f64), w: f64, h: f64) -> Option<((f64, f64), (f64, f64))> {
-    if ![p0.0, p0.1, p1.0, p1.1].iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    let (dx, dy) = (p1.0 - p0.0, p1.1 - p0.1);
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for (p, q) in [(-dx, p0.0), (dx, w - p0.0), (-dy, p0.1), (dy, h - p0.1)] {
-        if p == 0.0 {
-            if q < 0.0 {
-                return None;
-            }
-        } else {
-            let r = q / p;
-            if p < 0.0 {
-                t0 = t0.max(r);
-            } else {
-                t1 = t1.min(r);
-            }
-        }
-    }
-    (t0 <= t1).then_some((
-        (p0.0 + t0 * dx, p0.1 + t0 * dy),
-        (p0.0 + t1 * dx, p0.1 + t1 * dy),
-    ))
 }
 
 #[cfg(test)]

@@ -1,8 +1,13 @@
 //! `proto`: everything that crosses a process boundary in swarm-explore.
 //!
 //! Only this crate's types derive serde for the wire; the algorithm crates use them as plain
-//! values. See ARCHITECTURE.md for the map of processes and planes.
+//! values. Besides the wire, it holds the little geometry every process agrees on: grids and the
+//! one way a line walks through them ([`traverse`]), and (feature `budget`) the byte budget on a
+//! simulated clock that robots and netem meter bandwidth with. See ARCHITECTURE.md for the map of processes
+//! and planes.
 
+#[cfg(feature = "budget")]
+pub mod budget;
 pub mod geom;
 pub mod grid;
 pub mod keys;
@@ -10,3 +15,4 @@ pub mod msg;
 #[cfg(feature = "node")]
 pub mod node;
 pub mod scenario;
+pub mod traverse;

@@ -259,7 +259,7 @@ fn longest_increasing(pairs: &[(usize, usize)]) -> Vec<(usize, usize)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::approx::Approximator;
+    use crate::approximator::Approximator;
     use crate::contour::Contours;
     use crate::testutil::arb_exploration;
     use proptest::prelude::*;

@@ -6,7 +6,8 @@
 //! (every cell the segment touches, both cells at an exact corner crossing) rather than
 //! Bresenham lines, whose diagonal steps would split the free region. The same [`supercover`] is
 //! the planner's line-of-sight test (`crate::plan`), so "the robot may drive this segment" and
-//! "this beam saw these cells" mean the same set of cells.
+//! "this beam saw these cells" mean the same set of cells. The walk is the workspace's one grid
+//! traversal, [`proto::traverse`], which the world-server's laser casts its rays with.
 //!
 //! The world-server reports the distance at which a ray *enters* its blocking cell, so a hit is
 //! a boundary crossing: the hit cell is the cell entered at the crossing nearest to the reported
@@ -21,6 +22,7 @@
 
 use proto::geom::{LaserSpec, MapInfo, Pose};
 use proto::grid::{Cell, Grid, Occ};
+use proto::traverse::{clip, Corners, Crossing, Traversal};
 
 /// A hit whose range ends less than this (in cells) past the robot's own cell border is read as a
 /// return from inside the robot's own cell, and ignored: the robot stands on free ground.
@@ -59,61 +61,18 @@ fn walk(from: (f64, f64), to: (f64, f64)) -> Vec<(Cell, f64)> {
     if ![from.0, from.1, to.0, to.1].into_iter().all(usable) {
         return Vec::new();
     }
-    let (mut x, mut y) = (from.0.floor() as i32, from.1.floor() as i32);
-    let (end_x, end_y) = (to.0.floor() as i32, to.1.floor() as i32);
-    let (step_x, mut t_max_x, t_delta_x) = axis(from.0, to.0 - from.0);
-    let (step_y, mut t_max_y, t_delta_y) = axis(from.1, to.1 - from.1);
-    // Counting the remaining crossings per axis (rather than comparing against `t = 1`) makes the
-    // walk end exactly in the cell of `to` whatever the rounding of the `t` values.
-    let mut left_x = end_x.abs_diff(x);
-    let mut left_y = end_y.abs_diff(y);
-    let mut out = Vec::with_capacity((left_x + left_y + 1) as usize);
-    out.push((Cell::new(x, y), 0.0));
-    while left_x > 0 || left_y > 0 {
-        let cross_x = left_y == 0 || (left_x > 0 && t_max_x < t_max_y - CORNER_EPS);
-        let cross_y = left_x == 0 || (left_y > 0 && t_max_y < t_max_x - CORNER_EPS);
+    // The segment walk counts the remaining crossings per axis (rather than comparing against
+    // `t = 1`), so it ends exactly in the cell of `to` whatever the rounding of the `t` values.
+    let line = Traversal::segment(from, to, Corners::Supercover { eps: CORNER_EPS });
+    let mut out = vec![(line.cell(), 0.0)];
+    for Crossing { t, cell, corner } in line {
         // The parameter of this crossing, clamped against rounding past the segment's ends.
-        let t = match (cross_x, cross_y) {
-            (true, _) => t_max_x,
-            (_, true) => t_max_y,
-            _ => t_max_x.min(t_max_y),
-        }
-        .clamp(0.0, 1.0);
-        if cross_x {
-            x += step_x;
-            left_x -= 1;
-            t_max_x += t_delta_x;
-        } else if cross_y {
-            y += step_y;
-            left_y -= 1;
-            t_max_y += t_delta_y;
-        } else {
-            // Both boundaries at once: the segment passes through a corner and touches both side
-            // cells before it enters the diagonal one.
-            out.push((Cell::new(x + step_x, y), t));
-            out.push((Cell::new(x, y + step_y), t));
-            x += step_x;
-            y += step_y;
-            left_x -= 1;
-            left_y -= 1;
-            t_max_x += t_delta_x;
-            t_max_y += t_delta_y;
-        }
-        out.push((Cell::new(x, y), t));
+        let t = t.clamp(0.0, 1.0);
+        // Through a corner the segment touches both side cells before it enters the diagonal one.
+        out.extend(corner.into_iter().flatten().map(|side| (side, t)));
+        out.push((cell, t));
     }
     out
-}
-
-/// Per-axis set-up of the grid traversal (Amanatides & Woo): the step direction, the parameter
-/// `t` of the first boundary crossing, and the parameter distance between crossings.
-fn axis(start: f64, delta: f64) -> (i32, f64, f64) {
-    if delta > 0.0 {
-        (1, (start.floor() + 1.0 - start) / delta, 1.0 / delta)
-    } else if delta < 0.0 {
-        (-1, (start - start.floor()) / -delta, 1.0 / -delta)
-    } else {
-        (0, f64::INFINITY, f64::INFINITY)
-    }
 }
 
 /// Integrates one laser scan taken at `pose` into `g`; returns how many cells changed.
@@ -340,30 +299,6 @@ fn trace(
         free: cells[..free_len].iter().map(|&(c, _)| c).collect(),
         hit: hit.map(|k| cells[k].0),
     })
-}
-
-/// Liang–Barsky clipping of the segment `a → b` to the closed box `lo..=hi`: the parameters
-/// `t0 ≤ t1` in `[0, 1]` of the part inside, or `None` when the segment misses the box.
-fn clip(a: (f64, f64), b: (f64, f64), lo: (f64, f64), hi: (f64, f64)) -> Option<(f64, f64)> {
-    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
-    for (p, q) in [
-        (-dx, a.0 - lo.0),
-        (dx, hi.0 - a.0),
-        (-dy, a.1 - lo.1),
-        (dy, hi.1 - a.1),
-    ] {
-        if p == 0.0 {
-            if q < 0.0 {
-                return None;
-            }
-        } else if p < 0.0 {
-            t0 = t0.max(q / p);
-        } else {
-            t1 = t1.min(q / p);
-        }
-    }
-    (t0 <= t1).then_some((t0, t1))
 }
 
 #[cfg(test)]

@@ -1,18 +1,29 @@
 //! `robot-agent`: one robot of swarm-explore (DESIGN.md §4).
 //!
 //! The algorithms are pure modules, each named after its thesis concept: [`grid`] (scan
-//! integration), [`contour`] (P_t, §4.1), [`approx`] + [`refine`] (A_t and Douglas–Peucker,
-//! §4.2–4.3), [`delta`] + [`oplog`] + [`wire`] (edit scripts, save points, encoding, §4.2.3),
-//! [`merge`] (the planning grid, §5.2), [`error`] (eq. 6.1), [`plan`] (costs, frontiers, paths),
-//! [`raw_scans`] (the baseline exchange with transitive logs). [`agent`] composes them into the
-//! per-step decision; [`node`] runs it over zenoh; [`cli`] is the command line.
+//! integration), [`contour`] (P_t, §4.1), [`approx`] (A_t), [`approximator`] + [`refine`] (A_t
+//! from A_{t−1} and P_t, Douglas–Peucker, §4.2–4.3), [`delta`] + [`oplog`] + [`wire`] (edit
+//! scripts, save points, encoding, §4.2.3), [`render`] + [`merge`] (approximations painted onto
+//! cells, the planning grid, §5.2), [`approx_error`] (d_t and e_avg, eq. 6.1), [`plan`] (costs,
+//! frontiers, paths), [`raw_scans`] (the baseline exchange with transitive logs). [`agent`]
+//! composes them into the per-step decision; [`node`] runs it over zenoh; [`cli`] is the command
+//! line.
+//!
+//! The mapping modules import each other in one direction only, each from those before it:
+//! [`contour`] → [`approx`] → [`render`] → [`refine`] → [`approximator`] → [`merge`] and
+//! [`approx_error`] (the last two import only [`approx`] and [`render`]); [`mapper`] runs the
+//! pipeline on top of them.
 
 /// The per-step decision loop as a pure state machine.
 pub mod agent;
 /// Polygonal approximations A_t and edge occupancy (§4.2.2).
 pub mod approx;
+/// The approximation error d_t and e_avg (§6.1, eq. 6.1).
+pub mod approx_error;
 /// The polygon exchange: op logs of approximations, replicas shown at save points (§5.1).
 pub mod approx_exchange;
+/// The incremental approximation: A_t from A_{t−1} and P_t (§4.2.1).
+pub mod approximator;
 /// Command line and process entry.
 pub mod cli;
 /// Contour extraction: the exact polygonal model P_t (§4.1).
@@ -21,8 +32,6 @@ pub mod contour;
 pub mod coord;
 /// Edit scripts between approximations: the delta ops (§4.2.3, Algorithms 4–5).
 pub mod delta;
-/// The approximation error d_t and e_avg (§6.1, eq. 6.1).
-pub mod error;
 /// Transitive exchange of append-only logs (thesis §5.1.2, Algorithm 8).
 pub mod exchange;
 /// Ternary self-explored grid: laser scan integration.
@@ -37,7 +46,7 @@ pub mod merge;
 pub mod node;
 /// The op log with save points and a receiver's replica (§4.2.3).
 pub mod oplog;
-/// Pacing: per-link byte budgets with governor on the simulated clock (§4.4).
+/// Pacing: per-link byte budgets on the simulated clock (§4.4, `proto::budget`).
 pub mod pacing;
 /// Path planning: Dijkstra costs, frontiers, waypoints.
 pub mod plan;
@@ -49,6 +58,8 @@ pub mod raster;
 pub mod raw_scans;
 /// Douglas–Peucker refinement over all polygons with one priority queue (§4.3).
 pub mod refine;
+/// Painting approximations onto cells: Algorithm 9's steps (1)–(5), renders, exploration view.
+pub mod render;
 /// What a robot shares over the radio, by exchange mode (DESIGN §4.8).
 pub mod sharing;
 /// The splitting frequency s from the bandwidth: eq. 5.5/5.6 or closed loop (§5.3).

@@ -4,15 +4,16 @@
 //! measure what that costs on the wire (Table 6.1) and how far A_t is from G_s (eq. 6.1).
 //!
 //! Pure composition of [`crate::contour`], [`crate::approx`], [`crate::oplog`], [`crate::wire`]
-//! and [`crate::error`]; the exchange of the log is another module's job.
+//! and [`crate::approx_error`]; the exchange of the log is another module's job.
 
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::Traffic;
 
-use crate::approx::{Approximation, Approximator};
+use crate::approx::Approximation;
+use crate::approx_error::approx_error;
+use crate::approximator::Approximator;
 use crate::contour::{ContourPixels, Contours};
 use crate::delta::OpKind;
-use crate::error::approx_error;
 use crate::oplog::OpLog;
 use crate::wire::Encoder;
 

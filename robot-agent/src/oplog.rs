@@ -193,7 +193,7 @@ impl OpLog {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::approx::Approximator;
+    use crate::approximator::Approximator;
     use crate::contour::{Contours, Kind};
     use crate::testutil::arb_exploration;
     use proptest::prelude::*;
@@ -291,7 +291,7 @@ mod tests {
                 let want = &states.iter().rev().find(|(at, _)| *at <= k).map(|(_, a)| a);
                 let got = log.state_at(k).map_err(|e| TestCaseError::fail(e.to_string()))?;
                 prop_assert_eq!(Some(&got), *want, "prefix {}", k);
-                let render = |a: &Approximation| crate::merge::render(a, grid.0, grid.1);
+                let render = |a: &Approximation| crate::render::render(a, grid.0, grid.1);
                 prop_assert_eq!(want.map(render), Some(render(&got)));
             }
         }

@@ -1,24 +1,19 @@
 //! Pacing (DESIGN.md §4.4): a robot never offers a link more than its budget. Per neighbour, a
-//! governor rate limiter (GCRA) on the **simulated** clock meters the bytes the robot sends: the
-//! rate is the link's bandwidth, the burst a few steps of it (and at least one whole log entry,
-//! so an entry larger than one step's budget still goes every few steps instead of blocking the
-//! log forever). What does not fit waits in the logs; [`crate::sharing`] reports how much.
+//! byte budget on the **simulated** clock ([`proto::budget`], the one netem shapes links with too)
+//! meters the bytes the robot sends: the rate is the link's bandwidth, the burst a few steps of it
+//! (and at least one whole log entry, so an entry larger than one step's budget still goes every
+//! few steps instead of blocking the log forever). What does not fit waits in the logs; [`crate::sharing`] reports how much.
 //!
-//! Governor answers "may these n bytes pass now?", while the exchange needs "how many bytes may
+//! The budget answers "may these n bytes pass now?", while the exchange needs "how many bytes may
 //! pass now?" to fill a message. So [`Pacer::available`] takes one byte as a probe, which tells
 //! the remaining burst capacity, and holds that byte for the next [`Pacer::spend`]: nothing is
 //! lost or granted twice.
 
 use std::collections::HashMap;
-use std::num::NonZeroU32;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-use governor::clock::Clock;
-use governor::middleware::StateInformationMiddleware;
-use governor::nanos::Nanos;
-use governor::state::{InMemoryState, NotKeyed};
-use governor::{Quota, RateLimiter};
+use proto::budget::{ByteBudget, ByteRate, SimNow, Take};
 use proto::msg::{RobotId, Step};
 
 /// The robot's simulated time: the step it is at times the step length.
@@ -31,31 +26,24 @@ impl SimClock {
     }
 }
 
-impl Clock for SimClock {
-    type Instant = Nanos;
-
-    fn now(&self) -> Nanos {
-        Nanos::from(self.0.load(Ordering::Relaxed))
+impl SimNow for SimClock {
+    fn now_ns(&self) -> u64 {
+        self.0.load(Ordering::Relaxed)
     }
 }
 
-type Limiter = RateLimiter<NotKeyed, InMemoryState, SimClock, StateInformationMiddleware>;
-
-/// Cell rates above this are metered in multi-byte cells (governor's period is whole ns).
-const MAX_CELLS_PER_S: u64 = 1_000_000;
-
 /// Per-neighbour byte budgets on the simulated clock.
 pub struct Pacer {
-    /// `None`: unlimited bandwidth, nothing is metered.
-    quota: Option<(Quota, u64)>,
+    /// `None`: unlimited bandwidth, nothing is metered. Else the rate and the burst in cells.
+    quota: Option<(ByteRate, u32)>,
     burst_bytes: u64,
-    /// Cells a new link's limiter is drained by at once, so that it starts with one step's
+    /// Cells a new link's budget is drained by at once, so that it starts with one step's
     /// budget rather than a whole burst (a fresh connection is not flooded).
     start_drain: u32,
     step_ns: u64,
     clock: SimClock,
-    /// Per neighbour: its limiter and the probe bytes held for the next spend.
-    links: HashMap<RobotId, (Limiter, u64)>,
+    /// Per neighbour: its budget and the probe bytes held for the next spend.
+    links: HashMap<RobotId, (ByteBudget<SimClock>, u64)>,
 }
 
 impl Pacer {
@@ -64,17 +52,12 @@ impl Pacer {
     pub fn new(rate_bytes_per_s: Option<u64>, burst_bytes: u64, step_seconds: f64) -> Pacer {
         let mut start_drain = 0;
         let quota = rate_bytes_per_s.filter(|&r| r > 0).map(|rate| {
-            let cell_bytes = rate.div_ceil(MAX_CELLS_PER_S);
-            let period_ns = ((1e9 * cell_bytes as f64 / rate as f64).round() as u64).max(1);
-            let burst_cells = burst_bytes
-                .div_ceil(cell_bytes)
-                .clamp(1, u64::from(u32::MAX)) as u32;
-            let step_cells = ((rate as f64 * step_seconds.max(0.0)) / cell_bytes as f64) as u64;
+            let rate = ByteRate::new(rate);
+            let burst_cells = rate.cells_up(burst_bytes).max(1);
+            let step_cells =
+                ((rate.bytes_per_s as f64 * step_seconds.max(0.0)) / rate.cell_bytes as f64) as u64;
             start_drain = u64::from(burst_cells).saturating_sub(step_cells.max(1)) as u32;
-            let q = Quota::with_period(std::time::Duration::from_nanos(period_ns))
-                .unwrap_or_else(|| Quota::per_second(NonZeroU32::MIN))
-                .allow_burst(NonZeroU32::new(burst_cells).unwrap_or(NonZeroU32::MIN));
-            (q, cell_bytes)
+            (rate, burst_cells)
         });
         Pacer {
             quota,
@@ -94,56 +77,55 @@ impl Pacer {
 
     /// Bytes `peer`'s link may carry now (`usize::MAX` if unlimited).
     pub fn available(&mut self, peer: RobotId) -> usize {
-        let Some((quota, cell)) = self.quota else {
+        let Some((rate, burst_cells)) = self.quota else {
             return usize::MAX;
         };
+        let cell = rate.cell_bytes;
         let drain = self.start_drain;
-        let (lim, held) = self.links.entry(peer).or_insert_with(|| {
-            let lim = RateLimiter::direct_with_clock(quota, self.clock.clone())
-                .with_middleware::<StateInformationMiddleware>();
-            if let Some(n) = NonZeroU32::new(drain) {
-                let _ = lim.check_n(n);
+        let (budget, held) = self.links.entry(peer).or_insert_with(|| {
+            let budget = ByteBudget::new(rate, burst_cells, self.clock.clone());
+            if drain > 0 {
+                let _ = budget.take(drain);
             }
-            (lim, 0)
+            (budget, 0)
         });
-        match lim.check_n(NonZeroU32::MIN) {
-            Ok(Ok(snap)) => {
+        match budget.take(1) {
+            Take::Taken { remaining } => {
                 // Probe bytes held from calls that sent nothing are the link's all the same, but
                 // never lift what one step may send above the burst.
                 *held += cell;
-                let avail = *held + u64::from(snap.remaining_burst_capacity()) * cell;
+                let avail = *held + u64::from(remaining) * cell;
                 usize::try_from(avail.min(self.burst_bytes.max(cell))).unwrap_or(usize::MAX)
             }
-            _ => usize::try_from(*held).unwrap_or(usize::MAX),
+            Take::NotYet { .. } | Take::OverBurst => usize::try_from(*held).unwrap_or(usize::MAX),
         }
     }
 
     /// `bytes` were sent to `peer`: they are taken off its budget, as far as it reaches (a
     /// handshake is sent even when the budget is spent). Call after [`Pacer::available`].
     pub fn spend(&mut self, peer: RobotId, bytes: usize) {
-        let Some((_, cell)) = self.quota else { return };
-        let Some((lim, held)) = self.links.get_mut(&peer) else {
+        let Some((rate, _)) = self.quota else { return };
+        let Some((budget, held)) = self.links.get_mut(&peer) else {
             return;
         };
         let bytes = bytes as u64;
         let from_held = bytes.min(*held);
         *held -= from_held;
-        let mut cells = (bytes - from_held).div_ceil(cell);
+        let mut cells = (bytes - from_held).div_ceil(rate.cell_bytes);
         while cells > 0 {
             let n = u32::try_from(cells).unwrap_or(u32::MAX);
-            match lim.check_n(NonZeroU32::new(n).unwrap_or(NonZeroU32::MIN)) {
-                Ok(Ok(_)) => cells -= u64::from(n),
+            match budget.take(n) {
+                Take::Taken { .. } => cells -= u64::from(n),
                 // Over the budget: take what is left, one probe at a time tells how much.
-                _ => match lim.check_n(NonZeroU32::MIN) {
-                    Ok(Ok(snap)) => {
-                        let rest = snap.remaining_burst_capacity().min(n.saturating_sub(1));
-                        if let Some(r) = NonZeroU32::new(rest) {
-                            let _ = lim.check_n(r);
+                Take::NotYet { .. } | Take::OverBurst => {
+                    if let Take::Taken { remaining } = budget.take(1) {
+                        let rest = remaining.min(n.saturating_sub(1));
+                        if rest > 0 {
+                            let _ = budget.take(rest);
                         }
-                        break;
                     }
-                    _ => break,
-                },
+                    break;
+                }
             }
         }
     }

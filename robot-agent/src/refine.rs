@@ -13,7 +13,7 @@
 //! **Monotone refinement** (beyond the thesis; on when a reference grid is given). A DP split
 //! can raise d_t — a chord through a free corner cell drawn occupied, a triangle of cells
 //! flipping side — so each split is scored by re-rendering just its window
-//! ([`crate::merge::render_window`]). Of the [`LOOKAHEAD`] most valuable edges the split that
+//! ([`crate::render::render_window`]). Of the [`LOOKAHEAD`] most valuable edges the split that
 //! lowers d_t most is taken; one that would raise d_t is deferred (and retried when a later
 //! split touches its window). When only deferred splits are left, the next splits in DP
 //! order are taken as one atomic group, up to the first point where d_t is back at or below its
@@ -31,8 +31,8 @@ use proto::grid::{Cell, Grid, Occ};
 
 use crate::approx::{edge_occ, ObjectId, Polygon, Vertex};
 use crate::contour::{Contour, Contours};
-use crate::merge::render_window;
 use crate::qpoint::seg_dist2;
+use crate::render::render_window;
 
 /// How many of the most valuable edges are scored for each split (monotone mode).
 pub const LOOKAHEAD: usize = 8;

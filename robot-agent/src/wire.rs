@@ -330,7 +330,8 @@ impl Reader<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::approx::{Approximation, Approximator};
+    use crate::approx::Approximation;
+    use crate::approximator::Approximator;
     use crate::contour::Contours;
     use crate::delta::{diff, OpKind};
     use crate::testutil::{explore, maps, window};

@@ -5,7 +5,7 @@
 //! cell by cell with the Amanatides–Woo traversal, so no cell a ray crosses is skipped however
 //! steep or long the ray. A ray stops at the first cell that is not free: unknown cells of real
 //! maps block like walls (what was never seen by the map's author is treated as opaque and
-//! impassable). The reported range is the distance to where the ray *enters* that cell; a ray
+//! impassable). The traversal is the workspace's one ([`proto::traverse`]). The reported range is the distance to where the ray *enters* that cell; a ray
 //! that reaches `max_range_m` or leaves the grid reports `max_range_m`, meaning "no return" (the
 //! convention of [`proto::msg::Scan`]). Where a ray passes exactly through a cell corner it
 //! touches both side cells too, and either one blocks it — the same supercover rule robots move
@@ -13,6 +13,7 @@
 
 use proto::geom::{LaserSpec, MapInfo, Pose};
 use proto::grid::{Cell, Grid, Occ};
+use proto::traverse::{Corners, Crossing, Traversal};
 use rand::{Rng, RngCore};
 
 /// One scan from `pose`: a range in metres per beam, beam `i` at `pose.theta +
@@ -73,49 +74,27 @@ pub fn ray_hit_m(
     Some(hit_cells * res)
 }
 
-/// Amanatides–Woo traversal in cell units from `p` along the unit vector `d`; returns the ray
-/// parameter (in cells) at which it enters the first non-free cell, if that is before `max_t`.
+/// The grid traversal ([`proto::traverse`], supercover at exact corners) in cell units from `p`
+/// along the unit vector `d`; returns the ray parameter (in cells) at which it enters the first
+/// non-free cell, if that is before `max_t`.
 fn traverse(grid: &Grid, p: (f64, f64), d: (f64, f64), max_t: f64) -> Option<f64> {
-    let mut cell = Cell::new(p.0.floor() as i32, p.1.floor() as i32);
-    if !grid.contains(cell) {
+    let ray = Traversal::ray(p, d, Corners::Supercover { eps: 0.0 });
+    if !grid.contains(ray.cell()) {
         return None;
     }
-    if grid.get(cell) != Occ::Free {
+    if grid.get(ray.cell()) != Occ::Free {
         return Some(0.0);
     }
-    // Per axis: the step direction, the ray parameter of the next boundary, the spacing of
-    // boundaries. An axis the ray runs parallel to never has a next boundary.
-    let axis = |pos: f64, dir: f64, c: i32| -> (i32, f64, f64) {
-        if dir > 0.0 {
-            (1, (f64::from(c) + 1.0 - pos) / dir, 1.0 / dir)
-        } else if dir < 0.0 {
-            (-1, (f64::from(c) - pos) / dir, -1.0 / dir)
-        } else {
-            (0, f64::INFINITY, f64::INFINITY)
-        }
-    };
-    let (sx, mut tx, dtx) = axis(p.0, d.0, cell.x);
-    let (sy, mut ty, dty) = axis(p.1, d.1, cell.y);
     let blocks = |c: Cell| grid.contains(c) && grid.get(c) != Occ::Free;
-    // Each iteration enters a new cell; a ray inside the grid crosses at most width + height.
-    for _ in 0..=(grid.width() as usize + grid.height() as usize) {
-        let t = tx.min(ty);
+    // Each crossing enters a new cell; a ray inside the grid crosses at most width + height.
+    for Crossing { t, cell, corner } in ray.take(grid.width() as usize + grid.height() as usize + 1)
+    {
         if t.is_nan() || t >= max_t {
             return None;
         }
-        if tx == ty {
-            // Exactly through a corner: the two side cells are touched as well.
-            if blocks(Cell::new(cell.x + sx, cell.y)) || blocks(Cell::new(cell.x, cell.y + sy)) {
-                return Some(t);
-            }
-            cell = Cell::new(cell.x + sx, cell.y + sy);
-            (tx, ty) = (tx + dtx, ty + dty);
-        } else if tx < ty {
-            cell.x += sx;
-            tx += dtx;
-        } else {
-            cell.y += sy;
-            ty += dty;
+        // Exactly through a corner: the two side cells are touched as well.
+        if corner.is_some_and(|sides| sides.into_iter().any(blocks)) {
+            return Some(t);
         }
         if !grid.contains(cell) {
             return None;

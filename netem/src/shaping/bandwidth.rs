@@ -2,9 +2,10 @@
 //! §2, §5: "per-link rate (each direction) or shared medium (one budget for all links, the
 //! thesis's pessimistic model §5.1) via governor on the simulated clock").
 //!
-//! A `Budget` is a governor GCRA rate limiter whose clock is the `SimClock` (implemented
-//! here: the one place that knows governor). One governor *cell* is one byte (or, above 1 MB/s,
-//! a few bytes, so that governor's whole-nanosecond cell period stays exact to 0.1 %). The burst
+//! A `Budget` is the workspace's byte budget on a simulated clock ([`proto::budget`], a governor
+//! GCRA rate limiter; the robots pace their sending with the same one) read on netem's `SimClock`.
+//! One governor *cell* is one byte (or, above 1 MB/s, a few bytes, so that governor's
+//! whole-nanosecond cell period stays exact to 0.1 %). The burst
 //! is one step's worth of bytes (`rate × step_seconds`): in lockstep, simulated time jumps by a
 //! step at a time, so that is what lets a step's full budget through at the step boundary, and
 //! an idle link never saves up more than one step.
@@ -15,91 +16,59 @@
 //! (`SimClock::sleep_until`, a `watch` of the step time in lockstep, a tokio sleep in realtime).
 //! While it waits it does not read: the buffer fills and the sender is pushed back by TCP.
 
-use std::num::NonZeroU32;
 use std::sync::{Arc, Mutex};
 
-use governor::clock::{Clock, Reference};
-use governor::middleware::StateInformationMiddleware;
-use governor::nanos::Nanos;
-use governor::state::{InMemoryState, NotKeyed};
-use governor::{Quota, RateLimiter};
+use proto::budget::{ByteBudget, ByteRate, Take};
 use tokio::sync::{mpsc, watch};
 
 use super::{Chunk, DirShape};
 use crate::clock::{SimClock, SimTime};
 
-impl Clock for SimClock {
-    type Instant = Nanos;
-
-    fn now(&self) -> Nanos {
-        Nanos::from(SimClock::now(self).0)
-    }
-}
-
-type Limiter = RateLimiter<NotKeyed, InMemoryState, SimClock, StateInformationMiddleware>;
-
 /// Smallest piece the stage waits for when it has more to send (bytes): keeps realtime links
 /// from trickling out one byte per governor period.
 const MIN_QUANTUM_BYTES: u64 = 256;
 
-/// Cell rates above this are expressed in multi-byte cells.
-const MAX_CELLS_PER_S: u64 = 1_000_000;
-
 /// A byte budget: `rate` bytes per simulated second, bursts of one step.
 #[derive(Debug)]
 pub struct Budget {
-    rate_bytes_per_s: u64,
-    cell_bytes: u64,
-    period_ns: u64,
-    burst_cells: u32,
     quantum_cells: u32,
     /// Largest grant in cells: a shared medium hands out a quantum at a time so that the links
     /// that share it take turns.
     max_grant_cells: u32,
     shared: bool,
-    clock: SimClock,
-    limiter: Mutex<Limiter>,
+    /// Locked for the whole of [`Budget::try_take`], whose checks belong together.
+    budget: Mutex<ByteBudget<SimClock>>,
 }
 
 impl Budget {
     /// A budget of `rate_bytes_per_s` (> 0) with a burst of `burst_s` simulated seconds (one step).
     /// `shared`: several links draw from it (a shared medium).
     pub fn new(rate_bytes_per_s: u64, burst_s: f64, shared: bool, clock: SimClock) -> Arc<Budget> {
-        let rate = rate_bytes_per_s.max(1);
-        let cell_bytes = rate.div_ceil(MAX_CELLS_PER_S);
-        let cells_per_s = rate as f64 / cell_bytes as f64;
-        let period_ns = ((1e9 / cells_per_s).round() as u64).max(1);
-        let burst_bytes = (rate as f64 * burst_s.max(0.0)).round();
-        let burst_cells =
-            ((burst_bytes / cell_bytes as f64) as u64).clamp(1, u64::from(u32::MAX)) as u32;
-        let quantum_bytes = MIN_QUANTUM_BYTES.max(rate / 50);
-        let quantum_cells =
-            (quantum_bytes.div_ceil(cell_bytes)).clamp(1, u64::from(burst_cells)) as u32;
-        let quota = Quota::with_period(std::time::Duration::from_nanos(period_ns))
-            .unwrap_or_else(|| Quota::per_second(NonZeroU32::MIN))
-            .allow_burst(NonZeroU32::new(burst_cells).unwrap_or(NonZeroU32::MIN));
-        let limiter = RateLimiter::direct_with_clock(quota, clock.clone())
-            .with_middleware::<StateInformationMiddleware>();
+        let rate = ByteRate::new(rate_bytes_per_s);
+        let burst_bytes = (rate.bytes_per_s as f64 * burst_s.max(0.0)).round() as u64;
+        let burst_cells = rate.cells_down(burst_bytes).max(1);
+        let quantum_bytes = MIN_QUANTUM_BYTES.max(rate.bytes_per_s / 50);
+        let quantum_cells = rate.cells_up(quantum_bytes).clamp(1, burst_cells);
         Arc::new(Budget {
-            rate_bytes_per_s: rate,
-            cell_bytes,
-            period_ns,
-            burst_cells,
             quantum_cells,
             max_grant_cells: if shared { quantum_cells } else { burst_cells },
             shared,
-            clock,
-            limiter: Mutex::new(limiter),
+            budget: Mutex::new(ByteBudget::new(rate, burst_cells, clock)),
         })
     }
 
+    fn lock(&self) -> std::sync::MutexGuard<'_, ByteBudget<SimClock>> {
+        self.budget.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
     pub fn rate_bytes_per_s(&self) -> u64 {
-        self.rate_bytes_per_s
+        self.lock().rate().bytes_per_s
     }
 
     /// The most bytes one step can grant.
     pub fn burst_bytes(&self) -> u64 {
-        u64::from(self.burst_cells) * self.cell_bytes
+        let b = self.lock();
+        u64::from(b.burst_cells()) * b.rate().cell_bytes
     }
 
     pub fn is_shared(&self) -> bool {
@@ -109,42 +78,41 @@ impl Budget {
     /// Takes up to `want` bytes of budget now: `Ok(granted)` with `1 ≤ granted ≤ want`, or
     /// `Err(t)`: nothing can be granted before simulated time `t`.
     pub fn try_take(&self, want: usize) -> Result<usize, SimTime> {
+        let b = self.lock();
+        let ByteRate {
+            cell_bytes,
+            period_ns,
+            ..
+        } = b.rate();
         let want = want.max(1) as u64;
         let want_cells = want
-            .div_ceil(self.cell_bytes)
+            .div_ceil(cell_bytes)
             .min(u64::from(self.max_grant_cells)) as u32;
         let q = want_cells.min(self.quantum_cells).max(1);
-        let lim = self.limiter.lock().unwrap_or_else(|p| p.into_inner());
-        let granted_cells = match lim.check_n(nz(q)) {
-            Ok(Ok(snapshot)) => {
-                let extra = (want_cells - q).min(snapshot.remaining_burst_capacity());
-                if extra > 0 && matches!(lim.check_n(nz(extra)), Ok(Ok(_))) {
+        let granted_cells = match b.take(q) {
+            Take::Taken { remaining } => {
+                let extra = (want_cells - q).min(remaining);
+                if extra > 0 && matches!(b.take(extra), Take::Taken { .. }) {
                     q + extra
                 } else {
                     q
                 }
             }
-            Ok(Err(not_until)) => {
+            Take::NotYet { at_ns, wait_ns } => {
                 // Fewer than `q` cells are there; take what is, so that a leftover smaller than a
                 // quantum is not lost when a lockstep step refills the bucket to its burst.
-                let wait_ns = not_until.wait_time_from(Clock::now(&self.clock)).as_nanos() as u64;
-                let avail = u64::from(q).saturating_sub(wait_ns.div_ceil(self.period_ns)) as u32;
-                if avail > 0 && matches!(lim.check_n(nz(avail)), Ok(Ok(_))) {
+                let avail = u64::from(q).saturating_sub(wait_ns.div_ceil(period_ns)) as u32;
+                if avail > 0 && matches!(b.take(avail), Take::Taken { .. }) {
                     avail
                 } else {
-                    let at = not_until.earliest_possible();
-                    return Err(SimTime(at.duration_since(Nanos::from(0)).as_u64()));
+                    return Err(SimTime(at_ns));
                 }
             }
             // `q` never exceeds the burst; if it somehow did, retry after one period.
-            Err(_) => return Err(self.clock.now().saturating_add_ns(self.period_ns)),
+            Take::OverBurst => return Err(b.clock().now().saturating_add_ns(period_ns)),
         };
-        Ok((u64::from(granted_cells) * self.cell_bytes).min(want) as usize)
+        Ok((u64::from(granted_cells) * cell_bytes).min(want) as usize)
     }
-}
-
-fn nz(n: u32) -> NonZeroU32 {
-    NonZeroU32::new(n).unwrap_or(NonZeroU32::MIN)
 }
 
 /// Budget already taken from some budgets of a chain but not yet used, because another budget

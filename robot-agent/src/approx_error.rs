@@ -11,7 +11,7 @@
 use proto::grid::Grid;
 
 use crate::approx::Approximation;
-use crate::merge::{exploration_view, render};
+use crate::render::{exploration_view, render};
 
 /// d_t: cells where `own` (G_s, in its exploration view) and the rendering of `a` differ.
 pub fn approx_error(own: &Grid, a: &Approximation) -> usize {
@@ -37,7 +37,7 @@ pub fn average_error(d: &[usize], explored_cells: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::approx::approximate;
+    use crate::approximator::approximate;
     use crate::contour::Contours;
 
     #[test]
