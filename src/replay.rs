@@ -15,10 +15,11 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use proto::geom::MapInfo;
 use proto::grid::{Grid, Occ};
+use proto::msg::Traffic;
 use proto::scenario::Scenario;
 use robot_agent::agent::Agent;
 use robot_agent::contour::Kind;
-use robot_agent::mapper::{traffic, Mapper, StepReport, OP_KINDS, THESIS_BYTES};
+use robot_agent::mapper::{Mapper, StepReport};
 use robot_agent::qpoint::QPoint;
 use serde::Serialize;
 use world_server::world::World;
@@ -159,17 +160,16 @@ fn summarize(map: &str, steps: u32, reachable: &Grid, own: &Grid, m: &Mapper) ->
         .zip(own.cells())
         .filter(|(r, o)| **r == Occ::Free && **o == Occ::Free)
         .count();
-    let by_type = OP_KINDS
+    let by_type = Traffic::OPS
         .iter()
-        .enumerate()
-        .map(|(i, &k)| {
+        .map(|&t| {
             let s = OpTypeSummary {
-                count: m.stats.count[i],
-                bytes: m.stats.bytes[i],
-                mean_bytes: m.stats.mean_bytes(i),
-                thesis_bytes: THESIS_BYTES[i],
+                count: m.stats.count[t as usize],
+                bytes: m.stats.bytes[t as usize],
+                mean_bytes: m.stats.mean_bytes(t),
+                thesis_bytes: t.thesis_bytes().unwrap_or_default(),
             };
-            (traffic(k).name().to_string(), s)
+            (t.name().to_string(), s)
         })
         .collect();
     ReplaySummary {

@@ -9,6 +9,7 @@
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 use crate::geom::{LaserSpec, MapInfo, Pose};
+use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
 pub const PROTOCOL_VERSION: u16 = 3;
@@ -147,9 +148,12 @@ pub struct View {
     pub digest: u64,
 }
 
-/// The classes every radio payload byte is accounted to: the nine package types of thesis
-/// Table 6.1 and `scan` for the raw-scans baseline (DESIGN.md §4.3, §4.8).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+/// The package types every radio payload byte is accounted to: the nine of thesis Table 6.1 —
+/// the seven op types of the polygon exchange's log ([`Traffic::OPS`]), `conn` (handshakes and
+/// chunk headers) and `targ` (targets, coordination) — and `scan` and `cells` for the raw-scans
+/// and grid-snapshots baselines. The op log names its ops' types with it too, so there is one
+/// enum for them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum Traffic {
     Ins,
     Rep,
@@ -178,6 +182,28 @@ impl Traffic {
         Traffic::Scan,
         Traffic::Cells,
     ];
+
+    /// The op types of the polygon exchange's log, in Table 6.1 order.
+    pub const OPS: [Traffic; 7] = [
+        Traffic::Ins,
+        Traffic::Rep,
+        Traffic::Del,
+        Traffic::Em,
+        Traffic::Chg,
+        Traffic::Rm,
+        Traffic::Save,
+    ];
+
+    /// Thesis Table 6.1: the size in bytes of one op of this type (`None`: not an op type).
+    pub fn thesis_bytes(self) -> Option<f64> {
+        match self {
+            Traffic::Ins | Traffic::Rep => Some(6.0),
+            Traffic::Em | Traffic::Chg => Some(5.0),
+            Traffic::Del | Traffic::Rm => Some(2.0),
+            Traffic::Save => Some(1.0),
+            Traffic::Conn | Traffic::Targ | Traffic::Scan | Traffic::Cells => None,
+        }
+    }
 
     /// The name used in `summary.json` and `traffic_by_type.csv`.
     pub fn name(self) -> &'static str {
@@ -241,7 +267,7 @@ pub struct Hello {
 pub struct Target {
     pub from: RobotId,
     pub step: Step,
-    pub cell: Option<(i32, i32)>,
+    pub cell: Option<Cell>,
 }
 
 /// Radio (`burgard` coordination): what a robot knows of the robots it can reach, relayed from
@@ -257,8 +283,8 @@ pub struct Team {
 pub struct TeamEntry {
     pub robot: RobotId,
     pub step: Step,
-    pub cell: (i32, i32),
-    pub target: Option<(i32, i32)>,
+    pub cell: Cell,
+    pub target: Option<Cell>,
     pub neighbours: Vec<RobotId>,
 }
 
@@ -366,6 +392,15 @@ mod tests {
             origin_x_m: -1.0,
             origin_y_m: 2.0,
         }
+    }
+
+    /// `Target` and `TeamEntry` carry [`Cell`]s where they carried `(i32, i32)` pairs; postcard
+    /// encodes both alike, so the wire (and [`PROTOCOL_VERSION`]) is unchanged.
+    #[test]
+    fn a_cell_encodes_like_the_pair_it_replaced() {
+        let cell = Cell::new(-3, 120);
+        assert_eq!(encode(&cell), encode(&(-3i32, 120i32)));
+        assert_eq!(encode(&Some(cell)), encode(&Some((-3i32, 120i32))));
     }
 
     #[test]
@@ -489,7 +524,7 @@ mod tests {
         round_trip(Target {
             from: 2,
             step: 40,
-            cell: Some((-3, 120)),
+            cell: Some(Cell::new(-3, 120)),
         });
         round_trip(Target {
             from: 2,
@@ -501,8 +536,8 @@ mod tests {
             entries: vec![TeamEntry {
                 robot: 3,
                 step: 9,
-                cell: (4, -5),
-                target: Some((10, 11)),
+                cell: Cell::new(4, -5),
+                target: Some(Cell::new(10, 11)),
                 neighbours: vec![1, 2],
             }],
         });

@@ -204,7 +204,7 @@ impl ApproxExchange {
 }
 
 /// The encoded bytes of each op in a chunk, by package type (for accounting).
-pub fn op_bytes(c: &OpChunk) -> Vec<(crate::delta::OpKind, usize)> {
+pub fn op_bytes(c: &OpChunk) -> Vec<(proto::msg::Traffic, usize)> {
     let Ok(ops) = wire::decode(&c.ops) else {
         return Vec::new();
     };

@@ -18,6 +18,8 @@
 
 use std::collections::HashMap;
 
+use proto::msg::Traffic;
+
 use crate::approx::{Approximation, ObjectId, Vertex};
 use crate::contour::Kind;
 
@@ -43,28 +45,17 @@ pub enum Op {
     Save,
 }
 
-/// The package types, for accounting bytes by type.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum OpKind {
-    Ins,
-    Rep,
-    Del,
-    Em,
-    Chg,
-    Rm,
-    Save,
-}
-
 impl Op {
-    pub fn kind(&self) -> OpKind {
+    /// Its package type, for accounting bytes by type.
+    pub fn kind(&self) -> Traffic {
         match self {
-            Op::Insert { .. } => OpKind::Ins,
-            Op::Replace { .. } => OpKind::Rep,
-            Op::Delete { .. } => OpKind::Del,
-            Op::Emerge { .. } => OpKind::Em,
-            Op::Change { .. } => OpKind::Chg,
-            Op::Remove { .. } => OpKind::Rm,
-            Op::Save => OpKind::Save,
+            Op::Insert { .. } => Traffic::Ins,
+            Op::Replace { .. } => Traffic::Rep,
+            Op::Delete { .. } => Traffic::Del,
+            Op::Emerge { .. } => Traffic::Em,
+            Op::Change { .. } => Traffic::Chg,
+            Op::Remove { .. } => Traffic::Rm,
+            Op::Save => Traffic::Save,
         }
     }
 }

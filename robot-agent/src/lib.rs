@@ -6,8 +6,9 @@
 //! scripts, save points, encoding, §4.2.3), [`render`] + [`merge`] (approximations painted onto
 //! cells, the planning grid, §5.2), [`approx_error`] (d_t and e_avg, eq. 6.1), [`plan`] (costs,
 //! frontiers, paths), [`raw_scans`] (the baseline exchange with transitive logs). [`agent`]
-//! composes them into the per-step decision; [`node`] runs it over zenoh; [`cli`] is the command
-//! line.
+//! composes them into the per-step decision with the parts around them — [`sharing`] (the
+//! exchange modes), [`coord`] (the coordination strategies), [`right_of_way`] and [`radio`];
+//! [`node`] runs it over zenoh; [`cli`] is the command line.
 //!
 //! The mapping modules import each other in one direction only, each from those before it:
 //! [`contour`] → [`approx`] → [`render`] → [`refine`] → [`approximator`] → [`merge`] and
@@ -28,7 +29,8 @@ pub mod approximator;
 pub mod cli;
 /// Contour extraction: the exact polygonal model P_t (§4.1).
 pub mod contour;
-/// Coordination strategies: utilities, discounts, decentralized and Burgard (§4.4–4.5).
+/// Coordination: the strategy interface, utilities and discounts (§4.4–4.5), one file per
+/// strategy (decentralized, Burgard, uncoordinated).
 pub mod coord;
 /// Edit scripts between approximations: the delta ops (§4.2.3, Algorithms 4–5).
 pub mod delta;
@@ -52,6 +54,8 @@ pub mod pacing;
 pub mod plan;
 /// Quarter-cell integer coordinates of contour vertices.
 pub mod qpoint;
+/// The radio side: neighbours, pacing, backlog; every message encoded and counted once.
+pub mod radio;
 /// Rasterizing quarter-cell polygons onto cells (scan-line fill, edges).
 pub mod raster;
 /// The raw-scans exchange: per-owner logs, handshakes, sent-index table.
@@ -60,7 +64,9 @@ pub mod raw_scans;
 pub mod refine;
 /// Painting approximations onto cells: Algorithm 9's steps (1)–(5), renders, exploration view.
 pub mod render;
-/// What a robot shares over the radio, by exchange mode (DESIGN §4.8).
+/// Right of way: rejected moves and blacklist, bumps, giving way, planning around.
+pub mod right_of_way;
+/// What a robot shares over the radio: one implementation per exchange mode.
 pub mod sharing;
 /// The splitting frequency s from the bandwidth: eq. 5.5/5.6 or closed loop (§5.3).
 pub mod splitting;

@@ -13,51 +13,21 @@ use crate::approx::Approximation;
 use crate::approx_error::approx_error;
 use crate::approximator::Approximator;
 use crate::contour::{ContourPixels, Contours};
-use crate::delta::OpKind;
 use crate::oplog::OpLog;
 use crate::wire::Encoder;
 
-/// The package types of the op log in Table 6.1 order.
-pub const OP_KINDS: [OpKind; 7] = [
-    OpKind::Ins,
-    OpKind::Rep,
-    OpKind::Del,
-    OpKind::Em,
-    OpKind::Chg,
-    OpKind::Rm,
-    OpKind::Save,
-];
-
-/// Thesis Table 6.1: the size in bytes of each package type of [`OP_KINDS`].
-pub const THESIS_BYTES: [f64; 7] = [6.0, 6.0, 2.0, 5.0, 5.0, 2.0, 1.0];
-
-pub fn kind_index(k: OpKind) -> usize {
-    OP_KINDS.iter().position(|&x| x == k).unwrap_or(0)
-}
-
-/// The traffic class an op's bytes are accounted to (its name in every report).
-pub fn traffic(k: OpKind) -> Traffic {
-    match k {
-        OpKind::Ins => Traffic::Ins,
-        OpKind::Rep => Traffic::Rep,
-        OpKind::Del => Traffic::Del,
-        OpKind::Em => Traffic::Em,
-        OpKind::Chg => Traffic::Chg,
-        OpKind::Rm => Traffic::Rm,
-        OpKind::Save => Traffic::Save,
-    }
-}
-
-/// Counts and encoded bytes of every op appended so far, per package type.
+/// Counts and encoded bytes of every op appended so far, per package type (indexed by
+/// [`Traffic`]; only its [`Traffic::OPS`] ever count).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct OpStats {
-    pub count: [u64; 7],
-    pub bytes: [u64; 7],
+    pub count: [u64; Traffic::ALL.len()],
+    pub bytes: [u64; Traffic::ALL.len()],
 }
 
 impl OpStats {
-    /// Mean encoded bytes of one op of type `i` (`None` if there was none).
-    pub fn mean_bytes(&self, i: usize) -> Option<f64> {
+    /// Mean encoded bytes of one op of type `t` (`None` if there was none).
+    pub fn mean_bytes(&self, t: Traffic) -> Option<f64> {
+        let i = t as usize;
         (self.count[i] > 0).then(|| self.bytes[i] as f64 / self.count[i] as f64)
     }
 }
@@ -135,7 +105,7 @@ impl Mapper {
         let mut enc = Encoder::new();
         for op in self.log.since(first) {
             let b = enc.push(op);
-            let i = kind_index(op.kind());
+            let i = op.kind() as usize;
             self.stats.count[i] += 1;
             self.stats.bytes[i] += b as u64;
         }

@@ -1,23 +1,21 @@
 //! The robot on its two zenoh planes (DESIGN.md §1): the sim plane (a client of the
 //! world-server's router: scans in, commands and telemetry out) and the radio plane (a peer with
 //! scouting off, linked only to the endpoints it was given: handshakes and log deltas). All
-//! decisions are [`crate::agent::Agent`]'s; this module only moves bytes and counts them.
+//! decisions are [`crate::agent::Agent`]'s; this module only moves bytes between zenoh and the agent
+//! (the agent's radio encodes, decodes and counts them).
 
 use std::time::Duration;
 
 use proto::keys;
-use proto::msg::{
-    decode, encode, Control, Hello, OpChunk, PatchDelta, RobotId, Scan, ScanDelta, Target, Team,
-    Traffic, WorldInfo,
-};
+use proto::msg::{decode, encode, Control, RobotId, Scan, WorldInfo};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::SampleKind;
 use zenoh::Session;
 
-use crate::agent::{Agent, RadioOut};
-use crate::sharing::Share;
+use crate::agent::Agent;
+use crate::radio::Outgoing;
 
 /// Why the robot stopped.
 #[derive(Debug, PartialEq, Eq)]
@@ -34,60 +32,17 @@ pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, Zeno
     proto::node::query_retry(sim, keys::WORLD_INFO, wait).await
 }
 
-/// Sends radio messages, counting payload bytes. A radio link may be gone at any moment:
+/// Puts encoded radio messages on the radio plane. A radio link may be gone at any moment:
 /// messages are dropped rather than queued (`CongestionControl::Drop`); the exchange's
 /// handshakes make losses harmless.
-async fn send_radio(radio: &Session, agent: &mut Agent, out: Vec<RadioOut>) {
-    for m in out {
-        let (key, bytes) = match m {
-            RadioOut::Hello { to, msg } => {
-                let b = encode(&msg);
-                agent.count_sent(Traffic::Conn, b.len());
-                (keys::radio_hello(to), b)
-            }
-            RadioOut::Target { to, msg } => {
-                let b = encode(&msg);
-                agent.count_sent(Traffic::Targ, b.len());
-                (keys::radio_targ(to), b)
-            }
-            RadioOut::Team { to, msg } => {
-                let b = encode(&msg);
-                agent.count_sent(Traffic::Targ, b.len());
-                (keys::radio_team(to), b)
-            }
-            RadioOut::Share { to, msg, bytes } => {
-                agent.count_share_sent(&msg, bytes.len());
-                (msg.key(to), bytes)
-            }
-        };
+async fn send_radio(radio: &Session, out: Vec<Outgoing>) {
+    for Outgoing { key, bytes, .. } in out {
         if let Err(e) = radio
             .put(&key, bytes)
             .congestion_control(CongestionControl::Drop)
             .await
         {
             tracing::debug!("radio put to {key} failed: {e}");
-        }
-    }
-}
-
-/// Decodes a radio payload, counting its bytes as received; one that does not decode counts as a
-/// decode error (the first one is logged) and yields nothing.
-fn radio_msg<T: serde::de::DeserializeOwned>(
-    agent: &mut Agent,
-    sample: &zenoh::sample::Sample,
-    logged_bad: &mut bool,
-) -> Option<T> {
-    let bytes = sample.payload().to_bytes();
-    agent.bytes_received += bytes.len() as u64;
-    match decode::<T>(&bytes) {
-        Ok(m) => Some(m),
-        Err(e) => {
-            agent.decode_errors += 1;
-            if !*logged_bad {
-                *logged_bad = true;
-                tracing::warn!("undecodable radio payload: {e}");
-            }
-            None
         }
     }
 }
@@ -133,7 +88,6 @@ pub async fn run_robot(
         .declare_token(keys::sim_alive(id))
         .await
         .map_err(zerr)?;
-    let mut logged_bad = false;
     loop {
         tokio::select! {
             sample = scans.recv_async() => {
@@ -145,46 +99,21 @@ pub async fn run_robot(
                 let cmd = agent.on_scan(&scan);
                 sim.put(keys::cmd(id), encode(&cmd)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
                 let out = agent.radio_step();
-                send_radio(&radio, &mut agent, out).await;
+                send_radio(&radio, out).await;
                 sim.put(keys::telemetry(id), encode(&agent.telemetry())).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
             }
             sample = inbox.recv_async() => {
                 let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let bad = &mut logged_bad;
-                let out = match keys::radio_kind(sample.key_expr().as_str()) {
-                    Some("hello") => {
-                        if let Some(m) = radio_msg::<Hello>(&mut agent, &sample, bad) { agent.on_hello(&m); }
-                        Vec::new()
-                    }
-                    Some("delta") => radio_msg::<ScanDelta>(&mut agent, &sample, bad)
-                        .map(|m| agent.on_share(m.from, &Share::Scans(m))).unwrap_or_default(),
-                    Some("ops") => radio_msg::<OpChunk>(&mut agent, &sample, bad)
-                        .map(|m| agent.on_share(m.from, &Share::Ops(m))).unwrap_or_default(),
-                    Some("patch") => radio_msg::<PatchDelta>(&mut agent, &sample, bad)
-                        .map(|m| agent.on_share(m.from, &Share::Patches(m))).unwrap_or_default(),
-                    Some("targ") => {
-                        if let Some(m) = radio_msg::<Target>(&mut agent, &sample, bad) { agent.on_target(&m); }
-                        Vec::new()
-                    }
-                    Some("team") => {
-                        if let Some(m) = radio_msg::<Team>(&mut agent, &sample, bad) { agent.on_team(&m); }
-                        Vec::new()
-                    }
-                    _ => {
-                        // Not a kind this build knows: counted, and refused like bad bytes.
-                        agent.bytes_received += sample.payload().len() as u64;
-                        agent.decode_errors += 1;
-                        Vec::new()
-                    }
-                };
-                send_radio(&radio, &mut agent, out).await;
+                let kind = keys::radio_kind(sample.key_expr().as_str()).unwrap_or_default();
+                let out = agent.on_radio(kind, &sample.payload().to_bytes());
+                send_radio(&radio, out).await;
             }
             sample = peers.recv_async() => {
                 let Ok(sample) = sample else { return Ok(End::Stopped) };
                 let Some(peer) = keys::robot_of(sample.key_expr().as_str()) else { continue };
                 if sample.kind() == SampleKind::Put {
                     let out = agent.link_up(peer);
-                    send_radio(&radio, &mut agent, out).await;
+                    send_radio(&radio, out).await;
                 } else {
                     agent.link_down(peer);
                 }

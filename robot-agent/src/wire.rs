@@ -333,9 +333,10 @@ mod tests {
     use crate::approx::Approximation;
     use crate::approximator::Approximator;
     use crate::contour::Contours;
-    use crate::delta::{diff, OpKind};
+    use crate::delta::diff;
     use crate::testutil::{explore, maps, window};
     use proptest::prelude::*;
+    use proto::msg::Traffic;
 
     fn arb_op() -> impl Strategy<Value = Op> {
         let occ = prop_oneof![Just(Occ::Free), Just(Occ::Occupied), Just(Occ::Unknown)];
@@ -388,8 +389,8 @@ mod tests {
 
     /// Mean encoded bytes per op type over single-robot explorations of the shipped maps, each
     /// step's delta in its own chunk (the worst case: no context carried between steps).
-    fn mean_sizes() -> Vec<(OpKind, f64, usize)> {
-        let mut total: std::collections::BTreeMap<OpKind, (usize, usize)> = Default::default();
+    fn mean_sizes() -> Vec<(Traffic, f64, usize)> {
+        let mut total: std::collections::BTreeMap<Traffic, (usize, usize)> = Default::default();
         for (m, map) in maps().iter().enumerate() {
             let truth = window(map, 160, 160, map.width() / 3, map.height() / 3);
             let (mut ax, mut prev) = (Approximator::new(), Approximation::default());
@@ -417,12 +418,7 @@ mod tests {
         let sizes = mean_sizes();
         println!("mean bytes per op: {sizes:?}");
         for (kind, mean, _) in sizes {
-            let limit = match kind {
-                OpKind::Ins | OpKind::Rep => 6.0,
-                OpKind::Em | OpKind::Chg => 5.0,
-                OpKind::Del | OpKind::Rm => 2.0,
-                OpKind::Save => 1.0,
-            };
+            let limit = kind.thesis_bytes().unwrap_or(0.0);
             assert!(mean <= limit, "{kind:?}: {mean:.2} bytes > {limit}");
         }
     }

@@ -2,6 +2,12 @@
 //! §4.6). Pure functions over the planning grid, the frontiers and Dijkstra costs
 //! ([`crate::plan`]); the agent supplies what it heard from other robots.
 //!
+//! This module holds what every strategy shares — the utility and discount arithmetic below,
+//! the table of other robots' announced targets ([`Heard`]) and the interface
+//! ([`Coordinator`]) — and one file per strategy holds its state and its messages:
+//! [`decentralized`], [`burgard`], [`uncoordinated`]. [`new`] registers them by
+//! `coordination.strategy`.
+//!
 //! * Utility (thesis eq. 4.4, Burgard eq. 1): every frontier cell starts at U = 1; a target t'
 //!   chosen by another robot lowers the utility of every frontier t by P(‖t − t'‖), the
 //!   probability that the robot at t' will see t: P(d) = 1 − d / max_range below the laser's
@@ -19,10 +25,189 @@
 //!   over Σ U − β·V², favouring balanced trajectories).
 //! * `uncoordinated`: the nearest frontier ([`crate::plan::nearest`]).
 
+use std::collections::{BTreeMap, BTreeSet};
+
 use proto::grid::{Cell, Grid, Occ};
+use proto::msg::{decode, encode, DecodeError, RobotId, Step, Target, Team, Traffic};
+use proto::scenario::{Scenario, Strategy};
 
 use crate::grid::supercover;
 use crate::plan::CostMap;
+
+pub mod burgard;
+pub mod decentralized;
+pub mod uncoordinated;
+
+/// How the agent talks to a coordination strategy, whichever it is.
+///
+/// A trait object rather than an enum: the strategies share no state (Burgard's sub-team table,
+/// a bidding robot's open auctions, a relay's role are each one strategy's business), so an enum
+/// would make every method a match over all of them and every new strategy an edit of each
+/// match. With the trait, a strategy is one file implementing it, plus a line in [`new`] and,
+/// if it talks, a variant of [`CoordMsg`]. The agent asks it once per step for a target
+/// ([`Coordinator::choose`], given the planning grid, this robot's costs, the candidate
+/// frontiers and what was heard of other robots), once per step for its radio messages
+/// ([`Coordinator::messages`], given this robot's state and neighbours), and hands it every
+/// coordination message received ([`Coordinator::on_message`]). The radio encodes, counts and
+/// decodes those messages ([`crate::radio`]); a strategy never sees bytes.
+pub trait Coordinator: Send {
+    /// This step's target: keep `s.target` or pick another (`None`: no target).
+    fn choose(&mut self, s: &Situation<'_>) -> Option<Cell>;
+
+    /// The messages to send after this step's decision.
+    fn messages(&mut self, _s: &Status<'_>) -> Vec<Addressed> {
+        Vec::new()
+    }
+
+    /// A coordination message heard on the radio (this robot is `me`).
+    fn on_message(&mut self, _me: RobotId, _msg: &CoordMsg) {}
+}
+
+/// The strategy of scenario `s` (`max_range_cells`: the laser's range in cells).
+pub fn new(s: &Scenario, max_range_cells: f64) -> Box<dyn Coordinator> {
+    let c = &s.coordination;
+    let params = Params {
+        beta: c.beta,
+        max_range_cells,
+        half_life_steps: Some(c.target_half_life_steps).filter(|&h| h > 0.0),
+    };
+    match c.strategy {
+        // Scenario validation refuses the reserved values that are not built yet; a scenario
+        // that skipped it gets the nearest frontier, as it always did.
+        Strategy::Uncoordinated | Strategy::Bids | Strategy::Roles | Strategy::Pack => {
+            Box::new(uncoordinated::Uncoordinated)
+        }
+        Strategy::Decentralized => Box::new(decentralized::Decentralized::new(params)),
+        Strategy::Burgard => Box::new(burgard::Burgard::new(
+            params,
+            c.burgard_search,
+            c.search_tries,
+            c.replan_every_steps,
+        )),
+    }
+}
+
+/// What a strategy sees when it picks a target (built by the agent once per step).
+pub struct Situation<'a> {
+    pub id: RobotId,
+    pub step: Step,
+    /// The robot's cell.
+    pub me: Cell,
+    /// The planning grid.
+    pub grid: &'a Grid,
+    /// This robot's path costs on the planning grid.
+    pub costs: &'a CostMap,
+    /// The obstacle penalty `costs` were computed with (for other robots' costs; `None`: off).
+    pub penalty: Option<&'a [f32]>,
+    /// The frontiers it may go to.
+    pub candidates: &'a [Cell],
+    /// The current target, and whether it is still a usable frontier.
+    pub target: Option<Cell>,
+    pub valid: bool,
+    /// Robots in radio range.
+    pub neighbours: &'a BTreeSet<RobotId>,
+    /// Other robots' announced targets.
+    pub heard: &'a Heard,
+}
+
+/// What a strategy may tell others about, after the step's decision.
+pub struct Status<'a> {
+    pub id: RobotId,
+    pub step: Step,
+    pub me: Cell,
+    pub target: Option<Cell>,
+    pub neighbours: &'a BTreeSet<RobotId>,
+}
+
+/// A coordination message, by strategy (a new strategy that talks adds its variant here, with
+/// its radio key segment and package type).
+#[derive(Clone, Debug, PartialEq)]
+pub enum CoordMsg {
+    /// `burgard`: the sub-team table.
+    Team(Team),
+}
+
+impl CoordMsg {
+    /// The package type its bytes are accounted to.
+    pub fn traffic(&self) -> Traffic {
+        match self {
+            CoordMsg::Team(_) => Traffic::Targ,
+        }
+    }
+
+    /// The radio key it is sent on, by addressee.
+    pub fn key(&self) -> fn(RobotId) -> String {
+        match self {
+            CoordMsg::Team(_) => proto::keys::radio_team,
+        }
+    }
+
+    pub fn encode(&self) -> Vec<u8> {
+        match self {
+            CoordMsg::Team(t) => encode(t),
+        }
+    }
+
+    /// Decodes a payload received under key segment `kind` (`None`: not a coordination kind).
+    pub fn decode(kind: &str, bytes: &[u8]) -> Option<Result<CoordMsg, DecodeError>> {
+        match kind {
+            "team" => Some(decode::<Team>(bytes).map(CoordMsg::Team)),
+            _ => None,
+        }
+    }
+}
+
+/// Where a strategy's message goes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum To {
+    /// Every robot in range, within each link's budget.
+    Neighbours,
+    /// One robot (in range or not: the radio decides whether it arrives).
+    Robot(RobotId),
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Addressed {
+    pub to: To,
+    pub msg: CoordMsg,
+}
+
+/// A target another robot announced (`targ`): the cell (`None`: it has none) and the step it
+/// chose it at.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Announcement {
+    pub target: Option<Cell>,
+    pub step: Step,
+}
+
+/// Other robots' last announced targets (thesis §4.5.1's table; heard directly from robots in
+/// range). Every strategy may read it; the right of way uses it too.
+#[derive(Clone, Debug, Default)]
+pub struct Heard {
+    targets: BTreeMap<RobotId, Announcement>,
+}
+
+impl Heard {
+    /// Robot `me` heard `t`.
+    pub fn on_target(&mut self, me: RobotId, t: &Target) {
+        if t.from != me {
+            let a = Announcement {
+                target: t.cell,
+                step: t.step,
+            };
+            self.targets.insert(t.from, a);
+        }
+    }
+
+    pub fn get(&self, robot: RobotId) -> Option<&Announcement> {
+        self.targets.get(&robot)
+    }
+
+    /// Every announcement, by robot.
+    pub fn iter(&self) -> impl Iterator<Item = (RobotId, &Announcement)> {
+        self.targets.iter().map(|(&r, a)| (r, a))
+    }
+}
 
 /// What a strategy needs besides the grid.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -73,7 +258,7 @@ pub fn decay(age: f64, half_life: Option<f64>) -> f64 {
 }
 
 /// Normalized costs of `frontiers` from `costs`: V / max V (unreachable frontiers: `None`).
-fn normalized(frontiers: &[Cell], costs: &CostMap) -> Vec<Option<f64>> {
+pub(crate) fn normalized(frontiers: &[Cell], costs: &CostMap) -> Vec<Option<f64>> {
     let raw: Vec<Option<f64>> = frontiers.iter().map(|&t| costs.cost(t)).collect();
     let max = raw.iter().flatten().fold(0.0f64, |m, &v| m.max(v));
     let scale = if max > 0.0 { max } else { 1.0 };
@@ -81,7 +266,12 @@ fn normalized(frontiers: &[Cell], costs: &CostMap) -> Vec<Option<f64>> {
 }
 
 /// The best frontier by U − β·V; ties go to the lower cost, then to the lower `(y, x)`.
-fn best(frontiers: &[Cell], utility: &[f64], cost: &[Option<f64>], beta: f64) -> Option<usize> {
+pub(crate) fn best(
+    frontiers: &[Cell],
+    utility: &[f64],
+    cost: &[Option<f64>],
+    beta: f64,
+) -> Option<usize> {
     let mut best: Option<(usize, f64)> = None;
     for (i, (&u, v)) in utility.iter().zip(cost).enumerate() {
         let Some(v) = *v else { continue };
@@ -108,137 +298,9 @@ fn best(frontiers: &[Cell], utility: &[f64], cost: &[Option<f64>], beta: f64) ->
     best.map(|(i, _)| i)
 }
 
-/// Decentralized coordination (thesis §4.5.1): the frontier with the best U − β·V after the
-/// targets `others` (cell, age in steps) have discounted the utilities.
-pub fn decentralized(
-    g: &Grid,
-    frontiers: &[Cell],
-    costs: &CostMap,
-    others: &[(Cell, f64)],
-    p: &Params,
-) -> Option<Cell> {
-    let utility: Vec<f64> = frontiers
-        .iter()
-        .map(|&t| {
-            1.0 - others
-                .iter()
-                .map(|&(o, age)| {
-                    discount(g, t, o, p.max_range_cells, decay(age, p.half_life_steps))
-                })
-                .sum::<f64>()
-        })
-        .collect();
-    let cost = normalized(frontiers, costs);
-    best(frontiers, &utility, &cost, p.beta).map(|i| frontiers[i])
-}
-
-/// Burgard et al. Algorithm 1: targets for robots with costs `costs` (one [`CostMap`] per
-/// robot), after the targets `fixed` (of robots outside the team, cell and age) have discounted
-/// the utilities. Returns one target per robot (`None`: no reachable frontier left for it).
-pub fn greedy_assignment(
-    g: &Grid,
-    frontiers: &[Cell],
-    costs: &[&CostMap],
-    fixed: &[(Cell, f64)],
-    p: &Params,
-) -> Vec<Option<Cell>> {
-    let mut utility: Vec<f64> = vec![1.0; frontiers.len()];
-    let lower = |utility: &mut Vec<f64>, target: Cell, weight: f64| {
-        for (u, &t) in utility.iter_mut().zip(frontiers) {
-            *u -= discount(g, t, target, p.max_range_cells, weight);
-        }
-    };
-    for &(o, age) in fixed {
-        lower(&mut utility, o, decay(age, p.half_life_steps));
-    }
-    let norm: Vec<Vec<Option<f64>>> = costs.iter().map(|c| normalized(frontiers, c)).collect();
-    let mut out = vec![None; costs.len()];
-    let mut left: Vec<usize> = (0..costs.len()).collect();
-    while !left.is_empty() {
-        // The (robot, frontier) pair with the best trade-off; ties to the lower robot index.
-        let mut pick: Option<(usize, usize, f64)> = None;
-        for (k, &r) in left.iter().enumerate() {
-            if let Some(i) = best(frontiers, &utility, &norm[r], p.beta) {
-                let value = utility[i] - p.beta * norm[r][i].unwrap_or(f64::INFINITY);
-                if pick.is_none_or(|(_, _, v)| value > v + 1e-12) {
-                    pick = Some((k, i, value));
-                }
-            }
-        }
-        let Some((k, i, _)) = pick else { break };
-        let r = left.remove(k);
-        out[r] = Some(frontiers[i]);
-        lower(&mut utility, frontiers[i], 1.0);
-    }
-    out
-}
-
-/// Burgard et al. Algorithm 2 by randomized search with hill-climbing: starting from the greedy
-/// assignment, `tries` random changes of one robot's target (from a deterministic generator seeded
-/// with `seed`) are kept when they raise Σ_i (U(t_i | others) − β·V_i(t_i)²).
-pub fn permutation_search(
-    g: &Grid,
-    frontiers: &[Cell],
-    costs: &[&CostMap],
-    p: &Params,
-    tries: usize,
-    seed: u64,
-) -> Vec<Option<Cell>> {
-    let start = greedy_assignment(g, frontiers, costs, &[], p);
-    let norm: Vec<Vec<Option<f64>>> = costs.iter().map(|c| normalized(frontiers, c)).collect();
-    let index = |c: Cell| frontiers.iter().position(|&f| f == c);
-    let mut current: Vec<Option<usize>> = start.iter().map(|t| t.and_then(index)).collect();
-    let score = |a: &[Option<usize>]| -> f64 {
-        let mut sum = 0.0;
-        for (r, &ti) in a.iter().enumerate() {
-            let Some(ti) = ti else { continue };
-            let Some(v) = norm[r][ti] else {
-                return f64::NEG_INFINITY;
-            };
-            let u = 1.0
-                - a.iter()
-                    .enumerate()
-                    .filter(|&(o, t)| o != r && t.is_some())
-                    .map(|(_, t)| {
-                        let o = frontiers[t.unwrap_or_default()];
-                        discount(g, frontiers[ti], o, p.max_range_cells, 1.0)
-                    })
-                    .sum::<f64>();
-            sum += u - p.beta * v * v;
-        }
-        sum
-    };
-    if frontiers.is_empty() {
-        return start;
-    }
-    let mut best_score = score(&current);
-    let mut x = seed | 1;
-    for _ in 0..tries {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        let r = (x % costs.len().max(1) as u64) as usize;
-        let t = ((x >> 16) % frontiers.len() as u64) as usize;
-        if norm[r][t].is_none() || current[r].is_none() {
-            continue;
-        }
-        let before = current[r];
-        current[r] = Some(t);
-        let s = score(&current);
-        if s > best_score {
-            best_score = s;
-        } else {
-            current[r] = before;
-        }
-    }
-    current
-        .into_iter()
-        .map(|t| t.map(|i| frontiers[i]))
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
+    use super::burgard::{greedy_assignment, permutation_search};
     use super::*;
     use crate::plan::{costs, frontiers};
 
@@ -290,7 +352,7 @@ mod tests {
         assert!(sides[0].is_some() && sides[0] != sides[1], "{a:?}");
         // Decentralized: robot 1 knows robot 2's target and picks the other room.
         let t2 = a[1].unwrap_or(r2);
-        let t1 = decentralized(&g, &f, &c1, &[(t2, 0.0)], &PARAMS);
+        let t1 = decentralized::target(&g, &f, &c1, &[(t2, 0.0)], &PARAMS);
         assert_ne!(t1.map(door_side), Some(door_side(t2)), "{t1:?} vs {t2:?}");
         // Algorithm 2's search keeps them apart too.
         let s = permutation_search(&g, &f, &[&c1, &c2], &PARAMS, 200, 7);

@@ -1,0 +1,19 @@
+//! `uncoordinated`: every robot goes to its nearest frontier ([`crate::plan::nearest`]),
+//! whatever the others do — the baseline the coordinated strategies are measured against. It
+//! keeps its target while that is still a usable frontier.
+
+use proto::grid::Cell;
+
+use super::{Coordinator, Situation};
+use crate::plan;
+
+pub struct Uncoordinated;
+
+impl Coordinator for Uncoordinated {
+    fn choose(&mut self, s: &Situation<'_>) -> Option<Cell> {
+        if s.valid {
+            return s.target;
+        }
+        plan::nearest(s.candidates.iter().copied(), s.costs)
+    }
+}
