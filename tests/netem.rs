@@ -236,6 +236,7 @@ fn a_link_offered_three_times_its_budget_stays_up_for_120_simulated_seconds() {
             "world.height_m=40",
             "radio.model=always",
             "radio.bandwidth_bytes_per_s=1000",
+            "exchange.mode=raw-scans",
             "clock.mode=realtime",
             "clock.speedup=4",
             &format!("sensor.beams={BEAMS}"),

@@ -61,6 +61,7 @@ fn three_robots_explore_a_small_office_and_share_scans() {
             "world.height_m=10",
             "robots.count=3",
             "seed=3",
+            "exchange.mode=raw-scans",
         ],
         400,
     );
