@@ -65,123 +65,133 @@ struct Scrape {
     now: SimTime,
 }
 
+type PerDir = (Family, fn(&LinkSnapshot, Dir) -> Value);
+type PerLink = (Family, fn(&LinkSnapshot) -> Option<Value>);
+
+/// The families with a series per link and direction.
+fn per_dir() -> [PerDir; 5] {
+    use MetricType::{Counter, Gauge};
+    [
+        (
+            (
+                "netem_link_bytes",
+                "Bytes delivered across the link.",
+                Counter,
+            ),
+            |l, d| Value::Count(l.dirs[d.index()].bytes_total),
+        ),
+        (
+            (
+                "netem_link_chunks",
+                "Writes to the receiving robot.",
+                Counter,
+            ),
+            |l, d| Value::Count(l.dirs[d.index()].chunks_total),
+        ),
+        (
+            (
+                "netem_link_lost_bytes",
+                "Bytes read from the sender and dropped by a cut, reset or limit_data.",
+                Counter,
+            ),
+            |l, d| Value::Count(l.dirs[d.index()].lost_bytes_total),
+        ),
+        (
+            (
+                "netem_link_queued_bytes",
+                "Bytes held inside netem now.",
+                Gauge,
+            ),
+            |l, d| int(l.dirs[d.index()].queued_bytes),
+        ),
+        (
+            (
+                "netem_link_queued_max_bytes",
+                "The most bytes ever held inside netem at once.",
+                Gauge,
+            ),
+            |l, d| int(l.dirs[d.index()].queued_max_bytes),
+        ),
+    ]
+}
+
+/// The families with a series per link; `None` leaves a link out (its value is unknown).
+fn per_link() -> [PerLink; 8] {
+    use MetricType::{Counter, Gauge};
+    [
+        (
+            (
+                "netem_link_up",
+                "1 if the link is up (enabled, in range, robots alive).",
+                Gauge,
+            ),
+            |l| Some(Value::Int(i64::from(l.up))),
+        ),
+        (
+            (
+                "netem_link_enabled",
+                "0 if the link is cut by a fault or partition.",
+                Gauge,
+            ),
+            |l| Some(Value::Int(i64::from(l.enabled))),
+        ),
+        (
+            (
+                "netem_link_connections",
+                "Open connections through the link.",
+                Gauge,
+            ),
+            |l| Some(int(l.connections as u64)),
+        ),
+        (
+            (
+                "netem_link_connects",
+                "Connections accepted and forwarded.",
+                Counter,
+            ),
+            |l| Some(Value::Count(l.connects_total)),
+        ),
+        (
+            (
+                "netem_link_established",
+                "Accepted connections that reached the higher id's radio listener.",
+                Counter,
+            ),
+            |l| Some(Value::Count(l.established_total)),
+        ),
+        (
+            (
+                "netem_link_refused",
+                "Connections refused (link down or full).",
+                Counter,
+            ),
+            |l| Some(Value::Count(l.refused_total)),
+        ),
+        (
+            ("netem_link_toxics", "Toxics installed on the link.", Gauge),
+            |l| Some(int(l.toxics.len() as u64)),
+        ),
+        (
+            (
+                "netem_link_distance_m",
+                "Distance between the two robots, metres.",
+                Gauge,
+            ),
+            |l| {
+                l.verdict
+                    .map(|v| v.distance_m)
+                    .filter(|d| d.is_finite())
+                    .map(Value::Real)
+            },
+        ),
+    ]
+}
+
 impl Collector for Scrape {
     fn encode(&self, mut encoder: DescriptorEncoder) -> std::fmt::Result {
-        use MetricType::{Counter, Gauge};
-        type PerDir = (Family, fn(&LinkSnapshot, Dir) -> Value);
-        let per_dir: [PerDir; 5] = [
-            (
-                (
-                    "netem_link_bytes",
-                    "Bytes delivered across the link.",
-                    Counter,
-                ),
-                |l, d| Value::Count(l.dirs[d.index()].bytes_total),
-            ),
-            (
-                (
-                    "netem_link_chunks",
-                    "Writes to the receiving robot.",
-                    Counter,
-                ),
-                |l, d| Value::Count(l.dirs[d.index()].chunks_total),
-            ),
-            (
-                (
-                    "netem_link_lost_bytes",
-                    "Bytes read from the sender and dropped by a cut, reset or limit_data.",
-                    Counter,
-                ),
-                |l, d| Value::Count(l.dirs[d.index()].lost_bytes_total),
-            ),
-            (
-                (
-                    "netem_link_queued_bytes",
-                    "Bytes held inside netem now.",
-                    Gauge,
-                ),
-                |l, d| int(l.dirs[d.index()].queued_bytes),
-            ),
-            (
-                (
-                    "netem_link_queued_max_bytes",
-                    "The most bytes ever held inside netem at once.",
-                    Gauge,
-                ),
-                |l, d| int(l.dirs[d.index()].queued_max_bytes),
-            ),
-        ];
-        // `None` leaves a link out of the family (its value is unknown).
-        type PerLink = (Family, fn(&LinkSnapshot) -> Option<Value>);
-        let per_link: [PerLink; 8] = [
-            (
-                (
-                    "netem_link_up",
-                    "1 if the link is up (enabled, in range, robots alive).",
-                    Gauge,
-                ),
-                |l| Some(Value::Int(i64::from(l.up))),
-            ),
-            (
-                (
-                    "netem_link_enabled",
-                    "0 if the link is cut by a fault or partition.",
-                    Gauge,
-                ),
-                |l| Some(Value::Int(i64::from(l.enabled))),
-            ),
-            (
-                (
-                    "netem_link_connections",
-                    "Open connections through the link.",
-                    Gauge,
-                ),
-                |l| Some(int(l.connections as u64)),
-            ),
-            (
-                (
-                    "netem_link_connects",
-                    "Connections accepted and forwarded.",
-                    Counter,
-                ),
-                |l| Some(Value::Count(l.connects_total)),
-            ),
-            (
-                (
-                    "netem_link_established",
-                    "Accepted connections that reached the higher id's radio listener.",
-                    Counter,
-                ),
-                |l| Some(Value::Count(l.established_total)),
-            ),
-            (
-                (
-                    "netem_link_refused",
-                    "Connections refused (link down or full).",
-                    Counter,
-                ),
-                |l| Some(Value::Count(l.refused_total)),
-            ),
-            (
-                ("netem_link_toxics", "Toxics installed on the link.", Gauge),
-                |l| Some(int(l.toxics.len() as u64)),
-            ),
-            (
-                (
-                    "netem_link_distance_m",
-                    "Distance between the two robots, metres.",
-                    Gauge,
-                ),
-                |l| {
-                    l.verdict
-                        .map(|v| v.distance_m)
-                        .filter(|d| d.is_finite())
-                        .map(Value::Real)
-                },
-            ),
-        ];
+        use MetricType::Gauge;
         let names: Vec<String> = self.links.iter().map(|l| label(&l.name)).collect();
-        for ((name, help, kind), get) in per_dir {
+        for ((name, help, kind), get) in per_dir() {
             let mut family = encoder.encode_descriptor(name, help, None, kind)?;
             for (l, link) in self.links.iter().zip(&names) {
                 for d in Dir::BOTH {
@@ -190,7 +200,7 @@ impl Collector for Scrape {
                 }
             }
         }
-        for ((name, help, kind), get) in per_link {
+        for ((name, help, kind), get) in per_link() {
             let mut family = encoder.encode_descriptor(name, help, None, kind)?;
             for (l, link) in self.links.iter().zip(&names) {
                 if let Some(v) = get(l) {
