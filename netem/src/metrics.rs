@@ -1,10 +1,21 @@
-//! Prometheus text exposition of the link counters (`GET /metrics`, format 0.0.4), so a
-//! Prometheus server or a plain `curl` can watch a run: bytes and chunks delivered per link and
-//! direction, bytes lost, bytes queued inside netem, and whether each link is up (DESIGN.md §5
-//! "Publishes per-step link telemetry"; the per-step view itself goes through
-//! `Netem::telemetry`).
+//! The link counters for Prometheus (`GET /metrics`), so a Prometheus server or a plain `curl`
+//! can watch a run: bytes and chunks delivered per link and direction, bytes lost, bytes queued
+//! inside netem, and whether each link is up (DESIGN.md §5 "Publishes per-step link telemetry";
+//! the per-step view itself goes through `Netem::telemetry`).
+//!
+//! The exposition is the `prometheus-client` crate's (OpenMetrics text, which Prometheus scrapes
+//! natively). netem's counters live in its links and are read as snapshots, so each scrape is one
+//! [`Collector`] over the snapshots of that moment: counters are [`ConstCounter`]s (the crate adds
+//! the `_total` suffix; the series names are the ones netem always published), everything else
+//! [`ConstGauge`]s. The crate writes label values as given, so link names are escaped here.
 
-use std::fmt::Write;
+use prometheus_client::collector::Collector;
+use prometheus_client::encoding::text::encode;
+use prometheus_client::encoding::{DescriptorEncoder, EncodeMetric, MetricEncoder};
+use prometheus_client::metrics::counter::ConstCounter;
+use prometheus_client::metrics::gauge::ConstGauge;
+use prometheus_client::metrics::MetricType;
+use prometheus_client::registry::Registry;
 
 use proto::msg::Step;
 
@@ -13,7 +24,7 @@ use crate::clock::SimTime;
 use crate::link::LinkSnapshot;
 
 /// The content type of [`render`]'s output.
-pub const CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
+pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
 
 /// Escapes a label value (backslash, double quote, newline).
 fn label(v: &str) -> String {
@@ -22,134 +33,208 @@ fn label(v: &str) -> String {
         .replace('\n', "\\n")
 }
 
-fn family(out: &mut String, name: &str, kind: &str, help: &str) {
-    let _ = writeln!(out, "# HELP {name} {help}");
-    let _ = writeln!(out, "# TYPE {name} {kind}");
+/// One sample's value.
+enum Value {
+    Count(u64),
+    Int(i64),
+    Real(f64),
+}
+
+impl Value {
+    fn encode(self, m: MetricEncoder) -> std::fmt::Result {
+        match self {
+            Value::Count(v) => ConstCounter::new(v).encode(m),
+            Value::Int(v) => ConstGauge::new(v).encode(m),
+            Value::Real(v) => ConstGauge::new(v).encode(m),
+        }
+    }
+}
+
+fn int(v: u64) -> Value {
+    Value::Int(i64::try_from(v).unwrap_or(i64::MAX))
+}
+
+/// A family: name (counters without `_total`, which the crate adds), help, type.
+type Family = (&'static str, &'static str, MetricType);
+
+/// What one scrape shows.
+#[derive(Debug)]
+struct Scrape {
+    links: Vec<LinkSnapshot>,
+    step: Option<Step>,
+    now: SimTime,
+}
+
+type PerDir = (Family, fn(&LinkSnapshot, Dir) -> Value);
+type PerLink = (Family, fn(&LinkSnapshot) -> Option<Value>);
+
+/// The families with a series per link and direction.
+fn per_dir() -> [PerDir; 5] {
+    use MetricType::{Counter, Gauge};
+    [
+        (
+            (
+                "netem_link_bytes",
+                "Bytes delivered across the link.",
+                Counter,
+            ),
+            |l, d| Value::Count(l.dirs[d.index()].bytes_total),
+        ),
+        (
+            (
+                "netem_link_chunks",
+                "Writes to the receiving robot.",
+                Counter,
+            ),
+            |l, d| Value::Count(l.dirs[d.index()].chunks_total),
+        ),
+        (
+            (
+                "netem_link_lost_bytes",
+                "Bytes read from the sender and dropped by a cut, reset or limit_data.",
+                Counter,
+            ),
+            |l, d| Value::Count(l.dirs[d.index()].lost_bytes_total),
+        ),
+        (
+            (
+                "netem_link_queued_bytes",
+                "Bytes held inside netem now.",
+                Gauge,
+            ),
+            |l, d| int(l.dirs[d.index()].queued_bytes),
+        ),
+        (
+            (
+                "netem_link_queued_max_bytes",
+                "The most bytes ever held inside netem at once.",
+                Gauge,
+            ),
+            |l, d| int(l.dirs[d.index()].queued_max_bytes),
+        ),
+    ]
+}
+
+/// The families with a series per link; `None` leaves a link out (its value is unknown).
+fn per_link() -> [PerLink; 8] {
+    use MetricType::{Counter, Gauge};
+    [
+        (
+            (
+                "netem_link_up",
+                "1 if the link is up (enabled, in range, robots alive).",
+                Gauge,
+            ),
+            |l| Some(Value::Int(i64::from(l.up))),
+        ),
+        (
+            (
+                "netem_link_enabled",
+                "0 if the link is cut by a fault or partition.",
+                Gauge,
+            ),
+            |l| Some(Value::Int(i64::from(l.enabled))),
+        ),
+        (
+            (
+                "netem_link_connections",
+                "Open connections through the link.",
+                Gauge,
+            ),
+            |l| Some(int(l.connections as u64)),
+        ),
+        (
+            (
+                "netem_link_connects",
+                "Connections accepted and forwarded.",
+                Counter,
+            ),
+            |l| Some(Value::Count(l.connects_total)),
+        ),
+        (
+            (
+                "netem_link_established",
+                "Accepted connections that reached the higher id's radio listener.",
+                Counter,
+            ),
+            |l| Some(Value::Count(l.established_total)),
+        ),
+        (
+            (
+                "netem_link_refused",
+                "Connections refused (link down or full).",
+                Counter,
+            ),
+            |l| Some(Value::Count(l.refused_total)),
+        ),
+        (
+            ("netem_link_toxics", "Toxics installed on the link.", Gauge),
+            |l| Some(int(l.toxics.len() as u64)),
+        ),
+        (
+            (
+                "netem_link_distance_m",
+                "Distance between the two robots, metres.",
+                Gauge,
+            ),
+            |l| {
+                l.verdict
+                    .map(|v| v.distance_m)
+                    .filter(|d| d.is_finite())
+                    .map(Value::Real)
+            },
+        ),
+    ]
+}
+
+impl Collector for Scrape {
+    fn encode(&self, mut encoder: DescriptorEncoder) -> std::fmt::Result {
+        use MetricType::Gauge;
+        let names: Vec<String> = self.links.iter().map(|l| label(&l.name)).collect();
+        for ((name, help, kind), get) in per_dir() {
+            let mut family = encoder.encode_descriptor(name, help, None, kind)?;
+            for (l, link) in self.links.iter().zip(&names) {
+                for d in Dir::BOTH {
+                    let labels = [("link", link.as_str()), ("direction", d.label())];
+                    get(l, d).encode(family.encode_family(&labels)?)?;
+                }
+            }
+        }
+        for ((name, help, kind), get) in per_link() {
+            let mut family = encoder.encode_descriptor(name, help, None, kind)?;
+            for (l, link) in self.links.iter().zip(&names) {
+                if let Some(v) = get(l) {
+                    v.encode(family.encode_family(&[("link", link.as_str())])?)?;
+                }
+            }
+        }
+        let step = self.step.map_or(-1, i64::from);
+        Value::Int(step).encode(encoder.encode_descriptor(
+            "netem_step",
+            "The last step netem was told about (-1: none).",
+            None,
+            Gauge,
+        )?)?;
+        Value::Real(self.now.as_secs_f64()).encode(encoder.encode_descriptor(
+            "netem_sim_time_seconds",
+            "Simulated time.",
+            None,
+            Gauge,
+        )?)
+    }
 }
 
 /// Renders every metric for `links`.
 pub fn render(links: &[LinkSnapshot], step: Option<Step>, now: SimTime) -> String {
+    let mut registry = Registry::default();
+    registry.register_collector(Box::new(Scrape {
+        links: links.to_vec(),
+        step,
+        now,
+    }));
     let mut out = String::with_capacity(512 + links.len() * 1024);
-    type PerDir = fn(&LinkSnapshot, Dir) -> u64;
-    let per_dir: [(&str, &str, &str, PerDir); 5] = [
-        (
-            "netem_link_bytes_total",
-            "counter",
-            "Bytes delivered across the link.",
-            |l, d| l.dirs[d.index()].bytes_total,
-        ),
-        (
-            "netem_link_chunks_total",
-            "counter",
-            "Writes to the receiving robot.",
-            |l, d| l.dirs[d.index()].chunks_total,
-        ),
-        (
-            "netem_link_lost_bytes_total",
-            "counter",
-            "Bytes read from the sender and dropped by a cut, reset or limit_data.",
-            |l, d| l.dirs[d.index()].lost_bytes_total,
-        ),
-        (
-            "netem_link_queued_bytes",
-            "gauge",
-            "Bytes held inside netem now.",
-            |l, d| l.dirs[d.index()].queued_bytes,
-        ),
-        (
-            "netem_link_queued_max_bytes",
-            "gauge",
-            "The most bytes ever held inside netem at once.",
-            |l, d| l.dirs[d.index()].queued_max_bytes,
-        ),
-    ];
-    for (name, kind, help, get) in per_dir {
-        family(&mut out, name, kind, help);
-        for l in links {
-            for d in Dir::BOTH {
-                let _ = writeln!(
-                    out,
-                    "{name}{{link=\"{}\",direction=\"{}\"}} {}",
-                    label(&l.name),
-                    d.label(),
-                    get(l, d)
-                );
-            }
-        }
-    }
-    type PerLink = fn(&LinkSnapshot) -> Option<f64>;
-    let per_link: [(&str, &str, &str, PerLink); 8] = [
-        (
-            "netem_link_up",
-            "gauge",
-            "1 if the link is up (enabled, in range, robots alive).",
-            |l| Some(f64::from(u8::from(l.up))),
-        ),
-        (
-            "netem_link_enabled",
-            "gauge",
-            "0 if the link is cut by a fault or partition.",
-            |l| Some(f64::from(u8::from(l.enabled))),
-        ),
-        (
-            "netem_link_connections",
-            "gauge",
-            "Open connections through the link.",
-            |l| Some(l.connections as f64),
-        ),
-        (
-            "netem_link_connects_total",
-            "counter",
-            "Connections accepted and forwarded.",
-            |l| Some(l.connects_total as f64),
-        ),
-        (
-            "netem_link_established_total",
-            "counter",
-            "Accepted connections that reached the higher id's radio listener.",
-            |l| Some(l.established_total as f64),
-        ),
-        (
-            "netem_link_refused_total",
-            "counter",
-            "Connections refused (link down or full).",
-            |l| Some(l.refused_total as f64),
-        ),
-        (
-            "netem_link_toxics",
-            "gauge",
-            "Toxics installed on the link.",
-            |l| Some(l.toxics.len() as f64),
-        ),
-        (
-            "netem_link_distance_m",
-            "gauge",
-            "Distance between the two robots, metres.",
-            |l| l.verdict.map(|v| v.distance_m).filter(|d| d.is_finite()),
-        ),
-    ];
-    for (name, kind, help, get) in per_link {
-        family(&mut out, name, kind, help);
-        for l in links {
-            if let Some(v) = get(l) {
-                let _ = writeln!(out, "{name}{{link=\"{}\"}} {v}", label(&l.name));
-            }
-        }
-    }
-    family(
-        &mut out,
-        "netem_step",
-        "gauge",
-        "The last step netem was told about (-1: none).",
-    );
-    let _ = writeln!(out, "netem_step {}", step.map_or(-1, i64::from));
-    family(
-        &mut out,
-        "netem_sim_time_seconds",
-        "gauge",
-        "Simulated time.",
-    );
-    let _ = writeln!(out, "netem_sim_time_seconds {}", now.as_secs_f64());
+    // Writing into a String cannot fail.
+    let _ = encode(&mut out, &registry);
     out
 }
 
@@ -197,12 +282,24 @@ mod tests {
             !text.contains("netem_link_distance_m{"),
             "unknown distance is omitted"
         );
-        // Every sample line is `name{labels} value` or `name value`, every family typed once.
+        assert!(
+            text.contains("netem_link_distance_m"),
+            "the family is still described"
+        );
+        assert!(text.ends_with("# EOF\n"), "OpenMetrics ends with EOF");
+        // Every sample line is `name{labels} value` or `name value`, every family typed once
+        // (a counter's family is its name without `_total`).
         for line in text.lines().filter(|l| !l.starts_with('#')) {
             let (series, value) = line.rsplit_once(' ').unwrap();
             assert!(value.parse::<f64>().is_ok(), "{line}");
             let name = series.split('{').next().unwrap();
-            assert!(text.contains(&format!("# TYPE {name} ")), "{line}");
+            let counter = name
+                .strip_suffix("_total")
+                .is_some_and(|f| text.contains(&format!("# TYPE {f} counter\n")));
+            assert!(
+                counter || text.contains(&format!("# TYPE {name} gauge\n")),
+                "{line}"
+            );
         }
     }
 
