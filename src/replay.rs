@@ -15,16 +15,15 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use proto::geom::MapInfo;
 use proto::grid::{Grid, Occ};
-use proto::scenario::Scenario;
 use robot_agent::agent::Agent;
 use robot_agent::contour::Kind;
 use robot_agent::mapper::{traffic, Mapper, StepReport, OP_KINDS, THESIS_BYTES};
 use robot_agent::qpoint::QPoint;
 use serde::Serialize;
+use world_server::scenario::resolve;
 use world_server::world::World;
 
 use crate::render::Picture;
-use crate::run::DEFAULT_SCENARIO;
 
 /// Flags of `swarm replay`.
 #[derive(clap::Args, Debug, Clone)]
@@ -74,31 +73,13 @@ pub struct ReplaySummary {
 pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
     let mut set = args.set.clone();
     set.push("robots.count=1".into());
-    let (mut scenario, base) = match &args.scenario {
-        Some(p) => (
-            Scenario::load(p, &set)?,
-            p.parent().unwrap_or(Path::new(".")).to_path_buf(),
-        ),
-        None => (
-            Scenario::from_toml(DEFAULT_SCENARIO, &set)?,
-            PathBuf::from("."),
-        ),
-    };
-    let map_file = if scenario.world_is_generated() {
-        None
-    } else {
-        Some(world_server::cli::locate_map(&scenario.world.map, &base)?)
-    };
+    let resolved = resolve(args.scenario.as_deref(), &set)?;
     if !(args.splits >= 0.0 && args.splits.is_finite()) {
         anyhow::bail!("--splits {}: must be a finite number ≥ 0", args.splits);
     }
-    let mut world = World::build(&scenario, map_file.as_deref())?;
-    let name = map_file
-        .as_deref()
-        .and_then(Path::file_stem)
-        .map_or(scenario.world.map.clone(), |s| {
-            s.to_string_lossy().into_owned()
-        });
+    let mut world = World::build(&resolved.scenario, resolved.map_file.as_deref())?;
+    let name = resolved.name();
+    let mut scenario = resolved.scenario;
     scenario.world.map = name.clone();
     let dir = args
         .out

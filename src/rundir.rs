@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::Context;
+use proto::exit::ExitReason;
 use proto::msg::{LinkReport, LinkState, RobotId, Step, Traffic};
 use serde::Serialize;
 
@@ -20,7 +21,7 @@ pub const SCHEMA_VERSION: u32 = 3;
 pub struct Summary {
     pub schema_version: u32,
     pub complete: bool,
-    pub exit_reason: String,
+    pub exit_reason: ExitReason,
     pub robots: u16,
     pub robots_alive_at_end: usize,
     pub steps: u32,

@@ -20,7 +20,7 @@ use crate::node::{fetch_truth, follow, needs_truth};
 /// on the sim plane and opens or cuts each link by the scenario's radio model, shapes its
 /// bandwidth on the simulated clock, applies faults, and counts every byte. Runtime control:
 /// a toxiproxy-compatible HTTP API (--http). Normally started by `swarm run`.
-#[derive(Parser, Debug, Clone)]
+#[derive(Parser, Debug, Clone, PartialEq)]
 #[command(name = "netem", version)]
 pub struct Args {
     /// Scenario TOML file (see configs/default.toml: [radio], [netem], [[faults]]).
@@ -44,6 +44,75 @@ pub struct Args {
     /// Sim-plane zenoh options (--connect the world-server's router).
     #[command(flatten)]
     pub zenoh: ZenohArgs,
+}
+
+impl Args {
+    /// netem of `scenario` with every other flag at its default.
+    pub fn new(scenario: PathBuf, zenoh: ZenohArgs) -> Args {
+        Args {
+            scenario,
+            set: Vec::new(),
+            pairs: Vec::new(),
+            http: None,
+            totals_out: None,
+            zenoh,
+        }
+    }
+
+    /// The flags that parse back into these arguments (how `swarm run` starts `netem serve`).
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut a = vec![
+            "--scenario".into(),
+            self.scenario.to_string_lossy().into_owned(),
+        ];
+        for s in &self.set {
+            a.extend(["--set".into(), s.clone()]);
+        }
+        for p in &self.pairs {
+            a.extend(["--pair".into(), p.to_string()]);
+        }
+        if let Some(h) = self.http {
+            a.extend(["--http".into(), h.to_string()]);
+        }
+        if let Some(f) = &self.totals_out {
+            a.extend(["--totals-out".into(), f.to_string_lossy().into_owned()]);
+        }
+        a.extend(self.zenoh.to_argv());
+        a
+    }
+}
+
+/// `A-B=LISTEN>TARGET`, as `--pair` takes it.
+impl std::fmt::Display for PairSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}-{}={}>{}", self.a, self.b, self.listen, self.target)
+    }
+}
+
+/// Parses `A-B=LISTEN>TARGET` (A the lower robot id).
+impl std::str::FromStr for PairSpec {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<PairSpec, String> {
+        let bad =
+            || format!("{s:?}: expected A-B=LISTEN>TARGET, e.g. 0-1=127.0.0.1:7600>127.0.0.1:7501");
+        let (ids, addrs) = s.split_once('=').ok_or_else(bad)?;
+        let (a, b) = ids.split_once('-').ok_or_else(bad)?;
+        let (listen, target) = addrs.split_once('>').ok_or_else(bad)?;
+        let (a, b): (RobotId, RobotId) = (
+            a.trim().parse().map_err(|_| bad())?,
+            b.trim().parse().map_err(|_| bad())?,
+        );
+        if a >= b {
+            return Err(format!("{s:?}: the first robot id must be the lower one"));
+        }
+        Ok(PairSpec {
+            a,
+            b,
+            listen: listen.trim().parse().map_err(|_| bad())?,
+            target: target.trim().parse().map_err(|_| bad())?,
+        })
+    }
 }
 
 /// The header of `--totals-out`.
@@ -73,26 +142,9 @@ fn totals_csv(links: &[LinkSnapshot]) -> String {
     s
 }
 
-/// Parses `A-B=LISTEN>TARGET`.
+/// Parses `A-B=LISTEN>TARGET` (see [`PairSpec`]'s `FromStr`).
 pub fn parse_pair(s: &str) -> Result<PairSpec, String> {
-    let bad =
-        || format!("{s:?}: expected A-B=LISTEN>TARGET, e.g. 0-1=127.0.0.1:7600>127.0.0.1:7501");
-    let (ids, addrs) = s.split_once('=').ok_or_else(bad)?;
-    let (a, b) = ids.split_once('-').ok_or_else(bad)?;
-    let (listen, target) = addrs.split_once('>').ok_or_else(bad)?;
-    let (a, b): (RobotId, RobotId) = (
-        a.trim().parse().map_err(|_| bad())?,
-        b.trim().parse().map_err(|_| bad())?,
-    );
-    if a >= b {
-        return Err(format!("{s:?}: the first robot id must be the lower one"));
-    }
-    Ok(PairSpec {
-        a,
-        b,
-        listen: listen.trim().parse().map_err(|_| bad())?,
-        target: target.trim().parse().map_err(|_| bad())?,
-    })
+    s.parse()
 }
 
 async fn run(args: Args) -> anyhow::Result<()> {
@@ -158,6 +210,35 @@ mod tests {
             "a-b=127.0.0.1:1>127.0.0.1:2",
         ] {
             assert!(parse_pair(bad).is_err(), "{bad:?}");
+        }
+        assert_eq!(p.to_string().parse::<PairSpec>(), Ok(p));
+    }
+
+    #[test]
+    fn flags_round_trip_through_to_argv() {
+        let pair = |a, b, l: u16, t: u16| PairSpec {
+            a,
+            b,
+            listen: SocketAddr::from(([127, 0, 0, 1], l)),
+            target: SocketAddr::from(([127, 0, 0, 1], t)),
+        };
+        let mut args = Args::new(
+            PathBuf::from("/tmp/run/scenario.toml"),
+            ZenohArgs {
+                connect: vec!["tcp/127.0.0.1:7447".into()],
+                ..ZenohArgs::default()
+            },
+        );
+        args.set = vec!["radio.bandwidth_bytes_per_s=500".into()];
+        args.pairs = vec![pair(0, 1, 7600, 7501), pair(1, 2, 7601, 7502)];
+        args.http = Some(SocketAddr::from(([127, 0, 0, 1], 8474)));
+        args.totals_out = Some(PathBuf::from("/tmp/run/link_totals.csv"));
+        for args in [
+            args.clone(),
+            Args::new(args.scenario.clone(), ZenohArgs::default()),
+        ] {
+            let argv = ["netem".to_string()].into_iter().chain(args.to_argv());
+            assert_eq!(Args::parse_from(argv), args);
         }
     }
 
