@@ -9,7 +9,6 @@
 //! to test the network.
 
 use std::collections::HashMap;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -24,6 +23,7 @@ use world_server::scenario::resolve;
 use world_server::world::World;
 
 use crate::render::Picture;
+use crate::rundir::write_rows;
 
 /// Flags of `swarm replay`.
 #[derive(clap::Args, Debug, Clone)]
@@ -89,8 +89,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
     let info = world.map();
     let mut agent = Agent::new(0, world.info(), &scenario);
     let mut mapper = Mapper::new(args.splits);
-    let mut csv =
-        String::from("step,contour_points,objects,vertices,ops,bytes,error_cells,known_cells\n");
+    let mut rows: Vec<ReplayCsv> = Vec::new();
     let mut idle_steps = 0;
     let mut step = 0;
     while step < args.steps && idle_steps < 5 {
@@ -99,7 +98,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
         };
         let cmd = agent.on_scan(&scan);
         let r = mapper.step(agent.own_grid(), agent.own_changes());
-        write_row(&mut csv, step, &r);
+        rows.push(ReplayCsv::new(step, &r));
         if args.png_at.contains(&step) {
             pictures(&dir, step, agent.own_grid(), &mapper, info)?;
         }
@@ -114,7 +113,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
         &mapper,
         info,
     )?;
-    std::fs::write(dir.join("replay.csv"), csv).context("writing replay.csv")?;
+    write_rows(&dir.join("replay.csv"), rows)?;
     let summary = summarize(&name, step, &world.reachable, agent.own_grid(), &mapper);
     std::fs::write(
         dir.join("replay.json"),
@@ -124,12 +123,32 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
     Ok((dir, summary))
 }
 
-fn write_row(csv: &mut String, step: u32, r: &StepReport) {
-    let _ = writeln!(
-        csv,
-        "{step},{},{},{},{},{},{},{}",
-        r.contour_points, r.objects, r.vertices, r.ops, r.bytes, r.error_cells, r.known_cells
-    );
+/// A row of `replay.csv`: the mapping pipeline after one step.
+#[derive(Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+pub struct ReplayCsv {
+    pub step: u32,
+    pub contour_points: usize,
+    pub objects: usize,
+    pub vertices: usize,
+    pub ops: usize,
+    pub bytes: usize,
+    pub error_cells: usize,
+    pub known_cells: usize,
+}
+
+impl ReplayCsv {
+    fn new(step: u32, r: &StepReport) -> ReplayCsv {
+        ReplayCsv {
+            step,
+            contour_points: r.contour_points,
+            objects: r.objects,
+            vertices: r.vertices,
+            ops: r.ops,
+            bytes: r.bytes,
+            error_cells: r.error_cells,
+            known_cells: r.known_cells,
+        }
+    }
 }
 
 fn summarize(map: &str, steps: u32, reachable: &Grid, own: &Grid, m: &Mapper) -> ReplaySummary {
