@@ -134,11 +134,8 @@ pub fn short_number(v: f64) -> String {
     format!("{s}{unit}")
 }
 
-fn render<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    c: &Chart,
-) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
-    root.fill(&WHITE)?;
+/// The axes' ranges of a chart: x, and y (drawn values: log10 on a log axis).
+fn ranges(c: &Chart) -> ((f64, f64), (f64, f64)) {
     let log = c.log_y;
     let ys = c.lines.iter().flat_map(|l| l.points.iter()).flat_map(|p| {
         [p.lo, p.y, p.hi]
@@ -147,13 +144,36 @@ fn render<DB: DrawingBackend>(
     });
     let (y0, y1) = extent(ys, 0.06);
     let (y0, y1) = if log { (y0, y1) } else { (y0.min(0.0), y1) };
-    let (x0, x1) = match &c.x {
+    let x = match &c.x {
         XAxis::Numeric => extent(
             c.lines.iter().flat_map(|l| l.points.iter().map(|p| p.x)),
             0.04,
         ),
         XAxis::Categories(names) => (-0.5, names.len().max(1) as f64 - 0.5),
     };
+    (x, (y0, y1))
+}
+
+/// A line's points as drawn: (x, y, low, high), without the ones a log axis cannot show.
+fn drawn_points(line: &Line, log: bool) -> Vec<(f64, f64, f64, f64)> {
+    line.points
+        .iter()
+        .filter_map(|p| {
+            let y = drawn(log, p.y)?;
+            let lo = drawn(log, p.lo).unwrap_or(y);
+            let hi = drawn(log, p.hi).unwrap_or(y);
+            Some((p.x, y, lo, hi))
+        })
+        .collect()
+}
+
+fn render<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    c: &Chart,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    root.fill(&WHITE)?;
+    let log = c.log_y;
+    let ((x0, x1), (y0, y1)) = ranges(c);
     let mut chart = ChartBuilder::on(root)
         .caption(&c.title, ("sans-serif", 18))
         .margin(12)
@@ -197,16 +217,7 @@ fn render<DB: DrawingBackend>(
     for (i, line) in c.lines.iter().enumerate() {
         let [r, g, b] = robot_colour(i);
         let colour = RGBColor(r, g, b);
-        let pts: Vec<(f64, f64, f64, f64)> = line
-            .points
-            .iter()
-            .filter_map(|p| {
-                let y = drawn(log, p.y)?;
-                let lo = drawn(log, p.lo).unwrap_or(y);
-                let hi = drawn(log, p.hi).unwrap_or(y);
-                Some((p.x, y, lo, hi))
-            })
-            .collect();
+        let pts = drawn_points(line, log);
         chart
             .draw_series(LineSeries::new(
                 pts.iter().map(|&(x, y, _, _)| (x, y)),

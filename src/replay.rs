@@ -9,23 +9,22 @@
 //! to test the network.
 
 use std::collections::HashMap;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use proto::geom::MapInfo;
 use proto::grid::{Grid, Occ};
 use proto::msg::Traffic;
-use proto::scenario::Scenario;
 use robot_agent::agent::Agent;
 use robot_agent::contour::Kind;
 use robot_agent::mapper::{Mapper, StepReport};
 use robot_agent::qpoint::QPoint;
 use serde::Serialize;
+use world_server::scenario::resolve;
 use world_server::world::World;
 
 use crate::render::Picture;
-use crate::run::DEFAULT_SCENARIO;
+use crate::rundir::write_rows;
 
 /// Flags of `swarm replay`.
 #[derive(clap::Args, Debug, Clone)]
@@ -75,31 +74,13 @@ pub struct ReplaySummary {
 pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
     let mut set = args.set.clone();
     set.push("robots.count=1".into());
-    let (mut scenario, base) = match &args.scenario {
-        Some(p) => (
-            Scenario::load(p, &set)?,
-            p.parent().unwrap_or(Path::new(".")).to_path_buf(),
-        ),
-        None => (
-            Scenario::from_toml(DEFAULT_SCENARIO, &set)?,
-            PathBuf::from("."),
-        ),
-    };
-    let map_file = if scenario.world_is_generated() {
-        None
-    } else {
-        Some(world_server::cli::locate_map(&scenario.world.map, &base)?)
-    };
+    let resolved = resolve(args.scenario.as_deref(), &set)?;
     if !(args.splits >= 0.0 && args.splits.is_finite()) {
         anyhow::bail!("--splits {}: must be a finite number ≥ 0", args.splits);
     }
-    let mut world = World::build(&scenario, map_file.as_deref())?;
-    let name = map_file
-        .as_deref()
-        .and_then(Path::file_stem)
-        .map_or(scenario.world.map.clone(), |s| {
-            s.to_string_lossy().into_owned()
-        });
+    let mut world = World::build(&resolved.scenario, resolved.map_file.as_deref())?;
+    let name = resolved.name();
+    let mut scenario = resolved.scenario;
     scenario.world.map = name.clone();
     let dir = args
         .out
@@ -109,8 +90,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
     let info = world.map();
     let mut agent = Agent::new(0, world.info(), &scenario);
     let mut mapper = Mapper::new(args.splits);
-    let mut csv =
-        String::from("step,contour_points,objects,vertices,ops,bytes,error_cells,known_cells\n");
+    let mut rows: Vec<ReplayCsv> = Vec::new();
     let mut idle_steps = 0;
     let mut step = 0;
     while step < args.steps && idle_steps < 5 {
@@ -119,7 +99,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
         };
         let cmd = agent.on_scan(&scan);
         let r = mapper.step(agent.own_grid(), agent.own_changes());
-        write_row(&mut csv, step, &r);
+        rows.push(ReplayCsv::new(step, &r));
         if args.png_at.contains(&step) {
             pictures(&dir, step, agent.own_grid(), &mapper, info)?;
         }
@@ -134,7 +114,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
         &mapper,
         info,
     )?;
-    std::fs::write(dir.join("replay.csv"), csv).context("writing replay.csv")?;
+    write_rows(&dir.join("replay.csv"), rows)?;
     let summary = summarize(&name, step, &world.reachable, agent.own_grid(), &mapper);
     std::fs::write(
         dir.join("replay.json"),
@@ -144,12 +124,32 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
     Ok((dir, summary))
 }
 
-fn write_row(csv: &mut String, step: u32, r: &StepReport) {
-    let _ = writeln!(
-        csv,
-        "{step},{},{},{},{},{},{},{}",
-        r.contour_points, r.objects, r.vertices, r.ops, r.bytes, r.error_cells, r.known_cells
-    );
+/// A row of `replay.csv`: the mapping pipeline after one step.
+#[derive(Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+pub struct ReplayCsv {
+    pub step: u32,
+    pub contour_points: usize,
+    pub objects: usize,
+    pub vertices: usize,
+    pub ops: usize,
+    pub bytes: usize,
+    pub error_cells: usize,
+    pub known_cells: usize,
+}
+
+impl ReplayCsv {
+    fn new(step: u32, r: &StepReport) -> ReplayCsv {
+        ReplayCsv {
+            step,
+            contour_points: r.contour_points,
+            objects: r.objects,
+            vertices: r.vertices,
+            ops: r.ops,
+            bytes: r.bytes,
+            error_cells: r.error_cells,
+            known_cells: r.known_cells,
+        }
+    }
 }
 
 fn summarize(map: &str, steps: u32, reachable: &Grid, own: &Grid, m: &Mapper) -> ReplaySummary {

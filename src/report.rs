@@ -16,6 +16,8 @@ use serde::Deserialize;
 
 use crate::plot::{draw, short_number, Chart, Line, Mean, XAxis};
 use crate::results::{Point, Results};
+use crate::rundir::{read_rows, LinkCsv, MetricsCsv};
+use proto::msg::Step;
 
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -251,38 +253,20 @@ type PerStep = Vec<(f64, f64)>;
 
 /// Per step: bytes over all links, and the largest backlog a robot reports.
 fn load_over_time(run: &Path) -> anyhow::Result<(PerStep, PerStep)> {
-    let per_step = |file: &str, cols: &[&str], sum: bool| -> anyhow::Result<PerStep> {
-        let text = std::fs::read_to_string(run.join(file))
-            .with_context(|| format!("reading {}", run.join(file).display()))?;
-        let mut lines = text.lines();
-        let head: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-        let find = |name: &str| {
-            head.iter()
-                .position(|h| *h == name)
-                .with_context(|| format!("{file} has no column {name}"))
-        };
-        let s = find("step")?;
-        let cs: Vec<usize> = cols.iter().map(|c| find(c)).collect::<Result<_, _>>()?;
-        let mut by: BTreeMap<u64, f64> = BTreeMap::new();
-        for l in lines {
-            let f: Vec<&str> = l.split(',').collect();
-            let (Some(step), Some(v)) = (
-                f.get(s).and_then(|v| v.parse::<u64>().ok()),
-                cs.iter()
-                    .map(|&c| f.get(c).and_then(|v| v.parse::<f64>().ok()))
-                    .sum::<Option<f64>>(),
-            ) else {
-                continue;
-            };
-            let e = by.entry(step).or_insert(0.0);
-            *e = if sum { *e + v } else { e.max(v) };
-        }
-        Ok(by.into_iter().map(|(k, v)| (k as f64, v)).collect())
-    };
-    Ok((
-        per_step("links.csv", &["bytes_a_to_b", "bytes_b_to_a"], true)?,
-        per_step("metrics.csv", &["backlog_bytes"], false)?,
-    ))
+    let links: Vec<LinkCsv> = read_rows(&run.join("links.csv"))?;
+    let mut load: BTreeMap<Step, f64> = BTreeMap::new();
+    for l in links {
+        *load.entry(l.step).or_insert(0.0) += (l.bytes_a_to_b + l.bytes_b_to_a) as f64;
+    }
+    let metrics: Vec<MetricsCsv> = read_rows(&run.join("metrics.csv"))?;
+    let mut backlog: BTreeMap<Step, f64> = BTreeMap::new();
+    for m in metrics {
+        let b = backlog.entry(m.step).or_insert(0.0);
+        *b = b.max(m.backlog_bytes as f64);
+    }
+    let per_step =
+        |by: BTreeMap<Step, f64>| by.into_iter().map(|(k, v)| (f64::from(k), v)).collect();
+    Ok((per_step(load), per_step(backlog)))
 }
 
 /// Draws one `[[timeline]]`: two charts (link load, backlog) per facet.

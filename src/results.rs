@@ -3,7 +3,6 @@
 //! per grid point).
 
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -166,66 +165,79 @@ impl Results {
     }
 
     /// Writes `runs.csv` and `results.csv` into `out`.
+    ///
+    /// Their columns depend on the experiment (its grid keys and fields), so their rows are
+    /// records of text, not a row type.
     pub fn write_tables(&self, out: &Path) -> anyhow::Result<()> {
         let mut head: Vec<String> = self.keys();
         head.extend(["seed", "status", "complete", "exit_reason"].map(String::from));
         head.extend(self.fields.iter().cloned());
-        let mut runs = head.join(",");
-        runs.push('\n');
-        for r in &self.runs {
-            for (_, v) in &self.points[r.point].0 {
-                runs.push_str(v);
-                runs.push(',');
-            }
-            let _ = write!(runs, "{}", r.seed);
-            let Some(s) = &r.summary else {
-                let _ = writeln!(runs, ",failed,,{}", ",".repeat(self.fields.len()));
-                continue;
-            };
-            let _ = write!(
-                runs,
-                ",ok,{},{}",
-                r.complete(),
-                s["exit_reason"].as_str().unwrap_or("")
-            );
-            for f in &self.fields {
-                runs.push(',');
-                if let Some(v) = field(s, f) {
-                    let _ = write!(runs, "{v}");
-                }
-            }
-            runs.push('\n');
-        }
-        std::fs::write(out.join("runs.csv"), runs).context("writing runs.csv")?;
+        let runs = self.runs.iter().map(|r| self.run_record(r));
+        write_records(&out.join("runs.csv"), head, runs)?;
 
         let mut head: Vec<String> = self.keys();
         head.extend(["runs", "complete"].map(String::from));
         for f in &self.fields {
             head.extend([format!("{f}_mean"), format!("{f}_std"), format!("{f}_ci95")]);
         }
-        let mut res = head.join(",");
-        res.push('\n');
-        for (i, p) in self.points.iter().enumerate() {
-            for (_, v) in &p.0 {
-                res.push_str(v);
-                res.push(',');
-            }
-            let n = self.of_point(i).count();
-            let complete = self.of_point(i).filter(|r| r.complete()).count();
-            let _ = write!(res, "{n},{complete}");
-            for f in &self.fields {
-                let xs: Vec<f64> = self.of_point(i).filter_map(|r| r.value(f)).collect();
-                match stats(&xs) {
-                    Some((m, sd, h)) => {
-                        let _ = write!(res, ",{m},{sd},{h}");
-                    }
-                    None => res.push_str(",,,"),
-                }
-            }
-            res.push('\n');
-        }
-        std::fs::write(out.join("results.csv"), res).context("writing results.csv")
+        let points = (0..self.points.len()).map(|i| self.point_record(i));
+        write_records(&out.join("results.csv"), head, points)
     }
+
+    /// A row of `runs.csv`.
+    fn run_record(&self, r: &Run) -> Vec<String> {
+        let mut rec: Vec<String> = self.points[r.point]
+            .0
+            .iter()
+            .map(|(_, v)| v.clone())
+            .collect();
+        rec.push(r.seed.to_string());
+        let Some(s) = &r.summary else {
+            rec.extend(["failed".to_string(), String::new(), String::new()]);
+            rec.extend(self.fields.iter().map(|_| String::new()));
+            return rec;
+        };
+        rec.extend([
+            "ok".to_string(),
+            r.complete().to_string(),
+            s["exit_reason"].as_str().unwrap_or("").to_string(),
+        ]);
+        for f in &self.fields {
+            rec.push(field(s, f).map_or(String::new(), |v| v.to_string()));
+        }
+        rec
+    }
+
+    /// A row of `results.csv`.
+    fn point_record(&self, i: usize) -> Vec<String> {
+        let mut rec: Vec<String> = self.points[i].0.iter().map(|(_, v)| v.clone()).collect();
+        let n = self.of_point(i).count();
+        let complete = self.of_point(i).filter(|r| r.complete()).count();
+        rec.extend([n.to_string(), complete.to_string()]);
+        for f in &self.fields {
+            let xs: Vec<f64> = self.of_point(i).filter_map(|r| r.value(f)).collect();
+            match stats(&xs) {
+                Some((m, sd, h)) => rec.extend([m, sd, h].map(|v| v.to_string())),
+                None => rec.extend([String::new(), String::new(), String::new()]),
+            }
+        }
+        rec
+    }
+}
+
+/// Writes a header and records as CSV.
+fn write_records(
+    path: &Path,
+    head: Vec<String>,
+    records: impl Iterator<Item = Vec<String>>,
+) -> anyhow::Result<()> {
+    let context = || format!("writing {}", path.display());
+    let mut w = csv::Writer::from_path(path).with_context(context)?;
+    w.write_record(head).with_context(context)?;
+    for r in records {
+        w.write_record(r).with_context(context)?;
+    }
+    w.flush().with_context(context)
 }
 
 #[cfg(test)]

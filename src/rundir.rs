@@ -3,12 +3,12 @@
 //! ([`SCHEMA_VERSION`]).
 
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::Context;
+use proto::exit::ExitReason;
 use proto::msg::{LinkReport, LinkState, RobotId, Step, Traffic};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::evaluate::{MetricsRow, THRESHOLDS};
 
@@ -20,7 +20,7 @@ pub const SCHEMA_VERSION: u32 = 3;
 pub struct Summary {
     pub schema_version: u32,
     pub complete: bool,
-    pub exit_reason: String,
+    pub exit_reason: ExitReason,
     pub robots: u16,
     pub robots_alive_at_end: usize,
     pub steps: u32,
@@ -121,39 +121,56 @@ pub fn write_summary(dir: &Path, s: &Summary) -> anyhow::Result<()> {
     std::fs::write(dir.join("summary.json"), text + "\n").context("writing summary.json")
 }
 
-/// `metrics.csv`: one row per robot and step, in the order telemetry arrived.
+/// A row of `metrics.csv`.
+#[derive(Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MetricsCsv {
+    pub step: Step,
+    pub robot: RobotId,
+    pub x: Fixed<3>,
+    pub y: Fixed<3>,
+    pub known_cells: u32,
+    pub correct_known_cells: u32,
+    pub target_x: Option<Fixed<3>>,
+    pub target_y: Option<Fixed<3>>,
+    pub bytes_sent: u64,
+    pub bytes_received: u64,
+    pub coverage_pct: Fixed<3>,
+    pub idle: Flag,
+    pub neighbours: usize,
+    pub splits_per_step: Option<Fixed<4>>,
+    pub backlog_bytes: u64,
+}
+
+impl From<&MetricsRow> for MetricsCsv {
+    fn from(r: &MetricsRow) -> MetricsCsv {
+        MetricsCsv {
+            step: r.step,
+            robot: r.robot,
+            x: Fixed(r.x),
+            y: Fixed(r.y),
+            known_cells: r.known_cells,
+            correct_known_cells: r.correct_known_cells,
+            target_x: r.target.map(|(x, _)| Fixed(x)),
+            target_y: r.target.map(|(_, y)| Fixed(y)),
+            bytes_sent: r.bytes_sent,
+            bytes_received: r.bytes_received,
+            coverage_pct: Fixed(r.coverage_pct),
+            idle: Flag(r.idle),
+            neighbours: r.neighbours,
+            splits_per_step: r.splits_per_step.map(Fixed),
+            backlog_bytes: r.backlog_bytes,
+        }
+    }
+}
+
+/// `metrics.csv`: one row per robot and step, by step and robot.
 pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
-    let mut s = String::from(
-        "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes\n",
-    );
     let mut sorted: Vec<&MetricsRow> = rows.iter().collect();
     sorted.sort_by_key(|r| (r.step, r.robot));
-    for r in sorted {
-        let (tx, ty) = r.target.map_or((String::new(), String::new()), |(x, y)| {
-            (format!("{x:.3}"), format!("{y:.3}"))
-        });
-        let _ = writeln!(
-            s,
-            "{},{},{:.3},{:.3},{},{},{},{},{},{},{:.3},{},{},{},{}",
-            r.step,
-            r.robot,
-            r.x,
-            r.y,
-            r.known_cells,
-            r.correct_known_cells,
-            tx,
-            ty,
-            r.bytes_sent,
-            r.bytes_received,
-            r.coverage_pct,
-            u8::from(r.idle),
-            r.neighbours,
-            r.splits_per_step
-                .map_or(String::new(), |s| format!("{s:.4}")),
-            r.backlog_bytes
-        );
-    }
-    std::fs::write(dir.join("metrics.csv"), s).context("writing metrics.csv")
+    write_rows(
+        &dir.join("metrics.csv"),
+        sorted.into_iter().map(MetricsCsv::from),
+    )
 }
 
 /// Every link report of a run, in arrival order.
@@ -262,6 +279,27 @@ impl From<&Reconnects> for ReconnectSummary {
     }
 }
 
+/// A row of `saves.csv`: a save point of a robot's own log.
+#[derive(Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SaveCsv {
+    pub step: Step,
+    pub robot: RobotId,
+    pub log_len: u32,
+    /// Digest of the robot's approximation at the save point.
+    pub digest: Hex,
+}
+
+/// A row of `views.csv`: what a robot shows of another owner, from the step it changed.
+#[derive(Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ViewCsv {
+    pub step: Step,
+    pub robot: RobotId,
+    pub owner: RobotId,
+    pub held: u32,
+    pub shown: u32,
+    pub digest: Hex,
+}
+
 /// `saves.csv` and `views.csv` (polygon exchange): every save point of every robot's own log
 /// (its length and the digest of the approximation there), and every change of what a robot
 /// shows of another owner (ops held, ops shown — up to a save point — and the digest of what it
@@ -271,93 +309,223 @@ pub fn write_saves_and_views(
     saves: &[(Step, RobotId, u32, u64)],
     views: &[(Step, RobotId, proto::msg::View)],
 ) -> anyhow::Result<()> {
-    let mut s = String::from("step,robot,log_len,digest\n");
-    for (step, robot, len, digest) in saves {
-        let _ = writeln!(s, "{step},{robot},{len},{digest:016x}");
-    }
-    std::fs::write(dir.join("saves.csv"), s).context("writing saves.csv")?;
-    let mut s = String::from("step,robot,owner,held,shown,digest\n");
-    for (step, robot, v) in views {
-        let _ = writeln!(
-            s,
-            "{step},{robot},{},{},{},{:016x}",
-            v.owner, v.held, v.shown, v.digest
-        );
-    }
-    std::fs::write(dir.join("views.csv"), s).context("writing views.csv")
+    let saves = saves.iter().map(|&(step, robot, log_len, digest)| SaveCsv {
+        step,
+        robot,
+        log_len,
+        digest: Hex(digest),
+    });
+    write_rows(&dir.join("saves.csv"), saves)?;
+    let views = views.iter().map(|&(step, robot, v)| ViewCsv {
+        step,
+        robot,
+        owner: v.owner,
+        held: v.held,
+        shown: v.shown,
+        digest: Hex(v.digest),
+    });
+    write_rows(&dir.join("views.csv"), views)
+}
+
+/// A row of `traffic_by_type.csv`: the payload bytes a robot sent during a step, per traffic
+/// class. Its columns after `step,robot` are the classes' names in [`Traffic::ALL`] order.
+#[derive(Debug, PartialEq, Serialize)]
+pub struct TrafficCsv {
+    pub step: Step,
+    pub robot: RobotId,
+    pub bytes: Vec<u64>,
 }
 
 /// `traffic_by_type.csv`: per step and robot, the payload bytes the robot sent during the step
 /// by traffic class (thesis Table 6.1's package types, `conn`, `targ`, and `scan`).
 pub fn write_traffic(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
-    let mut s = String::from("step,robot");
-    for t in Traffic::ALL {
-        s.push(',');
-        s.push_str(t.name());
-    }
-    s.push('\n');
     let mut sorted: Vec<&MetricsRow> = rows.iter().collect();
     sorted.sort_by_key(|r| (r.robot, r.step));
     let mut before: Option<(u16, &[u64])> = None;
-    let mut lines: Vec<(Step, u16, String)> = Vec::new();
+    let mut out: Vec<TrafficCsv> = Vec::new();
     for r in sorted {
         let prev = before
             .filter(|(robot, _)| *robot == r.robot)
             .map(|(_, v)| v);
-        let mut line = String::new();
-        for (i, &now) in r.sent_by_type.iter().enumerate() {
-            let was = prev.and_then(|p| p.get(i)).copied().unwrap_or(0);
-            let _ = write!(line, ",{}", now.saturating_sub(was));
-        }
-        lines.push((r.step, r.robot, line));
+        let bytes = (r.sent_by_type.iter().enumerate())
+            .map(|(i, &now)| now.saturating_sub(prev.and_then(|p| p.get(i)).copied().unwrap_or(0)))
+            .collect();
+        out.push(TrafficCsv {
+            step: r.step,
+            robot: r.robot,
+            bytes,
+        });
         before = Some((r.robot, &r.sent_by_type));
     }
-    lines.sort_by_key(|(step, robot, _)| (*step, *robot));
-    for (step, robot, line) in lines {
-        let _ = writeln!(s, "{step},{robot}{line}");
+    out.sort_by_key(|t| (t.step, t.robot));
+    let path = dir.join("traffic_by_type.csv");
+    let context = || format!("writing {}", path.display());
+    // The header is written by hand: its class columns come from one list (serde names a
+    // sequence field's columns no way).
+    let mut w = csv::WriterBuilder::new()
+        .has_headers(false)
+        .from_path(&path)
+        .with_context(context)?;
+    let head = ["step", "robot"]
+        .into_iter()
+        .chain(Traffic::ALL.iter().map(|t| t.name()));
+    w.write_record(head).with_context(context)?;
+    for r in out {
+        w.serialize(r).with_context(context)?;
     }
-    std::fs::write(dir.join("traffic_by_type.csv"), s).context("writing traffic_by_type.csv")
+    w.flush().with_context(context)
 }
 
 /// Bytes that crossed any link, both ways, from netem's `link_totals.csv` (`None` if it is
 /// missing or not in the expected form: netem did not stop normally).
 pub fn link_totals_wire(path: &Path) -> Option<u64> {
-    let text = std::fs::read_to_string(path).ok()?;
-    let mut lines = text.lines();
-    let head: Vec<&str> = lines.next()?.split(',').collect();
-    let col = |name: &str| head.iter().position(|h| *h == name);
-    let (ab, ba) = (col("bytes_a_to_b")?, col("bytes_b_to_a")?);
-    lines
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            Some(f.get(ab)?.parse::<u64>().ok()? + f.get(ba)?.parse::<u64>().ok()?)
-        })
-        .sum()
+    let rows: Vec<netem::cli::LinkTotalsCsv> = read_rows(path).ok()?;
+    Some(rows.iter().map(|r| r.bytes_a_to_b + r.bytes_b_to_a).sum())
+}
+
+/// A row of `links.csv`: one robot pair during one step.
+#[derive(Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LinkCsv {
+    pub step: Step,
+    pub a: RobotId,
+    pub b: RobotId,
+    pub up: Flag,
+    pub connected: Flag,
+    pub distance_m: Option<Fixed<3>>,
+    pub bytes_a_to_b: u64,
+    pub bytes_b_to_a: u64,
+    pub queued_bytes: u64,
+    pub bytes_total: u64,
 }
 
 /// `links.csv`: one row per step and robot pair.
 pub fn write_links(dir: &Path, rows: &[(Step, LinkState)]) -> anyhow::Result<()> {
-    let mut s = String::from(
-        "step,a,b,up,connected,distance_m,bytes_a_to_b,bytes_b_to_a,queued_bytes,bytes_total\n",
-    );
     let mut sorted: Vec<&(Step, LinkState)> = rows.iter().collect();
     sorted.sort_by_key(|(step, l)| (*step, l.a, l.b));
-    for (step, l) in sorted {
-        let d = l.distance_m.map_or(String::new(), |d| format!("{d:.3}"));
-        let _ = writeln!(
-            s,
-            "{step},{},{},{},{},{d},{},{},{},{}",
-            l.a,
-            l.b,
-            u8::from(l.up),
-            u8::from(l.connected),
-            l.bytes_a_to_b,
-            l.bytes_b_to_a,
-            l.queued_bytes,
-            l.bytes_total
-        );
+    let rows = sorted.into_iter().map(|(step, l)| LinkCsv {
+        step: *step,
+        a: l.a,
+        b: l.b,
+        up: Flag(l.up),
+        connected: Flag(l.connected),
+        distance_m: l.distance_m.map(Fixed),
+        bytes_a_to_b: l.bytes_a_to_b,
+        bytes_b_to_a: l.bytes_b_to_a,
+        queued_bytes: l.queued_bytes,
+        bytes_total: l.bytes_total,
+    });
+    write_rows(&dir.join("links.csv"), rows)
+}
+
+/// A number written with `D` decimals (the precision the schema keeps).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Fixed<const D: usize>(pub f64);
+
+impl<const D: usize> Serialize for Fixed<D> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(&format_args!("{:.*}", D, self.0))
     }
-    std::fs::write(dir.join("links.csv"), s).context("writing links.csv")
+}
+
+impl<'de, const D: usize> Deserialize<'de> for Fixed<D> {
+    fn deserialize<De: serde::Deserializer<'de>>(d: De) -> Result<Self, De::Error> {
+        f64::deserialize(d).map(Fixed)
+    }
+}
+
+/// A yes/no column, written `1`/`0`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Flag(pub bool);
+
+impl Serialize for Flag {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_u8(u8::from(self.0))
+    }
+}
+
+impl<'de> Deserialize<'de> for Flag {
+    fn deserialize<De: serde::Deserializer<'de>>(d: De) -> Result<Self, De::Error> {
+        match u8::deserialize(d)? {
+            0 => Ok(Flag(false)),
+            1 => Ok(Flag(true)),
+            v => Err(serde::de::Error::custom(format!("{v} is not 0 or 1"))),
+        }
+    }
+}
+
+/// A 64-bit digest, written as 16 hex digits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Hex(pub u64);
+
+impl Serialize for Hex {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(&format_args!("{:016x}", self.0))
+    }
+}
+
+impl<'de> Deserialize<'de> for Hex {
+    fn deserialize<De: serde::Deserializer<'de>>(d: De) -> Result<Self, De::Error> {
+        let s = String::deserialize(d)?;
+        u64::from_str_radix(&s, 16)
+            .map(Hex)
+            .map_err(|e| serde::de::Error::custom(format!("{s:?}: {e}")))
+    }
+}
+
+/// Writes `rows` to `path` as CSV, the header from the row type's field names (written also
+/// when there is no row).
+pub fn write_rows<R: Serialize + Default>(
+    path: &Path,
+    rows: impl IntoIterator<Item = R>,
+) -> anyhow::Result<()> {
+    let context = || format!("writing {}", path.display());
+    let mut w = csv::Writer::from_path(path).with_context(context)?;
+    let mut empty = true;
+    for r in rows {
+        w.serialize(r).with_context(context)?;
+        empty = false;
+    }
+    if empty {
+        w.write_record(header::<R>()?).with_context(context)?;
+    }
+    w.flush().with_context(context)
+}
+
+/// The column names of a row type (serde's names of its fields, in order).
+pub fn header<R: Serialize + Default>() -> anyhow::Result<Vec<String>> {
+    let mut w = csv::Writer::from_writer(Vec::new());
+    w.serialize(R::default())?;
+    let text = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut r = csv::Reader::from_reader(text.as_slice());
+    Ok(r.headers()?.iter().map(str::to_string).collect())
+}
+
+/// Reads a CSV file written by [`write_rows`] (columns found by name).
+pub fn read_rows<R: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<R>> {
+    let context = || format!("reading {}", path.display());
+    let mut r = csv::Reader::from_path(path).with_context(context)?;
+    r.deserialize()
+        .collect::<Result<_, _>>()
+        .with_context(context)
+}
+
+/// Writes `grid` as a map_server PGM (P5; free 254, occupied 0, unknown 205; the top row is the
+/// largest y), so that a robot's final map can be loaded like any other map.
+pub fn write_pgm(path: &Path, grid: &proto::grid::Grid) -> anyhow::Result<()> {
+    use proto::grid::{Cell, Occ};
+    let (w, h) = (grid.width(), grid.height());
+    let mut out = format!("P5\n{w} {h}\n255\n").into_bytes();
+    out.reserve(w as usize * h as usize);
+    for y in (0..h as i32).rev() {
+        for x in 0..w as i32 {
+            out.push(match grid.get(Cell::new(x, y)) {
+                Occ::Free => 254,
+                Occ::Occupied => 0,
+                Occ::Unknown => 205,
+            });
+        }
+    }
+    std::fs::write(path, out).with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]
@@ -430,6 +598,74 @@ mod tests {
     }
 
     #[test]
+    fn tables_have_the_documented_columns() {
+        let h = |v: anyhow::Result<Vec<String>>| v.unwrap_or_default().join(",");
+        assert_eq!(
+            h(header::<MetricsCsv>()),
+            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes"
+        );
+        assert_eq!(
+            h(header::<LinkCsv>()),
+            "step,a,b,up,connected,distance_m,bytes_a_to_b,bytes_b_to_a,queued_bytes,bytes_total"
+        );
+        assert_eq!(h(header::<SaveCsv>()), "step,robot,log_len,digest");
+        assert_eq!(h(header::<ViewCsv>()), "step,robot,owner,held,shown,digest");
+    }
+
+    #[test]
+    fn rows_are_written_as_before_and_read_back_through_the_same_type() {
+        let dir = std::env::temp_dir().join(format!("swarm-rows-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let rows = vec![
+            MetricsCsv {
+                step: 3,
+                robot: 1,
+                x: Fixed(1.23456),
+                y: Fixed(-2.0),
+                target_x: Some(Fixed(0.5)),
+                target_y: Some(Fixed(7.0)),
+                coverage_pct: Fixed(12.3456),
+                idle: Flag(true),
+                splits_per_step: Some(Fixed(0.25)),
+                backlog_bytes: 9,
+                ..MetricsCsv::default()
+            },
+            MetricsCsv::default(),
+        ];
+        let path = dir.join("metrics.csv");
+        write_rows(&path, rows).unwrap_or_else(|e| panic!("{e}"));
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(
+            lines[1],
+            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9"
+        );
+        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0");
+        let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            (back[0].idle, back[0].target_y, back[1].target_x),
+            (Flag(true), Some(Fixed(7.0)), None)
+        );
+        assert_eq!(back[0].splits_per_step, Some(Fixed(0.25)));
+        let saves = [SaveCsv {
+            step: 1,
+            robot: 2,
+            log_len: 3,
+            digest: Hex(0xabc),
+        }];
+        let path = dir.join("saves.csv");
+        write_rows(&path, saves).unwrap_or_else(|e| panic!("{e}"));
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        assert_eq!(text, "step,robot,log_len,digest\n1,2,3,0000000000000abc\n");
+        let back: Vec<SaveCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(back[0].digest, Hex(0xabc));
+        write_rows(&path, Vec::<SaveCsv>::new()).unwrap_or_else(|e| panic!("{e}"));
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(text, "step,robot,log_len,digest\n");
+    }
+
+    #[test]
     fn reconnects_count_steps_from_up_again_to_connected() {
         let mut log = LinkLog::default();
         // (up, connected) per step: first connection (not counted), down, back up and
@@ -461,23 +697,4 @@ mod tests {
             (2, Some(2), Some(1.0))
         );
     }
-}
-
-/// Writes `grid` as a map_server PGM (P5; free 254, occupied 0, unknown 205; the top row is the
-/// largest y), so that a robot's final map can be loaded like any other map.
-pub fn write_pgm(path: &Path, grid: &proto::grid::Grid) -> anyhow::Result<()> {
-    use proto::grid::{Cell, Occ};
-    let (w, h) = (grid.width(), grid.height());
-    let mut out = format!("P5\n{w} {h}\n255\n").into_bytes();
-    out.reserve(w as usize * h as usize);
-    for y in (0..h as i32).rev() {
-        for x in 0..w as i32 {
-            out.push(match grid.get(Cell::new(x, y)) {
-                Occ::Free => 254,
-                Occ::Occupied => 0,
-                Occ::Unknown => 205,
-            });
-        }
-    }
-    std::fs::write(path, out).with_context(|| format!("writing {}", path.display()))
 }

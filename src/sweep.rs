@@ -37,7 +37,6 @@
 //! ```
 
 use std::collections::BTreeMap;
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -45,10 +44,11 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use serde::Deserialize;
 
+use crate::progress::Progress;
 use crate::report::{PlotSpec, Spec, TableSpec, TimelineSpec};
 use crate::results::{points, Point, Results, Run, FIELDS};
-use crate::run::DEFAULT_SCENARIO;
-use proto::scenario::Scenario;
+use proto::exit::ExitReason;
+use world_server::scenario::resolve;
 
 /// `swarm sweep` flags.
 #[derive(clap::Args, Debug)]
@@ -144,16 +144,14 @@ fn check_identity(out: &Path, id: &Identity) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", file.display()))
 }
 
-/// A drawn progress bar with the ETA: updated in place on a terminal, one line per finished run
-/// otherwise (logs, CI).
-struct Progress {
+/// A drawn progress bar with the ETA and the last finished run.
+struct Bar {
     total: usize,
-    tty: bool,
     started: Instant,
 }
 
-impl Progress {
-    fn show(&self, done: usize, failed: usize, note: &str) {
+impl Bar {
+    fn line(&self, done: usize, failed: usize, note: &str) -> String {
         const WIDTH: usize = 30;
         let filled = (done * WIDTH).checked_div(self.total).unwrap_or(WIDTH);
         let eta = if done == 0 {
@@ -168,20 +166,12 @@ impl Progress {
         } else {
             String::new()
         };
-        let line = format!(
+        format!(
             "[{}{}] {done}/{} runs, {eta}{failed}  {note}",
             "#".repeat(filled),
             ".".repeat(WIDTH - filled),
             self.total
-        );
-        if self.tty {
-            eprint!("\r\x1b[2K{line}");
-            if done == self.total {
-                eprintln!();
-            }
-        } else {
-            eprintln!("{line}");
-        }
+        )
     }
 }
 
@@ -229,17 +219,13 @@ fn check_points(scenario: Option<&Path>, sets: &[String], points: &[Point]) -> a
     for p in points {
         let mut all = sets.to_vec();
         all.extend(p.0.iter().map(|(k, v)| format!("{k}={v}")));
-        let loaded = match scenario {
-            Some(path) => Scenario::load(path, &all),
-            None => Scenario::from_toml(DEFAULT_SCENARIO, &all),
-        };
-        if let Err(e) = loaded {
+        if let Err(e) = resolve(scenario, &all) {
             let at = if p.0.is_empty() {
                 String::new()
             } else {
                 format!(" at grid point {}", p.id())
             };
-            bail!("the scenario{at}: {e}");
+            bail!("the scenario{at}: {e:#}");
         }
     }
     Ok(())
@@ -251,148 +237,191 @@ fn finished(dir: &Path) -> bool {
     std::fs::read_to_string(dir.join("summary.json"))
         .ok()
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|s| s["exit_reason"] != "interrupted")
+        .is_some_and(|s| s["exit_reason"] != ExitReason::Interrupted.as_str())
 }
 
-/// Runs a sweep; returns the output directory.
-pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
-    let text = std::fs::read_to_string(&args.experiment)
-        .with_context(|| format!("reading {}", args.experiment.display()))?;
-    let exp: Experiment = toml::from_str(&text)
-        .with_context(|| format!("experiment {}", args.experiment.display()))?;
-    let base_dir = args.experiment.parent().unwrap_or(Path::new("."));
-    let scenario = exp.scenario.as_ref().map(|s| base_dir.join(s));
-    let (seeds, sets, grid) = variant(&exp, args.quick)
-        .with_context(|| format!("experiment {}", args.experiment.display()))?;
-    let seeds = args.seeds.unwrap_or(seeds).max(1);
-    let points = points(&grid);
-    let spec = Spec {
-        name: exp.name.clone(),
-        command: std::env::args().collect::<Vec<_>>().join(" "),
-        plots: exp.plot.clone(),
-        timelines: exp.timeline.clone(),
-        tables: exp.table.clone(),
-    };
-    crate::report::check(&spec, &grid.keys().cloned().collect::<Vec<_>>())?;
-    check_points(scenario.as_deref(), &sets, &points)?;
-    let out = args.out.clone().unwrap_or_else(|| {
-        let name = if args.quick {
-            format!("{}-quick", exp.name)
-        } else {
-            exp.name.clone()
+/// A sweep made ready: the experiment read, its variant chosen and checked, the output
+/// directory claimed.
+struct Plan {
+    exp: Experiment,
+    /// The base scenario file, relative to the working directory.
+    scenario: Option<PathBuf>,
+    seeds: u32,
+    sets: Vec<String>,
+    points: Vec<Point>,
+    spec: Spec,
+    out: PathBuf,
+}
+
+/// One run of a sweep: its grid point (an index into the points), seed and run directory.
+type Job = (usize, u32, PathBuf);
+
+impl Plan {
+    fn load(args: &SweepArgs) -> anyhow::Result<Plan> {
+        let file = args.experiment.display();
+        let text =
+            std::fs::read_to_string(&args.experiment).with_context(|| format!("reading {file}"))?;
+        let exp: Experiment =
+            toml::from_str(&text).with_context(|| format!("experiment {file}"))?;
+        let base_dir = args.experiment.parent().unwrap_or(Path::new("."));
+        let scenario = exp.scenario.as_ref().map(|s| base_dir.join(s));
+        let (seeds, sets, grid) =
+            variant(&exp, args.quick).with_context(|| format!("experiment {file}"))?;
+        let spec = Spec {
+            name: exp.name.clone(),
+            command: std::env::args().collect::<Vec<_>>().join(" "),
+            plots: exp.plot.clone(),
+            timelines: exp.timeline.clone(),
+            tables: exp.table.clone(),
         };
-        PathBuf::from("sweeps").join(name)
-    });
-    std::fs::create_dir_all(out.join("runs")).context("creating the sweep directory")?;
-    check_identity(
-        &out,
-        &Identity {
+        crate::report::check(&spec, &grid.keys().cloned().collect::<Vec<_>>())?;
+        let points = points(&grid);
+        check_points(scenario.as_deref(), &sets, &points)?;
+        let out = args.out.clone().unwrap_or_else(|| {
+            let quick = if args.quick { "-quick" } else { "" };
+            PathBuf::from("sweeps").join(format!("{}{quick}", exp.name))
+        });
+        std::fs::create_dir_all(out.join("runs")).context("creating the sweep directory")?;
+        let id = Identity {
             name: exp.name.clone(),
             scenario: scenario.clone(),
             set: sets.clone(),
-        },
-    )?;
-    let jobs: Vec<(usize, u32, PathBuf)> = points
-        .iter()
-        .enumerate()
-        .flat_map(|(i, p)| {
-            let out = &out;
-            (1..=seeds).map(move |seed| {
-                (
-                    i,
-                    seed,
-                    out.join("runs").join(format!("{}-seed{seed}", p.id())),
-                )
-            })
+        };
+        check_identity(&out, &id)?;
+        Ok(Plan {
+            seeds: args.seeds.unwrap_or(seeds).max(1),
+            exp,
+            scenario,
+            sets,
+            points,
+            spec,
+            out,
         })
-        .collect();
-    let parallel = args.jobs.unwrap_or_else(|| {
-        std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1))
-    });
-    let exe = std::env::current_exe().context("finding the swarm binary")?;
-    let todo: Vec<&(usize, u32, PathBuf)> =
-        jobs.iter().filter(|(_, _, dir)| !finished(dir)).collect();
-    eprintln!(
-        "swarm sweep {}: {} points × {seeds} seeds = {} runs, {} already done, {parallel} at a time; output {}",
-        exp.name,
-        points.len(),
-        jobs.len(),
-        jobs.len() - todo.len(),
-        out.display()
-    );
-    let progress = Progress {
-        total: todo.len(),
-        tty: std::io::stderr().is_terminal(),
-        started: Instant::now(),
-    };
-    let mut running: Vec<(Child, &(usize, u32, PathBuf))> = Vec::new();
-    let mut queue = todo.iter().copied();
-    let (mut done, mut failed) = (0usize, 0usize);
-    loop {
-        while running.len() < parallel {
-            let Some(job) = queue.next() else { break };
-            let (point, seed, dir) = job;
-            let _ = std::fs::remove_dir_all(dir);
-            let mut cmd = Command::new(&exe);
-            cmd.arg("run").arg("--quiet").arg("--out").arg(dir);
-            if let Some(s) = &scenario {
-                cmd.arg(s);
+    }
+
+    /// Every run: each point × each seed.
+    fn jobs(&self) -> Vec<Job> {
+        let mut jobs = Vec::new();
+        for (i, p) in self.points.iter().enumerate() {
+            for seed in 1..=self.seeds {
+                let dir = self.out.join("runs").join(format!("{}-seed{seed}", p.id()));
+                jobs.push((i, seed, dir));
             }
-            for s in sets
-                .iter()
-                .cloned()
-                .chain(points[*point].0.iter().map(|(k, v)| format!("{k}={v}")))
-            {
-                cmd.arg("--set").arg(s);
+        }
+        jobs
+    }
+
+    /// `swarm run` of one job, its output thrown away (the run directory has it all).
+    fn command(&self, exe: &Path, (point, seed, dir): &Job) -> Command {
+        let set = (self.sets.iter().cloned())
+            .chain(
+                self.points[*point]
+                    .0
+                    .iter()
+                    .map(|(k, v)| format!("{k}={v}")),
+            )
+            .chain([format!("seed={seed}")])
+            .collect();
+        let args = crate::run::RunArgs {
+            scenario: self.scenario.clone(),
+            out: Some(dir.clone()),
+            set,
+            quiet: true,
+        };
+        let mut cmd = Command::new(exe);
+        cmd.arg("run").args(args.to_argv());
+        cmd.stdout(Stdio::null()).stderr(Stdio::null());
+        // Killing the sweep kills its runs; each run takes its own processes with it.
+        crate::children::die_with_parent_std(&mut cmd);
+        cmd
+    }
+
+    /// Runs the jobs not finished yet, `parallel` at a time, showing progress.
+    fn run(&self, jobs: &[Job], parallel: usize) -> anyhow::Result<()> {
+        let exe = std::env::current_exe().context("finding the swarm binary")?;
+        let todo: Vec<&Job> = jobs.iter().filter(|(_, _, dir)| !finished(dir)).collect();
+        eprintln!(
+            "swarm sweep {}: {} points × {} seeds = {} runs, {} already done, {parallel} at a time; output {}",
+            self.exp.name,
+            self.points.len(),
+            self.seeds,
+            jobs.len(),
+            jobs.len() - todo.len(),
+            self.out.display()
+        );
+        let bar = Bar {
+            total: todo.len(),
+            started: Instant::now(),
+        };
+        let mut progress = Progress::every_state();
+        let mut running: Vec<(Child, &Job)> = Vec::new();
+        let mut queue = todo.iter().copied();
+        let (mut done, mut failed) = (0usize, 0usize);
+        loop {
+            while running.len() < parallel {
+                let Some(job) = queue.next() else { break };
+                let _ = std::fs::remove_dir_all(&job.2);
+                let child = self
+                    .command(&exe, job)
+                    .spawn()
+                    .context("starting swarm run")?;
+                running.push((child, job));
             }
-            cmd.arg("--set").arg(format!("seed={seed}"));
-            cmd.stdout(Stdio::null()).stderr(Stdio::null());
-            // Killing the sweep kills its runs; each run takes its own processes with it.
-            crate::children::die_with_parent_std(&mut cmd);
-            let child = cmd.spawn().context("starting swarm run")?;
-            running.push((child, job));
-        }
-        if running.is_empty() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(200));
-        let mut i = 0;
-        while i < running.len() {
-            if running[i].0.try_wait().ok().flatten().is_some() {
+            if running.is_empty() {
+                return Ok(());
+            }
+            std::thread::sleep(Duration::from_millis(200));
+            let mut i = 0;
+            while i < running.len() {
+                if running[i].0.try_wait().ok().flatten().is_none() {
+                    i += 1;
+                    continue;
+                }
                 let (_, (point, seed, dir)) = running.swap_remove(i);
                 done += 1;
                 let ok = finished(dir);
                 failed += usize::from(!ok);
-                let note = format!(
-                    "{} seed {seed}{}",
-                    points[*point].id(),
-                    if ok { "" } else { " FAILED" }
-                );
-                progress.show(done, failed, &note);
-            } else {
-                i += 1;
+                let fail = if ok { "" } else { " FAILED" };
+                let note = format!("{} seed {seed}{fail}", self.points[*point].id());
+                progress.show(&bar.line(done, failed, &note));
+                if done == bar.total {
+                    progress.finish();
+                }
             }
         }
     }
-    let mut fields: Vec<String> = FIELDS.iter().map(|f| f.to_string()).collect();
-    fields.extend(
-        exp.fields
-            .iter()
-            .filter(|f| !fields.contains(f))
-            .cloned()
-            .collect::<Vec<_>>(),
-    );
-    let results = Results {
-        points,
-        fields,
-        runs: jobs
-            .into_iter()
-            .map(|(point, seed, dir)| Run::load(point, seed, dir))
-            .collect(),
-    };
-    results.write_tables(&out)?;
-    crate::report::write(&results, &spec, &out)?;
-    Ok(out)
+
+    /// `runs.csv`, `results.csv`, the plots and `report.md`.
+    fn write_results(self, jobs: Vec<Job>) -> anyhow::Result<PathBuf> {
+        let mut fields: Vec<String> = FIELDS.iter().map(|f| f.to_string()).collect();
+        for f in &self.exp.fields {
+            if !fields.contains(f) {
+                fields.push(f.clone());
+            }
+        }
+        let results = Results {
+            points: self.points,
+            fields,
+            runs: jobs
+                .into_iter()
+                .map(|(point, seed, dir)| Run::load(point, seed, dir))
+                .collect(),
+        };
+        results.write_tables(&self.out)?;
+        crate::report::write(&results, &self.spec, &self.out)?;
+        Ok(self.out)
+    }
+}
+
+/// Runs a sweep; returns the output directory.
+pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
+    let plan = Plan::load(args)?;
+    let jobs = plan.jobs();
+    let parallel = args.jobs.unwrap_or_else(|| {
+        std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1))
+    });
+    plan.run(&jobs, parallel)?;
+    plan.write_results(jobs)
 }
 
 #[cfg(test)]

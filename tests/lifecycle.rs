@@ -113,3 +113,44 @@ fn a_normal_run_leaves_no_process_behind() {
     assert!(out.status.code().is_some(), "launcher exited normally");
     wait_gone(&kids);
 }
+
+/// Killing the world-server ends the run with `world-server-exited` (netem and the robots exit
+/// after it, because its sim plane is gone; the launcher names the cause, not a consequence).
+#[test]
+fn killing_the_world_server_is_the_reported_cause() {
+    let dir = TempDir::new("kill-world");
+    let l = start(&dir, 2);
+    // World-server, netem and 2 robots.
+    let kids = wait_for_children(&l, 4);
+    std::thread::sleep(Duration::from_secs(2));
+    let world = kids
+        .iter()
+        .copied()
+        .find(|&p| {
+            std::fs::read_to_string(format!("/proc/{p}/cmdline"))
+                .is_ok_and(|c| c.contains("world-server"))
+        })
+        .expect("a world-server child");
+    kill(world, 9);
+    let out = l.wait_output(Duration::from_secs(120));
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "an incomplete run: {}",
+        stderr(&out)
+    );
+    let s = summary(&dir.path().join("run"));
+    assert_eq!(s["exit_reason"], "world-server-exited", "{s}");
+    assert_eq!(s["complete"], false, "{s}");
+    let failed = s["failed_processes"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    assert!(
+        failed.iter().any(|f| f
+            .as_str()
+            .is_some_and(|f| f.starts_with("world-server") && f.contains("SIGKILL"))),
+        "{s}"
+    );
+    wait_gone(&kids);
+}

@@ -89,16 +89,21 @@ fn wire_bytes(sets: &[&str]) -> (u64, serde_json::Value) {
     );
     let s = summary(&run);
     // traffic_by_type.csv's per-step rows add up to the summary's totals per class.
-    let text =
-        std::fs::read_to_string(run.join("traffic_by_type.csv")).expect("traffic_by_type.csv");
-    let mut lines = text.lines();
-    let head: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let mut table =
+        csv::Reader::from_path(run.join("traffic_by_type.csv")).expect("traffic_by_type.csv");
+    let head: Vec<String> = table
+        .headers()
+        .expect("a header")
+        .iter()
+        .map(str::to_string)
+        .collect();
     let mut sums = vec![0u64; head.len()];
-    for l in lines {
-        for (i, v) in l.split(',').enumerate().skip(2) {
+    for row in table.records() {
+        let row = row.expect("a row");
+        for (i, v) in row.iter().enumerate().skip(2) {
             sums[i] += v
                 .parse::<u64>()
-                .unwrap_or_else(|_| panic!("bad value in {l}"));
+                .unwrap_or_else(|_| panic!("bad value in {row:?}"));
         }
     }
     for (i, class) in head.iter().enumerate().skip(2) {

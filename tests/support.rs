@@ -172,22 +172,9 @@ pub fn free_ports(n: usize) -> Vec<u16> {
 
 /// A CSV file of the run directory as rows of column → value.
 pub fn csv(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut lines = text.lines();
-    let head: Vec<String> = lines
-        .next()
-        .unwrap_or_default()
-        .split(',')
-        .map(str::to_string)
-        .collect();
-    lines
-        .map(|l| {
-            head.iter()
-                .cloned()
-                .zip(l.split(',').map(str::to_string))
-                .collect()
-        })
-        .collect()
+    csv::Reader::from_path(path)
+        .and_then(|mut r| r.deserialize().collect())
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// A numeric column of a [`csv`] row.

@@ -177,31 +177,16 @@ struct LinkTotal {
 }
 
 fn link_totals(path: &Path) -> Vec<LinkTotal> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut lines = text.lines();
-    let head: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let col = |n: &str| {
-        head.iter()
-            .position(|h| *h == n)
-            .unwrap_or_else(|| panic!("column {n}"))
-    };
-    let port = |s: &str| -> u16 {
-        s.rsplit_once(':')
-            .and_then(|(_, p)| p.parse().ok())
-            .unwrap_or_else(|| panic!("address {s}"))
-    };
-    let num = |s: &str| -> u64 { s.parse().unwrap_or_else(|_| panic!("number {s}")) };
-    lines
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            LinkTotal {
-                a: num(f[col("a")]),
-                b: num(f[col("b")]),
-                listen: port(f[col("listen")]),
-                target: port(f[col("target")]),
-                a_to_b: num(f[col("bytes_a_to_b")]),
-                b_to_a: num(f[col("bytes_b_to_a")]),
-            }
+    let rows: Vec<netem::cli::LinkTotalsCsv> =
+        swarm::rundir::read_rows(path).unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+    rows.into_iter()
+        .map(|r| LinkTotal {
+            a: r.a.into(),
+            b: r.b.into(),
+            listen: r.listen.port(),
+            target: r.target.port(),
+            a_to_b: r.bytes_a_to_b,
+            b_to_a: r.bytes_b_to_a,
         })
         .collect()
 }

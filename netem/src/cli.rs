@@ -1,7 +1,7 @@
 //! netem's command line: flags → scenario → [`crate::netem::start`] → [`crate::node::follow`].
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -10,6 +10,7 @@ use clap::Parser;
 use proto::msg::RobotId;
 use proto::node::{close_quickly, init_logging, zerr, ZenohArgs};
 use proto::scenario::Scenario;
+use serde::{Deserialize, Serialize};
 
 use crate::link::LinkSnapshot;
 use crate::netem::{start, NetemConfig, PairSpec};
@@ -20,7 +21,7 @@ use crate::node::{fetch_truth, follow, needs_truth};
 /// on the sim plane and opens or cuts each link by the scenario's radio model, shapes its
 /// bandwidth on the simulated clock, applies faults, and counts every byte. Runtime control:
 /// a toxiproxy-compatible HTTP API (--http). Normally started by `swarm run`.
-#[derive(Parser, Debug, Clone)]
+#[derive(Parser, Debug, Clone, PartialEq)]
 #[command(name = "netem", version)]
 pub struct Args {
     /// Scenario TOML file (see configs/default.toml: [radio], [netem], [[faults]]).
@@ -46,53 +47,147 @@ pub struct Args {
     pub zenoh: ZenohArgs,
 }
 
-/// The header of `--totals-out`.
-pub const TOTALS_HEADER: &str = "a,b,listen,target,bytes_a_to_b,bytes_b_to_a,chunks_a_to_b,chunks_b_to_a,lost_bytes,connects,established,refused";
-
-/// `--totals-out`'s text: one row per link, its addresses and final counters.
-fn totals_csv(links: &[LinkSnapshot]) -> String {
-    let mut s = format!("{TOTALS_HEADER}\n");
-    for l in links {
-        let [ab, ba] = l.dirs;
-        s.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{}\n",
-            l.a,
-            l.b,
-            l.listen,
-            l.target,
-            ab.bytes_total,
-            ba.bytes_total,
-            ab.chunks_total,
-            ba.chunks_total,
-            ab.lost_bytes_total + ba.lost_bytes_total,
-            l.connects_total,
-            l.established_total,
-            l.refused_total
-        ));
+impl Args {
+    /// netem of `scenario` with every other flag at its default.
+    pub fn new(scenario: PathBuf, zenoh: ZenohArgs) -> Args {
+        Args {
+            scenario,
+            set: Vec::new(),
+            pairs: Vec::new(),
+            http: None,
+            totals_out: None,
+            zenoh,
+        }
     }
-    s
+
+    /// The flags that parse back into these arguments (how `swarm run` starts `netem serve`).
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut a = vec![
+            "--scenario".into(),
+            self.scenario.to_string_lossy().into_owned(),
+        ];
+        for s in &self.set {
+            a.extend(["--set".into(), s.clone()]);
+        }
+        for p in &self.pairs {
+            a.extend(["--pair".into(), p.to_string()]);
+        }
+        if let Some(h) = self.http {
+            a.extend(["--http".into(), h.to_string()]);
+        }
+        if let Some(f) = &self.totals_out {
+            a.extend(["--totals-out".into(), f.to_string_lossy().into_owned()]);
+        }
+        a.extend(self.zenoh.to_argv());
+        a
+    }
 }
 
-/// Parses `A-B=LISTEN>TARGET`.
-pub fn parse_pair(s: &str) -> Result<PairSpec, String> {
-    let bad =
-        || format!("{s:?}: expected A-B=LISTEN>TARGET, e.g. 0-1=127.0.0.1:7600>127.0.0.1:7501");
-    let (ids, addrs) = s.split_once('=').ok_or_else(bad)?;
-    let (a, b) = ids.split_once('-').ok_or_else(bad)?;
-    let (listen, target) = addrs.split_once('>').ok_or_else(bad)?;
-    let (a, b): (RobotId, RobotId) = (
-        a.trim().parse().map_err(|_| bad())?,
-        b.trim().parse().map_err(|_| bad())?,
-    );
-    if a >= b {
-        return Err(format!("{s:?}: the first robot id must be the lower one"));
+/// `A-B=LISTEN>TARGET`, as `--pair` takes it.
+impl std::fmt::Display for PairSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}-{}={}>{}", self.a, self.b, self.listen, self.target)
     }
-    Ok(PairSpec {
-        a,
-        b,
-        listen: listen.trim().parse().map_err(|_| bad())?,
-        target: target.trim().parse().map_err(|_| bad())?,
-    })
+}
+
+/// Parses `A-B=LISTEN>TARGET` (A the lower robot id).
+impl std::str::FromStr for PairSpec {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<PairSpec, String> {
+        let bad =
+            || format!("{s:?}: expected A-B=LISTEN>TARGET, e.g. 0-1=127.0.0.1:7600>127.0.0.1:7501");
+        let (ids, addrs) = s.split_once('=').ok_or_else(bad)?;
+        let (a, b) = ids.split_once('-').ok_or_else(bad)?;
+        let (listen, target) = addrs.split_once('>').ok_or_else(bad)?;
+        let (a, b): (RobotId, RobotId) = (
+            a.trim().parse().map_err(|_| bad())?,
+            b.trim().parse().map_err(|_| bad())?,
+        );
+        if a >= b {
+            return Err(format!("{s:?}: the first robot id must be the lower one"));
+        }
+        Ok(PairSpec {
+            a,
+            b,
+            listen: listen.trim().parse().map_err(|_| bad())?,
+            target: target.trim().parse().map_err(|_| bad())?,
+        })
+    }
+}
+
+/// A row of `--totals-out` (`link_totals.csv`): a link's addresses and final counters.
+#[derive(Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkTotalsCsv {
+    pub a: RobotId,
+    pub b: RobotId,
+    pub listen: SocketAddr,
+    pub target: SocketAddr,
+    pub bytes_a_to_b: u64,
+    pub bytes_b_to_a: u64,
+    pub chunks_a_to_b: u64,
+    pub chunks_b_to_a: u64,
+    pub lost_bytes: u64,
+    pub connects: u64,
+    pub established: u64,
+    pub refused: u64,
+}
+
+impl From<&LinkSnapshot> for LinkTotalsCsv {
+    fn from(l: &LinkSnapshot) -> LinkTotalsCsv {
+        let [ab, ba] = l.dirs;
+        LinkTotalsCsv {
+            a: l.a,
+            b: l.b,
+            listen: l.listen,
+            target: l.target,
+            bytes_a_to_b: ab.bytes_total,
+            bytes_b_to_a: ba.bytes_total,
+            chunks_a_to_b: ab.chunks_total,
+            chunks_b_to_a: ba.chunks_total,
+            lost_bytes: ab.lost_bytes_total + ba.lost_bytes_total,
+            connects: l.connects_total,
+            established: l.established_total,
+            refused: l.refused_total,
+        }
+    }
+}
+
+/// The column names of `--totals-out`.
+pub const TOTALS_HEADER: [&str; 12] = [
+    "a",
+    "b",
+    "listen",
+    "target",
+    "bytes_a_to_b",
+    "bytes_b_to_a",
+    "chunks_a_to_b",
+    "chunks_b_to_a",
+    "lost_bytes",
+    "connects",
+    "established",
+    "refused",
+];
+
+/// Writes `--totals-out`: one row per link, its addresses and final counters.
+fn write_totals(path: &Path, links: &[LinkSnapshot]) -> anyhow::Result<()> {
+    let context = || format!("writing {}", path.display());
+    // The header by hand too: serde writes it only with a first row, and the file has one
+    // also when there is no link.
+    let mut w = csv::WriterBuilder::new()
+        .has_headers(false)
+        .from_path(path)
+        .with_context(context)?;
+    w.write_record(TOTALS_HEADER).with_context(context)?;
+    for l in links {
+        w.serialize(LinkTotalsCsv::from(l)).with_context(context)?;
+    }
+    w.flush().with_context(context)
+}
+
+/// Parses `A-B=LISTEN>TARGET` (see [`PairSpec`]'s `FromStr`).
+pub fn parse_pair(s: &str) -> Result<PairSpec, String> {
+    s.parse()
 }
 
 async fn run(args: Args) -> anyhow::Result<()> {
@@ -114,8 +209,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
     let links = netem.shutdown().await;
     close_quickly(sim).await;
     if let Some(path) = &args.totals_out {
-        std::fs::write(path, totals_csv(&links))
-            .with_context(|| format!("writing {}", path.display()))?;
+        write_totals(path, &links)?;
     }
     Ok(result?)
 }
@@ -158,6 +252,68 @@ mod tests {
             "a-b=127.0.0.1:1>127.0.0.1:2",
         ] {
             assert!(parse_pair(bad).is_err(), "{bad:?}");
+        }
+        assert_eq!(p.to_string().parse::<PairSpec>(), Ok(p));
+    }
+
+    #[test]
+    fn totals_rows_have_the_documented_columns_and_read_back() {
+        let row = LinkTotalsCsv {
+            a: 0,
+            b: 2,
+            listen: SocketAddr::from(([127, 0, 0, 1], 7600)),
+            target: SocketAddr::from(([127, 0, 0, 1], 7502)),
+            bytes_a_to_b: 10,
+            bytes_b_to_a: 20,
+            chunks_a_to_b: 1,
+            chunks_b_to_a: 2,
+            lost_bytes: 3,
+            connects: 4,
+            established: 5,
+            refused: 6,
+        };
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.serialize(&row).unwrap_or_else(|e| panic!("{e}"));
+        let text = String::from_utf8(w.into_inner().unwrap_or_default()).unwrap_or_default();
+        assert_eq!(
+            text,
+            format!(
+                "{}\n0,2,127.0.0.1:7600,127.0.0.1:7502,10,20,1,2,3,4,5,6\n",
+                TOTALS_HEADER.join(",")
+            )
+        );
+        let back: Vec<LinkTotalsCsv> = csv::Reader::from_reader(text.as_bytes())
+            .deserialize()
+            .collect::<Result<_, _>>()
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(back, vec![row]);
+    }
+
+    #[test]
+    fn flags_round_trip_through_to_argv() {
+        let pair = |a, b, l: u16, t: u16| PairSpec {
+            a,
+            b,
+            listen: SocketAddr::from(([127, 0, 0, 1], l)),
+            target: SocketAddr::from(([127, 0, 0, 1], t)),
+        };
+        let mut args = Args::new(
+            PathBuf::from("/tmp/run/scenario.toml"),
+            ZenohArgs {
+                connect: vec!["tcp/127.0.0.1:7447".into()],
+                ..ZenohArgs::default()
+            },
+        );
+        args.set = vec!["radio.bandwidth_bytes_per_s=500".into()];
+        args.pairs = vec![pair(0, 1, 7600, 7501), pair(1, 2, 7601, 7502)];
+        args.http = Some(SocketAddr::from(([127, 0, 0, 1], 8474)));
+        args.totals_out = Some(PathBuf::from("/tmp/run/link_totals.csv"));
+        for args in [
+            args.clone(),
+            Args::new(args.scenario.clone(), ZenohArgs::default()),
+        ] {
+            let argv = ["netem".to_string()].into_iter().chain(args.to_argv());
+            assert_eq!(Args::parse_from(argv), args);
         }
     }
 

@@ -8,6 +8,7 @@
 
 #[cfg(feature = "budget")]
 pub mod budget;
+pub mod exit;
 pub mod geom;
 pub mod grid;
 pub mod keys;

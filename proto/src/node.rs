@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use zenoh::Config;
 
 /// zenoh flags shared by every process (flattened into each binary's clap `Args`).
-#[derive(clap::Args, Clone, Debug, Default)]
+#[derive(clap::Args, Clone, Debug, Default, PartialEq)]
 pub struct ZenohArgs {
     /// Sim-plane endpoint to connect to: the world-server's router (clients), repeatable.
     #[arg(short = 'e', long = "connect", value_name = "ENDPOINT")]
@@ -47,6 +47,24 @@ impl ZenohArgs {
             self.config.as_deref(),
             &self.cfg,
         )
+    }
+
+    /// The flags that parse back into these arguments (for a process that starts another).
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut a = Vec::new();
+        for e in &self.connect {
+            a.extend(["--connect".into(), e.clone()]);
+        }
+        for e in &self.listen {
+            a.extend(["--listen".into(), e.clone()]);
+        }
+        if let Some(f) = &self.config {
+            a.extend(["--config".into(), f.to_string_lossy().into_owned()]);
+        }
+        for c in &self.cfg {
+            a.extend(["--cfg".into(), c.clone()]);
+        }
+        a
     }
 
     /// A client config that waits up to `wait_ms` for the router.
@@ -279,5 +297,25 @@ mod tests {
             .map(|e| e.to_string())
             .unwrap_or_default()
             .contains("/nonexistent.json5"));
+    }
+
+    #[test]
+    fn zenoh_flags_round_trip_through_to_argv() {
+        use clap::Parser;
+        #[derive(clap::Parser, Debug, PartialEq)]
+        struct Cli {
+            #[command(flatten)]
+            zenoh: ZenohArgs,
+        }
+        let z = ZenohArgs {
+            connect: vec!["tcp/127.0.0.1:1".into(), "tcp/127.0.0.1:2".into()],
+            listen: vec!["tcp/127.0.0.1:3".into()],
+            config: Some(PathBuf::from("/etc/z.json5")),
+            cfg: vec!["transport/link/tx/batch_size:1024".into()],
+        };
+        for z in [z, ZenohArgs::default()] {
+            let argv = std::iter::once("x".to_string()).chain(z.to_argv());
+            assert_eq!(Cli::parse_from(argv).zenoh, z);
+        }
     }
 }

@@ -15,7 +15,7 @@ use crate::node::{run_robot, world_info, End};
 /// One robot of swarm-explore: maps what its laser sees, shares it with the robots in radio
 /// range, and explores. Joins the world-server's sim plane as a client (--connect) and runs its
 /// own radio-plane peer (--radio-listen / --radio-connect). Normally started by `swarm run`.
-#[derive(Parser, Debug, Clone)]
+#[derive(Parser, Debug, Clone, PartialEq)]
 #[command(name = "robot-agent", version)]
 pub struct Args {
     /// This robot's id, 0..robots.count.
@@ -37,11 +37,55 @@ pub struct Args {
     #[arg(long = "radio-config", value_name = "FILE")]
     pub radio_config: Option<PathBuf>,
     /// Seconds without a scan after which the robot assumes the world is gone and exits.
-    #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
+    #[arg(long, default_value_t = IDLE_TIMEOUT_S, value_name = "SECONDS")]
     pub idle_timeout_s: f64,
     /// Sim-plane zenoh options (--connect the world-server's router).
     #[command(flatten)]
     pub zenoh: ZenohArgs,
+}
+
+/// Default of `--idle-timeout-s`.
+pub const IDLE_TIMEOUT_S: f64 = 60.0;
+
+impl Args {
+    /// Robot `id` of `scenario` with every other flag at its default.
+    pub fn new(id: RobotId, scenario: PathBuf, zenoh: ZenohArgs) -> Args {
+        Args {
+            id,
+            scenario,
+            set: Vec::new(),
+            radio_listen: Vec::new(),
+            radio_connect: Vec::new(),
+            radio_config: None,
+            idle_timeout_s: IDLE_TIMEOUT_S,
+            zenoh,
+        }
+    }
+
+    /// The flags that parse back into these arguments (how `swarm run` starts the process).
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut a = vec![
+            "--id".into(),
+            self.id.to_string(),
+            "--scenario".into(),
+            self.scenario.to_string_lossy().into_owned(),
+        ];
+        for s in &self.set {
+            a.extend(["--set".into(), s.clone()]);
+        }
+        for e in &self.radio_listen {
+            a.extend(["--radio-listen".into(), e.clone()]);
+        }
+        for e in &self.radio_connect {
+            a.extend(["--radio-connect".into(), e.clone()]);
+        }
+        if let Some(f) = &self.radio_config {
+            a.extend(["--radio-config".into(), f.to_string_lossy().into_owned()]);
+        }
+        a.extend(["--idle-timeout-s".into(), self.idle_timeout_s.to_string()]);
+        a.extend(self.zenoh.to_argv());
+        a
+    }
 }
 
 async fn run(args: Args) -> anyhow::Result<End> {
@@ -100,5 +144,29 @@ pub fn main(args: Args) -> ExitCode {
             eprintln!("robot-agent {id}: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_round_trip_through_to_argv() {
+        let mut args = Args::new(
+            3,
+            PathBuf::from("/tmp/run/scenario.toml"),
+            ZenohArgs {
+                connect: vec!["tcp/127.0.0.1:7447".into()],
+                ..ZenohArgs::default()
+            },
+        );
+        args.set = vec!["exchange.hello_every_steps=5".into()];
+        args.radio_listen = vec!["tcp/127.0.0.1:7503".into()];
+        args.radio_connect = vec!["tcp/127.0.0.1:7600".into(), "tcp/127.0.0.1:7601".into()];
+        args.radio_config = Some(PathBuf::from("radio.json5"));
+        args.idle_timeout_s = 0.25;
+        let argv = std::iter::once("robot-agent".to_string()).chain(args.to_argv());
+        assert_eq!(Args::parse_from(argv), args);
     }
 }

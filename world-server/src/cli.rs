@@ -1,6 +1,6 @@
 //! The world-server's command line: flags → validated scenario → [`crate::server::serve`].
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -9,13 +9,14 @@ use clap::Parser;
 use proto::node::{close_quickly, init_logging, zerr, ZenohArgs};
 use proto::scenario::Scenario;
 
+use crate::scenario::resolve;
 use crate::server::{serve, End, ServeOpts};
 use crate::world::World;
 
 /// The simulated world of swarm-explore: owns the truth map and the clock, casts every robot's
 /// laser scan and applies its moves. Runs a zenoh router for the sim plane that robots, netem
 /// and the launcher join as clients. Normally started by `swarm run`.
-#[derive(Parser, Debug, Clone)]
+#[derive(Parser, Debug, Clone, PartialEq)]
 #[command(name = "world-server", version)]
 pub struct Args {
     /// Scenario TOML file (see configs/default.toml for every key).
@@ -25,54 +26,49 @@ pub struct Args {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Seconds to wait for every robot to join before giving up.
-    #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
+    #[arg(long, default_value_t = STARTUP_TIMEOUT_S, value_name = "SECONDS")]
     pub startup_timeout_s: f64,
     #[command(flatten)]
     pub zenoh: ZenohArgs,
 }
 
-/// Where shipped maps live in the source tree (for runs from a checkout).
-pub const SHIPPED_MAPS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/maps");
+/// Default of `--startup-timeout-s`.
+pub const STARTUP_TIMEOUT_S: f64 = 60.0;
 
-/// Finds the map YAML of `world.map`: a path (relative to `base`), or a map name looked up in
-/// `base`, `base/maps`, `./configs/maps` and the source tree's `configs/maps`.
-pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<PathBuf> {
-    let direct = base.join(name);
-    if direct.is_file() {
-        return Ok(direct);
+impl Args {
+    /// A world-server of `scenario` with every other flag at its default.
+    pub fn new(scenario: PathBuf, zenoh: ZenohArgs) -> Args {
+        Args {
+            scenario,
+            set: Vec::new(),
+            startup_timeout_s: STARTUP_TIMEOUT_S,
+            zenoh,
+        }
     }
-    let file = format!("{name}.yaml");
-    let dirs = [
-        base.to_path_buf(),
-        base.join("maps"),
-        PathBuf::from("configs/maps"),
-        PathBuf::from(SHIPPED_MAPS),
-    ];
-    dirs.iter()
-        .map(|d| d.join(&file))
-        .find(|p| p.is_file())
-        .with_context(|| {
-            format!(
-                "world.map = {name:?}: no such map file, and no {file} in {}",
-                dirs.iter()
-                    .map(|d| d.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
-        })
+
+    /// The flags that parse back into these arguments (how `swarm run` starts the process).
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut a = vec![
+            "--scenario".into(),
+            self.scenario.to_string_lossy().into_owned(),
+        ];
+        for s in &self.set {
+            a.extend(["--set".into(), s.clone()]);
+        }
+        a.extend([
+            "--startup-timeout-s".into(),
+            self.startup_timeout_s.to_string(),
+        ]);
+        a.extend(self.zenoh.to_argv());
+        a
+    }
 }
 
 /// Builds the world of a scenario file (also used by tests and the launcher's dry checks).
 pub fn build_world(args: &Args) -> anyhow::Result<(Scenario, World)> {
-    let scenario = Scenario::load(&args.scenario, &args.set)?;
-    let base = args.scenario.parent().unwrap_or(Path::new("."));
-    let map = if scenario.world_is_generated() {
-        None
-    } else {
-        Some(locate_map(&scenario.world.map, base)?)
-    };
-    let world = World::build(&scenario, map.as_deref())?;
-    Ok((scenario, world))
+    let r = resolve(Some(&args.scenario), &args.set)?;
+    let world = World::build(&r.scenario, r.map_file.as_deref())?;
+    Ok((r.scenario, world))
 }
 
 async fn run(args: Args) -> anyhow::Result<End> {
@@ -113,5 +109,25 @@ pub fn main(args: Args) -> ExitCode {
             eprintln!("world-server: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_round_trip_through_to_argv() {
+        let mut args = Args::new(
+            PathBuf::from("/tmp/run/scenario.toml"),
+            ZenohArgs {
+                listen: vec!["tcp/127.0.0.1:7447".into()],
+                ..ZenohArgs::default()
+            },
+        );
+        args.set = vec!["robots.count=2".into(), "seed=3".into()];
+        args.startup_timeout_s = 2.5;
+        let argv = std::iter::once("world-server".to_string()).chain(args.to_argv());
+        assert_eq!(Args::parse_from(argv), args);
     }
 }

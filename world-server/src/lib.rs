@@ -17,6 +17,8 @@ pub mod map;
 pub mod motion;
 /// The reachable free region and spawn placement.
 pub mod reachable;
+/// A scenario made ready to run: file or default, overrides, the map found, the range.
+pub mod scenario;
 /// The clock and the sim-plane protocol over zenoh.
 pub mod server;
 /// The world's state and its step.

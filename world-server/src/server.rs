@@ -10,6 +10,7 @@
 use std::collections::{HashMap, HashSet};
 use std::time::Duration;
 
+use proto::exit::ExitReason;
 use proto::keys;
 use proto::msg::{decode, encode, Cmd, Control, RobotId, Step};
 use proto::node::{zerr, ZenohError};
@@ -24,16 +25,11 @@ use crate::world::World;
 /// How the world-server's loop ended.
 #[derive(Debug, PartialEq, Eq)]
 pub enum End {
-    /// The launcher (or anybody on the sim plane) sent [`Control::Stop`].
-    Stopped {
-        step: Step,
-    },
-    MaxSteps {
-        step: Step,
-    },
-    AllDead {
-        step: Step,
-    },
+    /// The launcher (or anybody on the sim plane) sent [`Control::Stop`]: the run ended for
+    /// a reason the world does not know.
+    Stopped { step: Step },
+    /// The world ended the run: [`ExitReason::MaxSteps`] or [`ExitReason::AllRobotsDead`].
+    Ended { step: Step, reason: ExitReason },
 }
 
 /// Options of the serve loop that are not part of the scenario.
@@ -154,11 +150,17 @@ pub async fn serve(
     put(&session, keys::STATUS, encode(&world.status(step))).await?;
     let end = loop {
         if step >= s.max_steps {
-            break End::MaxSteps { step };
+            break End::Ended {
+                step,
+                reason: ExitReason::MaxSteps,
+            };
         }
         let alive: Vec<RobotId> = world.alive().collect();
         if alive.is_empty() {
-            break End::AllDead { step };
+            break End::Ended {
+                step,
+                reason: ExitReason::AllRobotsDead,
+            };
         }
         let started = Instant::now();
         for &id in &alive {

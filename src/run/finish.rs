@@ -1,0 +1,186 @@
+//! The end of a run: everyone stopped and reaped, then the run directory written — the
+//! summary, the tables, the pictures and every robot's final grids.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use proto::exit::ExitReason;
+use proto::grid::Grid;
+use proto::keys;
+use proto::msg::{decode, encode, Control, LinkReport, Status};
+use zenoh::qos::CongestionControl;
+
+use super::follow::Record;
+use super::prepare::Plan;
+use super::spawn::Started;
+use crate::evaluate::Evaluator;
+use crate::progress::Progress;
+use crate::render::{robot_colour, Picture};
+use crate::rundir::{
+    bytes_by_type, coverage_steps, link_totals_wire, traffic_shares, write_links, write_metrics,
+    write_pgm, write_saves_and_views, write_traffic, Summary, SCHEMA_VERSION,
+};
+
+/// Tells everyone to stop, waits for every child (killing what does not stop), and collects the
+/// link reports that arrived meanwhile.
+pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) {
+    let Started {
+        mut children, sim, ..
+    } = run;
+    let _ = sim
+        .session
+        .put(keys::CONTROL, encode(&Control::Stop))
+        .congestion_control(CongestionControl::Block)
+        .await;
+    let killed = children.shutdown(Duration::from_secs(5)).await;
+    // Link reports that arrived while the processes were stopping.
+    while let Ok(Some(r)) = sim.link_reports.try_recv() {
+        if let Ok(r) = decode::<LinkReport>(&r.payload().to_bytes()) {
+            rec.links.add(r);
+        }
+    }
+    for name in killed {
+        progress.event(&format!(
+            "swarm run: {name} did not stop within 5 s and was killed"
+        ));
+    }
+    proto::node::close_quickly(sim.session).await;
+}
+
+/// `summary.json`'s content.
+pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Instant) -> Summary {
+    let eval = &rec.eval;
+    let last = rec.last_status.clone().unwrap_or(Status {
+        step: 0,
+        robots: Vec::new(),
+        collisions_total: 0,
+    });
+    let per_robot_types: Vec<Vec<u64>> = eval
+        .last
+        .values()
+        .map(|(_, t)| t.sent_by_type.clone())
+        .collect();
+    let by_type = bytes_by_type(&per_robot_types);
+    let (backlog_max_bytes, backlog_mean_bytes) = backlogs(eval);
+    Summary {
+        schema_version: SCHEMA_VERSION,
+        complete: eval.exploration_step.is_some(),
+        exit_reason,
+        robots: plan.robots(),
+        robots_alive_at_end: last.robots.iter().filter(|r| r.alive).count(),
+        steps: last.step,
+        wall_seconds: started.elapsed().as_secs_f64(),
+        exploration_steps: eval.exploration_step,
+        coverage_steps: coverage_steps(&eval.coverage_steps),
+        best_coverage_pct: eval.best.0,
+        reachable_cells: eval.reachable_cells(),
+        // netem's final counters when it wrote them (they include what crossed while the
+        // processes stopped), else the last per-step reports.
+        bytes_wire_total: Some(
+            link_totals_wire(&plan.dir.join("link_totals.csv"))
+                .unwrap_or_else(|| rec.links.wire_total()),
+        ),
+        bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum(),
+        traffic_shares_pct: traffic_shares(&by_type),
+        bytes_by_type: by_type,
+        splits_per_step_final: eval
+            .last
+            .iter()
+            .map(|(r, (_, t))| (r.to_string(), t.splits_per_step))
+            .collect(),
+        backlog_max_bytes,
+        backlog_mean_bytes,
+        approx_error_avg: approx_error_avg(eval),
+        logs_held: eval
+            .last
+            .iter()
+            .map(|(r, (_, t))| {
+                let held = t.logs.iter().map(|(o, n)| (o.to_string(), *n)).collect();
+                (r.to_string(), held)
+            })
+            .collect(),
+        collisions: last.collisions_total,
+        distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
+        radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
+        reconnect: (&rec.links.reconnects()).into(),
+        failed_processes: rec.failed.clone(),
+    }
+}
+
+/// The largest backlog over the run and its mean over robot-steps that had neighbours.
+fn backlogs(eval: &Evaluator) -> (u64, f64) {
+    let b: Vec<u64> = eval
+        .rows
+        .iter()
+        .filter(|r| r.neighbours > 0)
+        .map(|r| r.backlog_bytes)
+        .collect();
+    let mean = if b.is_empty() {
+        0.0
+    } else {
+        b.iter().sum::<u64>() as f64 / b.len() as f64
+    };
+    (b.iter().copied().max().unwrap_or(0), mean)
+}
+
+/// Mean over the robots of their own e_avg (polygon exchange only).
+fn approx_error_avg(eval: &Evaluator) -> Option<f64> {
+    let e: Vec<f64> = eval
+        .last
+        .values()
+        .filter_map(|(_, t)| t.approx_error_avg)
+        .collect();
+    (!e.is_empty()).then(|| e.iter().sum::<f64>() / e.len() as f64)
+}
+
+/// Writes the run directory's tables (the summary is written apart).
+pub fn write_tables(dir: &Path, rec: &Record) -> anyhow::Result<()> {
+    write_metrics(dir, &rec.eval.rows)?;
+    write_traffic(dir, &rec.eval.rows)?;
+    write_saves_and_views(dir, &rec.eval.saves, &rec.eval.views)?;
+    write_links(dir, &rec.links.rows)
+}
+
+/// `truth.png` with every trajectory, `robot_<id>.png` per robot, and every robot's final
+/// planning grid and G_s as maps (`grids/robot_<id>_{planning,own}.pgm`).
+pub fn write_pictures(
+    dir: &Path,
+    run_truth: (&Grid, proto::geom::MapInfo),
+    rec: &Record,
+    progress: &mut Progress,
+) -> anyhow::Result<()> {
+    let (truth, info) = run_truth;
+    let trajectories = &rec.trajectories;
+    let mut truth_pic = Picture::of_grid(truth, info);
+    for (i, t) in trajectories.iter().enumerate() {
+        truth_pic.path(t, robot_colour(i));
+        if let Some(&(x, y)) = t.first() {
+            truth_pic.marker(x, y, robot_colour(i));
+        }
+    }
+    truth_pic.save(&dir.join("truth.png"))?;
+    for (id, (grid, _)) in &rec.eval.last {
+        let mut pic = Picture::of_grid(grid, info);
+        let i = usize::from(*id);
+        if let Some(t) = trajectories.get(i) {
+            pic.path(t, robot_colour(i));
+            if let Some(&(x, y)) = t.last() {
+                pic.marker(x, y, robot_colour(i));
+            }
+        }
+        pic.save(&dir.join(format!("robot_{id}.png")))?;
+    }
+    let grids = dir.join("grids");
+    std::fs::create_dir_all(&grids).context("creating grids/")?;
+    for (id, (planning, t)) in &rec.eval.last {
+        write_pgm(&grids.join(format!("robot_{id}_planning.pgm")), planning)?;
+        match Grid::from_rle(&t.own_rle) {
+            Ok(own) => write_pgm(&grids.join(format!("robot_{id}_own.pgm")), &own)?,
+            Err(e) => progress.event(&format!(
+                "swarm run: robot {id}'s own grid is unreadable: {e}"
+            )),
+        }
+    }
+    Ok(())
+}

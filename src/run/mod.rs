@@ -1,0 +1,132 @@
+//! `swarm run`: one exploration run, every participant its own OS process.
+//!
+//! [`prepare`]: resolve the scenario, create the run directory, pick the ports →
+//! [`spawn`]: start the world-server (sim-plane router), join the sim plane, fetch the truth,
+//! start netem and the robots → [`follow`]: status and telemetry (evaluate, show progress,
+//! watch children) until done, the step limit, a failure or a signal → [`finish`]: stop
+//! everyone, reap every child, write the run directory.
+
+mod finish;
+mod follow;
+mod prepare;
+mod spawn;
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use crate::evaluate::Evaluator;
+use crate::progress::Progress;
+use crate::rundir::{write_summary, Summary};
+
+/// Flags of `swarm run`.
+#[derive(clap::Args, Debug, Clone, PartialEq)]
+pub struct RunArgs {
+    /// Scenario TOML file; without one, the embedded default (configs/default.toml: intel_lab, 4 robots).
+    pub scenario: Option<PathBuf>,
+    /// Run directory to write (default: runs/<time>-<map>-<N>r).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Override a scenario key, e.g. --set robots.count=8 --set world.map=office (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Print only the final summary, no progress.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+impl RunArgs {
+    /// The flags that parse back into these arguments (how `swarm sweep` starts its runs).
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut a = Vec::new();
+        if let Some(out) = &self.out {
+            a.extend(["--out".into(), out.to_string_lossy().into_owned()]);
+        }
+        for s in &self.set {
+            a.extend(["--set".into(), s.clone()]);
+        }
+        if self.quiet {
+            a.push("--quiet".into());
+        }
+        // Last, after `--`: a scenario path that starts with `-` is not taken for a flag.
+        if let Some(s) = &self.scenario {
+            a.extend(["--".into(), s.to_string_lossy().into_owned()]);
+        }
+        a
+    }
+}
+
+/// How a run ended, for the exit code.
+pub struct Outcome {
+    pub dir: PathBuf,
+    pub summary: Summary,
+}
+
+/// Runs one scenario to the end. The caller turns the outcome into an exit code.
+///
+/// Processes: the world-server (sim-plane router), netem (one proxy per robot pair, HTTP API
+/// on a free port written to `netem.addr`), and one robot-agent per robot.
+pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
+    let started = Instant::now();
+    let plan = prepare::prepare(&args)?;
+    let mut progress = Progress::new(args.quiet);
+    let mut run = spawn::start(&plan).await?;
+    let eval = Evaluator::new(
+        run.truth_grid.clone(),
+        &run.reachable,
+        plan.scenario.done_pct,
+    );
+    if !args.quiet {
+        eprintln!(
+            "swarm run: {} robots on {} ({} reachable free cells), run directory {}, netem API http://{}",
+            plan.robots(),
+            plan.name,
+            eval.reachable_cells(),
+            plan.dir.display(),
+            plan.ports.http_addr()
+        );
+    }
+    let mut rec = follow::Record::new(eval, plan.robots());
+    let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
+    let (truth, info) = (run.truth_grid.clone(), run.truth.map);
+    finish::stop(run, &mut rec, &mut progress).await;
+    let summary = finish::summary(&plan, &rec, exit_reason, started);
+    write_summary(&plan.dir, &summary)?;
+    finish::write_tables(&plan.dir, &rec)?;
+    finish::write_pictures(&plan.dir, (&truth, info), &rec, &mut progress)?;
+    Ok(Outcome {
+        dir: plan.dir,
+        summary,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        run: RunArgs,
+    }
+
+    #[test]
+    fn flags_round_trip_through_to_argv() {
+        let full = RunArgs {
+            scenario: Some(PathBuf::from("configs/experiments/../default.toml")),
+            out: Some(PathBuf::from("sweeps/x/runs/a=1-seed2")),
+            set: vec!["robots.count=3".into(), "seed=2".into()],
+            quiet: true,
+        };
+        let bare = RunArgs {
+            scenario: None,
+            out: None,
+            set: Vec::new(),
+            quiet: false,
+        };
+        for args in [full, bare] {
+            let argv = ["run".to_string()].into_iter().chain(args.to_argv());
+            assert_eq!(Cli::parse_from(argv).run, args);
+        }
+    }
+}

@@ -1,0 +1,212 @@
+//! Starting the processes of a run: the world-server (the sim plane's router) first, then —
+//! once the launcher has joined the sim plane, fetched the truth and subscribed to what it
+//! follows — netem and every robot-agent.
+
+use std::net::{Ipv4Addr, SocketAddr};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use netem::PairSpec;
+use proto::grid::Grid;
+use proto::keys;
+use proto::msg::{RobotId, TruthMap};
+use proto::node::{zerr, ZenohArgs};
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::Sample;
+use zenoh::Session;
+
+use super::prepare::Plan;
+use crate::children::{describe, Children};
+use crate::ports::endpoint;
+
+/// A sim-plane subscription of the launcher.
+pub type Sub = Subscriber<FifoChannelHandler<Sample>>;
+
+/// The launcher's side of the sim plane.
+pub struct Sim {
+    pub session: Session,
+    pub statuses: Sub,
+    pub telemetry: Sub,
+    pub link_reports: Sub,
+}
+
+/// A run whose processes are all started.
+pub struct Started {
+    pub children: Children,
+    pub sim: Sim,
+    pub truth: TruthMap,
+    pub truth_grid: Grid,
+    pub reachable: Grid,
+}
+
+/// Starts every process of the run.
+pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
+    let exe = std::env::current_exe().context("locating the swarm binary")?;
+    let mut children = Children::default();
+    children.spawn(
+        "world-server",
+        &exe,
+        &world_server_argv(plan),
+        &plan.log("world-server"),
+    )?;
+    let session = join_sim(&sim_client(plan), &mut children, &plan.dir).await?;
+    let truth = fetch_truth(&session, &mut children, &plan.dir).await?;
+    let truth_grid = Grid::from_rle(&truth.grid_rle).context("truth grid")?;
+    let reachable = Grid::from_rle(&truth.reachable_rle).context("reachable grid")?;
+    // Subscribed before the robots start, so that nothing they report is missed.
+    let sim = subscribe(session).await?;
+
+    // Radio plane: every robot pair {i, j} runs through netem's proxy for the pair: robot i
+    // connects to the proxy, netem forwards to robot j's radio listener. No robot is given
+    // another robot's radio endpoint.
+    children.spawn("netem", &exe, &netem_argv(plan), &plan.log("netem"))?;
+    std::fs::write(
+        plan.dir.join("netem.addr"),
+        format!("{}\n", plan.ports.http_addr()),
+    )
+    .context("writing netem.addr")?;
+    for i in 0..plan.robots() {
+        let name = format!("robot-{i}");
+        children.spawn(&name, &exe, &robot_argv(plan, i), &plan.log(&name))?;
+    }
+    Ok(Started {
+        children,
+        sim,
+        truth,
+        truth_grid,
+        reachable,
+    })
+}
+
+async fn subscribe(session: Session) -> anyhow::Result<Sim> {
+    let sub = |key: &'static str| {
+        let session = session.clone();
+        async move { session.declare_subscriber(key).await.map_err(zerr) }
+    };
+    Ok(Sim {
+        statuses: sub(keys::STATUS).await?,
+        telemetry: sub(keys::TELEMETRY_ALL).await?,
+        link_reports: sub(keys::NETEM_LINKS).await?,
+        session,
+    })
+}
+
+/// A client of the run's sim plane.
+fn sim_client(plan: &Plan) -> ZenohArgs {
+    ZenohArgs {
+        connect: vec![plan.ports.sim_endpoint()],
+        ..ZenohArgs::default()
+    }
+}
+
+fn world_server_argv(plan: &Plan) -> Vec<String> {
+    let router = ZenohArgs {
+        listen: vec![plan.ports.sim_endpoint()],
+        ..ZenohArgs::default()
+    };
+    let args = world_server::cli::Args::new(plan.scenario_file.clone(), router);
+    ["world-server".to_string()]
+        .into_iter()
+        .chain(args.to_argv())
+        .collect()
+}
+
+fn netem_argv(plan: &Plan) -> Vec<String> {
+    let loopback = |port| SocketAddr::from((Ipv4Addr::LOCALHOST, port));
+    let mut args = netem::cli::Args::new(plan.scenario_file.clone(), sim_client(plan));
+    args.http = Some(loopback(plan.ports.http));
+    args.totals_out = Some(plan.dir.join("link_totals.csv"));
+    args.pairs = (plan.ports.pairs.iter())
+        .map(|&(a, b, port)| PairSpec {
+            a,
+            b,
+            listen: loopback(port),
+            target: loopback(plan.ports.radio[usize::from(b)]),
+        })
+        .collect();
+    ["netem".to_string(), "serve".to_string()]
+        .into_iter()
+        .chain(args.to_argv())
+        .collect()
+}
+
+fn robot_argv(plan: &Plan, i: RobotId) -> Vec<String> {
+    let mut args = robot_agent::cli::Args::new(i, plan.scenario_file.clone(), sim_client(plan));
+    args.radio_listen = vec![endpoint(plan.ports.radio[usize::from(i)])];
+    args.radio_connect = (plan.ports.pairs.iter())
+        .filter(|&&(a, _, _)| a == i)
+        .map(|&(_, _, port)| endpoint(port))
+        .collect();
+    ["robot-agent".to_string()]
+        .into_iter()
+        .chain(args.to_argv())
+        .collect()
+}
+
+/// The last non-empty line of a child's log (its error message, when it failed).
+pub fn last_log_line(log: &Path) -> String {
+    std::fs::read_to_string(log)
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .rev()
+                .find(|l| !l.trim().is_empty())
+                .map(str::to_string)
+        })
+        .unwrap_or_else(|| format!("see {}", log.display()))
+}
+
+/// Fails with the child's own last words if any child has exited.
+fn check_started(children: &mut Children, dir: &Path) -> anyhow::Result<()> {
+    if let Some((name, _, status)) = children.newly_exited().into_iter().next() {
+        let why = last_log_line(&dir.join(format!("logs/{name}.log")));
+        bail!(
+            "{name} exited during start-up ({}): {why}",
+            describe(status)
+        );
+    }
+    Ok(())
+}
+
+/// Joins the sim plane in short attempts, watching the children meanwhile: a world-server that
+/// fails at start-up is reported with its own error, not as a connection time-out.
+async fn join_sim(
+    zargs: &ZenohArgs,
+    children: &mut Children,
+    dir: &Path,
+) -> anyhow::Result<Session> {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        check_started(children, dir)?;
+        match zenoh::open(zargs.client(500)?).await {
+            Ok(s) => return Ok(s),
+            Err(e) if Instant::now() > deadline => {
+                return Err(zerr(e)).context("joining the sim plane")
+            }
+            Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+        }
+    }
+}
+
+async fn fetch_truth(
+    session: &Session,
+    children: &mut Children,
+    dir: &Path,
+) -> anyhow::Result<TruthMap> {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        check_started(children, dir)?;
+        if let Some(t) = proto::node::query_once::<TruthMap>(session, keys::WORLD_TRUTH).await? {
+            return Ok(t);
+        }
+        if Instant::now() > deadline {
+            bail!(
+                "the world-server did not answer {} within 60 s",
+                keys::WORLD_TRUTH
+            );
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}

@@ -1,0 +1,159 @@
+//! A scenario made ready to run, the one way every entry point does it (`swarm run`, `swarm
+//! replay`, `swarm sweep`'s checks, the world-server): a file or the embedded default, with
+//! `--set` overrides; a map name found relative to the file's directory and made an absolute
+//! path; `radio.range_pct_of_diagonal` turned into `radio.range_m`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use proto::grid::Occ;
+use proto::scenario::Scenario;
+
+use crate::map::load_ros_map;
+
+/// The embedded default scenario (`configs/default.toml`).
+pub const DEFAULT_SCENARIO: &str = include_str!("../../configs/default.toml");
+
+/// Where shipped maps live in the source tree (for runs from a checkout).
+pub const SHIPPED_MAPS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/maps");
+
+/// A resolved scenario and its map file (`None` for a generated world).
+pub struct Resolved {
+    /// `world.map` is the map file's absolute path, unless the world is generated.
+    pub scenario: Scenario,
+    pub map_file: Option<PathBuf>,
+}
+
+impl Resolved {
+    /// The world's short name: the map file's stem, or the generated world's kind.
+    pub fn name(&self) -> String {
+        Path::new(&self.scenario.world.map)
+            .file_stem()
+            .map_or("run".into(), |n| n.to_string_lossy().into_owned())
+    }
+}
+
+/// Loads `file` (the embedded default without one), applies `set`, finds the map and computes
+/// the radio range a share of the diagonal asks for.
+pub fn resolve(file: Option<&Path>, set: &[String]) -> anyhow::Result<Resolved> {
+    let (mut s, base) = match file {
+        Some(p) => (
+            Scenario::load(p, set)?,
+            p.parent().unwrap_or(Path::new(".")).to_path_buf(),
+        ),
+        None => (
+            Scenario::from_toml(DEFAULT_SCENARIO, set)?,
+            PathBuf::from("."),
+        ),
+    };
+    let map_file = if s.world_is_generated() {
+        None
+    } else {
+        let map = locate_map(&s.world.map, &base)?;
+        let map = map
+            .canonicalize()
+            .with_context(|| format!("resolving {}", map.display()))?;
+        s.world.map = map.to_string_lossy().into_owned();
+        Some(map)
+    };
+    if let Some(pct) = s.radio.range_pct_of_diagonal {
+        s.radio.range_m = pct / 100.0 * environment_diagonal_m(&s, map_file.as_deref())?;
+    }
+    Ok(Resolved {
+        scenario: s,
+        map_file,
+    })
+}
+
+/// Finds the map YAML of `world.map`: a path (relative to `base`), or a map name looked up in
+/// `base`, `base/maps`, `./configs/maps` and the source tree's `configs/maps`.
+pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<PathBuf> {
+    let direct = base.join(name);
+    if direct.is_file() {
+        return Ok(direct);
+    }
+    let file = format!("{name}.yaml");
+    let dirs = [
+        base.to_path_buf(),
+        base.join("maps"),
+        PathBuf::from("configs/maps"),
+        PathBuf::from(SHIPPED_MAPS),
+    ];
+    dirs.iter()
+        .map(|d| d.join(&file))
+        .find(|p| p.is_file())
+        .with_context(|| {
+            format!(
+                "world.map = {name:?}: no such map file, and no {file} in {}",
+                dirs.iter()
+                    .map(|d| d.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })
+}
+
+/// The diagonal of the environment's rectangle: a generated world's extent, or the bounding box
+/// of a map's known (free or occupied) cells at the map's own resolution — the thesis's
+/// "maximum communication range".
+pub fn environment_diagonal_m(s: &Scenario, map_file: Option<&Path>) -> anyhow::Result<f64> {
+    let Some(path) = map_file else {
+        return Ok(s.world.width_m.hypot(s.world.height_m));
+    };
+    let map = load_ros_map(path)?;
+    let g = &map.grid;
+    let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
+    for (i, &v) in g.cells().iter().enumerate() {
+        if v != Occ::Unknown {
+            let c = g.cell_of(i);
+            (x0, y0) = (x0.min(c.x.unsigned_abs()), y0.min(c.y.unsigned_abs()));
+            (x1, y1) = (x1.max(c.x.unsigned_abs()), y1.max(c.y.unsigned_abs()));
+        }
+    }
+    if x0 > x1 {
+        bail!("{}: the map has no known cell", path.display());
+    }
+    let cells = f64::from(x1 - x0 + 1).hypot(f64::from(y1 - y0 + 1));
+    Ok(cells * map.info.resolution_m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_resolves_to_an_absolute_map_and_a_range_from_the_diagonal() {
+        let r = resolve(None, &["radio.range_pct_of_diagonal=50".into()])
+            .unwrap_or_else(|e| panic!("{e:#}"));
+        let map = r.map_file.clone().unwrap_or_default();
+        assert!(map.is_absolute() && map.is_file(), "{}", map.display());
+        assert_eq!(r.scenario.world.map, map.to_string_lossy());
+        let d = environment_diagonal_m(&r.scenario, Some(&map)).unwrap_or_default();
+        assert!(d > 1.0);
+        assert!((r.scenario.radio.range_m - d / 2.0).abs() < 1e-9);
+        assert_eq!(
+            r.name(),
+            map.file_stem().unwrap_or_default().to_string_lossy()
+        );
+    }
+
+    #[test]
+    fn a_generated_world_has_no_map_file_and_the_extent_as_diagonal() {
+        let set = [
+            "world.map=office".into(),
+            "world.width_m=30".into(),
+            "world.height_m=40".into(),
+            "radio.range_pct_of_diagonal=10".into(),
+        ];
+        let r = resolve(None, &set).unwrap_or_else(|e| panic!("{e:#}"));
+        assert!(r.map_file.is_none());
+        assert_eq!(r.name(), "office");
+        assert!((r.scenario.radio.range_m - 5.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn an_unknown_map_is_named() {
+        let err = resolve(None, &["world.map=no_such_map".into()]).err();
+        assert!(err.is_some_and(|e| e.to_string().contains("no_such_map")));
+    }
+}
