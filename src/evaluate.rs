@@ -1,4 +1,4 @@
-//! The evaluator (DESIGN.md §6): scores every robot's reported planning grid against the truth.
+//! The evaluator (docs/design.md §6): scores every robot's reported planning grid against the truth.
 //!
 //! Exploration time is the first step at which some robot knows at least `done_pct` % of the
 //! truth's reachable free cells (the thesis: the first robot that knows the full map); the

@@ -13,12 +13,12 @@ pub mod netemctl;
 pub mod plot;
 /// Free loopback ports.
 pub mod ports;
+/// Progress lines on stderr (`swarm run`, `swarm sweep`).
+pub mod progress;
 /// PNG pictures of grids and trajectories.
 pub mod render;
 /// `swarm replay`: one robot, no network, the mapping pipeline measured.
 pub mod replay;
-/// Progress lines on stderr (`swarm run`, `swarm sweep`).
-pub mod progress;
 /// A sweep's report: plots, tables, report.md.
 pub mod report;
 /// A sweep's results: runs.csv and results.csv (means, std, 95 % intervals).

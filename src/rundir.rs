@@ -1,4 +1,4 @@
-//! The run directory: a stable, documented schema users script against (DESIGN.md §6,
+//! The run directory: a stable, documented schema users script against (docs/design.md §6,
 //! documented in README.md). Names of files and fields do not change without a version bump
 //! ([`SCHEMA_VERSION`]).
 

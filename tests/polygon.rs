@@ -317,7 +317,11 @@ fn logs_converge_over_the_network_once_links_are_back() {
         x ^= x >> 7;
         x ^= x << 17;
         let (a, b) = pairs[(x % 6) as usize];
-        let kind = if (x >> 8) % 3 == 0 { "restore" } else { "cut" };
+        let kind = if (x >> 8).is_multiple_of(3) {
+            "restore"
+        } else {
+            "cut"
+        };
         text += &format!("[[faults]]\nstep = {step}\nkind = \"{kind}\"\npair = [{a}, {b}]\n");
     }
     for (a, b) in pairs {
@@ -403,7 +407,9 @@ fn polygons_against_raw_scans(map: &str, robots: u32) {
     // Per link and direction: a row counts what the kernel sent during the step, so a grant of
     // one step can show in the next (README, "A links.csv row"); over any 10 steps a link
     // carries at most 11 steps' budget, and no row more than two.
-    let mut series: BTreeMap<(String, String, &str), Vec<(f64, f64)>> = BTreeMap::new();
+    // (a, b, direction) → (step, bytes) rows.
+    type Series<'a> = BTreeMap<(String, String, &'a str), Vec<(f64, f64)>>;
+    let mut series: Series = BTreeMap::new();
     for l in &links {
         for d in ["bytes_a_to_b", "bytes_b_to_a"] {
             series

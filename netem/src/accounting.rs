@@ -1,5 +1,5 @@
 //! Byte accounting: what crossed each link in each direction, what is held inside netem, and the
-//! bound on the latter (DESIGN.md §5: "per direction it keeps counters (bytes, chunks) per step";
+//! bound on the latter (docs/design.md §5: "per direction it keeps counters (bytes, chunks) per step";
 //! "bounded buffers: when a link's budget is spent, netem stops reading from the sender").
 //!
 //! Every byte netem reads from a socket is first *reserved* in the `Buffer` of its connection

@@ -1,4 +1,4 @@
-//! The simulated clock that every shaping decision is made on (DESIGN.md §2, §5).
+//! The simulated clock that every shaping decision is made on (docs/design.md §2, §5).
 //!
 //! Bandwidth is specified in bytes per *simulated* second, latency in simulated milliseconds, so
 //! that the bytes that can cross a link per step do not depend on how fast the machine runs the

@@ -1,4 +1,4 @@
-//! Faults: the runtime and scheduled control vocabulary of netem (DESIGN.md §5 "Faults": cut /
+//! Faults: the runtime and scheduled control vocabulary of netem (docs/design.md §5 "Faults": cut /
 //! restore a pair, partition groups, blackhole, reset, bandwidth change, latency, corrupt bytes;
 //! "the names and semantics follow toxiproxy / tc netem, which users know").
 //!

@@ -1,4 +1,4 @@
-//! Runtime control over HTTP, in toxiproxy's model so that its clients and `curl` work (DESIGN.md
+//! Runtime control over HTTP, in toxiproxy's model so that its clients and `curl` work (docs/design.md
 //! §5 "Faults … injected at runtime through a control endpoint"; "names and semantics follow
 //! toxiproxy").
 //!

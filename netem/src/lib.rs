@@ -1,4 +1,4 @@
-//! netem: the link emulator of swarm-explore (DESIGN.md §5).
+//! netem: the link emulator of swarm-explore (docs/design.md §5).
 //!
 //! A byte-level proxy, not a simulator: one TCP listener per unordered robot pair {a, b}
 //! (a < b). Robot a's radio session connects to it; netem forwards to robot b's radio listener,

@@ -1,5 +1,5 @@
 //! One robot pair's link: its TCP proxy, its state (up or down, and why), its toxics and its
-//! counters (DESIGN.md §1, §5: "one listener per unordered pair {i, j}; a connection is forwarded
+//! counters (docs/design.md §1, §5: "one listener per unordered pair {i, j}; a connection is forwarded
 //! to robot max(i,j)'s radio listener").
 //!
 //! The structure is tokio's `examples/proxy.rs` — an accept loop that spawns one task per

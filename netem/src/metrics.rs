@@ -1,6 +1,6 @@
 //! The link counters for Prometheus (`GET /metrics`), so a Prometheus server or a plain `curl`
 //! can watch a run: bytes and chunks delivered per link and direction, bytes lost, bytes queued
-//! inside netem, and whether each link is up (DESIGN.md §5 "Publishes per-step link telemetry";
+//! inside netem, and whether each link is up (docs/design.md §5 "Publishes per-step link telemetry";
 //! the per-step view itself goes through `Netem::telemetry`).
 //!
 //! The exposition is the `prometheus-client` crate's (OpenMetrics text, which Prometheus scrapes

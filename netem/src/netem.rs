@@ -1,5 +1,5 @@
 //! The netem instance: configuration, start, the per-step entry point, telemetry, runtime control
-//! and shutdown (DESIGN.md §5). No zenoh here: the binary reads poses from the sim plane and calls
+//! and shutdown (docs/design.md §5). No zenoh here: the binary reads poses from the sim plane and calls
 //! `Netem::on_step`; this library moves bytes.
 //!
 //! `start` binds every pair's listener (and the HTTP API), so a port conflict is an error at

@@ -1,4 +1,4 @@
-//! Radio models: is a robot pair in communication range? (DESIGN.md §5 "Radio models".)
+//! Radio models: is a robot pair in communication range? (docs/design.md §5 "Radio models".)
 //!
 //! * `always`: unlimited range.
 //! * `disk`: in range iff the distance is at most `range_m` (the thesis, 001, 004).

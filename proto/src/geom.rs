@@ -1,7 +1,7 @@
 //! Metric geometry shared by every process: poses in metres and the map frame that converts
 //! between metres and grid cells.
 //!
-//! One vocabulary (see STYLE.md): [`crate::grid::Cell`] for integer grid indices, metres as
+//! One vocabulary: [`crate::grid::Cell`] for integer grid indices, metres as
 //! `f64` in [`Pose`] / [`MapInfo`] — never mixed silently.
 
 use serde::{Deserialize, Serialize};

@@ -3,7 +3,7 @@
 //! Sim plane (world-server ⇄ robots ⇄ launcher): [`WorldInfo`], [`TruthMap`], [`Scan`], [`Cmd`],
 //! [`Status`], [`Telemetry`], [`Control`]. Radio plane (robot ⇄ robot, through netem):
 //! [`Hello`] (the thesis's `conn` handshake) and [`ScanDelta`] (the `raw-scans` exchange of
-//! DESIGN.md §4.8). Every payload starts with [`PROTOCOL_VERSION`] so that mixed builds fail
+//! docs/design.md §4.8). Every payload starts with [`PROTOCOL_VERSION`] so that mixed builds fail
 //! loudly instead of misreading each other.
 
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
@@ -223,7 +223,7 @@ impl Traffic {
     }
 }
 
-/// netem → launcher, every step: the state of every robot pair's link (DESIGN.md §5).
+/// netem → launcher, every step: the state of every robot pair's link (docs/design.md §5).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LinkReport {
     pub step: Step,
@@ -314,7 +314,7 @@ pub struct LogDelta<R> {
 pub type ScanDelta = LogDelta<ScanRecord>;
 
 /// The cells of a robot's self-explored grid that one step changed, as shared in the
-/// `grid-snapshots` exchange (DESIGN.md §4.8): `cells` is a run of varints, each
+/// `grid-snapshots` exchange (docs/design.md §4.8): `cells` is a run of varints, each
 /// `(index gap) << 2 | state`, the gap counted from the previous changed cell's row-major index
 /// plus one (the first from 0), the state 0 unknown, 1 free, 2 occupied.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -1,8 +1,8 @@
 //! The process side shared by every binary: the zenoh arguments ([`ZenohArgs`], after zenoh's
-//! own `CommonArgs`, STYLE.md), the one place that turns them into a `zenoh::Config`, payload
+//! own `CommonArgs`), the one place that turns them into a `zenoh::Config`, payload
 //! helpers and logging.
 //!
-//! Two planes (DESIGN.md §1): the **sim plane** is a hub — the world-server runs a zenoh router,
+//! Two planes (docs/design.md §1): the **sim plane** is a hub — the world-server runs a zenoh router,
 //! everybody else joins it as a client. The **radio plane** is peer-to-peer with every form of
 //! scouting off: a robot listens on one endpoint and connects only to the endpoints the launcher
 //! (later: netem) gives it, so that no byte between robots takes another path.
@@ -236,7 +236,7 @@ pub fn sim_client(
 /// nothing else (no multicast, no gossip: peers learn no endpoint they were not given).
 /// Reconnects quickly (10 ms, backing off to 20 ms) so a link that comes back into range is used
 /// again within two steps in lockstep (measured: `reconnect` in summary.json; 50/200 ms took up
-/// to 10 steps). A refused attempt costs a loopback connect that netem resets at once. Tuned for slow links (DESIGN.md §1, "zenoh facts"): a batch is only counted when it has
+/// to 10 steps). A refused attempt costs a loopback connect that netem resets at once. Tuned for slow links (docs/design.md §1, "zenoh facts"): a batch is only counted when it has
 /// fully arrived, so batches are kept small ([`RADIO_BATCH_BYTES`]) for keep-alives to get
 /// through a 1 kB/s link well within the lease; messages are published with
 /// `CongestionControl::Drop` by the robot, never `Block`.

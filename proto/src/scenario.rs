@@ -1,7 +1,7 @@
 //! The scenario schema: one TOML file (plus `--set KEY=VALUE` overrides) fully determines a run
-//! together with its `seed` (DESIGN.md §6). Every key is documented in `configs/default.toml`.
+//! together with its `seed` (docs/design.md §6). Every key is documented in `configs/default.toml`.
 //!
-//! Loading is two explicit steps (STYLE.md, after ripgrep): the raw TOML table with overrides
+//! Loading is two explicit steps (after ripgrep's config loading): the raw TOML table with overrides
 //! applied is first checked key by key against the schema (unknown keys and wrong types are
 //! named with their full dotted path), then deserialized and range-checked
 //! ([`Scenario::validate`]). Every error is one line that names the key, the value and what is
@@ -149,7 +149,7 @@ pub enum ExchangeMode {
 }
 
 /// How the polygon exchange's splitting frequency s follows the bandwidth (thesis §5.3;
-/// DESIGN.md §4.7).
+/// docs/design.md §4.7).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Bandwidth {

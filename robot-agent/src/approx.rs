@@ -1,4 +1,4 @@
-//! Polygonal approximations A_t and their edge occupancy (thesis §3.4, §4.2.2; DESIGN §4.2).
+//! Polygonal approximations A_t and their edge occupancy (thesis §3.4, §4.2.2; docs/design.md §4.2).
 //!
 //! An [`Approximation`] is what a robot shares: objects keyed by a stable [`ObjectId`], each a
 //! polygon of P_t's points in P_t's order. Each [`Vertex`] carries f_occ of the edge that starts
@@ -18,7 +18,7 @@ use proto::grid::Occ;
 use crate::contour::{Contour, Contours, Kind};
 use crate::qpoint::QPoint;
 
-/// Identity of an object across steps (DESIGN §4.2): it persists while the object does.
+/// Identity of an object across steps (docs/design.md §4.2): it persists while the object does.
 pub type ObjectId = u32;
 
 /// A polygon vertex and f_occ of the edge from it to its successor.

@@ -1,4 +1,4 @@
-//! The polygon exchange (thesis §5.1, Algorithm 10 step 6; DESIGN.md §4.4): every robot's op log
+//! The polygon exchange (thesis §5.1, Algorithm 10 step 6; docs/design.md §4.4): every robot's op log
 //! of its incremental approximation (§4.2.3) travels over the transitive log exchange of
 //! [`crate::exchange`], as [`OpChunk`]s in the compact op encoding of [`crate::wire`]. For every
 //! other owner a robot keeps a [`Replica`] fed with that owner's ops in log order; what it

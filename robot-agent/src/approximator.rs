@@ -8,7 +8,7 @@
 //! that. The group also joins objects that merged. Then [`crate::refine`] splits edges at the
 //! splitting frequency s (§5.1.1): s accumulates, so s = 0.2 splits once every fifth step.
 //!
-//! Identity (DESIGN §4.2): an old object and a P_t object are matched greedily by how many
+//! Identity (docs/design.md §4.2): an old object and a P_t object are matched greedily by how many
 //! vertices they share, most first; a matched object keeps its id (and its first vertex, so
 //! unchanged objects give empty edit scripts), every other P_t object gets a fresh id.
 //!
@@ -200,7 +200,7 @@ mod tests {
     use crate::testutil::{arb_exploration, arb_grid, arb_grid_sequence, arb_map_window};
     use proptest::prelude::*;
 
-    /// DESIGN §4.2's validity: only P_t points, one object per P_t object with ≥ 2 vertices in
+    /// docs/design.md §4.2's validity: only P_t points, one object per P_t object with ≥ 2 vertices in
     /// P_t's cyclic order, kind and f_occ as P_t says.
     pub(crate) fn assert_valid(a: &Approximation, p: &Contours) {
         assert_eq!(

@@ -1,5 +1,5 @@
 //! Contour extraction: the exact polygonal model P_t of a ternary grid (thesis §4.1,
-//! Table 4.1, Algorithms 1–3; DESIGN §4.1).
+//! Table 4.1, Algorithms 1–3; docs/design.md §4.1).
 //!
 //! A *contour pixel* is an occupied or unknown cell with a free 4-neighbour. Every contour edge
 //! (between a contour pixel `c` and a free neighbour in direction `n`) gets an *auxiliary point*

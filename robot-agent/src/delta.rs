@@ -1,5 +1,5 @@
 //! Deltas between approximations and the op log with save points (thesis §4.2.3,
-//! Algorithms 4–5, §6.4 Table 6.1; DESIGN §4.3).
+//! Algorithms 4–5, §6.4 Table 6.1; docs/design.md §4.3).
 //!
 //! One step's change A_{t−1} → A_t is a list of [`Op`]s: per object whose vertices or kind
 //! changed a `chg` (or `em` for a new object, `rm` for a vanished one) that selects it, then the

@@ -1,4 +1,4 @@
-//! The transitive exchange of append-only logs (thesis §5.1.2, Algorithm 8; DESIGN.md §4.4), as
+//! The transitive exchange of append-only logs (thesis §5.1.2, Algorithm 8; docs/design.md §4.4), as
 //! a pure state machine generic over the record type: the caller moves the messages.
 //!
 //! Every robot keeps an append-only log of its own records and a copy of a prefix of every
@@ -110,7 +110,7 @@ impl<R: Clone> LogExchange<R> {
     /// one delta on the wire), and updates S optimistically for what is returned.
     ///
     /// Each delta carries a contiguous run of one owner's records that the peer lacks by S. Owners
-    /// go in policy order (DESIGN.md §4.4): largest lag first, ties → our own log, then the lowest
+    /// go in policy order (docs/design.md §4.4): largest lag first, ties → our own log, then the lowest
     /// id. Records are added while the deltas' total size stays within the budget; at the first
     /// record that does not fit, the call stops (later owners wait rather than overtake the
     /// policy). So a record larger than the whole budget blocks everything behind it until a call

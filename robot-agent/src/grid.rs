@@ -1,4 +1,4 @@
-//! Scan integration into the self-explored ternary grid G_s (thesis §4.1; DESIGN.md §4, step 1).
+//! Scan integration into the self-explored ternary grid G_s (thesis §4.1; docs/design.md §4, step 1).
 //!
 //! Every step a robot marks the cells along each laser beam free and the cell a beam stops in
 //! occupied. The thesis's contour extraction (§4.1) assumes that the free space seen from one pose

@@ -1,4 +1,4 @@
-//! The `grid-snapshots` baseline exchange (DESIGN.md §4.8): the transitive log exchange of
+//! The `grid-snapshots` baseline exchange (docs/design.md §4.8): the transitive log exchange of
 //! [`crate::exchange`] carrying, per step, the cells of the self-explored grid G_s that the
 //! step's scan changed (an incremental snapshot of the grid). Like raw scans it exists to
 //! measure the polygon exchange against; unlike them it costs nothing to integrate on receipt.

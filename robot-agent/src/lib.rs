@@ -1,4 +1,4 @@
-//! `robot-agent`: one robot of swarm-explore (DESIGN.md §4).
+//! `robot-agent`: one robot of swarm-explore (docs/design.md §4).
 //!
 //! The algorithms are pure modules, each named after its thesis concept: [`grid`] (scan
 //! integration), [`contour`] (P_t, §4.1), [`approx`] (A_t), [`approximator`] + [`refine`] (A_t
@@ -38,7 +38,7 @@ pub mod delta;
 pub mod exchange;
 /// Ternary self-explored grid: laser scan integration.
 pub mod grid;
-/// The grid-snapshots baseline exchange: per-step changed cells of G_s (DESIGN §4.8).
+/// The grid-snapshots baseline exchange: per-step changed cells of G_s (docs/design.md §4.8).
 pub mod grid_snapshots;
 /// The mapping pipeline: P_t → A_t → ops + save point, with its costs (Algorithm 10, 2–5).
 pub mod mapper;

@@ -1,4 +1,4 @@
-//! The mapping pipeline of one robot, thesis Algorithm 10 steps 2–5 (DESIGN.md §4): extract the
+//! The mapping pipeline of one robot, thesis Algorithm 10 steps 2–5 (docs/design.md §4): extract the
 //! exact polygonal model P_t of G_s (§4.1), derive and refine the approximation A_t (§4.2, §4.3),
 //! append the edit operations A_{t−1} → A_t and a save point to the own op log (§4.2.3), and
 //! measure what that costs on the wire (Table 6.1) and how far A_t is from G_s (eq. 6.1).

@@ -1,5 +1,5 @@
 //! The planning grid G_p: merging other robots' approximations with the self-explored grid
-//! G_s (thesis §5.2, Algorithm 9; DESIGN §4.5).
+//! G_s (thesis §5.2, Algorithm 9; docs/design.md §4.5).
 //!
 //! Principles: self-explored data wins; unknown space inside some robot's outside object stays
 //! unknown only if no robot whose inside object covers it knows better; occupied and free
@@ -18,7 +18,7 @@
 //! (5): they span contour pixels, which are never free, and drawing them free would invent a
 //! free ring beyond every frontier; left undefined they read unknown, so the merge of an
 //! unsimplified approximation reproduces G_s on every free cell and every cell 4-adjacent to
-//! one (DESIGN §4.1's exploration equivalence).
+//! one (docs/design.md §4.1's exploration equivalence).
 //!
 //! Steps (1)–(5) paint polygons onto cells and are shared with the rendering of a single
 //! approximation, so they live in [`crate::render`]; this module is Algorithm 9 itself: paint the

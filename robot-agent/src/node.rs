@@ -1,4 +1,4 @@
-//! The robot on its two zenoh planes (DESIGN.md §1): the sim plane (a client of the
+//! The robot on its two zenoh planes (docs/design.md §1): the sim plane (a client of the
 //! world-server's router: scans in, commands and telemetry out) and the radio plane (a peer with
 //! scouting off, linked only to the endpoints it was given: handshakes and log deltas). All
 //! decisions are [`crate::agent::Agent`]'s; this module only moves bytes between zenoh and the agent

@@ -1,5 +1,5 @@
 //! The op log and its save points, and a receiver's replica of another robot's approximation
-//! (thesis §4.2.3, §5.1.2; DESIGN §4.3).
+//! (thesis §4.2.3, §5.1.2; docs/design.md §4.3).
 //!
 //! Each robot appends every step's delta ([`crate::delta::diff`]) to its own append-only,
 //! indexed [`OpLog`]; each step ends with a save point. Receivers store other robots' logs as

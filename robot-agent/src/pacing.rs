@@ -1,4 +1,4 @@
-//! Pacing (DESIGN.md §4.4): a robot never offers a link more than its budget. Per neighbour, a
+//! Pacing (docs/design.md §4.4): a robot never offers a link more than its budget. Per neighbour, a
 //! byte budget on the **simulated** clock ([`proto::budget`], the one netem shapes links with too)
 //! meters the bytes the robot sends: the rate is the link's bandwidth, the burst a few steps of it
 //! (and at least one whole log entry, so an entry larger than one step's budget still goes every

@@ -1,4 +1,4 @@
-//! Path planning on a ternary grid: costs, frontiers, paths and waypoints (DESIGN.md §4.6, first
+//! Path planning on a ternary grid: costs, frontiers, paths and waypoints (docs/design.md §4.6, first
 //! paragraph; thesis §4.5).
 //!
 //! Every coordination strategy needs the same three things from the planning grid G_p: the cost

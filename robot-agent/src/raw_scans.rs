@@ -1,4 +1,4 @@
-//! The `raw-scans` baseline exchange (DESIGN.md §4.8): the transitive log exchange of
+//! The `raw-scans` baseline exchange (docs/design.md §4.8): the transitive log exchange of
 //! [`crate::exchange`] carrying laser scans.
 //!
 //! This is the classic approach of Burgard et al. (paper 001) that the polygon exchange is

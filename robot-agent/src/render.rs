@@ -163,7 +163,7 @@ pub fn render(a: &Approximation, width: u32, height: u32) -> Grid {
 
 /// G_s as any polygonal model can represent it: non-free cells with no free 4-neighbour
 /// (buried behind other non-free cells) read unknown. [`render`] of the unsimplified
-/// approximation equals exactly this (exploration equivalence, DESIGN §4.1).
+/// approximation equals exactly this (exploration equivalence, docs/design.md §4.1).
 pub fn exploration_view(g: &Grid) -> Grid {
     let (w, h) = (g.width() as usize, g.height() as usize);
     let cells = g.cells();

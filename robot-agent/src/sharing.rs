@@ -1,5 +1,5 @@
 //! What a robot shares over the radio and how its peers' shares become part of its planning
-//! grid (DESIGN.md §4.8; `exchange.mode`):
+//! grid (docs/design.md §4.8; `exchange.mode`):
 //!
 //! * `raw-scans` — the baseline: every robot's laser scans, relayed transitively; received
 //!   scans are integrated into a grid of the peers' knowledge (never overriding G_s).

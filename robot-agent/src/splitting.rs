@@ -1,5 +1,5 @@
 //! The splitting frequency s: how many Douglas–Peucker splits a robot's approximation gets per
-//! step (thesis §5.3; DESIGN.md §4.7). More splits give finer approximations and more bytes; s
+//! step (thesis §5.3; docs/design.md §4.7). More splits give finer approximations and more bytes; s
 //! is how the polygon exchange fits the bandwidth.
 //!
 //! * `formula` — thesis eq. 5.5, s = b·p_comm·u / (r(r−1)·d), with p_comm from eq. 5.6 unless
@@ -78,7 +78,7 @@ impl SplittingFrequency {
             s: cfg.splits_per_step,
         };
         if cfg.control != SplitControl::Fixed {
-            f.s = f.from_formula().unwrap_or(cfg.splits_per_step);
+            f.s = f.by_formula().unwrap_or(cfg.splits_per_step);
         }
         f
     }
@@ -94,7 +94,7 @@ impl SplittingFrequency {
     }
 
     /// Eq. 5.5 with the current d, within the bounds; the maximum under unlimited bandwidth.
-    fn from_formula(&self) -> Option<f64> {
+    fn by_formula(&self) -> Option<f64> {
         let Some(b) = self.budget else {
             return Some(self.max);
         };
@@ -117,7 +117,7 @@ impl SplittingFrequency {
         self.splits += splits as f64;
         self.bytes += bytes as f64;
         if self.control == SplitControl::Formula {
-            if let Some(s) = self.from_formula() {
+            if let Some(s) = self.by_formula() {
                 self.s = s;
             }
         }

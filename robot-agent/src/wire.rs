@@ -1,4 +1,4 @@
-//! The compact wire encoding of delta ops (thesis §6.4, Table 6.1; DESIGN §4.3).
+//! The compact wire encoding of delta ops (thesis §6.4, Table 6.1; docs/design.md §4.3).
 //!
 //! A chunk is a sequence of ops, each one header byte plus varints. The encoding is delta
 //! coded along the chunk, so consecutive ops — one object's edit script, emitted from its end

@@ -1,7 +1,7 @@
 //! Seeded map generators: `unstructured` (scattered obstacles, outdoor-like), `office` (rooms
 //! and corridors, no furniture) and `mixed` (a building amid scattered obstacles).
 //!
-//! DESIGN.md §3 lets a scenario generate its truth map from a seed instead of loading one, with
+//! docs/design.md §3 lets a scenario generate its truth map from a seed instead of loading one, with
 //! the three environment types of the thesis's experiments. A generated map is a closed world:
 //! an outer wall, everything else occupied or free (no unknown), and all free cells one
 //! 4-connected region, so that "explored everything reachable" is well defined. Two rules make

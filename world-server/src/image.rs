@@ -1,7 +1,7 @@
 //! Decoding map images (PGM P2/P5 and PNG) into a ternary [`Grid`], pixel by pixel as ROS
 //! `map_server` classifies them.
 //!
-//! DESIGN.md §3 has the world-server load "the format robotics users already have": a
+//! docs/design.md §3 has the world-server load "the format robotics users already have": a
 //! `map_server` YAML beside a PGM or PNG image. This module is the image half (the YAML half and
 //! the frame live in [`crate::map`]). Every colour pixel becomes one grey value in `0..=255`
 //! units by averaging its colour channels (alpha is not a colour), exactly like `map_server`'s

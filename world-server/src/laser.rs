@@ -1,6 +1,6 @@
 //! Simulated laser scans: exact ray casting through the truth grid.
 //!
-//! DESIGN.md §3: every step the world-server casts `beams` rays over the sensor's `fov` up to
+//! docs/design.md §3: every step the world-server casts `beams` rays over the sensor's `fov` up to
 //! `max_range` against the truth map, with optional Gaussian range noise. Rays walk the grid
 //! cell by cell with the Amanatides–Woo traversal, so no cell a ray crosses is skipped however
 //! steep or long the ray. A ray stops at the first cell that is not free: unknown cells of real

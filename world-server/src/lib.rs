@@ -1,4 +1,4 @@
-//! `world-server`: the simulated world of swarm-explore (DESIGN.md §3).
+//! `world-server`: the simulated world of swarm-explore (docs/design.md §3).
 //!
 //! Pure modules (no I/O but reading map files): [`map`], [`generate`], [`reachable`], [`laser`],
 //! [`motion`], [`world`]. The zenoh side: [`server`]; the command line: [`cli`].

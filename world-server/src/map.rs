@@ -1,6 +1,6 @@
 //! The truth map: loading ROS `map_server` maps and resampling them to the world's resolution.
 //!
-//! DESIGN.md §3: the world-server loads a truth map from a ROS `map_server` YAML plus PGM/PNG image
+//! docs/design.md §3: the world-server loads a truth map from a ROS `map_server` YAML plus PGM/PNG image
 //! (keys `image`, `resolution`, `origin`, `negate`, `occupied_thresh`, `free_thresh`, optional
 //! `mode`), then resamples it to `world.resolution_m` so that speeds and ranges are physical, not
 //! per-cell. Resampling is conservative: a coarse cell is occupied if any fine cell in it is, and

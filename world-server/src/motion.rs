@@ -1,6 +1,6 @@
 //! Robot motion: checking a requested waypoint against the truth map and the other robots.
 //!
-//! DESIGN.md §3: each step a robot asks for a waypoint within its speed along a collision-free
+//! docs/design.md §3: each step a robot asks for a waypoint within its speed along a collision-free
 //! straight segment; the world-server moves it there or rejects the move "into obstacles or other
 //! robots, and say why in the robot's next scan message" ([`MoveOutcome`]). A waypoint beyond
 //! the step length is not an error: the robot goes as far as it may in that direction, which is

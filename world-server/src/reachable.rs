@@ -1,7 +1,7 @@
 //! Connected free space: the reachable region of a map, its largest free component, clearance to
 //! obstacles, and where to spawn a cluster of robots.
 //!
-//! DESIGN.md §3 spawns robots by default "as a cluster in one free area, all in the same
+//! docs/design.md §3 spawns robots by default "as a cluster in one free area, all in the same
 //! connected free region", and §6 measures exploration against "the truth's reachable free
 //! cells" — the free cells 4-connected to the robots. Both need the same flood fill, so it lives
 //! here; map generation ([`crate::generate`]) uses it too, to guarantee one free region.

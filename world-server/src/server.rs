@@ -1,4 +1,4 @@
-//! The world-server on the sim plane: the clock (lockstep or realtime, DESIGN.md §2) driving
+//! The world-server on the sim plane: the clock (lockstep or realtime, docs/design.md §2) driving
 //! [`World`] over zenoh.
 //!
 //! Per step t: publish every live robot's scan for t; collect commands for t until all live

@@ -1,5 +1,5 @@
 //! The simulated world's state and its step: truth map, reachable region, robot bodies,
-//! laser scans and moves (DESIGN.md §3). Pure: the zenoh side lives in [`crate::server`].
+//! laser scans and moves (docs/design.md §3). Pure: the zenoh side lives in [`crate::server`].
 //!
 //! **Invariant:** the world-server alone owns ground truth; robots learn the world only through
 //! the scans this module casts.

@@ -1,4 +1,4 @@
-//! Bandwidth: bytes pass only as fast as a byte budget on the simulated clock allows (DESIGN.md
+//! Bandwidth: bytes pass only as fast as a byte budget on the simulated clock allows (docs/design.md
 //! §2, §5: "per-link rate (each direction) or shared medium (one budget for all links, the
 //! thesis's pessimistic model §5.1) via governor on the simulated clock").
 //!

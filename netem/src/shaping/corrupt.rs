@@ -1,6 +1,6 @@
 //! Corruption: flips one random bit in a byte with a given probability (our `corrupt` toxic, after
-//! `tc netem corrupt`; DESIGN.md §5 "corrupt bytes"). It exercises the receivers' promise that a
-//! payload that fails to decode is counted and never panics (DESIGN.md §1 "Wire format", §7).
+//! `tc netem corrupt`; docs/design.md §5 "corrupt bytes"). It exercises the receivers' promise that a
+//! payload that fails to decode is counted and never panics (docs/design.md §1 "Wire format", §7).
 //! Bytes are neither added nor removed, so the TCP stream stays the same length.
 
 use tokio::sync::{mpsc, watch};

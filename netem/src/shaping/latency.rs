@@ -1,5 +1,5 @@
 //! Latency and jitter: each piece is held until its send time plus a delay on the simulated clock
-//! (toxiproxy's `latency` toxic: `latency` ± uniform `jitter` milliseconds; DESIGN.md §5
+//! (toxiproxy's `latency` toxic: `latency` ± uniform `jitter` milliseconds; docs/design.md §5
 //! "optional latency + jitter").
 //!
 //! A TCP stream must not reorder, so a piece is never released before the one ahead of it:

@@ -1,6 +1,6 @@
-//! The shaping pipeline of one direction of one connection (DESIGN.md §5 "Shaping").
+//! The shaping pipeline of one direction of one connection (docs/design.md §5 "Shaping").
 //!
-//! After noxious / toxiproxy (STYLE.md, "The network side"): every network effect is one file
+//! After noxious / toxiproxy: every network effect is one file
 //! with one plain async function from an input stream of `Chunk`s to an output sink, reading its
 //! current parameters from a `watch` of `DirShape` so that faults apply to live connections:
 //!

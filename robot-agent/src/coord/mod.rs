@@ -1,4 +1,4 @@
-//! Coordination: which frontier a robot goes to (thesis §4.4–4.5, Burgard et al. §II; DESIGN.md
+//! Coordination: which frontier a robot goes to (thesis §4.4–4.5, Burgard et al. §II; docs/design.md
 //! §4.6). Pure functions over the planning grid, the frontiers and Dijkstra costs
 //! ([`crate::plan`]); the agent supplies what it heard from other robots.
 //!
