@@ -251,48 +251,66 @@ pub enum SinkEnd {
 /// A writer that can tell how many of the bytes written to it have not left yet — for a TCP
 /// socket, what waits in the kernel's send queue for the receiver's window.
 pub trait Unsent {
-    fn unsent(&self) -> usize {
-        0
+    /// How to ask later; [`UnsentProbe::NONE`] (the default) for writers that hand bytes over
+    /// at once.
+    fn probe(&self) -> UnsentProbe {
+        UnsentProbe::NONE
     }
 }
 
 impl Unsent for tokio::net::tcp::OwnedWriteHalf {
-    fn unsent(&self) -> usize {
-        unsent_bytes(self.as_ref())
+    fn probe(&self) -> UnsentProbe {
+        use std::os::fd::AsRawFd;
+        UnsentProbe(Some(self.as_ref().as_raw_fd()))
     }
 }
 
 /// In-memory streams (tests) hand bytes over at once.
 impl Unsent for tokio::io::DuplexStream {}
 
-/// Bytes written to `s` that the kernel has not sent yet (Linux `SIOCOUTQNSD`; 0 if unknown).
-#[allow(unsafe_code)]
-fn unsent_bytes(s: &tokio::net::TcpStream) -> usize {
-    use std::os::fd::AsRawFd;
-    // linux/sockios.h: SIOCOUTQNSD, "output queue size, not sent only".
-    const SIOCOUTQNSD: libc::Ioctl = 0x894B;
-    let mut n: libc::c_int = 0;
-    // SAFETY: the descriptor is open for as long as `s` is borrowed, and SIOCOUTQNSD writes
-    // exactly one c_int through the pointer, which points to `n`.
-    let r = unsafe { libc::ioctl(s.as_raw_fd(), SIOCOUTQNSD, &mut n as *mut libc::c_int) };
-    if r == 0 {
-        usize::try_from(n).unwrap_or(0)
-    } else {
-        0
+/// Asks a socket how much of what was written to it is still unsent. It holds the descriptor of
+/// a writer that [`sink`] borrows for its whole life, so it is only ever used while that
+/// descriptor is open — including from [`InKernel`]'s `Drop`, which runs inside `sink`.
+#[derive(Clone, Copy, Debug)]
+pub struct UnsentProbe(Option<std::os::fd::RawFd>);
+
+impl UnsentProbe {
+    pub const NONE: Self = Self(None);
+
+    /// Bytes written that the kernel has not sent yet (Linux `SIOCOUTQNSD`; 0 if unknown).
+    #[allow(unsafe_code)]
+    fn unsent(self) -> usize {
+        let Some(fd) = self.0 else {
+            return 0;
+        };
+        // linux/sockios.h: SIOCOUTQNSD, "output queue size, not sent only".
+        const SIOCOUTQNSD: libc::Ioctl = 0x894B;
+        let mut n: libc::c_int = 0;
+        // SAFETY: the descriptor belongs to the writer `sink` borrows, open while the probe is
+        // used (see the type's doc), and SIOCOUTQNSD writes exactly one c_int through the
+        // pointer, which points to `n`.
+        let r = unsafe { libc::ioctl(fd, SIOCOUTQNSD, &mut n as *mut libc::c_int) };
+        if r == 0 {
+            usize::try_from(n).unwrap_or(0)
+        } else {
+            0
+        }
     }
 }
 
 /// Bytes written to a socket that the kernel has not yet confirmed as sent. They are out of
 /// netem's buffer (the kernel holds them, bounded by the socket's send buffer) but counted only
-/// once sent; whatever is still unsent when this is dropped never left and counts as lost.
-#[derive(Default)]
+/// once sent. When this is dropped (the end of the sink, a cut) the socket is asked one last
+/// time: what left by then counts as delivered, what is still unsent as lost.
 struct InKernel {
     counters: Option<Arc<crate::accounting::DirCounters>>,
     bytes: usize,
+    probe: UnsentProbe,
 }
 
 impl Drop for InKernel {
     fn drop(&mut self) {
+        self.confirm();
         if let (Some(c), true) = (&self.counters, self.bytes > 0) {
             c.lost(self.bytes);
         }
@@ -300,6 +318,14 @@ impl Drop for InKernel {
 }
 
 impl InKernel {
+    fn new(probe: UnsentProbe) -> Self {
+        Self {
+            counters: None,
+            bytes: 0,
+            probe,
+        }
+    }
+
     fn push(&mut self, piece: Chunk) {
         let (n, counters) = piece.into_kernel();
         self.bytes += n;
@@ -309,8 +335,11 @@ impl InKernel {
     }
 
     /// Counts as delivered whatever of the written bytes has left the socket.
-    fn confirm<W: Unsent>(&mut self, writer: &W) {
-        let unsent = writer.unsent().min(self.bytes);
+    fn confirm(&mut self) {
+        if self.bytes == 0 {
+            return;
+        }
+        let unsent = self.probe.unsent().min(self.bytes);
         let sent = self.bytes - unsent;
         if sent > 0 {
             if let Some(c) = &self.counters {
@@ -322,14 +351,13 @@ impl InKernel {
 
     /// Waits until the kernel has sent everything written (true), or `gate` carries a kill
     /// (false: what is still unsent never leaves and counts as lost when `self` is dropped).
-    async fn drain<W: Unsent>(
+    async fn drain(
         &mut self,
-        writer: &W,
         gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>,
     ) -> bool {
         let mut polls = 0u32;
         loop {
-            self.confirm(writer);
+            self.confirm();
             if self.bytes == 0 {
                 return true;
             }
@@ -370,11 +398,12 @@ async fn cut(gate: &mut Option<watch::Receiver<Option<crate::faults::Kill>>>) {
 /// happened when the link is cut never happens (a socket write is cancel-safe).
 ///
 /// Bytes count as delivered once the kernel has *sent* them, not when it accepted them: after
-/// each write, and while it waits for the next chunk, the sink asks the socket how much of what
-/// it was given is still queued (`SIOCOUTQNSD`) and counts the rest. So the counters equal the
-/// TCP payload on the wire — what a reset discards from the send queue (a cut, a receiver that
-/// stopped reading and went away) never counted — and no byte is counted on a link after it
-/// was cut.
+/// each write, while it waits for the next chunk, and once more when it ends or is dropped (a
+/// cut), the sink asks the socket how much of what it was given is still queued
+/// (`SIOCOUTQNSD`) and counts the rest. So the counters equal the TCP payload on the wire: what
+/// a reset discards from the send queue (a cut, a receiver that stopped reading and went away)
+/// never counts, what the kernel sent just before a cut does, and nothing is written to a link
+/// after it was cut.
 pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
     mut input: mpsc::Receiver<Chunk>,
     writer: &mut W,
@@ -382,7 +411,7 @@ pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
     mut gate: Option<watch::Receiver<Option<crate::faults::Kill>>>,
 ) -> SinkEnd {
     let mut limit: Option<(u64, u64)> = None;
-    let mut in_kernel = InKernel::default();
+    let mut in_kernel = InKernel::new(writer.probe());
     loop {
         // Take the next chunk; while none is ready, finish counting what was written.
         let next = if in_kernel.bytes == 0 {
@@ -391,7 +420,7 @@ pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
             tokio::select! {
                 biased;
                 c = input.recv() => c,
-                drained = in_kernel.drain(&*writer, &mut gate) => {
+                drained = in_kernel.drain(&mut gate) => {
                     if !drained {
                         return SinkEnd::Eof;
                     }
@@ -433,16 +462,16 @@ pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
                 Ok(n) => in_kernel.push(chunk.split_to(n)),
                 Err(e) => return SinkEnd::Error(e.kind()),
             }
-            in_kernel.confirm(&*writer);
+            in_kernel.confirm();
         }
         if last {
-            if in_kernel.drain(&*writer, &mut gate).await {
+            if in_kernel.drain(&mut gate).await {
                 let _ = writer.shutdown().await;
             }
             return SinkEnd::LimitReached;
         }
     }
-    if in_kernel.drain(&*writer, &mut gate).await {
+    if in_kernel.drain(&mut gate).await {
         let _ = writer.shutdown().await;
     }
     SinkEnd::Eof
