@@ -8,7 +8,7 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 use proto::msg::RobotId;
-use proto::node::{close_quickly, init_logging, zerr, ZenohArgs};
+use proto::node::{close_quickly, init_logging, zerr, ScenarioArgs, ZenohArgs};
 use proto::scenario::Scenario;
 use serde::{Deserialize, Serialize};
 
@@ -24,12 +24,8 @@ use crate::node::{fetch_truth, follow, needs_truth};
 #[derive(Parser, Debug, Clone, PartialEq)]
 #[command(name = "netem", version)]
 pub struct Args {
-    /// Scenario TOML file (see configs/default.toml: [radio], [netem], [[faults]]).
-    #[arg(long, value_name = "FILE")]
-    pub scenario: PathBuf,
-    /// Override a scenario key, e.g. --set radio.bandwidth_bytes_per_s=500 (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
     /// A robot pair's proxy: `A-B=LISTEN>TARGET`, e.g. `0-1=127.0.0.1:7600>127.0.0.1:7501`:
     /// robot A (the lower id) connects to LISTEN, netem forwards to robot B's radio listener
     /// TARGET. Repeat for every pair.
@@ -51,8 +47,7 @@ impl Args {
     /// netem of `scenario` with every other flag at its default.
     pub fn new(scenario: PathBuf, zenoh: ZenohArgs) -> Args {
         Args {
-            scenario,
-            set: Vec::new(),
+            scenario: ScenarioArgs::file(scenario),
             pairs: Vec::new(),
             http: None,
             totals_out: None,
@@ -62,13 +57,7 @@ impl Args {
 
     /// The flags that parse back into these arguments (how `swarm run` starts `netem serve`).
     pub fn to_argv(&self) -> Vec<String> {
-        let mut a = vec![
-            "--scenario".into(),
-            self.scenario.to_string_lossy().into_owned(),
-        ];
-        for s in &self.set {
-            a.extend(["--set".into(), s.clone()]);
-        }
+        let mut a = self.scenario.to_argv();
         for p in &self.pairs {
             a.extend(["--pair".into(), p.to_string()]);
         }
@@ -191,7 +180,7 @@ pub fn parse_pair(s: &str) -> Result<PairSpec, String> {
 }
 
 async fn run(args: Args) -> anyhow::Result<()> {
-    let scenario = Scenario::load(&args.scenario, &args.set)?;
+    let scenario = Scenario::load(&args.scenario.file, &args.scenario.set)?;
     // Check the scenario's faults before joining anything.
     NetemConfig::from_scenario(&scenario, Vec::new(), None, None)?;
     let sim = zenoh::open(args.zenoh.client(20_000)?)
@@ -304,13 +293,13 @@ mod tests {
                 ..ZenohArgs::default()
             },
         );
-        args.set = vec!["radio.bandwidth_bytes_per_s=500".into()];
+        args.scenario.set = vec!["radio.bandwidth_bytes_per_s=500".into()];
         args.pairs = vec![pair(0, 1, 7600, 7501), pair(1, 2, 7601, 7502)];
         args.http = Some(SocketAddr::from(([127, 0, 0, 1], 8474)));
         args.totals_out = Some(PathBuf::from("/tmp/run/link_totals.csv"));
         for args in [
             args.clone(),
-            Args::new(args.scenario.clone(), ZenohArgs::default()),
+            Args::new(args.scenario.file.clone(), ZenohArgs::default()),
         ] {
             let argv = ["netem".to_string()].into_iter().chain(args.to_argv());
             assert_eq!(Args::parse_from(argv), args);

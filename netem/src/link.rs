@@ -562,7 +562,7 @@ async fn sleep_until_opt(clock: &SimClock, t: Option<SimTime>) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::shaping::Budget;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -637,7 +637,7 @@ mod tests {
     }
 
     /// Reads until EOF or error; true if the stream ended (EOF or reset) within `wait`.
-    async fn ends_within(s: &mut TcpStream, wait: Duration) -> bool {
+    pub(crate) async fn ends_within(s: &mut TcpStream, wait: Duration) -> bool {
         let mut buf = [0u8; 4096];
         let deadline = tokio::time::Instant::now() + wait;
         loop {

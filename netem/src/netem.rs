@@ -792,6 +792,7 @@ fn telemetry_row(step: Option<Step>, s: &LinkSnapshot, step_bytes: [u64; 2]) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::link::tests::ends_within;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
     use tokio::sync::mpsc;
@@ -861,18 +862,6 @@ mod tests {
             .expect("accepted in time")
             .unwrap();
         (s, t)
-    }
-
-    async fn ends_within(s: &mut TcpStream, wait: Duration) -> bool {
-        let mut buf = [0u8; 4096];
-        let deadline = tokio::time::Instant::now() + wait;
-        loop {
-            match tokio::time::timeout_at(deadline, s.read(&mut buf)).await {
-                Ok(Ok(0)) | Ok(Err(_)) => return true,
-                Ok(Ok(_)) => continue,
-                Err(_) => return false,
-            }
-        }
     }
 
     /// Writes forever into `s`.
@@ -1168,13 +1157,7 @@ mod tests {
             radio(RadioModel::Pathloss, 6.0, 0, Medium::PerLink),
         );
         let g = Grid::from_ascii("..#.....\n........\n");
-        let map = MapInfo {
-            width: g.width(),
-            height: g.height(),
-            resolution_m: 1.0,
-            origin_x_m: 0.0,
-            origin_y_m: 0.0,
-        };
+        let map = MapInfo::at_origin(g.width(), g.height(), 1.0);
         cfg.truth = Some((map, g));
         cfg.radio.pathloss_wall_attenuation_db = 10.0;
         let n = start(cfg).await.unwrap();

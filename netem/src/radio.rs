@@ -182,13 +182,7 @@ mod tests {
     use proptest::prelude::*;
 
     fn map(g: &Grid) -> MapInfo {
-        MapInfo {
-            width: g.width(),
-            height: g.height(),
-            resolution_m: 1.0,
-            origin_x_m: 0.0,
-            origin_y_m: 0.0,
-        }
+        MapInfo::at_origin(g.width(), g.height(), 1.0)
     }
 
     fn walls(pic: &str, a: (f64, f64), b: (f64, f64)) -> u32 {

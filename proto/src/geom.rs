@@ -28,6 +28,18 @@ pub struct MapInfo {
 }
 
 impl MapInfo {
+    /// A frame of `width × height` cells of `resolution_m` metres whose cell (0, 0) has its
+    /// lower-left corner at the world origin.
+    pub fn at_origin(width: u32, height: u32, resolution_m: f64) -> MapInfo {
+        MapInfo {
+            width,
+            height,
+            resolution_m,
+            origin_x_m: 0.0,
+            origin_y_m: 0.0,
+        }
+    }
+
     /// The cell containing a metric point (may lie outside the grid).
     pub fn cell_of(&self, x_m: f64, y_m: f64) -> Cell {
         Cell::new(

@@ -1,5 +1,5 @@
-//! The process side shared by every binary: the zenoh arguments ([`ZenohArgs`], after zenoh's
-//! own `CommonArgs`), the one place that turns them into a `zenoh::Config`, payload
+//! The process side shared by every binary: the scenario flags ([`ScenarioArgs`]), the zenoh
+//! arguments ([`ZenohArgs`], after zenoh's own `CommonArgs`), the one place that turns them into a `zenoh::Config`, payload
 //! helpers and logging.
 //!
 //! Two planes (docs/design.md §1): the **sim plane** is a hub — the world-server runs a zenoh router,
@@ -10,6 +10,39 @@
 use std::path::{Path, PathBuf};
 
 use zenoh::Config;
+
+/// The scenario flags shared by every process (flattened into each binary's clap `Args`).
+#[derive(clap::Args, Clone, Debug, Default, PartialEq)]
+pub struct ScenarioArgs {
+    /// Scenario TOML file (see configs/default.toml for every key).
+    #[arg(long = "scenario", value_name = "FILE")]
+    pub file: PathBuf,
+    /// Override a scenario key, e.g. --set robots.count=8 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+}
+
+impl ScenarioArgs {
+    /// The file with no overrides.
+    pub fn file(file: PathBuf) -> ScenarioArgs {
+        ScenarioArgs {
+            file,
+            set: Vec::new(),
+        }
+    }
+
+    /// The flags that parse back into these arguments.
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut a = vec![
+            "--scenario".into(),
+            self.file.to_string_lossy().into_owned(),
+        ];
+        for s in &self.set {
+            a.extend(["--set".into(), s.clone()]);
+        }
+        a
+    }
+}
 
 /// zenoh flags shared by every process (flattened into each binary's clap `Args`).
 #[derive(clap::Args, Clone, Debug, Default, PartialEq)]

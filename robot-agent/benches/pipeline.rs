@@ -47,13 +47,7 @@ fn window(map: &str, size: u32) -> (Grid, MapInfo) {
             );
         }
     }
-    let info = MapInfo {
-        width: w,
-        height: h,
-        resolution_m: m.info.resolution_m,
-        origin_x_m: 0.0,
-        origin_y_m: 0.0,
-    };
+    let info = MapInfo::at_origin(w, h, m.info.resolution_m);
     (g, info)
 }
 

@@ -18,7 +18,7 @@ use proto::msg::{Hello, LogDelta, OpChunk, RobotId, View};
 
 use crate::approx::Approximation;
 use crate::delta::Op;
-use crate::exchange::{DeltaOutcome, LogExchange};
+use crate::exchange::{DeltaOutcome, Handshake, LogExchange};
 use crate::oplog::Replica;
 use crate::wire::{self, WireError};
 
@@ -66,23 +66,6 @@ impl ApproxExchange {
         for &op in ops {
             self.logs.record_own(op);
         }
-    }
-
-    /// The handshake (`conn`): how many ops of each owner's log we hold.
-    pub fn knowledge(&self) -> Hello {
-        self.logs.knowledge()
-    }
-
-    pub fn on_hello(&mut self, h: &Hello) {
-        self.logs.on_hello(h);
-    }
-
-    pub fn link_up(&mut self, peer: RobotId) {
-        self.logs.link_up(peer);
-    }
-
-    pub fn link_down(&mut self, peer: RobotId) {
-        self.logs.link_down(peer);
     }
 
     /// The chunks to send `peer` now, within `budget_bytes` as measured by `size_of` (the size
@@ -190,16 +173,34 @@ impl ApproxExchange {
         self.logs.log(owner)
     }
 
-    /// Ops we hold that `peer` lacks by our sent-index table (`None` before its handshake).
-    pub fn lag(&self, peer: RobotId) -> Option<u64> {
-        self.logs.lag(peer)
-    }
-
     /// Encoded bytes of the ops we hold that `peer` lacks (one chunk per owner, headers aside):
     /// what waits for that link. `None` before its handshake.
     pub fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {
         self.logs
             .backlog(peer, |_, ops| wire::encode(ops).len() as u64)
+    }
+}
+
+/// The handshake is the op logs' (the approximations follow the logs).
+impl Handshake for ApproxExchange {
+    fn knowledge(&self) -> Hello {
+        self.logs.knowledge()
+    }
+
+    fn on_hello(&mut self, h: &Hello) {
+        self.logs.on_hello(h);
+    }
+
+    fn link_up(&mut self, peer: RobotId) {
+        self.logs.link_up(peer);
+    }
+
+    fn link_down(&mut self, peer: RobotId) {
+        self.logs.link_down(peer);
+    }
+
+    fn lag(&self, peer: RobotId) -> Option<u64> {
+        self.logs.lag(peer)
     }
 }
 

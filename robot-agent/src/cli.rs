@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 use proto::msg::RobotId;
-use proto::node::{close_quickly, init_logging, radio_peer, zerr, ZenohArgs};
+use proto::node::{close_quickly, init_logging, radio_peer, zerr, ScenarioArgs, ZenohArgs};
 use proto::scenario::Scenario;
 
 use crate::node::{run_robot, world_info, End};
@@ -21,12 +21,8 @@ pub struct Args {
     /// This robot's id, 0..robots.count.
     #[arg(long)]
     pub id: RobotId,
-    /// Scenario TOML file (see configs/default.toml for every key).
-    #[arg(long, value_name = "FILE")]
-    pub scenario: PathBuf,
-    /// Override a scenario key, e.g. --set exchange.hello_every_steps=5 (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
     /// Radio-plane endpoint this robot listens on, e.g. tcp/127.0.0.1:7500 (repeatable).
     #[arg(long = "radio-listen", value_name = "ENDPOINT")]
     pub radio_listen: Vec<String>,
@@ -52,8 +48,7 @@ impl Args {
     pub fn new(id: RobotId, scenario: PathBuf, zenoh: ZenohArgs) -> Args {
         Args {
             id,
-            scenario,
-            set: Vec::new(),
+            scenario: ScenarioArgs::file(scenario),
             radio_listen: Vec::new(),
             radio_connect: Vec::new(),
             radio_config: None,
@@ -64,15 +59,8 @@ impl Args {
 
     /// The flags that parse back into these arguments (how `swarm run` starts the process).
     pub fn to_argv(&self) -> Vec<String> {
-        let mut a = vec![
-            "--id".into(),
-            self.id.to_string(),
-            "--scenario".into(),
-            self.scenario.to_string_lossy().into_owned(),
-        ];
-        for s in &self.set {
-            a.extend(["--set".into(), s.clone()]);
-        }
+        let mut a = vec!["--id".into(), self.id.to_string()];
+        a.extend(self.scenario.to_argv());
         for e in &self.radio_listen {
             a.extend(["--radio-listen".into(), e.clone()]);
         }
@@ -89,7 +77,7 @@ impl Args {
 }
 
 async fn run(args: Args) -> anyhow::Result<End> {
-    let scenario = Scenario::load(&args.scenario, &args.set)?;
+    let scenario = Scenario::load(&args.scenario.file, &args.scenario.set)?;
     if args.id >= scenario.robots.count {
         anyhow::bail!(
             "--id {} is out of range: the scenario has robots.count = {}",
@@ -161,7 +149,7 @@ mod tests {
                 ..ZenohArgs::default()
             },
         );
-        args.set = vec!["exchange.hello_every_steps=5".into()];
+        args.scenario.set = vec!["exchange.hello_every_steps=5".into()];
         args.radio_listen = vec!["tcp/127.0.0.1:7503".into()];
         args.radio_connect = vec!["tcp/127.0.0.1:7600".into(), "tcp/127.0.0.1:7601".into()];
         args.radio_config = Some(PathBuf::from("radio.json5"));

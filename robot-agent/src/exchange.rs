@@ -67,45 +67,6 @@ impl<R: Clone> LogExchange<R> {
         self.logs.entry(self.me).or_default().push(rec);
     }
 
-    /// The handshake: how many records of each owner's log we hold.
-    pub fn knowledge(&self) -> Hello {
-        Hello {
-            from: self.me,
-            knowledge: self
-                .logs
-                .iter()
-                .map(|(&owner, log)| (owner, len_u32(log)))
-                .collect(),
-        }
-    }
-
-    /// Takes a peer's handshake as the truth about what it holds: its S row becomes exactly the
-    /// listed indices (owners it does not list are known up to 0). If an owner is listed twice,
-    /// the larger index counts. A handshake claiming to come from ourselves is ignored.
-    pub fn on_hello(&mut self, h: &Hello) {
-        if h.from == self.me {
-            return;
-        }
-        let mut row = BTreeMap::new();
-        for &(owner, index) in &h.knowledge {
-            let known = row.entry(owner).or_insert(0);
-            *known = index.max(*known);
-        }
-        self.sent.insert(h.from, row);
-    }
-
-    /// A link to `peer` came up. Nothing is assumed about the peer until its handshake arrives:
-    /// any S row from an earlier contact is forgotten.
-    pub fn link_up(&mut self, peer: RobotId) {
-        self.sent.remove(&peer);
-    }
-
-    /// The link to `peer` went down: forget its S row, since we cannot know which of the messages
-    /// in flight arrived. The next handshake re-establishes it.
-    pub fn link_down(&mut self, peer: RobotId) {
-        self.sent.remove(&peer);
-    }
-
     /// The deltas to send `peer` now, within `budget_bytes` as measured by `size_of` (the size of
     /// one delta on the wire), and updates S optimistically for what is returned.
     ///
@@ -208,6 +169,20 @@ impl<R: Clone> LogExchange<R> {
         }
     }
 
+    /// Takes a delta like [`Self::on_delta`], and returns with the outcome the records it
+    /// appended to another robot's log (none for our own log: we made those records).
+    pub fn take_delta(&mut self, d: &LogDelta<R>) -> (DeltaOutcome, &[R]) {
+        let outcome = self.on_delta(d);
+        let new = match &outcome {
+            DeltaOutcome::Appended { owner, new } if *owner != self.me => self
+                .log(*owner)
+                .get(new.start as usize..new.end as usize)
+                .unwrap_or_default(),
+            _ => &[],
+        };
+        (outcome, new)
+    }
+
     /// Drops `owner`'s records from index `len` on (records found to be corrupt); our next
     /// handshake asks for them again. Our own log is never cut.
     pub fn truncate(&mut self, owner: RobotId, len: u32) {
@@ -228,12 +203,6 @@ impl<R: Clone> LogExchange<R> {
         self.logs.keys().copied()
     }
 
-    /// How many records we hold that `peer` lacks by S — the per-peer backlog; `None` before
-    /// the peer's handshake.
-    pub fn lag(&self, peer: RobotId) -> Option<u64> {
-        self.backlog(peer, |_, recs| recs.len() as u64)
-    }
-
     /// What we hold that `peer` lacks by S, weighed per owner by `weigh` (given the lacking
     /// suffix of that owner's log; e.g. its encoded bytes); `None` before the peer's handshake.
     pub fn backlog(&self, peer: RobotId, weigh: impl Fn(RobotId, &[R]) -> u64) -> Option<u64> {
@@ -247,6 +216,68 @@ impl<R: Clone> LogExchange<R> {
                 })
                 .sum(),
         )
+    }
+}
+
+/// The handshake side of a log exchange (the thesis's `conn`), the same in every exchange mode:
+/// what we hold, what a peer holds, and the links that come and go.
+pub trait Handshake {
+    /// The handshake: how many records of each owner's log we hold.
+    fn knowledge(&self) -> Hello;
+    /// Takes a peer's handshake as the truth about what it holds.
+    fn on_hello(&mut self, h: &Hello);
+    /// A link to `peer` came up.
+    fn link_up(&mut self, peer: RobotId);
+    /// The link to `peer` went down.
+    fn link_down(&mut self, peer: RobotId);
+    /// How many records we hold that `peer` lacks; `None` before its handshake.
+    fn lag(&self, peer: RobotId) -> Option<u64>;
+}
+
+impl<R: Clone> Handshake for LogExchange<R> {
+    /// The handshake: how many records of each owner's log we hold.
+    fn knowledge(&self) -> Hello {
+        Hello {
+            from: self.me,
+            knowledge: self
+                .logs
+                .iter()
+                .map(|(&owner, log)| (owner, len_u32(log)))
+                .collect(),
+        }
+    }
+
+    /// Takes a peer's handshake as the truth about what it holds: its S row becomes exactly the
+    /// listed indices (owners it does not list are known up to 0). If an owner is listed twice,
+    /// the larger index counts. A handshake claiming to come from ourselves is ignored.
+    fn on_hello(&mut self, h: &Hello) {
+        if h.from == self.me {
+            return;
+        }
+        let mut row = BTreeMap::new();
+        for &(owner, index) in &h.knowledge {
+            let known = row.entry(owner).or_insert(0);
+            *known = index.max(*known);
+        }
+        self.sent.insert(h.from, row);
+    }
+
+    /// A link to `peer` came up. Nothing is assumed about the peer until its handshake arrives:
+    /// any S row from an earlier contact is forgotten.
+    fn link_up(&mut self, peer: RobotId) {
+        self.sent.remove(&peer);
+    }
+
+    /// The link to `peer` went down: forget its S row, since we cannot know which of the messages
+    /// in flight arrived. The next handshake re-establishes it.
+    fn link_down(&mut self, peer: RobotId) {
+        self.sent.remove(&peer);
+    }
+
+    /// How many records we hold that `peer` lacks by S — the per-peer backlog; `None` before
+    /// the peer's handshake.
+    fn lag(&self, peer: RobotId) -> Option<u64> {
+        self.backlog(peer, |_, recs| recs.len() as u64)
     }
 }
 

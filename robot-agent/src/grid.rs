@@ -301,8 +301,37 @@ fn trace(
     })
 }
 
+/// A box world for the tests of the modules that integrate scans: a `w × h` grid whose ring of
+/// border cells is wall, and the ranges the world-server's laser measures in it.
+#[cfg(test)]
+pub(crate) mod box_world {
+    use proto::grid::Cell;
+
+    /// A `w × h` box: a ring of wall cells around a free interior `[1, w-1) × [1, h-1)`.
+    pub fn is_wall(c: Cell, w: i32, h: i32) -> bool {
+        c.x == 0 || c.y == 0 || c.x == w - 1 || c.y == h - 1
+    }
+
+    /// The world-server's range for a beam inside the box: the distance (metres) at which the ray
+    /// enters a wall cell, or `max_range_m` when that is farther.
+    pub fn box_range(p: (f64, f64), angle: f64, w: i32, h: i32, res: f64, max_range_m: f64) -> f32 {
+        let exit = |p: f64, d: f64, hi: i32| {
+            if d > 0.0 {
+                (f64::from(hi - 1) - p) / d
+            } else if d < 0.0 {
+                (1.0 - p) / d
+            } else {
+                f64::INFINITY
+            }
+        };
+        let t = exit(p.0, angle.cos(), w).min(exit(p.1, angle.sin(), h));
+        (t * res).min(max_range_m) as f32
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    use super::box_world::{box_range, is_wall};
     use super::*;
     use proptest::prelude::*;
     use std::collections::{BTreeSet, VecDeque};
@@ -310,13 +339,7 @@ mod tests {
 
     /// A frame of one-metre cells at the origin, so that metres read as cells in the tests.
     fn unit_frame(g: &Grid) -> MapInfo {
-        MapInfo {
-            width: g.width(),
-            height: g.height(),
-            resolution_m: 1.0,
-            origin_x_m: 0.0,
-            origin_y_m: 0.0,
-        }
+        MapInfo::at_origin(g.width(), g.height(), 1.0)
     }
 
     fn one_beam(max_range_m: f64) -> LaserSpec {
@@ -554,27 +577,6 @@ mod tests {
         };
         assert!(integrate_scan(&mut g, &info, pose, &ranges, &spec) > 0);
         assert_eq!(integrate_scan(&mut g, &info, pose, &ranges, &spec), 0);
-    }
-
-    /// A `w × h` box: a ring of wall cells around a free interior `[1, w-1) × [1, h-1)`.
-    fn is_wall(c: Cell, w: i32, h: i32) -> bool {
-        c.x == 0 || c.y == 0 || c.x == w - 1 || c.y == h - 1
-    }
-
-    /// The world-server's range for a beam inside the box: the distance (metres) at which the ray
-    /// enters a wall cell, or `max_range_m` when that is farther.
-    fn box_range(p: (f64, f64), angle: f64, w: i32, h: i32, res: f64, max_range_m: f64) -> f32 {
-        let exit = |p: f64, d: f64, hi: i32| {
-            if d > 0.0 {
-                (f64::from(hi - 1) - p) / d
-            } else if d < 0.0 {
-                (1.0 - p) / d
-            } else {
-                f64::INFINITY
-            }
-        };
-        let t = exit(p.0, angle.cos(), w).min(exit(p.1, angle.sin(), h));
-        (t * res).min(max_range_m) as f32
     }
 
     /// The free cells 4-connected to `from`.

@@ -320,13 +320,7 @@ mod tests {
     fn world() -> (Scenario, WorldInfo) {
         let s = Scenario::default();
         let world = WorldInfo {
-            map: MapInfo {
-                width: 20,
-                height: 20,
-                resolution_m: 0.2,
-                origin_x_m: 0.0,
-                origin_y_m: 0.0,
-            },
+            map: MapInfo::at_origin(20, 20, 0.2),
             laser: s.laser(),
             step_seconds: s.clock.step_seconds,
             robots: 2,

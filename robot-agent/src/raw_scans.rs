@@ -125,7 +125,8 @@ fn f32_below(v: f64) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::exchange::DeltaOutcome;
+    use crate::exchange::{DeltaOutcome, Handshake};
+    use crate::grid::box_world::box_range;
     use crate::grid::integrate_scan;
     use proptest::prelude::*;
     use proto::geom::MapInfo;
@@ -559,21 +560,8 @@ mod tests {
     /// The world-server's ranges for a robot at `p` (cells) inside a `w × h` box of 0.1 m cells
     /// whose ring of border cells is wall.
     fn box_ranges(p: (f64, f64), theta: f64, w: i32, h: i32, spec: &LaserSpec) -> Vec<f32> {
-        let exit = |p: f64, d: f64, hi: i32| {
-            if d > 0.0 {
-                (f64::from(hi - 1) - p) / d
-            } else if d < 0.0 {
-                (1.0 - p) / d
-            } else {
-                f64::INFINITY
-            }
-        };
         (0..spec.beams)
-            .map(|i| {
-                let a = theta + spec.beam_angle(i);
-                let t = exit(p.0, a.cos(), w).min(exit(p.1, a.sin(), h));
-                (t * 0.1).min(spec.max_range_m) as f32
-            })
+            .map(|i| box_range(p, theta + spec.beam_angle(i), w, h, 0.1, spec.max_range_m))
             .collect()
     }
 
@@ -588,13 +576,7 @@ mod tests {
             theta in -3.2f64..3.2,
         ) {
             let (w, h) = (60, 40);
-            let info = MapInfo {
-                width: w as u32,
-                height: h as u32,
-                resolution_m: 0.1,
-                origin_x_m: 0.0,
-                origin_y_m: 0.0,
-            };
+            let info = MapInfo::at_origin(w as u32, h as u32, 0.1);
             let spec = LaserSpec { beams: 360, fov_rad: TAU, max_range_m: 8.0, noise_std_m: 0.0 };
             let pose = Pose { x: px * 0.1, y: py * 0.1, theta };
             let ranges = box_ranges((px, py), theta, w, h, &spec);

@@ -177,13 +177,7 @@ mod tests {
     use world_server::{laser, motion};
 
     fn map(width: u32, height: u32) -> MapInfo {
-        MapInfo {
-            width,
-            height,
-            resolution_m: 0.2,
-            origin_x_m: 0.0,
-            origin_y_m: 0.0,
-        }
+        MapInfo::at_origin(width, height, 0.2)
     }
 
     fn collision(with: RobotId, at: Cell, info: &MapInfo) -> MoveOutcome {

@@ -24,7 +24,7 @@ use proto::msg::{
 use proto::scenario::{ExchangeMode, RadioModel, Scenario};
 
 use crate::approx_exchange::ApproxExchange;
-use crate::exchange::DeltaOutcome;
+use crate::exchange::{DeltaOutcome, Handshake, LogExchange};
 use crate::grid::Evidence;
 use crate::grid_snapshots::{apply_patch, patch_of, GridPatchExchange};
 use crate::mapper::Mapper;
@@ -103,14 +103,31 @@ pub trait Sharing: Send {
     /// changed).
     fn after_scan(&mut self, scan: &Scan, laser: &LaserSpec, own: &Grid, changed: &[Cell]);
 
+    /// The exchange's handshake side (`conn`), the same in every mode.
+    fn handshake(&self) -> &dyn Handshake;
+    fn handshake_mut(&mut self) -> &mut dyn Handshake;
+
     /// The knowledge vector (`conn`).
-    fn knowledge(&self) -> Hello;
-    fn on_hello(&mut self, h: &Hello);
-    fn link_up(&mut self, peer: RobotId);
-    fn link_down(&mut self, peer: RobotId);
+    fn knowledge(&self) -> Hello {
+        self.handshake().knowledge()
+    }
+
+    fn on_hello(&mut self, h: &Hello) {
+        self.handshake_mut().on_hello(h)
+    }
+
+    fn link_up(&mut self, peer: RobotId) {
+        self.handshake_mut().link_up(peer)
+    }
+
+    fn link_down(&mut self, peer: RobotId) {
+        self.handshake_mut().link_down(peer)
+    }
 
     /// How many log entries we hold that `peer` lacks (`None` before its handshake).
-    fn lag(&self, peer: RobotId) -> Option<u64>;
+    fn lag(&self, peer: RobotId) -> Option<u64> {
+        self.handshake().lag(peer)
+    }
 
     /// What to send `peer` now within `budget` bytes (as encoded on the radio).
     fn outgoing(&mut self, peer: RobotId, budget: usize) -> Vec<Share>;
@@ -204,6 +221,13 @@ fn overlay(others: &Grid, own: &Grid) -> Grid {
     g
 }
 
+/// Encoded bytes of the records we hold that `peer` lacks (`None` before its handshake).
+fn encoded_backlog<R: Clone + serde::Serialize>(ex: &LogExchange<R>, peer: RobotId) -> Option<u64> {
+    ex.backlog(peer, |_, recs| {
+        recs.iter().map(|r| encode(r).len() as u64).sum()
+    })
+}
+
 /// `raw-scans`: every robot's laser scans, relayed transitively; received scans are integrated
 /// into a grid of the peers' knowledge.
 pub struct RawScans {
@@ -221,24 +245,12 @@ impl Sharing for RawScans {
         }
     }
 
-    fn knowledge(&self) -> Hello {
-        self.exchange.knowledge()
+    fn handshake(&self) -> &dyn Handshake {
+        &self.exchange
     }
 
-    fn on_hello(&mut self, h: &Hello) {
-        self.exchange.on_hello(h)
-    }
-
-    fn link_up(&mut self, peer: RobotId) {
-        self.exchange.link_up(peer)
-    }
-
-    fn link_down(&mut self, peer: RobotId) {
-        self.exchange.link_down(peer)
-    }
-
-    fn lag(&self, peer: RobotId) -> Option<u64> {
-        self.exchange.lag(peer)
+    fn handshake_mut(&mut self) -> &mut dyn Handshake {
+        &mut self.exchange
     }
 
     fn outgoing(&mut self, peer: RobotId, budget: usize) -> Vec<Share> {
@@ -250,19 +262,11 @@ impl Sharing for RawScans {
         let Share::Scans(d) = s else {
             return Err("a share of another exchange mode".into());
         };
-        let first_new = self.exchange.log(d.owner).len();
-        let outcome = self.exchange.on_delta(d);
-        if matches!(outcome, DeltaOutcome::Appended { .. }) && d.owner != self.exchange.id() {
-            for rec in self
-                .exchange
-                .log(d.owner)
-                .get(first_new..)
-                .unwrap_or_default()
-            {
-                let (pose, ranges) = scan_ranges(rec, laser);
-                self.evidence
-                    .integrate(&mut self.others, map, pose, &ranges, laser);
-            }
+        let (outcome, new) = self.exchange.take_delta(d);
+        for rec in new {
+            let (pose, ranges) = scan_ranges(rec, laser);
+            self.evidence
+                .integrate(&mut self.others, map, pose, &ranges, laser);
         }
         Ok(matches!(outcome, DeltaOutcome::Gap { .. }))
     }
@@ -272,9 +276,7 @@ impl Sharing for RawScans {
     }
 
     fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {
-        self.exchange.backlog(peer, |_, recs| {
-            recs.iter().map(|r| encode(r).len() as u64).sum()
-        })
+        encoded_backlog(&self.exchange, peer)
     }
 }
 
@@ -296,24 +298,12 @@ impl Sharing for Polygon {
         self.exchange.record_own(self.mapper.log().since(first));
     }
 
-    fn knowledge(&self) -> Hello {
-        self.exchange.knowledge()
+    fn handshake(&self) -> &dyn Handshake {
+        &self.exchange
     }
 
-    fn on_hello(&mut self, h: &Hello) {
-        self.exchange.on_hello(h)
-    }
-
-    fn link_up(&mut self, peer: RobotId) {
-        self.exchange.link_up(peer)
-    }
-
-    fn link_down(&mut self, peer: RobotId) {
-        self.exchange.link_down(peer)
-    }
-
-    fn lag(&self, peer: RobotId) -> Option<u64> {
-        self.exchange.lag(peer)
+    fn handshake_mut(&mut self) -> &mut dyn Handshake {
+        &mut self.exchange
     }
 
     fn outgoing(&mut self, peer: RobotId, budget: usize) -> Vec<Share> {
@@ -378,24 +368,12 @@ impl Sharing for GridSnapshots {
         }
     }
 
-    fn knowledge(&self) -> Hello {
-        self.exchange.knowledge()
+    fn handshake(&self) -> &dyn Handshake {
+        &self.exchange
     }
 
-    fn on_hello(&mut self, h: &Hello) {
-        self.exchange.on_hello(h)
-    }
-
-    fn link_up(&mut self, peer: RobotId) {
-        self.exchange.link_up(peer)
-    }
-
-    fn link_down(&mut self, peer: RobotId) {
-        self.exchange.link_down(peer)
-    }
-
-    fn lag(&self, peer: RobotId) -> Option<u64> {
-        self.exchange.lag(peer)
+    fn handshake_mut(&mut self) -> &mut dyn Handshake {
+        &mut self.exchange
     }
 
     fn outgoing(&mut self, peer: RobotId, budget: usize) -> Vec<Share> {
@@ -407,17 +385,9 @@ impl Sharing for GridSnapshots {
         let Share::Patches(d) = s else {
             return Err("a share of another exchange mode".into());
         };
-        let first_new = self.exchange.log(d.owner).len();
-        let outcome = self.exchange.on_delta(d);
-        if matches!(outcome, DeltaOutcome::Appended { .. }) && d.owner != self.exchange.id() {
-            for p in self
-                .exchange
-                .log(d.owner)
-                .get(first_new..)
-                .unwrap_or_default()
-            {
-                apply_patch(&mut self.others, p).map_err(|e| e.to_string())?;
-            }
+        let (outcome, new) = self.exchange.take_delta(d);
+        for p in new {
+            apply_patch(&mut self.others, p).map_err(|e| e.to_string())?;
         }
         Ok(matches!(outcome, DeltaOutcome::Gap { .. }))
     }
@@ -427,8 +397,6 @@ impl Sharing for GridSnapshots {
     }
 
     fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {
-        self.exchange.backlog(peer, |_, recs| {
-            recs.iter().map(|r| encode(r).len() as u64).sum()
-        })
+        encoded_backlog(&self.exchange, peer)
     }
 }

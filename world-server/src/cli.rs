@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::Parser;
-use proto::node::{close_quickly, init_logging, zerr, ZenohArgs};
+use proto::node::{close_quickly, init_logging, zerr, ScenarioArgs, ZenohArgs};
 use proto::scenario::Scenario;
 
 use crate::scenario::resolve;
@@ -19,12 +19,8 @@ use crate::world::World;
 #[derive(Parser, Debug, Clone, PartialEq)]
 #[command(name = "world-server", version)]
 pub struct Args {
-    /// Scenario TOML file (see configs/default.toml for every key).
-    #[arg(long, value_name = "FILE")]
-    pub scenario: PathBuf,
-    /// Override a scenario key, e.g. --set robots.count=8 (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
     /// Seconds to wait for every robot to join before giving up.
     #[arg(long, default_value_t = STARTUP_TIMEOUT_S, value_name = "SECONDS")]
     pub startup_timeout_s: f64,
@@ -39,8 +35,7 @@ impl Args {
     /// A world-server of `scenario` with every other flag at its default.
     pub fn new(scenario: PathBuf, zenoh: ZenohArgs) -> Args {
         Args {
-            scenario,
-            set: Vec::new(),
+            scenario: ScenarioArgs::file(scenario),
             startup_timeout_s: STARTUP_TIMEOUT_S,
             zenoh,
         }
@@ -48,13 +43,7 @@ impl Args {
 
     /// The flags that parse back into these arguments (how `swarm run` starts the process).
     pub fn to_argv(&self) -> Vec<String> {
-        let mut a = vec![
-            "--scenario".into(),
-            self.scenario.to_string_lossy().into_owned(),
-        ];
-        for s in &self.set {
-            a.extend(["--set".into(), s.clone()]);
-        }
+        let mut a = self.scenario.to_argv();
         a.extend([
             "--startup-timeout-s".into(),
             self.startup_timeout_s.to_string(),
@@ -66,7 +55,7 @@ impl Args {
 
 /// Builds the world of a scenario file (also used by tests and the launcher's dry checks).
 pub fn build_world(args: &Args) -> anyhow::Result<(Scenario, World)> {
-    let r = resolve(Some(&args.scenario), &args.set)?;
+    let r = resolve(Some(&args.scenario.file), &args.scenario.set)?;
     let world = World::build(&r.scenario, r.map_file.as_deref())?;
     Ok((r.scenario, world))
 }
@@ -125,7 +114,7 @@ mod tests {
                 ..ZenohArgs::default()
             },
         );
-        args.set = vec!["robots.count=2".into(), "seed=3".into()];
+        args.scenario.set = vec!["robots.count=2".into(), "seed=3".into()];
         args.startup_timeout_s = 2.5;
         let argv = std::iter::once("world-server".to_string()).chain(args.to_argv());
         assert_eq!(Args::parse_from(argv), args);

@@ -198,13 +198,7 @@ pub fn generate(
             *c = Occ::Occupied;
         }
     }
-    let info = MapInfo {
-        width: g.width(),
-        height: g.height(),
-        resolution_m,
-        origin_x_m: 0.0,
-        origin_y_m: 0.0,
-    };
+    let info = MapInfo::at_origin(g.width(), g.height(), resolution_m);
     Ok(TruthMap { info, grid: g })
 }
 

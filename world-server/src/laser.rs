@@ -115,13 +115,7 @@ mod tests {
     use std::f64::consts::{FRAC_1_SQRT_2, FRAC_PI_2, PI, TAU};
 
     fn info(grid: &Grid, resolution_m: f64) -> MapInfo {
-        MapInfo {
-            width: grid.width(),
-            height: grid.height(),
-            resolution_m,
-            origin_x_m: 0.0,
-            origin_y_m: 0.0,
-        }
+        MapInfo::at_origin(grid.width(), grid.height(), resolution_m)
     }
 
     fn spec(beams: u32, max_range_m: f64) -> LaserSpec {

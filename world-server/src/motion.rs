@@ -130,13 +130,7 @@ mod tests {
 
     fn setup() -> (Grid, MapInfo) {
         let g = Grid::from_ascii(ROOM);
-        let info = MapInfo {
-            width: g.width(),
-            height: g.height(),
-            resolution_m: 0.5,
-            origin_x_m: 0.0,
-            origin_y_m: 0.0,
-        };
+        let info = MapInfo::at_origin(g.width(), g.height(), 0.5);
         (g, info)
     }
 

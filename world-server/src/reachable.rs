@@ -309,13 +309,7 @@ mod tests {
     use super::*;
 
     fn info(grid: &Grid, resolution_m: f64) -> MapInfo {
-        MapInfo {
-            width: grid.width(),
-            height: grid.height(),
-            resolution_m,
-            origin_x_m: 0.0,
-            origin_y_m: 0.0,
-        }
+        MapInfo::at_origin(grid.width(), grid.height(), resolution_m)
     }
 
     const TWO_ROOMS: &str = "
