@@ -47,6 +47,27 @@ async fn send_radio(radio: &Session, out: Vec<Outgoing>) {
     }
 }
 
+/// One step: the scan in, the motion command out to the world-server, then this step's radio
+/// traffic, then the step's telemetry.
+async fn step(
+    agent: &mut Agent,
+    id: RobotId,
+    scan: &Scan,
+    sim: &Session,
+    radio: &Session,
+) -> Result<(), ZenohError> {
+    let cmd = agent.on_scan(scan);
+    sim.put(keys::cmd(id), encode(&cmd))
+        .congestion_control(CongestionControl::Block)
+        .await
+        .map_err(zerr)?;
+    send_radio(radio, agent.radio_step()).await;
+    sim.put(keys::telemetry(id), encode(&agent.telemetry()))
+        .congestion_control(CongestionControl::Block)
+        .await
+        .map_err(zerr)
+}
+
 /// Runs one robot until the launcher stops it or the world falls silent.
 pub async fn run_robot(
     id: RobotId,
@@ -92,15 +113,10 @@ pub async fn run_robot(
         tokio::select! {
             sample = scans.recv_async() => {
                 let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let scan = match decode::<Scan>(&sample.payload().to_bytes()) {
-                    Ok(scan) => scan,
-                    Err(e) => { tracing::warn!("bad scan: {e}"); continue; }
-                };
-                let cmd = agent.on_scan(&scan);
-                sim.put(keys::cmd(id), encode(&cmd)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
-                let out = agent.radio_step();
-                send_radio(&radio, out).await;
-                sim.put(keys::telemetry(id), encode(&agent.telemetry())).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
+                match decode::<Scan>(&sample.payload().to_bytes()) {
+                    Ok(scan) => step(&mut agent, id, &scan, &sim, &radio).await?,
+                    Err(e) => tracing::warn!("bad scan: {e}"),
+                }
             }
             sample = inbox.recv_async() => {
                 let Ok(sample) = sample else { return Ok(End::Stopped) };
