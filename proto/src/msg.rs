@@ -12,7 +12,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -85,6 +85,10 @@ pub struct Status {
     pub step: Step,
     pub robots: Vec<RobotStatus>,
     pub collisions_total: u64,
+    /// Lockstep: the live robots whose command for the previous step did not come before
+    /// `clock.step_timeout_ms` — the world went on without them, so a wall-clock timeout
+    /// decided something and the run is not reproducible.
+    pub missed: Vec<RobotId>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -96,7 +100,7 @@ pub struct RobotStatus {
 }
 
 /// Robot → launcher, every step (sim plane; never counted as radio traffic).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Telemetry {
     pub robot: RobotId,
     pub step: Step,
@@ -466,6 +470,7 @@ mod tests {
                 distance_m: 3.5,
             }],
             collisions_total: 2,
+            missed: vec![1],
         });
         round_trip(Telemetry {
             robot: 2,
