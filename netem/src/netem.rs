@@ -317,6 +317,25 @@ fn radio_model(cfg: &NetemConfig) -> Model {
 }
 
 /// Binds every listener (and the HTTP API), spawns the tasks. Needs a tokio runtime.
+/// Lockstep: how many steps of a link's rate may cross at once. The robots pace what they offer
+/// (bursts of a few steps, never more than the rate on average); netem lets a larger burst
+/// through, so that a step's data and the step's marker behind them never wait for a later step
+/// (which, with the clock standing still until every robot is done, would only end at the
+/// world's step timeout). Over time the rate is still netem's to enforce.
+pub const LOCKSTEP_BURST_STEPS: f64 = 12.0;
+/// Lockstep: the smallest burst in bytes (a few zenoh frames around one large message).
+pub const LOCKSTEP_BURST_MIN_BYTES: f64 = 4096.0;
+
+/// The burst of a budget of `rate` bytes per second, in simulated seconds: one step in realtime
+/// (a link never saves up more), [`LOCKSTEP_BURST_STEPS`] steps in lockstep.
+fn burst_seconds(rate: u64, step_seconds: f64, lockstep: bool) -> f64 {
+    if lockstep {
+        (step_seconds * LOCKSTEP_BURST_STEPS).max(LOCKSTEP_BURST_MIN_BYTES / rate.max(1) as f64)
+    } else {
+        step_seconds
+    }
+}
+
 pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     validate(&cfg)?;
     let clock = match cfg.mode {
@@ -328,8 +347,9 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     }
     let radio = Radio::new(radio_model(&cfg), cfg.truth.map(Arc::new));
     let rate = cfg.radio.bandwidth_bytes_per_s;
+    let burst = |rate| burst_seconds(rate, cfg.step_seconds, clock.is_lockstep());
     let medium = (rate > 0 && cfg.radio.medium == Medium::Shared)
-        .then(|| Budget::new(rate, cfg.step_seconds, true, clock.clone()));
+        .then(|| Budget::new(rate, burst(rate), true, clock.clone()));
     let ns = |ms: f64| (ms * 1e6).round() as u64;
     let (shutdown, shutdown_rx) = watch::channel(false);
     let mut links = Vec::new();
@@ -337,7 +357,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     for (i, p) in cfg.pairs.iter().enumerate() {
         let base = |_| BaseShape {
             budget: (rate > 0 && cfg.radio.medium == Medium::PerLink)
-                .then(|| Budget::new(rate, cfg.step_seconds, false, clock.clone())),
+                .then(|| Budget::new(rate, burst(rate), false, clock.clone())),
             medium: medium.clone(),
             latency_ns: ns(cfg.radio.latency_ms),
             jitter_ns: ns(cfg.radio.jitter_ms),
@@ -462,7 +482,11 @@ impl Shared {
             {
                 Some(Budget::new(
                     rate_bytes_per_s,
-                    self.step_seconds,
+                    burst_seconds(
+                        rate_bytes_per_s,
+                        self.step_seconds,
+                        self.clock.is_lockstep(),
+                    ),
                     false,
                     self.clock.clone(),
                 ))
@@ -649,6 +673,17 @@ impl Netem {
         } else {
             Vec::new()
         }
+    }
+
+    /// The pairs whose link is up now (after the last [`Self::advance`]: for the step it opened).
+    pub fn up_links(&self) -> Vec<(RobotId, RobotId)> {
+        self.shared
+            .links
+            .iter()
+            .map(|l| l.snapshot())
+            .filter(|s| s.up)
+            .map(|s| (s.a, s.b))
+            .collect()
     }
 
     fn advance_clock(&self, step: Step) {

@@ -227,6 +227,42 @@ impl Traffic {
     }
 }
 
+/// netem → robots, when a step opens: the links that are up for it (lockstep). A robot talks
+/// to exactly these neighbours during the step and waits for each one's [`Mark`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LinkPlan {
+    pub step: Step,
+    /// The pairs `(a, b)`, `a < b`, whose link is up.
+    pub up: Vec<(RobotId, RobotId)>,
+}
+
+impl LinkPlan {
+    /// The robots linked to `me`, in id order.
+    pub fn neighbours(&self, me: RobotId) -> Vec<RobotId> {
+        let mut n: Vec<RobotId> = self
+            .up
+            .iter()
+            .filter_map(|&(a, b)| match (a == me, b == me) {
+                (true, false) => Some(b),
+                (false, true) => Some(a),
+                _ => None,
+            })
+            .collect();
+        n.sort_unstable();
+        n.dedup();
+        n
+    }
+}
+
+/// Radio, lockstep: the last message `from` sends a neighbour in `step`. Once a robot holds every
+/// neighbour's marker of a step, it holds everything they sent in it (one ordered stream per
+/// link).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Mark {
+    pub from: RobotId,
+    pub step: Step,
+}
+
 /// netem → launcher, every step: the state of every robot pair's link (docs/design.md §5).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LinkReport {
@@ -461,6 +497,11 @@ mod tests {
             robot: 1,
             waypoint: None,
         });
+        round_trip(Mark { from: 3, step: 7 });
+        round_trip(LinkPlan {
+            step: 4,
+            up: vec![(0, 1), (1, 3)],
+        });
         round_trip(Status {
             step: 9,
             robots: vec![RobotStatus {
@@ -584,6 +625,24 @@ mod tests {
             let _ = decode::<OpChunk>(&bytes);
             let _ = decode::<Scan>(&bytes);
             let _ = decode::<Status>(&bytes);
+            let _ = decode::<Mark>(&bytes);
+            let _ = decode::<LinkPlan>(&bytes);
         }
+    }
+}
+
+#[cfg(test)]
+mod link_plan_tests {
+    use super::*;
+
+    #[test]
+    fn a_plan_names_each_robots_neighbours_in_id_order() {
+        let p = LinkPlan {
+            step: 0,
+            up: vec![(2, 3), (0, 2), (1, 2), (0, 1)],
+        };
+        assert_eq!(p.neighbours(2), [0, 1, 3]);
+        assert_eq!(p.neighbours(0), [1, 2]);
+        assert!(p.neighbours(4).is_empty());
     }
 }
