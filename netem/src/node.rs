@@ -56,6 +56,13 @@ pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
         .history(true)
         .await
         .map_err(zerr)?;
+    // Declared after the subscriptions: a robot that sees it knows netem will see the world's
+    // first status (and publish the first step's links).
+    let _alive = sim
+        .liveliness()
+        .declare_token(keys::NETEM_ALIVE)
+        .await
+        .map_err(zerr)?;
     let mut last: Option<Step> = None;
     loop {
         tokio::select! {

@@ -16,6 +16,9 @@ pub const NETEM_LINKS: &str = "sim/netem/links";
 /// netem's per-step [`crate::msg::LinkPlan`]: which links are up for the step (lockstep robots
 /// wait for it before they act).
 pub const NETEM_PLAN: &str = "sim/netem/plan";
+/// netem's liveliness token, declared once it follows the world's status (lockstep robots wait
+/// for it before they join).
+pub const NETEM_ALIVE: &str = "sim/netem/alive";
 /// Every robot's telemetry.
 pub const TELEMETRY_ALL: &str = "sim/telemetry/*";
 /// Every robot's move command.

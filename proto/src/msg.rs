@@ -155,8 +155,9 @@ pub struct View {
 /// The package types every radio payload byte is accounted to: the nine of thesis Table 6.1 —
 /// the seven op types of the polygon exchange's log ([`Traffic::OPS`]), `conn` (handshakes and
 /// chunk headers) and `targ` (targets, coordination) — and `scan` and `cells` for the raw-scans
-/// and grid-snapshots baselines. The op log names its ops' types with it too, so there is one
-/// enum for them.
+/// and grid-snapshots baselines — and `mark`, the step markers of lockstep runs (the simulator's
+/// own, not part of any paper's protocol). The op log names its ops' types with it too, so there
+/// is one enum for them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum Traffic {
     Ins,
@@ -170,10 +171,11 @@ pub enum Traffic {
     Save,
     Scan,
     Cells,
+    Mark,
 }
 
 impl Traffic {
-    pub const ALL: [Traffic; 11] = [
+    pub const ALL: [Traffic; 12] = [
         Traffic::Ins,
         Traffic::Rep,
         Traffic::Del,
@@ -185,6 +187,7 @@ impl Traffic {
         Traffic::Save,
         Traffic::Scan,
         Traffic::Cells,
+        Traffic::Mark,
     ];
 
     /// The op types of the polygon exchange's log, in Table 6.1 order.
@@ -205,7 +208,7 @@ impl Traffic {
             Traffic::Em | Traffic::Chg => Some(5.0),
             Traffic::Del | Traffic::Rm => Some(2.0),
             Traffic::Save => Some(1.0),
-            Traffic::Conn | Traffic::Targ | Traffic::Scan | Traffic::Cells => None,
+            Traffic::Conn | Traffic::Targ | Traffic::Scan | Traffic::Cells | Traffic::Mark => None,
         }
     }
 
@@ -223,6 +226,7 @@ impl Traffic {
             Traffic::Save => "save",
             Traffic::Scan => "scan",
             Traffic::Cells => "cells",
+            Traffic::Mark => "mark",
         }
     }
 }
@@ -254,13 +258,14 @@ impl LinkPlan {
     }
 }
 
-/// Radio, lockstep: the last message `from` sends a neighbour in `step`. Once a robot holds every
-/// neighbour's marker of a step, it holds everything they sent in it (one ordered stream per
-/// link).
+/// Radio, lockstep: the last message `from` sends a neighbour in `step`, after `sent` others.
+/// Once a robot holds a neighbour's marker of a step and that many of its messages, it holds
+/// everything the neighbour sent it in the step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Mark {
     pub from: RobotId,
     pub step: Step,
+    pub sent: u32,
 }
 
 /// netem → launcher, every step: the state of every robot pair's link (docs/design.md §5).
@@ -497,7 +502,11 @@ mod tests {
             robot: 1,
             waypoint: None,
         });
-        round_trip(Mark { from: 3, step: 7 });
+        round_trip(Mark {
+            from: 3,
+            step: 7,
+            sent: 2,
+        });
         round_trip(LinkPlan {
             step: 4,
             up: vec![(0, 1), (1, 3)],

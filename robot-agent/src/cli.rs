@@ -8,7 +8,7 @@ use anyhow::Context;
 use clap::Parser;
 use proto::msg::RobotId;
 use proto::node::{close_quickly, init_logging, radio_peer, zerr, ScenarioArgs, ZenohArgs};
-use proto::scenario::Scenario;
+use proto::scenario::{ClockMode, Scenario};
 
 use crate::node::{run_robot, world_info, End};
 
@@ -90,11 +90,13 @@ async fn run(args: Args) -> anyhow::Result<End> {
         .map_err(zerr)
         .context("joining the sim plane")?;
     let world = world_info(&sim, Duration::from_secs(20)).await?;
+    let lockstep = scenario.clock.mode == ClockMode::Lockstep;
     let radio_cfg = radio_peer(
         &args.radio_listen,
         &args.radio_connect,
         args.radio_config.as_deref(),
         &[],
+        lockstep,
     )?;
     let radio = zenoh::open(radio_cfg)
         .await
