@@ -56,6 +56,9 @@ pub struct NetemConfig {
     /// Simulated seconds per step (the scenario's `clock.step_seconds`).
     pub step_seconds: f64,
     pub mode: ClockMode,
+    /// Lockstep with step markers (`clock.markers`): the robots pace and wait for each step's
+    /// traffic, and links let a larger burst through ([`LOCKSTEP_BURST_STEPS`]).
+    pub markers: bool,
     /// Realtime only: simulated seconds per wall second.
     pub speedup: f64,
     /// The truth map, for path loss wall counts.
@@ -75,6 +78,7 @@ impl NetemConfig {
             seed: 1,
             step_seconds: 1.0,
             mode: ClockMode::Lockstep,
+            markers: false,
             speedup: 1.0,
             truth: None,
             faults: Vec::new(),
@@ -99,6 +103,7 @@ impl NetemConfig {
             seed: s.seed,
             step_seconds: s.clock.step_seconds,
             mode: s.clock.mode,
+            markers: s.clock.marked(),
             speedup: s.clock.speedup,
             truth,
             faults,
@@ -175,6 +180,8 @@ pub(crate) struct Shared {
     by_pair: HashMap<Pair, usize>,
     radio: Radio,
     step_seconds: f64,
+    /// See [`NetemConfig::markers`].
+    markers: bool,
     steps: Mutex<StepState>,
     toxic_ids: AtomicU64,
     shutdown: watch::Sender<bool>,
@@ -326,10 +333,10 @@ pub const LOCKSTEP_BURST_STEPS: f64 = 12.0;
 /// Lockstep: the smallest burst in bytes (a few zenoh frames around one large message).
 pub const LOCKSTEP_BURST_MIN_BYTES: f64 = 4096.0;
 
-/// The burst of a budget of `rate` bytes per second, in simulated seconds: one step in realtime
-/// (a link never saves up more), [`LOCKSTEP_BURST_STEPS`] steps in lockstep.
-fn burst_seconds(rate: u64, step_seconds: f64, lockstep: bool) -> f64 {
-    if lockstep {
+/// The burst of a budget of `rate` bytes per second, in simulated seconds: one step (a link never
+/// saves up more), or [`LOCKSTEP_BURST_STEPS`] steps with step markers.
+fn burst_seconds(rate: u64, step_seconds: f64, markers: bool) -> f64 {
+    if markers {
         (step_seconds * LOCKSTEP_BURST_STEPS).max(LOCKSTEP_BURST_MIN_BYTES / rate.max(1) as f64)
     } else {
         step_seconds
@@ -347,7 +354,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     }
     let radio = Radio::new(radio_model(&cfg), cfg.truth.map(Arc::new));
     let rate = cfg.radio.bandwidth_bytes_per_s;
-    let burst = |rate| burst_seconds(rate, cfg.step_seconds, clock.is_lockstep());
+    let burst = |rate| burst_seconds(rate, cfg.step_seconds, cfg.markers);
     let medium = (rate > 0 && cfg.radio.medium == Medium::Shared)
         .then(|| Budget::new(rate, burst(rate), true, clock.clone()));
     let ns = |ms: f64| (ms * 1e6).round() as u64;
@@ -402,6 +409,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         links,
         radio,
         step_seconds: cfg.step_seconds,
+        markers: cfg.markers,
         steps: Mutex::new(StepState {
             step: None,
             poses: HashMap::new(),
@@ -482,11 +490,7 @@ impl Shared {
             {
                 Some(Budget::new(
                     rate_bytes_per_s,
-                    burst_seconds(
-                        rate_bytes_per_s,
-                        self.step_seconds,
-                        self.clock.is_lockstep(),
-                    ),
+                    burst_seconds(rate_bytes_per_s, self.step_seconds, self.markers),
                     false,
                     self.clock.clone(),
                 ))

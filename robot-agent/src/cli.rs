@@ -8,7 +8,7 @@ use anyhow::Context;
 use clap::Parser;
 use proto::msg::RobotId;
 use proto::node::{close_quickly, init_logging, radio_peer, zerr, ScenarioArgs, ZenohArgs};
-use proto::scenario::{ClockMode, Scenario};
+use proto::scenario::Scenario;
 
 use crate::node::{run_robot, world_info, End};
 
@@ -90,7 +90,7 @@ async fn run(args: Args) -> anyhow::Result<End> {
         .map_err(zerr)
         .context("joining the sim plane")?;
     let world = world_info(&sim, Duration::from_secs(20)).await?;
-    let lockstep = scenario.clock.mode == ClockMode::Lockstep;
+    let lockstep = scenario.clock.marked();
     let radio_cfg = radio_peer(
         &args.radio_listen,
         &args.radio_connect,

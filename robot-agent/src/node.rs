@@ -9,7 +9,7 @@ use std::time::Duration;
 use proto::keys;
 use proto::msg::{decode, encode, Control, LinkPlan, Mark, RobotId, Scan, WorldInfo};
 use proto::node::{zerr, ZenohError};
-use proto::scenario::{ClockMode, Scenario};
+use proto::scenario::Scenario;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
@@ -206,7 +206,7 @@ pub async fn run_robot(
         .declare_token(keys::radio_alive(id))
         .await
         .map_err(zerr)?;
-    if s.clock.mode == ClockMode::Lockstep {
+    if s.clock.marked() {
         wait_for_netem(&sim, idle_timeout).await?;
     }
     // Declared last: the world-server starts the clock once every robot's token is there, and by
@@ -223,9 +223,10 @@ pub async fn run_robot(
         subs: &subs,
         idle: idle_timeout,
     };
-    match s.clock.mode {
-        ClockMode::Lockstep => lockstep(agent, &planes).await,
-        ClockMode::Realtime => realtime(agent, &planes).await,
+    if s.clock.marked() {
+        lockstep(agent, &planes).await
+    } else {
+        as_it_comes(agent, &planes).await
     }
 }
 
@@ -238,8 +239,9 @@ struct Planes<'a> {
     idle: Duration,
 }
 
-/// Realtime: acts on every scan as it comes and takes radio traffic as it arrives.
-async fn realtime(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
+/// Realtime (and lockstep without markers): acts on every scan as it comes and takes radio
+/// traffic as it arrives.
+async fn as_it_comes(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
     loop {
         match p.subs.next(p.idle).await {
             Event::Scan(scan) => {

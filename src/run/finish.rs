@@ -116,8 +116,13 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
 /// What made the run depend on more than its scenario (empty: nothing did).
 fn nondeterministic(plan: &Plan, rec: &Record) -> Vec<String> {
     let mut why = Vec::new();
-    if plan.scenario.clock.mode == ClockMode::Realtime {
-        why.push("realtime clock: steps follow the wall clock".to_string());
+    match plan.scenario.clock.mode {
+        ClockMode::Realtime => why.push("realtime clock: steps follow the wall clock".to_string()),
+        ClockMode::Lockstep if !plan.scenario.clock.markers => why.push(
+            "lockstep without step markers (clock.markers = false): robots take radio traffic as it arrives"
+                .to_string(),
+        ),
+        ClockMode::Lockstep => {}
     }
     for st in &rec.statuses {
         if !st.missed.is_empty() {
