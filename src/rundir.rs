@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::evaluate::{MetricsRow, THRESHOLDS};
 
 /// Version of the run-directory schema, written into `summary.json`.
-pub const SCHEMA_VERSION: u32 = 3;
+pub const SCHEMA_VERSION: u32 = 4;
 
 /// `summary.json`.
 #[derive(Debug, Serialize)]
@@ -54,6 +54,54 @@ pub struct Summary {
     /// How many steps links needed to reconnect after coming back into range or being restored.
     pub reconnect: ReconnectSummary,
     pub failed_processes: Vec<String>,
+    /// Lockstep: whether nothing but the scenario decided the run. `false` in realtime mode, and
+    /// when a wall-clock timeout decided something or a process failed; `nondeterministic` says
+    /// what and where.
+    pub deterministic: bool,
+    pub nondeterministic: Vec<String>,
+    /// sha256 of the run's outputs ([`DIGESTED`] and `grids/`): two runs with the same digest
+    /// wrote the same tables and grids, byte for byte.
+    pub run_digest: String,
+}
+
+/// The run directory's tables that a run's digest covers (none of them holds a wall-clock
+/// field), with every grid in `grids/`.
+pub const DIGESTED: [&str; 5] = [
+    "links.csv",
+    "metrics.csv",
+    "traffic_by_type.csv",
+    "saves.csv",
+    "views.csv",
+];
+
+/// sha256 over the [`DIGESTED`] tables and `grids/*.pgm`, each as its name, length and bytes, in
+/// a fixed order (a missing table counts as empty).
+pub fn run_digest(dir: &Path) -> anyhow::Result<String> {
+    use sha2::{Digest, Sha256};
+    let mut names: Vec<String> = DIGESTED.iter().map(|s| s.to_string()).collect();
+    if let Ok(rd) = std::fs::read_dir(dir.join("grids")) {
+        let mut grids: Vec<String> = rd
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".pgm"))
+            .map(|n| format!("grids/{n}"))
+            .collect();
+        grids.sort();
+        names.extend(grids);
+    }
+    let mut h = Sha256::new();
+    for name in &names {
+        let bytes = match std::fs::read(dir.join(name)) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+            Err(e) => return Err(anyhow::anyhow!("reading {name} for the run digest: {e}")),
+        };
+        h.update((name.len() as u64).to_le_bytes());
+        h.update(name.as_bytes());
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(&bytes);
+    }
+    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
 }
 
 pub fn coverage_steps(reached: &BTreeMap<u32, u32>) -> BTreeMap<String, Option<u32>> {
@@ -584,15 +632,15 @@ mod tests {
         let got: Vec<&str> = text.lines().collect();
         assert_eq!(
             got[0],
-            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells"
+            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells,mark"
         );
         assert_eq!(
             &got[1..],
             [
-                "0,0,10,0,0,0,0,0,0,0,0,1,0",
-                "0,1,2,0,0,0,0,0,0,0,0,0,0",
-                "1,0,15,0,0,0,0,0,0,0,0,0,0",
-                "1,1,3,0,0,0,0,0,0,0,0,0,0",
+                "0,0,10,0,0,0,0,0,0,0,0,1,0,0",
+                "0,1,2,0,0,0,0,0,0,0,0,0,0,0",
+                "1,0,15,0,0,0,0,0,0,0,0,0,0,0",
+                "1,1,3,0,0,0,0,0,0,0,0,0,0,0",
             ]
         );
     }

@@ -78,12 +78,16 @@ async fn a_message_reaches_a_robot_out_of_range_only_through_the_robot_in_betwee
             })
             .collect(),
         collisions_total: 0,
+        missed: Vec::new(),
     };
     let connects: [Vec<String>; 3] = [vec![ep(pairs[0]), ep(pairs[1])], vec![ep(pairs[2])], vec![]];
     let mut robots = Vec::new();
     for i in 0..3 {
         robots.push(
-            open(radio_peer(&[ep(radio[i])], &connects[i], None, &[]).expect("radio config")).await,
+            open(
+                radio_peer(&[ep(radio[i])], &connects[i], None, &[], false).expect("radio config"),
+            )
+            .await,
         );
     }
     let key = keys::radio_delta(2);

@@ -6,6 +6,7 @@ mod support;
 
 mod bypass;
 mod cli;
+mod determinism;
 mod lifecycle;
 mod mapping;
 mod netem;

@@ -11,7 +11,7 @@
 //! offers. **Invariant:** the bytes held for one connection direction never exceed its capacity.
 
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, Weak};
 
 use serde::Serialize;
 use tokio::sync::Semaphore;
@@ -44,9 +44,17 @@ impl Dir {
     }
 }
 
+/// Bytes a connection handed to the kernel that are not yet counted as sent: asked to count
+/// what has left by now.
+pub trait InFlight: Send + Sync {
+    fn settle(&self);
+}
+
 /// Counters of one direction of one link, shared by all its connections.
-#[derive(Debug, Default)]
+#[derive(Default)]
 pub struct DirCounters {
+    /// The connections' bytes in the kernel, settled before a step's count is taken.
+    in_flight: Mutex<Vec<Weak<dyn InFlight>>>,
     bytes_total: AtomicU64,
     chunks_total: AtomicU64,
     bytes_step: AtomicU64,
@@ -68,6 +76,14 @@ pub struct DirSnapshot {
     pub queued_max_bytes: u64,
     /// Bytes read from the sender and then dropped (cut, reset, limit_data).
     pub lost_bytes_total: u64,
+}
+
+impl std::fmt::Debug for DirCounters {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DirCounters")
+            .field("snapshot", &self.snapshot())
+            .finish()
+    }
 }
 
 impl DirCounters {
@@ -95,8 +111,24 @@ impl DirCounters {
         }
     }
 
-    /// Bytes delivered since the previous call (the per-step counter), resetting it.
+    /// Registers a connection's bytes in the kernel, to be settled by [`Self::take_step`].
+    pub fn register(&self, f: Weak<dyn InFlight>) {
+        let mut v = self.in_flight.lock().unwrap_or_else(|p| p.into_inner());
+        v.retain(|w| w.strong_count() > 0);
+        v.push(f);
+    }
+
+    /// Bytes delivered since the previous call (the per-step counter), resetting it. What the
+    /// kernel sent by now counts, even where the connection's writer has not looked yet: a step's
+    /// bytes that its receiver already holds are never counted in the next step.
     pub fn take_step(&self) -> u64 {
+        let live: Vec<Arc<dyn InFlight>> = {
+            let v = self.in_flight.lock().unwrap_or_else(|p| p.into_inner());
+            v.iter().filter_map(Weak::upgrade).collect()
+        };
+        for f in live {
+            f.settle();
+        }
         self.bytes_step.swap(0, Relaxed)
     }
 

@@ -56,6 +56,9 @@ pub struct NetemConfig {
     /// Simulated seconds per step (the scenario's `clock.step_seconds`).
     pub step_seconds: f64,
     pub mode: ClockMode,
+    /// Lockstep with step markers (`clock.markers`): the robots pace and wait for each step's
+    /// traffic, and links let a larger burst through ([`LOCKSTEP_BURST_STEPS`]).
+    pub markers: bool,
     /// Realtime only: simulated seconds per wall second.
     pub speedup: f64,
     /// The truth map, for path loss wall counts.
@@ -75,6 +78,7 @@ impl NetemConfig {
             seed: 1,
             step_seconds: 1.0,
             mode: ClockMode::Lockstep,
+            markers: false,
             speedup: 1.0,
             truth: None,
             faults: Vec::new(),
@@ -99,6 +103,7 @@ impl NetemConfig {
             seed: s.seed,
             step_seconds: s.clock.step_seconds,
             mode: s.clock.mode,
+            markers: s.clock.marked(),
             speedup: s.clock.speedup,
             truth,
             faults,
@@ -175,6 +180,8 @@ pub(crate) struct Shared {
     by_pair: HashMap<Pair, usize>,
     radio: Radio,
     step_seconds: f64,
+    /// See [`NetemConfig::markers`].
+    markers: bool,
     steps: Mutex<StepState>,
     toxic_ids: AtomicU64,
     shutdown: watch::Sender<bool>,
@@ -317,6 +324,25 @@ fn radio_model(cfg: &NetemConfig) -> Model {
 }
 
 /// Binds every listener (and the HTTP API), spawns the tasks. Needs a tokio runtime.
+/// Lockstep: how many steps of a link's rate may cross at once. The robots pace what they offer
+/// (bursts of a few steps, never more than the rate on average); netem lets a larger burst
+/// through, so that a step's data and the step's marker behind them never wait for a later step
+/// (which, with the clock standing still until every robot is done, would only end at the
+/// world's step timeout). Over time the rate is still netem's to enforce.
+pub const LOCKSTEP_BURST_STEPS: f64 = 12.0;
+/// Lockstep: the smallest burst in bytes (a few zenoh frames around one large message).
+pub const LOCKSTEP_BURST_MIN_BYTES: f64 = 4096.0;
+
+/// The burst of a budget of `rate` bytes per second, in simulated seconds: one step (a link never
+/// saves up more), or [`LOCKSTEP_BURST_STEPS`] steps with step markers.
+fn burst_seconds(rate: u64, step_seconds: f64, markers: bool) -> f64 {
+    if markers {
+        (step_seconds * LOCKSTEP_BURST_STEPS).max(LOCKSTEP_BURST_MIN_BYTES / rate.max(1) as f64)
+    } else {
+        step_seconds
+    }
+}
+
 pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     validate(&cfg)?;
     let clock = match cfg.mode {
@@ -328,8 +354,9 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     }
     let radio = Radio::new(radio_model(&cfg), cfg.truth.map(Arc::new));
     let rate = cfg.radio.bandwidth_bytes_per_s;
+    let burst = |rate| burst_seconds(rate, cfg.step_seconds, cfg.markers);
     let medium = (rate > 0 && cfg.radio.medium == Medium::Shared)
-        .then(|| Budget::new(rate, cfg.step_seconds, true, clock.clone()));
+        .then(|| Budget::new(rate, burst(rate), true, clock.clone()));
     let ns = |ms: f64| (ms * 1e6).round() as u64;
     let (shutdown, shutdown_rx) = watch::channel(false);
     let mut links = Vec::new();
@@ -337,7 +364,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     for (i, p) in cfg.pairs.iter().enumerate() {
         let base = |_| BaseShape {
             budget: (rate > 0 && cfg.radio.medium == Medium::PerLink)
-                .then(|| Budget::new(rate, cfg.step_seconds, false, clock.clone())),
+                .then(|| Budget::new(rate, burst(rate), false, clock.clone())),
             medium: medium.clone(),
             latency_ns: ns(cfg.radio.latency_ms),
             jitter_ns: ns(cfg.radio.jitter_ms),
@@ -382,6 +409,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         links,
         radio,
         step_seconds: cfg.step_seconds,
+        markers: cfg.markers,
         steps: Mutex::new(StepState {
             step: None,
             poses: HashMap::new(),
@@ -462,7 +490,7 @@ impl Shared {
             {
                 Some(Budget::new(
                     rate_bytes_per_s,
-                    self.step_seconds,
+                    burst_seconds(rate_bytes_per_s, self.step_seconds, self.markers),
                     false,
                     self.clock.clone(),
                 ))
@@ -649,6 +677,17 @@ impl Netem {
         } else {
             Vec::new()
         }
+    }
+
+    /// The pairs whose link is up now (after the last [`Self::advance`]: for the step it opened).
+    pub fn up_links(&self) -> Vec<(RobotId, RobotId)> {
+        self.shared
+            .links
+            .iter()
+            .map(|l| l.snapshot())
+            .filter(|s| s.up)
+            .map(|s| (s.a, s.b))
+            .collect()
     }
 
     fn advance_clock(&self, step: Step) {

@@ -6,7 +6,9 @@ use std::time::Duration;
 
 use proto::grid::Grid;
 use proto::keys;
-use proto::msg::{decode, encode, Control, LinkReport, LinkState, Status, Step, TruthMap};
+use proto::msg::{
+    decode, encode, Control, LinkPlan, LinkReport, LinkState, Status, Step, TruthMap,
+};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::{RadioModel, Scenario};
 use zenoh::qos::CongestionControl;
@@ -54,6 +56,13 @@ pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
         .history(true)
         .await
         .map_err(zerr)?;
+    // Declared after the subscriptions: a robot that sees it knows netem will see the world's
+    // first status (and publish the first step's links).
+    let _alive = sim
+        .liveliness()
+        .declare_token(keys::NETEM_ALIVE)
+        .await
+        .map_err(zerr)?;
     let mut last: Option<Step> = None;
     loop {
         tokio::select! {
@@ -66,6 +75,9 @@ pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
                 // Opening this step closes the previous one: its links' state and bytes.
                 let poses: Vec<_> = st.robots.iter().map(|r| (r.id, r.pose, r.alive)).collect();
                 let rows = netem.advance(st.step, &poses);
+                // The step's links first: lockstep robots wait for them before they act.
+                let plan = LinkPlan { step: st.step, up: netem.up_links() };
+                sim.put(keys::NETEM_PLAN, encode(&plan)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
                 if let (Some(prev), false) = (last, rows.is_empty()) {
                     let report = LinkReport { step: prev, links: rows.iter().map(state).collect() };
                     sim.put(keys::NETEM_LINKS, encode(&report)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;

@@ -13,6 +13,12 @@ pub const WORLD_TRUTH: &str = "sim/world/truth";
 pub const STATUS: &str = "sim/status";
 /// netem's per-step [`crate::msg::LinkReport`].
 pub const NETEM_LINKS: &str = "sim/netem/links";
+/// netem's per-step [`crate::msg::LinkPlan`]: which links are up for the step (lockstep robots
+/// wait for it before they act).
+pub const NETEM_PLAN: &str = "sim/netem/plan";
+/// netem's liveliness token, declared once it follows the world's status (lockstep robots wait
+/// for it before they join).
+pub const NETEM_ALIVE: &str = "sim/netem/alive";
 /// Every robot's telemetry.
 pub const TELEMETRY_ALL: &str = "sim/telemetry/*";
 /// Every robot's move command.
@@ -74,6 +80,11 @@ pub fn radio_team(to: RobotId) -> String {
 /// Radio: target announcements (`targ`) addressed to robot `to`.
 pub fn radio_targ(to: RobotId) -> String {
     format!("radio/{to}/targ")
+}
+
+/// Radio: step markers ([`crate::msg::Mark`]) addressed to robot `to`.
+pub fn radio_mark(to: RobotId) -> String {
+    format!("radio/{to}/mark")
 }
 
 /// Everything on the radio addressed to robot `to` (`radio/<to>/<kind>`).

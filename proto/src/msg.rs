@@ -12,7 +12,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -85,6 +85,10 @@ pub struct Status {
     pub step: Step,
     pub robots: Vec<RobotStatus>,
     pub collisions_total: u64,
+    /// Lockstep: the live robots whose command for the previous step did not come before
+    /// `clock.step_timeout_ms` — the world went on without them, so a wall-clock timeout
+    /// decided something and the run is not reproducible.
+    pub missed: Vec<RobotId>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -96,7 +100,7 @@ pub struct RobotStatus {
 }
 
 /// Robot → launcher, every step (sim plane; never counted as radio traffic).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Telemetry {
     pub robot: RobotId,
     pub step: Step,
@@ -151,8 +155,9 @@ pub struct View {
 /// The package types every radio payload byte is accounted to: the nine of thesis Table 6.1 —
 /// the seven op types of the polygon exchange's log ([`Traffic::OPS`]), `conn` (handshakes and
 /// chunk headers) and `targ` (targets, coordination) — and `scan` and `cells` for the raw-scans
-/// and grid-snapshots baselines. The op log names its ops' types with it too, so there is one
-/// enum for them.
+/// and grid-snapshots baselines — and `mark`, the step markers of lockstep runs (the simulator's
+/// own, not part of any paper's protocol). The op log names its ops' types with it too, so there
+/// is one enum for them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum Traffic {
     Ins,
@@ -166,10 +171,11 @@ pub enum Traffic {
     Save,
     Scan,
     Cells,
+    Mark,
 }
 
 impl Traffic {
-    pub const ALL: [Traffic; 11] = [
+    pub const ALL: [Traffic; 12] = [
         Traffic::Ins,
         Traffic::Rep,
         Traffic::Del,
@@ -181,6 +187,7 @@ impl Traffic {
         Traffic::Save,
         Traffic::Scan,
         Traffic::Cells,
+        Traffic::Mark,
     ];
 
     /// The op types of the polygon exchange's log, in Table 6.1 order.
@@ -201,7 +208,7 @@ impl Traffic {
             Traffic::Em | Traffic::Chg => Some(5.0),
             Traffic::Del | Traffic::Rm => Some(2.0),
             Traffic::Save => Some(1.0),
-            Traffic::Conn | Traffic::Targ | Traffic::Scan | Traffic::Cells => None,
+            Traffic::Conn | Traffic::Targ | Traffic::Scan | Traffic::Cells | Traffic::Mark => None,
         }
     }
 
@@ -219,8 +226,46 @@ impl Traffic {
             Traffic::Save => "save",
             Traffic::Scan => "scan",
             Traffic::Cells => "cells",
+            Traffic::Mark => "mark",
         }
     }
+}
+
+/// netem → robots, when a step opens: the links that are up for it (lockstep). A robot talks
+/// to exactly these neighbours during the step and waits for each one's [`Mark`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LinkPlan {
+    pub step: Step,
+    /// The pairs `(a, b)`, `a < b`, whose link is up.
+    pub up: Vec<(RobotId, RobotId)>,
+}
+
+impl LinkPlan {
+    /// The robots linked to `me`, in id order.
+    pub fn neighbours(&self, me: RobotId) -> Vec<RobotId> {
+        let mut n: Vec<RobotId> = self
+            .up
+            .iter()
+            .filter_map(|&(a, b)| match (a == me, b == me) {
+                (true, false) => Some(b),
+                (false, true) => Some(a),
+                _ => None,
+            })
+            .collect();
+        n.sort_unstable();
+        n.dedup();
+        n
+    }
+}
+
+/// Radio, lockstep: the last message `from` sends a neighbour in `step`, after `sent` others.
+/// Once a robot holds a neighbour's marker of a step and that many of its messages, it holds
+/// everything the neighbour sent it in the step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Mark {
+    pub from: RobotId,
+    pub step: Step,
+    pub sent: u32,
 }
 
 /// netem → launcher, every step: the state of every robot pair's link (docs/design.md §5).
@@ -457,6 +502,15 @@ mod tests {
             robot: 1,
             waypoint: None,
         });
+        round_trip(Mark {
+            from: 3,
+            step: 7,
+            sent: 2,
+        });
+        round_trip(LinkPlan {
+            step: 4,
+            up: vec![(0, 1), (1, 3)],
+        });
         round_trip(Status {
             step: 9,
             robots: vec![RobotStatus {
@@ -466,6 +520,7 @@ mod tests {
                 distance_m: 3.5,
             }],
             collisions_total: 2,
+            missed: vec![1],
         });
         round_trip(Telemetry {
             robot: 2,
@@ -579,6 +634,24 @@ mod tests {
             let _ = decode::<OpChunk>(&bytes);
             let _ = decode::<Scan>(&bytes);
             let _ = decode::<Status>(&bytes);
+            let _ = decode::<Mark>(&bytes);
+            let _ = decode::<LinkPlan>(&bytes);
         }
+    }
+}
+
+#[cfg(test)]
+mod link_plan_tests {
+    use super::*;
+
+    #[test]
+    fn a_plan_names_each_robots_neighbours_in_id_order() {
+        let p = LinkPlan {
+            step: 0,
+            up: vec![(2, 3), (0, 2), (1, 2), (0, 1)],
+        };
+        assert_eq!(p.neighbours(2), [0, 1, 3]);
+        assert_eq!(p.neighbours(0), [1, 2]);
+        assert!(p.neighbours(4).is_empty());
     }
 }

@@ -271,13 +271,16 @@ pub fn sim_client(
 /// again within two steps in lockstep (measured: `reconnect` in summary.json; 50/200 ms took up
 /// to 10 steps). A refused attempt costs a loopback connect that netem resets at once. Tuned for slow links (docs/design.md §1, "zenoh facts"): a batch is only counted when it has
 /// fully arrived, so batches are kept small ([`RADIO_BATCH_BYTES`]) for keep-alives to get
-/// through a 1 kB/s link well within the lease; messages are published with
-/// `CongestionControl::Drop` by the robot, never `Block`.
+/// through a 1 kB/s link well within the lease; in realtime runs messages are published with
+/// `CongestionControl::Drop` by the robot. `lockstep`: no batching and an hour's lease
+/// ([`LOCKSTEP_RADIO_LEASE_MS`]), so that none of zenoh's own wall-clock traffic crosses a link
+/// during a run and a message's bytes do not depend on timing.
 pub fn radio_peer(
     listen: &[String],
     connect: &[String],
     file: Option<&Path>,
     cfg: &[String],
+    lockstep: bool,
 ) -> Result<Config, ZargsError> {
     let mut c = base(file)?;
     set(&mut c, "mode", "\"peer\"")?;
@@ -296,12 +299,17 @@ pub fn radio_peer(
         "transport/link/tx/batch_size",
         &RADIO_BATCH_BYTES.to_string(),
     )?;
-    set(
-        &mut c,
-        "transport/link/tx/lease",
-        &RADIO_LEASE_MS.to_string(),
-    )?;
+    let lease = if lockstep {
+        LOCKSTEP_RADIO_LEASE_MS
+    } else {
+        RADIO_LEASE_MS
+    };
+    set(&mut c, "transport/link/tx/lease", &lease.to_string())?;
     set(&mut c, "transport/link/tx/keep_alive", "4")?;
+    if lockstep {
+        // A message's bytes on the wire must not depend on what else happened to be queued.
+        set(&mut c, "transport/link/tx/queue/batching/enabled", "false")?;
+    }
     apply_cfg(&mut c, cfg)?;
     Ok(c)
 }
@@ -310,6 +318,11 @@ pub fn radio_peer(
 pub const RADIO_BATCH_BYTES: u16 = 512;
 /// Radio link lease (wall milliseconds); 4 keep-alives per lease.
 pub const RADIO_LEASE_MS: u64 = 10_000;
+/// Lockstep: a lease of an hour, so that no keep-alive is due while a run lasts (markers cross
+/// every link every step). The cost: a peer that hangs without closing its connection is not
+/// detected by the lease; one that exits or whose link netem cuts is, at once (the connection
+/// closes).
+pub const LOCKSTEP_RADIO_LEASE_MS: u64 = 3_600_000;
 
 #[cfg(test)]
 mod tests {
@@ -320,7 +333,8 @@ mod tests {
         let e = vec!["tcp/127.0.0.1:7447".to_string()];
         assert!(sim_router(&e, None, &[]).is_ok());
         assert!(sim_client(&e, None, &[], 1000).is_ok());
-        assert!(radio_peer(&e, &e, None, &[]).is_ok());
+        assert!(radio_peer(&e, &e, None, &[], false).is_ok());
+        assert!(radio_peer(&e, &e, None, &[], true).is_ok());
         let err = sim_client(&e, None, &["no_such/key:1".into()], 0)
             .err()
             .map(|e| e.to_string());

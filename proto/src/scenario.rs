@@ -36,6 +36,10 @@ pub struct Scenario {
 #[serde(deny_unknown_fields, default)]
 pub struct Clock {
     pub mode: ClockMode,
+    /// Lockstep: robots act on radio traffic only at step boundaries (step markers, a barrier;
+    /// robot-agent's `lockstep` module), so that a run does not depend on process timing.
+    /// Work in progress (issue #13): off by default until it holds under every fault.
+    pub markers: bool,
     pub step_seconds: f64,
     pub step_timeout_ms: u64,
     pub dead_after: u32,
@@ -47,6 +51,13 @@ pub struct Clock {
 pub enum ClockMode {
     Lockstep,
     Realtime,
+}
+
+impl Clock {
+    /// Whether robots follow the step protocol with markers (lockstep with `markers = true`).
+    pub fn marked(&self) -> bool {
+        self.mode == ClockMode::Lockstep && self.markers
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -250,6 +261,7 @@ impl Default for Clock {
     fn default() -> Self {
         Clock {
             mode: ClockMode::Lockstep,
+            markers: false,
             step_seconds: 1.0,
             step_timeout_ms: 2000,
             dead_after: 5,

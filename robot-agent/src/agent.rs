@@ -11,7 +11,7 @@
 
 use proto::geom::Pose;
 use proto::grid::{Cell, Grid, Occ};
-use proto::msg::{Cmd, RobotId, Scan, Step, Telemetry, WorldInfo};
+use proto::msg::{Cmd, Mark, RobotId, Scan, Step, Telemetry, WorldInfo};
 use proto::scenario::Scenario;
 
 use crate::coord::{self, Coordinator, Heard, Situation, Status};
@@ -178,6 +178,43 @@ impl Agent {
         self.radio.link_down(peer, self.sharing.as_mut());
     }
 
+    /// Lockstep: the step's neighbours are exactly `linked` (netem's plan). Links that went
+    /// down are forgotten; new ones are greeted. Returns the greetings and the peers dropped.
+    pub fn set_neighbours(&mut self, linked: &[RobotId]) -> (Vec<Outgoing>, Vec<RobotId>) {
+        let gone: Vec<RobotId> = self
+            .radio
+            .neighbours()
+            .iter()
+            .copied()
+            .filter(|p| !linked.contains(p))
+            .collect();
+        for &p in &gone {
+            self.link_down(p);
+        }
+        let mut out = Vec::new();
+        for &p in linked {
+            out.extend(self.link_up(p));
+        }
+        (out, gone)
+    }
+
+    /// Lockstep: the marker that ends this step's traffic `out`, to every neighbour, with how
+    /// many of the messages went to it.
+    pub fn marks(&mut self, out: &[Outgoing]) -> Vec<Outgoing> {
+        let peers: Vec<RobotId> = self.radio.neighbours().iter().copied().collect();
+        let mut marks = Vec::new();
+        for p in peers {
+            let sent = out.iter().filter(|o| o.to == p).count();
+            let mark = Msg::Mark(Mark {
+                from: self.id,
+                step: self.step,
+                sent: u32::try_from(sent).unwrap_or(u32::MAX),
+            });
+            marks.extend(self.radio.send_one(p, &mark));
+        }
+        marks
+    }
+
     /// Bytes received on the radio under key segment `kind` (`hello`, `targ`, `delta`, ...):
     /// counted and decoded by the radio, then taken by the part they are for. A share that
     /// reveals a gap is answered with a handshake to its sender; one that cannot be taken counts
@@ -201,7 +238,8 @@ impl Agent {
                     }
                 }
             }
-            None => {}
+            // Markers are the node's business (lockstep); one that reaches the agent is counted.
+            Some(Msg::Mark(_)) | None => {}
         }
         Vec::new()
     }

@@ -90,11 +90,13 @@ async fn run(args: Args) -> anyhow::Result<End> {
         .map_err(zerr)
         .context("joining the sim plane")?;
     let world = world_info(&sim, Duration::from_secs(20)).await?;
+    let lockstep = scenario.clock.marked();
     let radio_cfg = radio_peer(
         &args.radio_listen,
         &args.radio_connect,
         args.radio_config.as_deref(),
         &[],
+        lockstep,
     )?;
     let radio = zenoh::open(radio_cfg)
         .await

@@ -40,6 +40,8 @@ pub mod exchange;
 pub mod grid;
 /// The grid-snapshots baseline exchange: per-step changed cells of G_s (docs/design.md §4.8).
 pub mod grid_snapshots;
+/// The step protocol of lockstep runs: markers, the barrier, the order arrivals are taken in.
+pub mod lockstep;
 /// The mapping pipeline: P_t → A_t → ops + save point, with its costs (Algorithm 10, 2–5).
 pub mod mapper;
 /// The planning grid: Algorithm 9 (§5.2).

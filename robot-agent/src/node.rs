@@ -7,15 +7,18 @@
 use std::time::Duration;
 
 use proto::keys;
-use proto::msg::{decode, encode, Control, RobotId, Scan, WorldInfo};
+use proto::msg::{decode, encode, Control, LinkPlan, Mark, RobotId, Scan, WorldInfo};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
-use zenoh::sample::SampleKind;
+use zenoh::sample::{Sample, SampleKind};
 use zenoh::Session;
 
 use crate::agent::Agent;
-use crate::radio::Outgoing;
+use crate::lockstep::{Arrival, Lockstep};
+use crate::radio::{self, Outgoing};
 
 /// Why the robot stopped.
 #[derive(Debug, PartialEq, Eq)]
@@ -32,14 +35,23 @@ pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, Zeno
     proto::node::query_retry(sim, keys::WORLD_INFO, wait).await
 }
 
-/// Puts encoded radio messages on the radio plane. A radio link may be gone at any moment:
-/// messages are dropped rather than queued (`CongestionControl::Drop`); the exchange's
-/// handshakes make losses harmless.
-async fn send_radio(radio: &Session, out: Vec<Outgoing>) {
+/// Puts encoded radio messages on the radio plane.
+///
+/// Realtime: a radio link may be gone at any moment, so messages are dropped rather than queued
+/// (`CongestionControl::Drop`); the exchange's handshakes make losses harmless. Lockstep: a
+/// message is never dropped (`Block`; the robots' pacing keeps the queues short) and never
+/// batched with another (`express`), so that the bytes on the wire do not depend on timing.
+async fn send_radio(radio: &Session, out: Vec<Outgoing>, lockstep: bool) {
+    let cc = if lockstep {
+        CongestionControl::Block
+    } else {
+        CongestionControl::Drop
+    };
     for Outgoing { key, bytes, .. } in out {
         if let Err(e) = radio
             .put(&key, bytes)
-            .congestion_control(CongestionControl::Drop)
+            .congestion_control(cc)
+            .express(lockstep)
             .await
         {
             tracing::debug!("radio put to {key} failed: {e}");
@@ -47,25 +59,135 @@ async fn send_radio(radio: &Session, out: Vec<Outgoing>) {
     }
 }
 
-/// One step: the scan in, the motion command out to the world-server, then this step's radio
-/// traffic, then the step's telemetry.
-async fn step(
-    agent: &mut Agent,
-    id: RobotId,
-    scan: &Scan,
-    sim: &Session,
-    radio: &Session,
-) -> Result<(), ZenohError> {
-    let cmd = agent.on_scan(scan);
-    sim.put(keys::cmd(id), encode(&cmd))
-        .congestion_control(CongestionControl::Block)
-        .await
-        .map_err(zerr)?;
-    send_radio(radio, agent.radio_step()).await;
-    sim.put(keys::telemetry(id), encode(&agent.telemetry()))
+async fn put_sim(sim: &Session, key: String, bytes: Vec<u8>) -> Result<(), ZenohError> {
+    sim.put(key, bytes)
         .congestion_control(CongestionControl::Block)
         .await
         .map_err(zerr)
+}
+
+/// The subscriptions of a robot on its two planes.
+struct Subs {
+    scans: Subscriber<FifoChannelHandler<Sample>>,
+    plans: Subscriber<FifoChannelHandler<Sample>>,
+    ctl: Subscriber<FifoChannelHandler<Sample>>,
+    world_alive: Subscriber<FifoChannelHandler<Sample>>,
+    inbox: Subscriber<FifoChannelHandler<Sample>>,
+    peers: Subscriber<FifoChannelHandler<Sample>>,
+}
+
+/// Something that happened on either plane.
+enum Event {
+    Scan(Scan),
+    Plan(LinkPlan),
+    /// A radio payload: its key's kind and bytes.
+    Radio(String, Vec<u8>),
+    /// A peer's radio liveliness token appeared (`true`) or vanished.
+    Peer(RobotId, bool),
+    /// Nothing to do (an undecodable message, logged).
+    Nothing,
+    End(End),
+}
+
+impl Subs {
+    async fn declare(id: RobotId, sim: &Session, radio: &Session) -> Result<Subs, ZenohError> {
+        Ok(Subs {
+            scans: sim.declare_subscriber(keys::scan(id)).await.map_err(zerr)?,
+            plans: sim
+                .declare_subscriber(keys::NETEM_PLAN)
+                .await
+                .map_err(zerr)?,
+            ctl: sim.declare_subscriber(keys::CONTROL).await.map_err(zerr)?,
+            world_alive: sim
+                .liveliness()
+                .declare_subscriber(keys::WORLD_ALIVE)
+                .history(true)
+                .await
+                .map_err(zerr)?,
+            // Everything addressed to this robot on the radio, told apart by the key's last
+            // segment.
+            inbox: radio
+                .declare_subscriber(keys::radio_inbox(id))
+                .await
+                .map_err(zerr)?,
+            peers: radio
+                .liveliness()
+                .declare_subscriber(keys::RADIO_ALIVE_ALL)
+                .history(true)
+                .await
+                .map_err(zerr)?,
+        })
+    }
+
+    /// The next event; `idle` without any scan: the world fell silent.
+    async fn next(&self, idle: Duration) -> Event {
+        tokio::select! {
+            sample = self.scans.recv_async() => {
+                let Ok(sample) = sample else { return Event::End(End::Stopped) };
+                match decode::<Scan>(&sample.payload().to_bytes()) {
+                    Ok(scan) => Event::Scan(scan),
+                    Err(e) => { tracing::warn!("bad scan: {e}"); Event::Nothing }
+                }
+            }
+            sample = self.plans.recv_async() => {
+                let Ok(sample) = sample else { return Event::End(End::Stopped) };
+                match decode::<LinkPlan>(&sample.payload().to_bytes()) {
+                    Ok(plan) => Event::Plan(plan),
+                    Err(e) => { tracing::warn!("bad link plan: {e}"); Event::Nothing }
+                }
+            }
+            sample = self.inbox.recv_async() => {
+                let Ok(sample) = sample else { return Event::End(End::Stopped) };
+                let kind = keys::radio_kind(sample.key_expr().as_str()).unwrap_or_default().to_string();
+                Event::Radio(kind, sample.payload().to_bytes().into_owned())
+            }
+            sample = self.peers.recv_async() => {
+                let Ok(sample) = sample else { return Event::End(End::Stopped) };
+                match keys::robot_of(sample.key_expr().as_str()) {
+                    Some(peer) => Event::Peer(peer, sample.kind() == SampleKind::Put),
+                    None => Event::Nothing,
+                }
+            }
+            c = self.ctl.recv_async() => {
+                match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
+                    Ok(Ok(Control::Stop)) | Err(_) => Event::End(End::Stopped),
+                    Ok(Err(e)) => { tracing::warn!("bad control message: {e}"); Event::Nothing }
+                }
+            }
+            w = self.world_alive.recv_async() => {
+                if w.map_or(true, |w| w.kind() == SampleKind::Delete) {
+                    Event::End(End::WorldGone)
+                } else {
+                    Event::Nothing
+                }
+            }
+            _ = tokio::time::sleep(idle) => Event::End(End::WorldSilent),
+        }
+    }
+}
+
+/// Lockstep: waits for netem's token, so that netem sees the world's first status and publishes
+/// the links of every step (the robot waits for them).
+async fn wait_for_netem(sim: &Session, wait: Duration) -> Result<(), ZenohError> {
+    let netem = sim
+        .liveliness()
+        .declare_subscriber(keys::NETEM_ALIVE)
+        .history(true)
+        .await
+        .map_err(zerr)?;
+    let deadline = tokio::time::Instant::now() + wait;
+    loop {
+        match tokio::time::timeout_at(deadline, netem.recv_async()).await {
+            Ok(Ok(s)) if s.kind() == SampleKind::Put => return Ok(()),
+            Ok(Ok(_)) => {}
+            Ok(Err(_)) | Err(_) => {
+                return Err(ZenohError(format!(
+                    "netem did not join the sim plane within {wait:?}: a lockstep robot needs it \
+                     (it says which links are up each step)"
+                )))
+            }
+        }
+    }
 }
 
 /// Runs one robot until the launcher stops it or the world falls silent.
@@ -77,75 +199,141 @@ pub async fn run_robot(
     world: WorldInfo,
     idle_timeout: Duration,
 ) -> Result<End, ZenohError> {
-    let mut agent = Agent::new(id, world, s);
-    let scans = sim.declare_subscriber(keys::scan(id)).await.map_err(zerr)?;
-    let ctl = sim.declare_subscriber(keys::CONTROL).await.map_err(zerr)?;
-    let world_alive = sim
-        .liveliness()
-        .declare_subscriber(keys::WORLD_ALIVE)
-        .history(true)
-        .await
-        .map_err(zerr)?;
-    // Everything addressed to this robot on the radio, told apart by the key's last segment.
-    let inbox = radio
-        .declare_subscriber(keys::radio_inbox(id))
-        .await
-        .map_err(zerr)?;
-    let peers = radio
-        .liveliness()
-        .declare_subscriber(keys::RADIO_ALIVE_ALL)
-        .history(true)
-        .await
-        .map_err(zerr)?;
+    let agent = Agent::new(id, world, s);
+    let subs = Subs::declare(id, &sim, &radio).await?;
     let _radio_token = radio
         .liveliness()
         .declare_token(keys::radio_alive(id))
         .await
         .map_err(zerr)?;
+    if s.clock.marked() {
+        wait_for_netem(&sim, idle_timeout).await?;
+    }
     // Declared last: the world-server starts the clock once every robot's token is there, and by
-    // then this robot's subscribers exist.
+    // then this robot's subscribers exist (and, in lockstep, netem's).
     let _sim_token = sim
         .liveliness()
         .declare_token(keys::sim_alive(id))
         .await
         .map_err(zerr)?;
+    let planes = Planes {
+        id,
+        sim: &sim,
+        radio: &radio,
+        subs: &subs,
+        idle: idle_timeout,
+    };
+    if s.clock.marked() {
+        lockstep(agent, &planes).await
+    } else {
+        as_it_comes(agent, &planes).await
+    }
+}
+
+/// What a robot's loop works with.
+struct Planes<'a> {
+    id: RobotId,
+    sim: &'a Session,
+    radio: &'a Session,
+    subs: &'a Subs,
+    idle: Duration,
+}
+
+/// Realtime (and lockstep without markers): acts on every scan as it comes and takes radio
+/// traffic as it arrives.
+async fn as_it_comes(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
     loop {
-        tokio::select! {
-            sample = scans.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped) };
-                match decode::<Scan>(&sample.payload().to_bytes()) {
-                    Ok(scan) => step(&mut agent, id, &scan, &sim, &radio).await?,
-                    Err(e) => tracing::warn!("bad scan: {e}"),
-                }
+        match p.subs.next(p.idle).await {
+            Event::Scan(scan) => {
+                let cmd = agent.on_scan(&scan);
+                put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
+                send_radio(p.radio, agent.radio_step(), false).await;
+                put_sim(p.sim, keys::telemetry(p.id), encode(&agent.telemetry())).await?;
             }
-            sample = inbox.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let kind = keys::radio_kind(sample.key_expr().as_str()).unwrap_or_default();
-                let out = agent.on_radio(kind, &sample.payload().to_bytes());
-                send_radio(&radio, out).await;
+            Event::Radio(kind, bytes) => {
+                let out = agent.on_radio(&kind, &bytes);
+                send_radio(p.radio, out, false).await;
             }
-            sample = peers.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped) };
-                let Some(peer) = keys::robot_of(sample.key_expr().as_str()) else { continue };
-                if sample.kind() == SampleKind::Put {
-                    let out = agent.link_up(peer);
-                    send_radio(&radio, out).await;
-                } else {
-                    agent.link_down(peer);
-                }
+            Event::Peer(peer, true) => {
+                let out = agent.link_up(peer);
+                send_radio(p.radio, out, false).await;
             }
-            c = ctl.recv_async() => {
-                match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
-                    Ok(Ok(Control::Stop)) | Err(_) => return Ok(End::Stopped),
-                    Ok(Err(e)) => tracing::warn!("bad control message: {e}"),
-                }
-            }
-            w = world_alive.recv_async() => {
-                if w.map_or(true, |w| w.kind() == SampleKind::Delete) {
-                    return Ok(End::WorldGone);
-                }
-            }
-            _ = tokio::time::sleep(idle_timeout) => return Ok(End::WorldSilent),
+            Event::Peer(peer, false) => agent.link_down(peer),
+            Event::Plan(_) | Event::Nothing => {}
+            Event::End(e) => return Ok(e),
         }
     }
+}
+
+/// Lockstep: the step protocol of [`crate::lockstep`].
+async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
+    let mut ls = Lockstep::default();
+    // Answers produced while taking a step's arrivals: sent with the next step's traffic.
+    let mut answers = Vec::new();
+    'steps: loop {
+        let t = loop {
+            if let Some(t) = ls.ready() {
+                break t;
+            }
+            if let Some(end) = take(&mut ls, p.subs.next(p.idle).await) {
+                return Ok(end);
+            }
+        };
+        let Some((scan, linked)) = ls.start(p.id, t) else {
+            continue;
+        };
+        let (greetings, cut) = agent.set_neighbours(&linked);
+        ls.cut(&cut);
+        while !ls.linked(&linked) {
+            if ls.newer_than(t) {
+                continue 'steps;
+            }
+            if let Some(end) = take(&mut ls, p.subs.next(p.idle).await) {
+                return Ok(end);
+            }
+        }
+        let cmd = agent.on_scan(&scan);
+        let mut out = std::mem::take(&mut answers);
+        out.extend(greetings);
+        out.extend(agent.radio_step());
+        let marks = agent.marks(&out);
+        out.extend(marks);
+        send_radio(p.radio, out, true).await;
+        while !ls.marked(t, &linked) {
+            if ls.newer_than(t) {
+                continue 'steps;
+            }
+            if let Some(end) = take(&mut ls, p.subs.next(p.idle).await) {
+                return Ok(end);
+            }
+        }
+        let missing = ls.unmarked(t, &linked);
+        if !missing.is_empty() {
+            tracing::warn!("step {t}: no marker from {missing:?}: their sessions were lost");
+        }
+        for a in ls.take() {
+            answers.extend(agent.on_radio(&a.kind, &a.bytes));
+        }
+        put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
+        put_sim(p.sim, keys::telemetry(p.id), encode(&agent.telemetry())).await?;
+    }
+}
+
+/// Notes an event in the lockstep bookkeeping; `Some` when it ends the robot.
+fn take(ls: &mut Lockstep, e: Event) -> Option<End> {
+    match e {
+        Event::Scan(s) => ls.on_scan(s),
+        Event::Plan(plan) => ls.on_plan(plan),
+        Event::Radio(kind, bytes) => {
+            let from = radio::sender(&kind, &bytes);
+            let mark = (kind == "mark")
+                .then(|| decode::<Mark>(&bytes).ok())
+                .flatten();
+            ls.on_radio(Arrival { kind, bytes, from }, mark);
+        }
+        Event::Peer(peer, up) => ls.on_token(peer, up),
+        Event::Nothing => {}
+        Event::End(e) => return Some(e),
+    }
+    None
 }

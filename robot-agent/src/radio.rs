@@ -17,8 +17,8 @@ use std::collections::BTreeSet;
 use proto::geom::LaserSpec;
 use proto::grid::Cell;
 use proto::msg::{
-    decode, encode, DecodeError, Hello, RobotId, ScanDelta, ScanRecord, Step, Target, Traffic,
-    WorldInfo,
+    decode, encode, DecodeError, Hello, Mark, RobotId, ScanDelta, ScanRecord, Step, Target,
+    Traffic, WorldInfo,
 };
 use proto::scenario::Scenario;
 
@@ -74,6 +74,8 @@ pub enum Msg {
     Coord(CoordMsg),
     /// What the exchange shares.
     Share(Share),
+    /// Lockstep: the end of the sender's traffic of a step.
+    Mark(Mark),
 }
 
 /// A message encoded once, ready for any addressee.
@@ -92,6 +94,7 @@ impl Msg {
             Msg::Target(m) => (proto::keys::radio_targ, encode(m)),
             Msg::Coord(m) => (m.key(), m.encode()),
             Msg::Share(m) => (m.key(), m.encode()),
+            Msg::Mark(m) => (proto::keys::radio_mark, encode(m)),
         };
         let n = bytes.len();
         let by_type = match self {
@@ -99,6 +102,7 @@ impl Msg {
             Msg::Target(_) => vec![(Traffic::Targ, n)],
             Msg::Coord(m) => vec![(m.traffic(), n)],
             Msg::Share(m) => m.by_type(n),
+            Msg::Mark(_) => vec![(Traffic::Mark, n)],
         };
         Packet {
             key,
@@ -113,10 +117,22 @@ impl Msg {
         match kind {
             "hello" => Some(decode(bytes).map(Msg::Hello)),
             "targ" => Some(decode(bytes).map(Msg::Target)),
+            "mark" => Some(decode(bytes).map(Msg::Mark)),
             _ => CoordMsg::decode(kind, bytes)
                 .map(|r| r.map(Msg::Coord))
                 .or_else(|| Share::decode(kind, bytes).map(|r| r.map(Msg::Share))),
         }
+    }
+}
+
+/// The robot that sent a radio payload (as it says), if it decodes.
+pub fn sender(kind: &str, bytes: &[u8]) -> Option<RobotId> {
+    match Msg::decode(kind, bytes)?.ok()? {
+        Msg::Hello(h) => Some(h.from),
+        Msg::Target(t) => Some(t.from),
+        Msg::Coord(c) => Some(c.from()),
+        Msg::Share(s) => Some(s.from()),
+        Msg::Mark(m) => Some(m.from),
     }
 }
 

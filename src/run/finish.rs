@@ -9,6 +9,7 @@ use proto::exit::ExitReason;
 use proto::grid::Grid;
 use proto::keys;
 use proto::msg::{decode, encode, Control, LinkReport, Status};
+use proto::scenario::ClockMode;
 use zenoh::qos::CongestionControl;
 
 use super::follow::Record;
@@ -51,10 +52,11 @@ pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) {
 /// `summary.json`'s content.
 pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Instant) -> Summary {
     let eval = &rec.eval;
-    let last = rec.last_status.clone().unwrap_or(Status {
+    let last = rec.last_status().cloned().unwrap_or(Status {
         step: 0,
         robots: Vec::new(),
         collisions_total: 0,
+        missed: Vec::new(),
     });
     let per_robot_types: Vec<Vec<u64>> = eval
         .last
@@ -105,7 +107,44 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
         radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
         reconnect: (&rec.links.reconnects()).into(),
         failed_processes: rec.failed.clone(),
+        deterministic: false,
+        nondeterministic: nondeterministic(plan, rec),
+        run_digest: String::new(),
     }
+}
+
+/// What made the run depend on more than its scenario (empty: nothing did).
+fn nondeterministic(plan: &Plan, rec: &Record) -> Vec<String> {
+    let mut why = Vec::new();
+    match plan.scenario.clock.mode {
+        ClockMode::Realtime => why.push("realtime clock: steps follow the wall clock".to_string()),
+        ClockMode::Lockstep if !plan.scenario.clock.markers => why.push(
+            "lockstep without step markers (clock.markers = false): robots take radio traffic as it arrives"
+                .to_string(),
+        ),
+        ClockMode::Lockstep => {}
+    }
+    for st in &rec.statuses {
+        if !st.missed.is_empty() {
+            why.push(format!(
+                "step {}: the world went on without the commands of robots {:?} (clock.step_timeout_ms)",
+                st.step.saturating_sub(1),
+                st.missed
+            ));
+        }
+    }
+    for (step, robot) in rec.late_reports() {
+        why.push(format!(
+            "step {step}: robot {robot}'s telemetry came after the world was two steps on"
+        ));
+    }
+    if !rec.settled_in_time {
+        why.push("the last step's reports did not all arrive".to_string());
+    }
+    for f in &rec.failed {
+        why.push(format!("a process failed: {f}"));
+    }
+    why
 }
 
 /// The largest backlog over the run and its mean over robot-steps that had neighbours.
@@ -151,7 +190,7 @@ pub fn write_pictures(
     progress: &mut Progress,
 ) -> anyhow::Result<()> {
     let (truth, info) = run_truth;
-    let trajectories = &rec.trajectories;
+    let trajectories = &rec.trajectories();
     let mut truth_pic = Picture::of_grid(truth, info);
     for (i, t) in trajectories.iter().enumerate() {
         truth_pic.path(t, robot_colour(i));

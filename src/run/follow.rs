@@ -2,15 +2,16 @@
 //! recorded), the children watched, progress shown — until the exploration is done, the step
 //! limit, every robot idle or dead, a process the run cannot do without exited, or a signal.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use proto::exit::ExitReason;
-use proto::msg::{decode, LinkReport, RobotId, Status, Telemetry};
+use proto::msg::{decode, LinkReport, Status, Step, Telemetry};
 use serde::de::DeserializeOwned;
 use zenoh::sample::Sample;
 
 use super::prepare::Plan;
 use super::spawn::{last_log_line, Started};
+use super::steps::StepOrder;
 use crate::children::{describe, Children};
 use crate::evaluate::Evaluator;
 use crate::progress::Progress;
@@ -20,29 +21,71 @@ use crate::rundir::LinkLog;
 /// in flight on the radio may give an idle robot new frontiers).
 const IDLE_STEPS: u32 = 5;
 
+/// How long the launcher waits, once the last step is known, for the rest of that step's reports
+/// (the world's status after it, netem's link report of it).
+const SETTLE: Duration = Duration::from_secs(5);
+
 /// What the launcher saw of a run.
 pub struct Record {
     pub eval: Evaluator,
-    pub last_status: Option<Status>,
     pub links: LinkLog,
     /// Every child that exited during the run, described.
     pub failed: Vec<String>,
-    /// Every robot's poses, in step order.
-    pub trajectories: Vec<Vec<(f64, f64)>>,
+    /// Every status of the world, in step order.
+    pub statuses: Vec<Status>,
+    lockstep: bool,
+    /// Telemetry, taken a whole step at a time (lockstep).
+    order: StepOrder,
     /// The step since which every live robot has been idle.
     idle_since: Option<u32>,
+    /// The run's last step and why it ended there, once the telemetry of a step decided it
+    /// (exploration done, nothing left to explore, the step limit).
+    pub end: Option<(Step, ExitReason)>,
+    /// The last step's reports all arrived before the launcher stopped the run (or there was no
+    /// last step to wait for).
+    pub settled_in_time: bool,
 }
 
 impl Record {
-    pub fn new(eval: Evaluator, robots: RobotId) -> Record {
+    /// `lockstep`: telemetry is taken a whole step at a time ([`StepOrder`]); else as it comes.
+    pub fn new(eval: Evaluator, lockstep: bool) -> Record {
         Record {
             eval,
-            last_status: None,
             links: LinkLog::default(),
             failed: Vec::new(),
-            trajectories: vec![Vec::new(); usize::from(robots)],
+            statuses: Vec::new(),
+            lockstep,
+            order: StepOrder::default(),
             idle_since: None,
+            end: None,
+            settled_in_time: true,
         }
+    }
+
+    /// The world's state at the end: the status after the last step's moves (or the latest).
+    pub fn last_status(&self) -> Option<&Status> {
+        let upto = self.end.map_or(Step::MAX, |(e, _)| e.saturating_add(1));
+        self.statuses.iter().rev().find(|s| s.step <= upto)
+    }
+
+    /// Every robot's poses, in step order, up to the last status.
+    pub fn trajectories(&self) -> Vec<Vec<(f64, f64)>> {
+        let upto = self.last_status().map_or(0, |s| s.step);
+        let robots = self.statuses.first().map_or(0, |s| s.robots.len());
+        let mut t = vec![Vec::new(); robots];
+        for st in self.statuses.iter().filter(|s| s.step <= upto) {
+            for r in &st.robots {
+                if let Some(t) = t.get_mut(usize::from(r.id)) {
+                    t.push((r.pose.x, r.pose.y));
+                }
+            }
+        }
+        t
+    }
+
+    /// Telemetry reports that came after their step was taken: (step, robot).
+    pub fn late_reports(&self) -> &[(Step, proto::msg::RobotId)] {
+        &self.order.late
     }
 
     fn on_status(
@@ -51,11 +94,6 @@ impl Record {
         plan: &Plan,
         progress: &mut Progress,
     ) -> Option<ExitReason> {
-        for r in &st.robots {
-            if let Some(t) = self.trajectories.get_mut(usize::from(r.id)) {
-                t.push((r.pose.x, r.pose.y));
-            }
-        }
         let alive = st.robots.iter().filter(|r| r.alive).count();
         progress.show(&format!(
             "step {:>5}/{}  best coverage {:5.1}% (robot {})  robots alive {alive}/{}",
@@ -65,23 +103,57 @@ impl Record {
             self.eval.best.1,
             plan.robots()
         ));
-        let done = st.step >= plan.scenario.max_steps;
-        self.last_status = Some(st);
+        self.order.on_status(&st);
+        let step = st.step;
+        self.statuses.push(st);
         if alive == 0 {
             return Some(ExitReason::AllRobotsDead);
         }
-        done.then_some(ExitReason::MaxSteps)
+        if step >= plan.scenario.max_steps && self.end.is_none() {
+            self.end = Some((step.saturating_sub(1), ExitReason::MaxSteps));
+        }
+        // A status may complete a step (a robot found dead, or missed).
+        self.take_complete_steps();
+        None
     }
 
-    fn on_telemetry(&mut self, t: Telemetry) -> Option<ExitReason> {
-        let step = t.step;
-        self.eval.add(t);
-        if self.eval.exploration_step.is_some() {
-            return Some(ExitReason::Explored);
+    fn on_telemetry(&mut self, t: Telemetry) {
+        if !self.lockstep {
+            // Realtime: reports are taken as they come (the run follows the wall clock anyway).
+            if self.end.is_none() {
+                let step = t.step;
+                self.took(step, vec![t]);
+            }
+            return;
         }
-        // Every live robot idle (its latest telemetry says it sees no reachable frontier) for a
-        // few steps in a row: nothing is left to explore.
-        let alive: Vec<RobotId> = self.last_status.as_ref().map_or(Vec::new(), |s| {
+        self.order.on_telemetry(t);
+        self.take_complete_steps();
+    }
+
+    /// Lockstep: takes the steps that are complete, up to the last one once it is known.
+    fn take_complete_steps(&mut self) {
+        while self.lockstep && self.end.is_none_or(|(e, _)| self.order.next() <= e) {
+            let Some((step, reports)) = self.order.take() else {
+                return;
+            };
+            self.took(step, reports);
+        }
+    }
+
+    /// Evaluates reports of `step`; decides the end if they show it (exploration done, or every
+    /// live robot idle for a few steps in a row: nothing is left to explore).
+    fn took(&mut self, step: Step, reports: Vec<Telemetry>) {
+        for t in reports {
+            self.eval.add(t);
+        }
+        if self.end.is_some() {
+            return;
+        }
+        if self.eval.exploration_step.is_some() {
+            self.end = Some((step, ExitReason::Explored));
+            return;
+        }
+        let alive: Vec<_> = self.statuses.last().map_or(Vec::new(), |s| {
             s.robots.iter().filter(|r| r.alive).map(|r| r.id).collect()
         });
         let all_idle = !alive.is_empty()
@@ -90,10 +162,39 @@ impl Record {
                 .all(|id| self.eval.last.get(id).is_some_and(|(_, t)| t.idle));
         if !all_idle {
             self.idle_since = None;
-            return None;
+            return;
         }
         let since = *self.idle_since.get_or_insert(step);
-        (step >= since + IDLE_STEPS).then_some(ExitReason::NoFrontiers)
+        if step >= since + IDLE_STEPS {
+            self.end = Some((step, ExitReason::NoFrontiers));
+        }
+    }
+
+    /// Whether everything of the steps up to the end has arrived: the telemetry, the status
+    /// after the last step's moves and netem's report of the last step (realtime: at once).
+    fn settled(&self) -> bool {
+        let Some((e, reason)) = self.end else {
+            return false;
+        };
+        if !self.lockstep {
+            return true;
+        }
+        let after = e.saturating_add(1);
+        let status = self.statuses.iter().any(|s| s.step >= after);
+        let links = self.links.rows.iter().any(|(s, _)| *s >= e);
+        // netem reports a step when the next one opens; a run without links has no reports.
+        let no_links = self.statuses.first().is_some_and(|s| s.robots.len() < 2);
+        let taken = self.order.next() > e
+            || reason == ExitReason::MaxSteps && self.order.alive_at(e).is_none();
+        taken && status && (links || no_links)
+    }
+
+    /// Drops what was recorded after the last step (the world may have run ahead while the
+    /// launcher waited for the last step's reports).
+    pub fn truncate(&mut self) {
+        if let Some((e, _)) = self.end {
+            self.links.rows.retain(|(s, _)| *s <= e);
+        }
     }
 
     /// Records the children that exited since the last look; the run ends when the
@@ -163,6 +264,7 @@ pub async fn follow(
     let sim = &run.sim;
     let mut tick = tokio::time::interval(Duration::from_millis(200));
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut settle_by = None;
     let reason = loop {
         let end = tokio::select! {
             s = sim.statuses.recv_async() => match message::<Status, _>(s, "status") {
@@ -171,7 +273,10 @@ pub async fn follow(
             },
             t = sim.telemetry.recv_async() => match message::<Telemetry, _>(t, "telemetry") {
                 Err(()) => Some(CLOSED),
-                Ok(t) => t.and_then(|t| rec.on_telemetry(t)),
+                Ok(t) => {
+                    if let Some(t) = t { rec.on_telemetry(t) }
+                    None
+                }
             },
             r = sim.link_reports.recv_async() => match message::<LinkReport, _>(r, "link report") {
                 Err(()) => Some(CLOSED),
@@ -190,8 +295,20 @@ pub async fn follow(
                 Some(ExitReason::Terminated)
             }
         };
+        if let Some((_, reason)) = rec.end {
+            let by = *settle_by.get_or_insert_with(|| Instant::now() + SETTLE);
+            if rec.settled() {
+                break reason;
+            }
+            if Instant::now() >= by {
+                rec.settled_in_time = false;
+                break reason;
+            }
+        }
+        // Once the last step is known, a process that exits (the world-server ends itself at
+        // the step limit) or a signal does not change why the run ended.
         if let Some(reason) = end {
-            break reason;
+            break rec.end.map_or(reason, |(_, r)| r);
         }
     };
     Ok(reason)

@@ -10,13 +10,14 @@ mod finish;
 mod follow;
 mod prepare;
 mod spawn;
+mod steps;
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use crate::evaluate::Evaluator;
 use crate::progress::Progress;
-use crate::rundir::{write_summary, Summary};
+use crate::rundir::{run_digest, write_summary, Summary};
 
 /// Flags of `swarm run`.
 #[derive(clap::Args, Debug, Clone, PartialEq)]
@@ -85,14 +86,18 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
             plan.ports.http_addr()
         );
     }
-    let mut rec = follow::Record::new(eval, plan.robots());
+    let lockstep = plan.scenario.clock.mode == proto::scenario::ClockMode::Lockstep;
+    let mut rec = follow::Record::new(eval, lockstep);
     let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
     finish::stop(run, &mut rec, &mut progress).await;
-    let summary = finish::summary(&plan, &rec, exit_reason, started);
-    write_summary(&plan.dir, &summary)?;
+    rec.truncate();
+    let mut summary = finish::summary(&plan, &rec, exit_reason, started);
     finish::write_tables(&plan.dir, &rec)?;
     finish::write_pictures(&plan.dir, (&truth, info), &rec, &mut progress)?;
+    summary.run_digest = run_digest(&plan.dir)?;
+    summary.deterministic = summary.nondeterministic.is_empty();
+    write_summary(&plan.dir, &summary)?;
     Ok(Outcome {
         dir: plan.dir,
         summary,

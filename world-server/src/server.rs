@@ -209,9 +209,19 @@ pub async fn serve(
         if stop {
             break End::Stopped { step };
         }
+        // Lockstep: whom the world went on without (the step timed out).
+        let missed: Vec<RobotId> = match s.clock.mode {
+            ClockMode::Lockstep => world.alive().filter(|id| !got.contains_key(id)).collect(),
+            ClockMode::Realtime => Vec::new(),
+        };
+        if !missed.is_empty() {
+            tracing::warn!("step {step} timed out without the commands of robots {missed:?}");
+        }
         world.apply(step, &got);
         step += 1;
-        put(&session, keys::STATUS, encode(&world.status(step))).await?;
+        let mut status = world.status(step);
+        status.missed = missed;
+        put(&session, keys::STATUS, encode(&status)).await?;
     };
     if bad.count > 0 {
         tracing::warn!("{} bad inputs were rejected during the run", bad.count);

@@ -253,6 +253,7 @@ impl World {
                 })
                 .collect(),
             collisions_total: self.collisions_total,
+            missed: Vec::new(),
         }
     }
 }

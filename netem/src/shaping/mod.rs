@@ -21,7 +21,7 @@ pub mod corrupt;
 pub mod latency;
 
 use std::io;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, watch};
@@ -269,8 +269,10 @@ impl Unsent for tokio::net::tcp::OwnedWriteHalf {
 impl Unsent for tokio::io::DuplexStream {}
 
 /// Asks a socket how much of what was written to it is still unsent. It holds the descriptor of
-/// a writer that [`sink`] borrows for its whole life, so it is only ever used while that
-/// descriptor is open — including from [`InKernel`]'s `Drop`, which runs inside `sink`.
+/// a writer that [`sink`] borrows for its whole life, and is only used while that descriptor is
+/// open: by the sink itself, and by a step's count through [`InKernel`]'s shared state, under
+/// its lock and only while it is marked open — the mark is cleared, under the same lock, by
+/// `InKernel`'s `Drop`, which runs inside `sink`.
 #[derive(Clone, Copy, Debug)]
 pub struct UnsentProbe(Option<std::os::fd::RawFd>);
 
@@ -286,8 +288,8 @@ impl UnsentProbe {
         // linux/sockios.h: SIOCOUTQNSD, "output queue size, not sent only".
         const SIOCOUTQNSD: libc::Ioctl = 0x894B;
         let mut n: libc::c_int = 0;
-        // SAFETY: the descriptor belongs to the writer `sink` borrows, open while the probe is
-        // used (see the type's doc), and SIOCOUTQNSD writes exactly one c_int through the
+        // SAFETY: the descriptor belongs to the writer `sink` borrows, open whenever the probe
+        // is used (see the type's doc), and SIOCOUTQNSD writes exactly one c_int through the
         // pointer, which points to `n`.
         let r = unsafe { libc::ioctl(fd, SIOCOUTQNSD, &mut n as *mut libc::c_int) };
         if r == 0 {
@@ -300,43 +302,28 @@ impl UnsentProbe {
 
 /// Bytes written to a socket that the kernel has not yet confirmed as sent. They are out of
 /// netem's buffer (the kernel holds them, bounded by the socket's send buffer) but counted only
-/// once sent. When this is dropped (the end of the sink, a cut) the socket is asked one last
-/// time: what left by then counts as delivered, what is still unsent as lost.
+/// once sent: when the sink looks ([`InKernel::confirm`]), or when a step's count is taken
+/// ([`crate::accounting::DirCounters::take_step`] settles every connection's). When this is
+/// dropped (the end of the sink, a cut) the socket is asked one last time: what left by then
+/// counts as delivered, what is still unsent as lost.
 struct InKernel {
+    pending: Arc<Mutex<Pending>>,
+    registered: bool,
+}
+
+/// The state [`InKernel`] shares with its direction's counters.
+struct Pending {
     counters: Option<Arc<crate::accounting::DirCounters>>,
     bytes: usize,
     probe: UnsentProbe,
+    /// False once the sink is gone: its socket may be closed, it is not asked any more.
+    open: bool,
 }
 
-impl Drop for InKernel {
-    fn drop(&mut self) {
-        self.confirm();
-        if let (Some(c), true) = (&self.counters, self.bytes > 0) {
-            c.lost(self.bytes);
-        }
-    }
-}
-
-impl InKernel {
-    fn new(probe: UnsentProbe) -> Self {
-        Self {
-            counters: None,
-            bytes: 0,
-            probe,
-        }
-    }
-
-    fn push(&mut self, piece: Chunk) {
-        let (n, counters) = piece.into_kernel();
-        self.bytes += n;
-        if self.counters.is_none() {
-            self.counters = counters;
-        }
-    }
-
+impl Pending {
     /// Counts as delivered whatever of the written bytes has left the socket.
     fn confirm(&mut self) {
-        if self.bytes == 0 {
+        if self.bytes == 0 || !self.open {
             return;
         }
         let unsent = self.probe.unsent().min(self.bytes);
@@ -348,6 +335,75 @@ impl InKernel {
             self.bytes = unsent;
         }
     }
+}
+
+impl crate::accounting::InFlight for Mutex<Pending> {
+    fn settle(&self) {
+        self.lock().unwrap_or_else(|p| p.into_inner()).confirm();
+    }
+}
+
+impl Drop for InKernel {
+    fn drop(&mut self) {
+        let mut p = self.lock();
+        p.confirm();
+        if let (Some(c), true) = (&p.counters, p.bytes > 0) {
+            c.lost(p.bytes);
+        }
+        p.bytes = 0;
+        p.open = false;
+    }
+}
+
+impl InKernel {
+    fn new(probe: UnsentProbe) -> Self {
+        Self {
+            pending: Arc::new(Mutex::new(Pending {
+                counters: None,
+                bytes: 0,
+                probe,
+                open: true,
+            })),
+            registered: false,
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Pending> {
+        self.pending.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Bytes still in the kernel, not yet counted.
+    fn bytes(&self) -> usize {
+        self.lock().bytes
+    }
+
+    fn push(&mut self, piece: Chunk) {
+        let (n, counters) = piece.into_kernel();
+        let register = {
+            let mut p = self.lock();
+            p.bytes += n;
+            if p.counters.is_none() {
+                p.counters = counters;
+            }
+            if self.registered {
+                None
+            } else {
+                p.counters.clone()
+            }
+        };
+        // Registered outside the lock: `take_step` takes the registry's lock, then ours.
+        if let Some(c) = register {
+            let weak: std::sync::Weak<dyn crate::accounting::InFlight> =
+                Arc::downgrade(&self.pending) as _;
+            c.register(weak);
+            self.registered = true;
+        }
+    }
+
+    /// Counts as delivered whatever of the written bytes has left the socket.
+    fn confirm(&mut self) {
+        self.lock().confirm();
+    }
 
     /// Waits until the kernel has sent everything written (true), or `gate` carries a kill
     /// (false: what is still unsent never leaves and counts as lost when `self` is dropped).
@@ -358,7 +414,7 @@ impl InKernel {
         let mut polls = 0u32;
         loop {
             self.confirm();
-            if self.bytes == 0 {
+            if self.bytes() == 0 {
                 return true;
             }
             if gate.as_ref().is_some_and(|g| g.borrow().is_some()) {
@@ -414,7 +470,7 @@ pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
     let mut in_kernel = InKernel::new(writer.probe());
     loop {
         // Take the next chunk; while none is ready, finish counting what was written.
-        let next = if in_kernel.bytes == 0 {
+        let next = if in_kernel.bytes() == 0 {
             input.recv().await
         } else {
             tokio::select! {

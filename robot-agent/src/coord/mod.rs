@@ -128,6 +128,13 @@ pub enum CoordMsg {
 }
 
 impl CoordMsg {
+    /// The robot that sent it.
+    pub fn from(&self) -> RobotId {
+        match self {
+            CoordMsg::Team(t) => t.from,
+        }
+    }
+
     /// The package type its bytes are accounted to.
     pub fn traffic(&self) -> Traffic {
         match self {
