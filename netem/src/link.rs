@@ -246,6 +246,11 @@ impl Link {
     }
 
     /// Resets every connection and waits (up to `wait`) until their tasks have ended; aborts the rest.
+    /// Whether a connection through the link is open.
+    pub fn has_connections(&self) -> bool {
+        !lock(&self.conns).is_empty()
+    }
+
     pub async fn close_all(&self, wait: Duration) {
         self.reset_connections();
         let deadline = tokio::time::Instant::now() + wait;

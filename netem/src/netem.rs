@@ -324,6 +324,9 @@ fn radio_model(cfg: &NetemConfig) -> Model {
 }
 
 /// Binds every listener (and the HTTP API), spawns the tasks. Needs a tokio runtime.
+/// How long [`Netem::shutdown`] waits for connections to end by themselves before it resets them.
+pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(1);
+
 /// Lockstep: how many steps of a link's rate may cross at once. The robots pace what they offer
 /// (bursts of a few steps, never more than the rate on average); netem lets a larger burst
 /// through, so that a step's data and the step's marker behind them never wait for a later step
@@ -777,6 +780,15 @@ impl Netem {
     /// counters can no longer change).
     pub async fn shutdown(mut self) -> Vec<LinkSnapshot> {
         self.shared.shutdown.send_replace(true);
+        // At the end of a run the robots are told to stop at the same time as netem: give their
+        // connections a moment to end by themselves (every byte written is then sent or counted
+        // lost by its sink), so that a reset here does not race bytes still leaving the kernel.
+        let grace = tokio::time::Instant::now() + SHUTDOWN_GRACE;
+        while self.shared.links.iter().any(|l| l.has_connections())
+            && tokio::time::Instant::now() < grace
+        {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
         for l in &self.shared.links {
             l.close_all(Duration::from_millis(500)).await;
         }
