@@ -216,15 +216,28 @@ impl Agent {
     }
 
     /// Bytes received on the radio under key segment `kind` (`hello`, `targ`, `delta`, ...):
-    /// counted and decoded by the radio, then taken by the part they are for. A share that
-    /// reveals a gap is answered with a handshake to its sender; one that cannot be taken counts
-    /// as a decode error.
+    /// counted and decoded by the radio ([`Self::receive`]), then taken ([`Self::take`]).
     pub fn on_radio(&mut self, kind: &str, bytes: &[u8]) -> Vec<Outgoing> {
-        match self.radio.receive(kind, bytes) {
-            Some(Msg::Hello(h)) => self.sharing.on_hello(&h),
-            Some(Msg::Target(t)) => self.heard.on_target(self.id, &t),
-            Some(Msg::Coord(m)) => self.coordinator.on_message(self.id, &m),
-            Some(Msg::Share(share)) => {
+        match self.receive(kind, bytes) {
+            Some(m) => self.take(m),
+            None => Vec::new(),
+        }
+    }
+
+    /// Counts and decodes bytes received under key segment `kind` (`None`: undecodable,
+    /// counted as a decode error).
+    pub fn receive(&mut self, kind: &str, bytes: &[u8]) -> Option<Msg> {
+        self.radio.receive(kind, bytes)
+    }
+
+    /// Takes a received message into the part it is for. A share that reveals a gap is answered
+    /// with a handshake to its sender; one that cannot be taken counts as a decode error.
+    pub fn take(&mut self, m: Msg) -> Vec<Outgoing> {
+        match m {
+            Msg::Hello(h) => self.sharing.on_hello(&h),
+            Msg::Target(t) => self.heard.on_target(self.id, &t),
+            Msg::Coord(m) => self.coordinator.on_message(self.id, &m),
+            Msg::Share(share) => {
                 let w = &self.world;
                 match self.sharing.on_share(&share, &w.map, &w.laser) {
                     Ok(true) => {
@@ -238,8 +251,8 @@ impl Agent {
                     }
                 }
             }
-            // Markers are the node's business (lockstep); one that reaches the agent is counted.
-            Some(Msg::Mark(_)) | None => {}
+            // Markers are the step protocol's business (lockstep), not the agent's.
+            Msg::Mark(_) => {}
         }
         Vec::new()
     }

@@ -22,15 +22,9 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use proto::msg::{LinkPlan, Mark, RobotId, Scan, Step};
+use proto::msg::{LinkPlan, RobotId, Scan, Step};
 
-/// A received radio payload waiting to be taken: its key's kind, bytes, and sender.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Arrival {
-    pub kind: String,
-    pub bytes: Vec<u8>,
-    pub from: Option<RobotId>,
-}
+use crate::radio::Msg;
 
 /// One robot's bookkeeping of the lockstep protocol.
 #[derive(Debug, Default)]
@@ -40,8 +34,9 @@ pub struct Lockstep {
     /// Per step, the neighbours whose marker of it arrived, and how many messages each said
     /// it sent before it.
     marks: BTreeMap<Step, BTreeMap<RobotId, u32>>,
-    /// Radio payloads in the order they arrived.
-    inbox: Vec<Arrival>,
+    /// Received messages (markers aside) in the order they arrived, already counted and
+    /// decoded.
+    inbox: Vec<Msg>,
     /// Peers whose radio session is up (their liveliness token is seen).
     present: BTreeSet<RobotId>,
     /// Peers whose session the plan cut while it was up: their token must go before a new one
@@ -58,12 +53,14 @@ impl Lockstep {
         self.plans.insert(plan.step, plan);
     }
 
-    /// A radio payload arrived: it waits to be taken (and counted); a marker is noted too.
-    pub fn on_radio(&mut self, a: Arrival, mark: Option<Mark>) {
-        if let Some(m) = mark {
-            self.marks.entry(m.step).or_default().insert(m.from, m.sent);
+    /// A radio message arrived: a marker is noted, anything else waits to be taken.
+    pub fn on_radio(&mut self, m: Msg) {
+        match m {
+            Msg::Mark(m) => {
+                self.marks.entry(m.step).or_default().insert(m.from, m.sent);
+            }
+            m => self.inbox.push(m),
         }
-        self.inbox.push(a);
     }
 
     /// A peer's radio liveliness token appeared (`up`) or vanished.
@@ -125,12 +122,9 @@ impl Lockstep {
         })
     }
 
-    /// Messages (markers aside) from `peer` waiting to be taken.
+    /// Messages from `peer` waiting to be taken.
     fn arrived_from(&self, peer: RobotId) -> usize {
-        self.inbox
-            .iter()
-            .filter(|a| a.from == Some(peer) && a.kind != "mark")
-            .count()
+        self.inbox.iter().filter(|m| m.from() == peer).count()
     }
 
     /// The neighbours among `peers` whose marker of `t` did not come (their session was lost).
@@ -148,11 +142,11 @@ impl Lockstep {
         self.scans.keys().any(|&s| s > t)
     }
 
-    /// What arrived since the last take, sender by sender in id order, each sender's payloads
-    /// in arrival order (payloads of no known sender last).
-    pub fn take(&mut self) -> Vec<Arrival> {
+    /// What arrived since the last take, sender by sender in id order, each sender's messages
+    /// in arrival order.
+    pub fn take(&mut self) -> Vec<Msg> {
         let mut all = std::mem::take(&mut self.inbox);
-        all.sort_by_key(|a| a.from.map_or(u32::MAX, u32::from));
+        all.sort_by_key(Msg::from);
         all
     }
 }
@@ -161,7 +155,7 @@ impl Lockstep {
 mod tests {
     use super::*;
     use proto::geom::Pose;
-    use proto::msg::MoveOutcome;
+    use proto::msg::{Hello, Mark, MoveOutcome};
 
     fn scan(step: Step) -> Scan {
         Scan {
@@ -172,12 +166,16 @@ mod tests {
         }
     }
 
-    fn arrival(from: RobotId, n: u8) -> Arrival {
-        Arrival {
-            kind: "hello".into(),
-            bytes: vec![n],
-            from: Some(from),
-        }
+    /// A message from `from`, told apart by `n`.
+    fn hello(from: RobotId, n: u32) -> Msg {
+        Msg::Hello(Hello {
+            from,
+            knowledge: vec![(from, n)],
+        })
+    }
+
+    fn mark(from: RobotId, step: Step, sent: u32) -> Msg {
+        Msg::Mark(Mark { from, step, sent })
     }
 
     #[test]
@@ -197,31 +195,13 @@ mod tests {
         l.on_token(2, true);
         assert!(l.linked(&nb));
         // A marker of step 3 can come before the robot starts step 3; one of step 2 is old.
-        l.on_radio(
-            arrival(1, 0),
-            Some(Mark {
-                from: 1,
-                step: 3,
-                sent: 0,
-            }),
-        );
-        l.on_radio(
-            arrival(2, 0),
-            Some(Mark {
-                from: 2,
-                step: 2,
-                sent: 0,
-            }),
-        );
+        l.on_radio(mark(1, 3, 0));
+        l.on_radio(mark(2, 2, 0));
         assert!(!l.marked(3, &nb));
-        l.on_radio(
-            arrival(2, 0),
-            Some(Mark {
-                from: 2,
-                step: 3,
-                sent: 0,
-            }),
-        );
+        // A marker that counts a message not yet here does not complete the step.
+        l.on_radio(mark(2, 3, 1));
+        assert!(!l.marked(3, &nb));
+        l.on_radio(hello(2, 0));
         assert!(l.marked(3, &nb));
         // A lost session ends the wait for that neighbour too.
         l.on_token(2, false);
@@ -231,36 +211,19 @@ mod tests {
     #[test]
     fn arrivals_are_taken_by_sender_then_in_arrival_order() {
         let mut l = Lockstep::default();
-        for (from, n) in [(2, 0), (1, 1), (2, 2), (0, 3)] {
-            l.on_radio(arrival(from, n), None);
+        for (from, n) in [(2, 0), (1, 1), (2, 2), (0, 3), (1, 4)] {
+            l.on_radio(hello(from, n));
         }
-        l.on_radio(
-            arrival(1, 4),
-            Some(Mark {
-                from: 1,
-                step: 0,
-                sent: 0,
-            }),
-        );
-        l.on_radio(
-            Arrival {
-                kind: "x".into(),
-                bytes: vec![9],
-                from: None,
-            },
-            None,
-        );
-        let order: Vec<(Option<RobotId>, u8)> =
-            l.take().iter().map(|a| (a.from, a.bytes[0])).collect();
+        l.on_radio(mark(1, 0, 2));
+        let order: Vec<Msg> = l.take();
         assert_eq!(
             order,
             [
-                (Some(0), 3),
-                (Some(1), 1),
-                (Some(1), 4),
-                (Some(2), 0),
-                (Some(2), 2),
-                (None, 9)
+                hello(0, 3),
+                hello(1, 1),
+                hello(1, 4),
+                hello(2, 0),
+                hello(2, 2)
             ]
         );
         assert!(l.take().is_empty());

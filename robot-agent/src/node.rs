@@ -7,7 +7,7 @@
 use std::time::Duration;
 
 use proto::keys;
-use proto::msg::{decode, encode, Control, LinkPlan, Mark, RobotId, Scan, WorldInfo};
+use proto::msg::{decode, encode, Control, LinkPlan, RobotId, Scan, WorldInfo};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
 use zenoh::handlers::FifoChannelHandler;
@@ -17,8 +17,8 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::Session;
 
 use crate::agent::Agent;
-use crate::lockstep::{Arrival, Lockstep};
-use crate::radio::{self, Outgoing};
+use crate::lockstep::Lockstep;
+use crate::radio::Outgoing;
 
 /// Why the robot stopped.
 #[derive(Debug, PartialEq, Eq)]
@@ -89,6 +89,25 @@ enum Event {
     End(End),
 }
 
+/// The event a sim-plane sample carries: `wrap` of its decoded payload, `Nothing` (logged) if it
+/// does not decode, the end once the subscription closed.
+fn decoded<T: serde::de::DeserializeOwned, E>(
+    sample: Result<Sample, E>,
+    what: &str,
+    wrap: impl FnOnce(T) -> Event,
+) -> Event {
+    let Ok(sample) = sample else {
+        return Event::End(End::Stopped);
+    };
+    match decode::<T>(&sample.payload().to_bytes()) {
+        Ok(m) => wrap(m),
+        Err(e) => {
+            tracing::warn!("bad {what}: {e}");
+            Event::Nothing
+        }
+    }
+}
+
 impl Subs {
     async fn declare(id: RobotId, sim: &Session, radio: &Session) -> Result<Subs, ZenohError> {
         Ok(Subs {
@@ -122,20 +141,8 @@ impl Subs {
     /// The next event; `idle` without any scan: the world fell silent.
     async fn next(&self, idle: Duration) -> Event {
         tokio::select! {
-            sample = self.scans.recv_async() => {
-                let Ok(sample) = sample else { return Event::End(End::Stopped) };
-                match decode::<Scan>(&sample.payload().to_bytes()) {
-                    Ok(scan) => Event::Scan(scan),
-                    Err(e) => { tracing::warn!("bad scan: {e}"); Event::Nothing }
-                }
-            }
-            sample = self.plans.recv_async() => {
-                let Ok(sample) = sample else { return Event::End(End::Stopped) };
-                match decode::<LinkPlan>(&sample.payload().to_bytes()) {
-                    Ok(plan) => Event::Plan(plan),
-                    Err(e) => { tracing::warn!("bad link plan: {e}"); Event::Nothing }
-                }
-            }
+            sample = self.scans.recv_async() => decoded(sample, "scan", Event::Scan),
+            sample = self.plans.recv_async() => decoded(sample, "link plan", Event::Plan),
             sample = self.inbox.recv_async() => {
                 let Ok(sample) = sample else { return Event::End(End::Stopped) };
                 let kind = keys::radio_kind(sample.key_expr().as_str()).unwrap_or_default().to_string();
@@ -275,7 +282,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             if let Some(t) = ls.ready() {
                 break t;
             }
-            if let Some(end) = take(&mut ls, p.subs.next(p.idle).await) {
+            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
                 return Ok(end);
             }
         };
@@ -288,7 +295,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             if ls.newer_than(t) {
                 continue 'steps;
             }
-            if let Some(end) = take(&mut ls, p.subs.next(p.idle).await) {
+            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
                 return Ok(end);
             }
         }
@@ -303,7 +310,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             if ls.newer_than(t) {
                 continue 'steps;
             }
-            if let Some(end) = take(&mut ls, p.subs.next(p.idle).await) {
+            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
                 return Ok(end);
             }
         }
@@ -311,25 +318,24 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         if !missing.is_empty() {
             tracing::warn!("step {t}: no marker from {missing:?}: their sessions were lost");
         }
-        for a in ls.take() {
-            answers.extend(agent.on_radio(&a.kind, &a.bytes));
+        for m in ls.take() {
+            answers.extend(agent.take(m));
         }
         put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
         put_sim(p.sim, keys::telemetry(p.id), encode(&agent.telemetry())).await?;
     }
 }
 
-/// Notes an event in the lockstep bookkeeping; `Some` when it ends the robot.
-fn take(ls: &mut Lockstep, e: Event) -> Option<End> {
+/// Notes an event in the lockstep bookkeeping (a radio payload counted and decoded once, by
+/// the agent's radio); `Some` when it ends the robot.
+fn note(ls: &mut Lockstep, agent: &mut Agent, e: Event) -> Option<End> {
     match e {
         Event::Scan(s) => ls.on_scan(s),
         Event::Plan(plan) => ls.on_plan(plan),
         Event::Radio(kind, bytes) => {
-            let from = radio::sender(&kind, &bytes);
-            let mark = (kind == "mark")
-                .then(|| decode::<Mark>(&bytes).ok())
-                .flatten();
-            ls.on_radio(Arrival { kind, bytes, from }, mark);
+            if let Some(m) = agent.receive(&kind, &bytes) {
+                ls.on_radio(m);
+            }
         }
         Event::Peer(peer, up) => ls.on_token(peer, up),
         Event::Nothing => {}

@@ -87,6 +87,17 @@ struct Packet {
 }
 
 impl Msg {
+    /// The robot that sent it (as it says).
+    pub fn from(&self) -> RobotId {
+        match self {
+            Msg::Hello(h) => h.from,
+            Msg::Target(t) => t.from,
+            Msg::Coord(c) => c.from(),
+            Msg::Share(s) => s.from(),
+            Msg::Mark(m) => m.from,
+        }
+    }
+
     /// The one place where a radio message is encoded.
     fn pack(&self) -> Packet {
         let (key, bytes): (fn(RobotId) -> String, _) = match self {
@@ -122,17 +133,6 @@ impl Msg {
                 .map(|r| r.map(Msg::Coord))
                 .or_else(|| Share::decode(kind, bytes).map(|r| r.map(Msg::Share))),
         }
-    }
-}
-
-/// The robot that sent a radio payload (as it says), if it decodes.
-pub fn sender(kind: &str, bytes: &[u8]) -> Option<RobotId> {
-    match Msg::decode(kind, bytes)?.ok()? {
-        Msg::Hello(h) => Some(h.from),
-        Msg::Target(t) => Some(t.from),
-        Msg::Coord(c) => Some(c.from()),
-        Msg::Share(s) => Some(s.from()),
-        Msg::Mark(m) => Some(m.from),
     }
 }
 
