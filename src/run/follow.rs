@@ -173,7 +173,7 @@ impl Record {
     /// Whether everything of the steps up to the end has arrived: the telemetry, the status
     /// after the last step's moves and netem's report of the last step (realtime: at once).
     fn settled(&self) -> bool {
-        let Some((e, reason)) = self.end else {
+        let Some((e, _)) = self.end else {
             return false;
         };
         if !self.lockstep {
@@ -184,9 +184,7 @@ impl Record {
         let links = self.links.rows.iter().any(|(s, _)| *s >= e);
         // netem reports a step when the next one opens; a run without links has no reports.
         let no_links = self.statuses.first().is_some_and(|s| s.robots.len() < 2);
-        let taken = self.order.next() > e
-            || reason == ExitReason::MaxSteps && self.order.alive_at(e).is_none();
-        taken && status && (links || no_links)
+        self.order.next() > e && status && (links || no_links)
     }
 
     /// Drops what was recorded after the last step (the world may have run ahead while the

@@ -84,11 +84,6 @@ impl StepOrder {
     pub fn next(&self) -> Step {
         self.next
     }
-
-    /// The robots alive at `step`'s status, if it is still awaited.
-    pub fn alive_at(&self, step: Step) -> Option<&BTreeSet<RobotId>> {
-        self.alive.get(&step)
-    }
 }
 
 #[cfg(test)]
