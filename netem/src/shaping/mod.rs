@@ -308,7 +308,6 @@ impl UnsentProbe {
 /// counts as delivered, what is still unsent as lost.
 struct InKernel {
     pending: Arc<Mutex<Pending>>,
-    registered: bool,
 }
 
 /// The state [`InKernel`] shares with its direction's counters.
@@ -364,7 +363,6 @@ impl InKernel {
                 probe,
                 open: true,
             })),
-            registered: false,
         }
     }
 
@@ -379,24 +377,23 @@ impl InKernel {
 
     fn push(&mut self, piece: Chunk) {
         let (n, counters) = piece.into_kernel();
-        let register = {
+        // The first counters this connection's bytes count in: register with them.
+        let first = {
             let mut p = self.lock();
             p.bytes += n;
-            if p.counters.is_none() {
-                p.counters = counters;
-            }
-            if self.registered {
-                None
-            } else {
-                p.counters.clone()
+            match (&p.counters, counters) {
+                (None, Some(c)) => {
+                    p.counters = Some(Arc::clone(&c));
+                    Some(c)
+                }
+                _ => None,
             }
         };
         // Registered outside the lock: `take_step` takes the registry's lock, then ours.
-        if let Some(c) = register {
+        if let Some(c) = first {
             let weak: std::sync::Weak<dyn crate::accounting::InFlight> =
                 Arc::downgrade(&self.pending) as _;
             c.register(weak);
-            self.registered = true;
         }
     }
 
