@@ -283,7 +283,12 @@ pub async fn follow(
                     None
                 }
             },
-            _ = tick.tick() => rec.on_exits(&mut run.children, plan, progress),
+            // Once the last step is known the processes may end by themselves (the world-server
+            // does at the step limit): their exits are the run's end, not failures.
+            _ = tick.tick() => match rec.end {
+                None => rec.on_exits(&mut run.children, plan, progress),
+                Some(_) => None,
+            },
             _ = tokio::signal::ctrl_c() => {
                 progress.event("swarm run: interrupted, stopping every process");
                 Some(ExitReason::Interrupted)
