@@ -255,6 +255,11 @@ impl Reservation {
         }
     }
 
+    /// The counters these bytes count in.
+    pub fn counters(&self) -> &Arc<DirCounters> {
+        &self.buf.counters
+    }
+
     /// The bytes were handed to the kernel: free their room without counting them yet; the
     /// returned counters are where to count them once the kernel has sent them
     /// ([`DirCounters::delivered`]) or to lose them ([`DirCounters::lost`]).

@@ -456,6 +456,21 @@ pub fn hits(toxicity: f64, toxic_id: u64, conn: u64) -> bool {
 
 /// The effective shape of direction `dir` of connection `conn`.
 pub fn fold(base: &BaseShape, toxics: &[ActiveToxic], conn: u64, dir: Dir) -> DirShape {
+    fold_with(base, toxics, dir, |t| hits(t.toxic.toxicity, t.id, conn))
+}
+
+/// The shape of direction `dir` with every toxic applied, whatever its toxicity: what a step's
+/// plan announces (lockstep with markers).
+pub fn planned(base: &BaseShape, toxics: &[ActiveToxic], dir: Dir) -> DirShape {
+    fold_with(base, toxics, dir, |_| true)
+}
+
+fn fold_with(
+    base: &BaseShape,
+    toxics: &[ActiveToxic],
+    dir: Dir,
+    applies: impl Fn(&ActiveToxic) -> bool,
+) -> DirShape {
     let mut s = DirShape {
         latency_ns: base.latency_ns,
         jitter_ns: base.jitter_ns,
@@ -464,7 +479,7 @@ pub fn fold(base: &BaseShape, toxics: &[ActiveToxic], conn: u64, dir: Dir) -> Di
     let mut rate_toxic = false;
     let mut budgets = Vec::new();
     for t in toxics {
-        if !t.toxic.stream.applies(dir) || !hits(t.toxic.toxicity, t.id, conn) {
+        if !t.toxic.stream.applies(dir) || !applies(t) {
             continue;
         }
         match t.toxic.kind {

@@ -20,7 +20,7 @@ use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use proto::msg::RobotId;
+use proto::msg::{PlannedLink, RobotId};
 use serde::Serialize;
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::{TcpListener, TcpStream};
@@ -48,6 +48,10 @@ pub struct LinkParams {
     pub buffer_bytes: usize,
     pub connect_timeout: Duration,
     pub seed: u64,
+    /// Lockstep with step markers: latency is announced in the step's plan and carried out by
+    /// the receiving robot (it acts on a message `delay` steps after it was sent); the link
+    /// forwards at once, so that what a step carries never depends on when netem read it.
+    pub markers: bool,
 }
 
 /// Why a link is down.
@@ -421,7 +425,43 @@ impl Link {
     }
 
     fn shape(&self, toxics: &[ActiveToxic], conn: u64, dir: Dir) -> DirShape {
-        faults::fold(&self.params.base[dir.index()], toxics, conn, dir)
+        let mut s = faults::fold(&self.params.base[dir.index()], toxics, conn, dir);
+        if self.params.markers {
+            s.latency_ns = 0;
+            s.jitter_ns = 0;
+        }
+        s
+    }
+
+    /// The link as a step's plan announces it (steps of `step_ns`), if it is up: the slower
+    /// direction's own rate (a shared medium aside), latency and jitter rounded up to whole
+    /// steps, held if either direction is stalled. Every toxic counts, whatever its toxicity.
+    pub fn planned(&self, step_ns: u64) -> Option<PlannedLink> {
+        if !self.is_up() {
+            return None;
+        }
+        let toxics = self.toxics();
+        let shapes = Dir::BOTH.map(|d| faults::planned(&self.params.base[d.index()], &toxics, d));
+        let rate = shapes
+            .iter()
+            .flat_map(|s| s.budgets.iter().filter(|b| !b.is_shared()))
+            .map(|b| b.rate_bytes_per_s())
+            .min();
+        let delay = shapes
+            .iter()
+            .map(|s| {
+                let ns = s.latency_ns.saturating_add(s.jitter_ns);
+                u32::try_from(ns.div_ceil(step_ns.max(1))).unwrap_or(u32::MAX)
+            })
+            .max()
+            .unwrap_or(0);
+        Some(PlannedLink {
+            a: self.params.a,
+            b: self.params.b,
+            rate,
+            delay,
+            held: shapes.iter().any(|s| s.stalled),
+        })
     }
 }
 
@@ -607,6 +647,7 @@ pub(crate) mod tests {
             buffer_bytes,
             connect_timeout: Duration::from_secs(2),
             seed: 1,
+            markers: false,
         };
         let state = LinkState {
             enabled: true,
@@ -815,6 +856,7 @@ pub(crate) mod tests {
             buffer_bytes: 1024,
             connect_timeout: Duration::from_secs(1),
             seed: 0,
+            markers: false,
         };
         let state = LinkState {
             enabled: true,

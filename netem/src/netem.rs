@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use proto::geom::{MapInfo, Pose};
 use proto::grid::Grid;
-use proto::msg::{RobotId, Step};
+use proto::msg::{LinkPlan, RobotId, Step};
 use proto::scenario::{
     ClockMode, Medium, Netem as ScenarioNetem, Radio as ScenarioRadio, RadioModel,
 };
@@ -388,6 +388,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
             buffer_bytes: cfg.netem.buffer_bytes as usize,
             connect_timeout: Duration::from_millis(cfg.netem.connect_timeout_ms.max(1)),
             seed: cfg.seed ^ (i as u64).wrapping_mul(0x2545_F491_4F6C_DD1D),
+            markers: cfg.markers,
         };
         let state = LinkState {
             enabled: true,
@@ -666,6 +667,9 @@ impl Netem {
                 let was = telemetry_row(ending, snap, [0, 0]);
                 LinkTelemetry {
                     up: was.up,
+                    // The connection as the step ended (a link going down resets it now);
+                    // none on a link that was down (an attempt being refused is not one).
+                    connections: if was.up { was.connections } else { 0 },
                     down_reason: was.down_reason,
                     distance_m: was.distance_m,
                     signal_dbm: was.signal_dbm,
@@ -682,15 +686,15 @@ impl Netem {
         }
     }
 
-    /// The pairs whose link is up now (after the last [`Self::advance`]: for the step it opened).
-    pub fn up_links(&self) -> Vec<(RobotId, RobotId)> {
-        self.shared
-            .links
-            .iter()
-            .map(|l| l.snapshot())
-            .filter(|s| s.up)
-            .map(|s| (s.a, s.b))
-            .collect()
+    /// The plan of the step the last [`Self::advance`] opened: every link that is up, as
+    /// [`Link::planned`] gives it.
+    pub fn plan(&self) -> LinkPlan {
+        let sh = &self.shared;
+        let step_ns = (sh.step_seconds * 1e9).round() as u64;
+        LinkPlan {
+            step: sh.step().unwrap_or(0),
+            links: sh.links.iter().filter_map(|l| l.planned(step_ns)).collect(),
+        }
     }
 
     fn advance_clock(&self, step: Step) {

@@ -7,7 +7,7 @@ use std::time::Duration;
 use proto::grid::Grid;
 use proto::keys;
 use proto::msg::{
-    decode, encode, Control, LinkPlan, LinkReport, LinkState, Status, Step, TruthMap,
+    decode, encode, Control, LinkReport, LinkState, Status, Step, TruthMap,
 };
 use proto::node::{zerr, ZenohError};
 use proto::scenario::{RadioModel, Scenario};
@@ -76,7 +76,7 @@ pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
                 let poses: Vec<_> = st.robots.iter().map(|r| (r.id, r.pose, r.alive)).collect();
                 let rows = netem.advance(st.step, &poses);
                 // The step's links first: lockstep robots wait for them before they act.
-                let plan = LinkPlan { step: st.step, up: netem.up_links() };
+                let plan = netem.plan();
                 sim.put(keys::NETEM_PLAN, encode(&plan)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
                 if let (Some(prev), false) = (last, rows.is_empty()) {
                     let report = LinkReport { step: prev, links: rows.iter().map(state).collect() };

@@ -12,7 +12,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -231,30 +231,74 @@ impl Traffic {
     }
 }
 
-/// netem → robots, when a step opens: the links that are up for it (lockstep). A robot talks
-/// to exactly these neighbours during the step and waits for each one's [`Mark`].
+/// netem → robots, when a step opens: the links that are up for it (lockstep with markers). A
+/// robot talks to exactly the neighbours whose link is up and not held, and waits for each
+/// one's [`Mark`].
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LinkPlan {
     pub step: Step,
-    /// The pairs `(a, b)`, `a < b`, whose link is up.
-    pub up: Vec<(RobotId, RobotId)>,
+    /// The links that are up, `a < b`, each once.
+    pub links: Vec<PlannedLink>,
+}
+
+/// One link that is up in a [`LinkPlan`]'s step: what the robots at its ends must know to use
+/// it the way netem will carry it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PlannedLink {
+    pub a: RobotId,
+    pub b: RobotId,
+    /// The link's rate (bytes per simulated second, the slower direction); `None`: unlimited.
+    pub rate: Option<u64>,
+    /// Latency (with its jitter at the most) in whole steps: a message sent in step t is acted
+    /// on in step t + `delay`.
+    pub delay: u32,
+    /// Stalled (a blackhole): the session stays, nothing is sent either way.
+    pub held: bool,
 }
 
 impl LinkPlan {
-    /// The robots linked to `me`, in id order.
+    /// The plan of links `(a, b)` with no rate, delay or hold.
+    pub fn plain(step: Step, up: &[(RobotId, RobotId)]) -> LinkPlan {
+        LinkPlan {
+            step,
+            links: up
+                .iter()
+                .map(|&(a, b)| PlannedLink {
+                    a: a.min(b),
+                    b: a.max(b),
+                    ..PlannedLink::default()
+                })
+                .collect(),
+        }
+    }
+
+    /// The robots `me` may talk to in the step (up and not held), in id order.
     pub fn neighbours(&self, me: RobotId) -> Vec<RobotId> {
         let mut n: Vec<RobotId> = self
-            .up
+            .links
             .iter()
-            .filter_map(|&(a, b)| match (a == me, b == me) {
-                (true, false) => Some(b),
-                (false, true) => Some(a),
-                _ => None,
-            })
+            .filter(|l| !l.held)
+            .filter_map(|l| l.other(me))
             .collect();
         n.sort_unstable();
         n.dedup();
         n
+    }
+
+    /// The link between `me` and `peer`, if it is up.
+    pub fn link(&self, me: RobotId, peer: RobotId) -> Option<&PlannedLink> {
+        self.links.iter().find(|l| l.other(me) == Some(peer))
+    }
+}
+
+impl PlannedLink {
+    /// The robot at the other end from `me`, if `me` is an end (and not both).
+    pub fn other(&self, me: RobotId) -> Option<RobotId> {
+        match (self.a == me, self.b == me) {
+            (true, false) => Some(self.b),
+            (false, true) => Some(self.a),
+            _ => None,
+        }
     }
 }
 
@@ -509,7 +553,22 @@ mod tests {
         });
         round_trip(LinkPlan {
             step: 4,
-            up: vec![(0, 1), (1, 3)],
+            links: vec![
+                PlannedLink {
+                    a: 0,
+                    b: 1,
+                    rate: Some(1000),
+                    delay: 2,
+                    held: false,
+                },
+                PlannedLink {
+                    a: 1,
+                    b: 3,
+                    rate: None,
+                    delay: 0,
+                    held: true,
+                },
+            ],
         });
         round_trip(Status {
             step: 9,
@@ -646,12 +705,15 @@ mod link_plan_tests {
 
     #[test]
     fn a_plan_names_each_robots_neighbours_in_id_order() {
-        let p = LinkPlan {
-            step: 0,
-            up: vec![(2, 3), (0, 2), (1, 2), (0, 1)],
-        };
+        let mut p = LinkPlan::plain(0, &[(2, 3), (0, 2), (2, 1), (0, 1)]);
         assert_eq!(p.neighbours(2), [0, 1, 3]);
         assert_eq!(p.neighbours(0), [1, 2]);
         assert!(p.neighbours(4).is_empty());
+        assert_eq!(p.link(1, 2).map(|l| (l.a, l.b)), Some((1, 2)));
+        assert!(p.link(1, 3).is_none());
+        // A held link is up but nobody talks over it.
+        p.links[0].held = true;
+        assert_eq!(p.neighbours(2), [0, 1]);
+        assert!(p.link(3, 2).is_some_and(|l| l.held));
     }
 }

@@ -275,7 +275,14 @@ pub fn sim_client(
 /// `CongestionControl::Drop` by the robot. `lockstep`: no batching and an hour's lease
 /// ([`LOCKSTEP_RADIO_LEASE_MS`]), so that none of zenoh's own wall-clock traffic crosses a link
 /// during a run and a message's bytes do not depend on timing.
+///
+/// `me` of a team of `team` robots: the session's zenoh id is [`radio_zid`]`(me)`, and an access
+/// rule lets a put addressed to robot `j` (`radio/j/…`) leave only on the session to `j`. zenoh
+/// sends a publication to every peer whose interest in it is not settled yet (a session that
+/// has just come up), so without the rule a message could cross another robot's link.
 pub fn radio_peer(
+    me: crate::msg::RobotId,
+    team: u16,
     listen: &[String],
     connect: &[String],
     file: Option<&Path>,
@@ -283,6 +290,10 @@ pub fn radio_peer(
     lockstep: bool,
 ) -> Result<Config, ZargsError> {
     let mut c = base(file)?;
+    set(&mut c, "id", &format!("{:?}", radio_zid(me)))?;
+    if team > 1 {
+        set(&mut c, "access_control", &addressed_only(me, team))?;
+    }
     set(&mut c, "mode", "\"peer\"")?;
     set(&mut c, "listen/endpoints", &json_list(listen))?;
     set(&mut c, "connect/endpoints", &json_list(connect))?;
@@ -314,6 +325,42 @@ pub fn radio_peer(
     Ok(c)
 }
 
+/// The zenoh id of robot `id`'s radio session (fixed, so that a robot can tell which peers it
+/// has a session with, and the access rules can name them).
+pub fn radio_zid(id: crate::msg::RobotId) -> String {
+    format!("5a{id:04x}")
+}
+
+/// zenoh access control (JSON5) for robot `me` of `team`: towards peer `j`, puts and deletes
+/// on `radio/k/**` for every `k ≠ j` are denied; everything else is allowed.
+fn addressed_only(me: crate::msg::RobotId, team: u16) -> String {
+    let peers = (0..team).filter(|&j| j != me);
+    let mut rules = Vec::new();
+    let mut subjects = Vec::new();
+    let mut policies = Vec::new();
+    for j in peers {
+        let keys: Vec<String> = (0..team)
+            .filter(|&k| k != j)
+            .map(|k| format!("\"radio/{k}/**\""))
+            .collect();
+        rules.push(format!(
+            "{{id:\"not_to_{j}\",messages:[\"put\",\"delete\"],flows:[\"egress\"],\
+             permission:\"deny\",key_exprs:[{}]}}",
+            keys.join(",")
+        ));
+        subjects.push(format!("{{id:\"peer_{j}\",zids:[\"{}\"]}}", radio_zid(j)));
+        policies.push(format!(
+            "{{rules:[\"not_to_{j}\"],subjects:[\"peer_{j}\"]}}"
+        ));
+    }
+    format!(
+        "{{enabled:true,default_permission:\"allow\",rules:[{}],subjects:[{}],policies:[{}]}}",
+        rules.join(","),
+        subjects.join(","),
+        policies.join(",")
+    )
+}
+
 /// Largest zenoh batch on the radio plane: at 1 000 bytes/s one batch crosses in half a second.
 pub const RADIO_BATCH_BYTES: u16 = 512;
 /// Radio link lease (wall milliseconds); 4 keep-alives per lease.
@@ -333,8 +380,8 @@ mod tests {
         let e = vec!["tcp/127.0.0.1:7447".to_string()];
         assert!(sim_router(&e, None, &[]).is_ok());
         assert!(sim_client(&e, None, &[], 1000).is_ok());
-        assert!(radio_peer(&e, &e, None, &[], false).is_ok());
-        assert!(radio_peer(&e, &e, None, &[], true).is_ok());
+        assert!(radio_peer(0, 1, &e, &e, None, &[], false).is_ok());
+        assert!(radio_peer(3, 8, &e, &e, None, &[], true).is_ok());
         let err = sim_client(&e, None, &["no_such/key:1".into()], 0)
             .err()
             .map(|e| e.to_string());

@@ -178,6 +178,14 @@ impl Agent {
         self.radio.link_down(peer, self.sharing.as_mut());
     }
 
+    /// Lockstep: the link to `peer` carries `rate` bytes per simulated second (netem's plan;
+    /// `None`: the scenario's bandwidth).
+    pub fn set_rate(&mut self, peer: RobotId, rate: Option<u64>) {
+        if let Some(r) = rate {
+            self.radio.set_rate(peer, Some(r));
+        }
+    }
+
     /// Lockstep: the step's neighbours are exactly `linked` (netem's plan). Links that went
     /// down are forgotten; new ones are greeted. Returns the greetings and the peers dropped.
     pub fn set_neighbours(&mut self, linked: &[RobotId]) -> (Vec<Outgoing>, Vec<RobotId>) {

@@ -92,6 +92,8 @@ async fn run(args: Args) -> anyhow::Result<End> {
     let world = world_info(&sim, Duration::from_secs(20)).await?;
     let lockstep = scenario.clock.marked();
     let radio_cfg = radio_peer(
+        args.id,
+        scenario.robots.count,
         &args.radio_listen,
         &args.radio_connect,
         args.radio_config.as_deref(),

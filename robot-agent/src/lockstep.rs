@@ -5,8 +5,9 @@
 //! 1. Step t starts once the robot holds the world's scan for t and netem's [`LinkPlan`] for t
 //!    (which links are up during t).
 //! 2. The neighbours of t are exactly the plan's. A link that is new in the plan is used once
-//!    its zenoh session is up (the peer's radio liveliness token is seen — after the token of
-//!    an earlier session, cut by netem, has gone).
+//!    its zenoh session is up: the peer's radio liveliness token is seen (after the token of an
+//!    earlier session, cut by netem, has gone) and zenoh lists a session to the peer itself
+//!    (a token can also arrive through a third robot).
 //! 3. The robot decides, then sends its traffic of t and last a [`Mark`] of t to each neighbour.
 //! 4. It waits for the mark of t from every neighbour. One link is one ordered stream, so by then
 //!    it holds everything they sent in t; nothing of t+1 can have come, because no robot gets
@@ -35,12 +36,18 @@ pub struct Lockstep {
     /// it sent before it.
     marks: BTreeMap<Step, BTreeMap<RobotId, u32>>,
     /// Received messages (markers aside) in the order they arrived, already counted and
-    /// decoded.
-    inbox: Vec<Msg>,
-    /// Peers whose radio session is up (their liveliness token is seen).
-    present: BTreeSet<RobotId>,
-    /// Peers whose session the plan cut while it was up: their token must go before a new one
-    /// counts (the old session may not have noticed the cut yet).
+    /// decoded; each with the step it is to be acted on in, once its marker came.
+    inbox: Vec<(Option<Step>, Msg)>,
+    /// Per sender, the step its last message is to be acted on in (a link does not reorder:
+    /// a shorter delay does not let a message overtake one sent before it).
+    last_due: BTreeMap<RobotId, Step>,
+    /// Peers whose radio liveliness token is seen (a stale one aside).
+    tokens: BTreeSet<RobotId>,
+    /// Peers this robot has a zenoh session with itself (a token can also come through
+    /// another peer).
+    direct: BTreeSet<RobotId>,
+    /// Peers whose session the plan cut while its token was seen: the token must go before a
+    /// new one counts (the old session may not have noticed the cut yet).
     stale: BTreeSet<RobotId>,
 }
 
@@ -59,7 +66,7 @@ impl Lockstep {
             Msg::Mark(m) => {
                 self.marks.entry(m.step).or_default().insert(m.from, m.sent);
             }
-            m => self.inbox.push(m),
+            m => self.inbox.push((None, m)),
         }
     }
 
@@ -67,12 +74,23 @@ impl Lockstep {
     pub fn on_token(&mut self, peer: RobotId, up: bool) {
         if up {
             if !self.stale.contains(&peer) {
-                self.present.insert(peer);
+                self.tokens.insert(peer);
             }
         } else {
             self.stale.remove(&peer);
-            self.present.remove(&peer);
+            self.tokens.remove(&peer);
         }
+    }
+
+    /// The peers this robot has a session with, as zenoh lists them now.
+    pub fn on_sessions(&mut self, direct: BTreeSet<RobotId>) {
+        self.direct = direct;
+    }
+
+    /// Whether the radio session to `peer` is up: its token is seen and the session is this
+    /// robot's own.
+    fn present(&self, peer: &RobotId) -> bool {
+        self.tokens.contains(peer) && self.direct.contains(peer)
     }
 
     /// The newest step that can start: its scan and plan are both here.
@@ -84,21 +102,25 @@ impl Lockstep {
             .find(|s| self.plans.contains_key(s))
     }
 
-    /// Starts step `t`: its scan and this robot's neighbours in it. Older scans, plans and
-    /// markers are dropped.
-    pub fn start(&mut self, me: RobotId, t: Step) -> Option<(Scan, Vec<RobotId>)> {
+    /// Starts step `t`: its scan and plan. Older scans, plans and markers are dropped, and so
+    /// are messages still delayed on a link that is down in `t` (netem's reset took them).
+    pub fn start(&mut self, me: RobotId, t: Step) -> Option<(Scan, LinkPlan)> {
         let scan = self.scans.remove(&t)?;
         let plan = self.plans.remove(&t)?;
         self.scans.retain(|&s, _| s > t);
         self.plans.retain(|&s, _| s > t);
         self.marks.retain(|&s, _| s >= t);
-        Some((scan, plan.neighbours(me)))
+        self.inbox
+            .retain(|(due, m)| due.is_none() || plan.link(me, m.from()).is_some());
+        self.last_due
+            .retain(|&from, _| plan.link(me, from).is_some());
+        Some((scan, plan))
     }
 
     /// The plan cut the links to `peers`: a session to one of them that is still up is stale.
     pub fn cut(&mut self, peers: &[RobotId]) {
         for p in peers {
-            if self.present.remove(p) {
+            if self.tokens.remove(p) {
                 self.stale.insert(*p);
             }
         }
@@ -106,7 +128,7 @@ impl Lockstep {
 
     /// Whether a session is up to each of `peers`.
     pub fn linked(&self, peers: &[RobotId]) -> bool {
-        peers.iter().all(|p| self.present.contains(p))
+        peers.iter().all(|p| self.present(p))
     }
 
     /// Whether each of `peers` sent its marker of step `t` and every message it counted before
@@ -118,13 +140,16 @@ impl Lockstep {
             let complete = got
                 .and_then(|g| g.get(p))
                 .is_some_and(|&sent| self.arrived_from(*p) >= sent as usize);
-            complete || !self.present.contains(p)
+            complete || !self.present(p)
         })
     }
 
-    /// Messages from `peer` waiting to be taken.
+    /// Messages from `peer` whose marker has not come yet.
     fn arrived_from(&self, peer: RobotId) -> usize {
-        self.inbox.iter().filter(|m| m.from() == peer).count()
+        self.inbox
+            .iter()
+            .filter(|(due, m)| due.is_none() && m.from() == peer)
+            .count()
     }
 
     /// The neighbours among `peers` whose marker of `t` did not come (their session was lost).
@@ -142,12 +167,27 @@ impl Lockstep {
         self.scans.keys().any(|&s| s > t)
     }
 
-    /// What arrived since the last take, sender by sender in id order, each sender's messages
-    /// in arrival order.
-    pub fn take(&mut self) -> Vec<Msg> {
-        let mut all = std::mem::take(&mut self.inbox);
-        all.sort_by_key(Msg::from);
-        all
+    /// Closes step `t` (its markers are in): what arrived in it is due `delay` steps later,
+    /// the delay of the sender's link in `plan`; then takes what is due by `t` from links not
+    /// held, sender by sender in id order, each sender's messages in arrival order.
+    pub fn take(&mut self, me: RobotId, t: Step, plan: &LinkPlan) -> Vec<Msg> {
+        for (due, m) in &mut self.inbox {
+            if due.is_none() {
+                let from = m.from();
+                let delay = plan.link(me, from).map_or(0, |l| l.delay);
+                let d = t.saturating_add(delay).max(self.last_due.get(&from).copied().unwrap_or(0));
+                self.last_due.insert(from, d);
+                *due = Some(d);
+            }
+        }
+        let ready = |(due, m): &(Option<Step>, Msg)| {
+            due.is_some_and(|d| d <= t) && plan.link(me, m.from()).is_some_and(|l| !l.held)
+        };
+        let (mut now, later): (Vec<_>, Vec<_>) =
+            std::mem::take(&mut self.inbox).into_iter().partition(ready);
+        self.inbox = later;
+        now.sort_by_key(|(_, m)| m.from());
+        now.into_iter().map(|(_, m)| m).collect()
     }
 }
 
@@ -155,7 +195,7 @@ impl Lockstep {
 mod tests {
     use super::*;
     use proto::geom::Pose;
-    use proto::msg::{Hello, Mark, MoveOutcome};
+    use proto::msg::{Hello, Mark, MoveOutcome, PlannedLink};
 
     fn scan(step: Step) -> Scan {
         Scan {
@@ -183,16 +223,16 @@ mod tests {
         let mut l = Lockstep::default();
         l.on_scan(scan(3));
         assert_eq!(l.ready(), None, "no plan yet");
-        l.on_plan(LinkPlan {
-            step: 3,
-            up: vec![(0, 1), (0, 2), (1, 2)],
-        });
+        l.on_plan(LinkPlan::plain(3, &[(0, 1), (0, 2), (1, 2)]));
         assert_eq!(l.ready(), Some(3));
-        let (s, nb) = l.start(0, 3).expect("step 3");
+        let (s, plan) = l.start(0, 3).expect("step 3");
+        let nb = plan.neighbours(0);
         assert_eq!((s.step, nb.as_slice()), (3, [1, 2].as_slice()));
         assert!(!l.linked(&nb));
         l.on_token(1, true);
         l.on_token(2, true);
+        assert!(!l.linked(&nb), "tokens seen, sessions not listed yet");
+        l.on_sessions([1, 2].into());
         assert!(l.linked(&nb));
         // A marker of step 3 can come before the robot starts step 3; one of step 2 is old.
         l.on_radio(mark(1, 3, 0));
@@ -215,7 +255,8 @@ mod tests {
             l.on_radio(hello(from, n));
         }
         l.on_radio(mark(1, 0, 2));
-        let order: Vec<Msg> = l.take();
+        let plan = LinkPlan::plain(0, &[(0, 3), (1, 3), (2, 3)]);
+        let order: Vec<Msg> = l.take(3, 0, &plan);
         assert_eq!(
             order,
             [
@@ -226,12 +267,47 @@ mod tests {
                 hello(2, 2)
             ]
         );
-        assert!(l.take().is_empty());
+        assert!(l.take(3, 0, &plan).is_empty());
+    }
+
+    #[test]
+    fn a_delayed_link_hands_messages_over_late_in_order_and_a_cut_drops_them() {
+        let mut l = Lockstep::default();
+        let plan = |step, delay, held| LinkPlan {
+            step,
+            links: vec![PlannedLink {
+                a: 0,
+                b: 1,
+                rate: None,
+                delay,
+                held,
+            }],
+        };
+        // Sent in step 0 over a delay of 2: acted on in step 2.
+        l.on_radio(hello(1, 0));
+        assert!(l.take(0, 0, &plan(0, 2, false)).is_empty());
+        // Sent in step 1 with no delay: it may not overtake the first.
+        l.on_radio(hello(1, 1));
+        assert!(l.take(0, 1, &plan(1, 0, false)).is_empty());
+        // Held in step 2: nothing is handed over until the link is released.
+        assert!(l.take(0, 2, &plan(2, 0, true)).is_empty());
+        assert_eq!(l.take(0, 3, &plan(3, 0, false)), [hello(1, 0), hello(1, 1)]);
+        // A message still on the air when the link goes down is lost with it.
+        l.on_radio(hello(1, 2));
+        assert!(l.take(0, 4, &plan(4, 3, false)).is_empty());
+        l.on_scan(scan(5));
+        l.on_plan(LinkPlan::plain(5, &[]));
+        l.start(0, 5).expect("step 5");
+        l.on_plan(plan(6, 0, false));
+        l.on_scan(scan(6));
+        l.start(0, 6).expect("step 6");
+        assert!(l.take(0, 6, &plan(6, 0, false)).is_empty());
     }
 
     #[test]
     fn a_cut_session_counts_again_only_after_its_token_went() {
         let mut l = Lockstep::default();
+        l.on_sessions([1].into());
         l.on_token(1, true);
         l.cut(&[1]);
         assert!(!l.linked(&[1]));

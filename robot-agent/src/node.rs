@@ -4,6 +4,7 @@
 //! decisions are [`crate::agent::Agent`]'s; this module only moves bytes between zenoh and the agent
 //! (the agent's radio encodes, decodes and counts them).
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
 use proto::keys;
@@ -14,6 +15,7 @@ use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::{Sample, SampleKind};
+use zenoh::session::ZenohId;
 use zenoh::Session;
 
 use crate::agent::Agent;
@@ -229,6 +231,7 @@ pub async fn run_robot(
         radio: &radio,
         subs: &subs,
         idle: idle_timeout,
+        team: (0..s.robots.count).collect(),
     };
     if s.clock.marked() {
         lockstep(agent, &planes).await
@@ -244,6 +247,28 @@ struct Planes<'a> {
     radio: &'a Session,
     subs: &'a Subs,
     idle: Duration,
+    /// Every robot of the run.
+    team: Vec<RobotId>,
+}
+
+/// How often a robot waiting for a link's session looks at zenoh's list of sessions.
+const SESSION_POLL: Duration = Duration::from_millis(2);
+
+impl Planes<'_> {
+    /// The robots this one has a radio session with (not through another robot).
+    async fn sessions(&self) -> BTreeSet<RobotId> {
+        let ids: BTreeMap<ZenohId, RobotId> = self
+            .team
+            .iter()
+            .filter_map(|&r| Some((proto::node::radio_zid(r).parse().ok()?, r)))
+            .collect();
+        self.radio
+            .info()
+            .peers_zid()
+            .await
+            .filter_map(|z| ids.get(&z).copied())
+            .collect()
+    }
 }
 
 /// Realtime (and lockstep without markers): acts on every scan as it comes and takes radio
@@ -286,17 +311,33 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                 return Ok(end);
             }
         };
-        let Some((scan, linked)) = ls.start(p.id, t) else {
+        let Some((scan, plan)) = ls.start(p.id, t) else {
             continue;
         };
-        let (greetings, cut) = agent.set_neighbours(&linked);
+        let linked = plan.neighbours(p.id);
+        for &peer in &linked {
+            agent.set_rate(peer, plan.link(p.id, peer).and_then(|l| l.rate));
+        }
+        let (greetings, gone) = agent.set_neighbours(&linked);
+        // A held link keeps its session; a link that is down lost it.
+        let cut: Vec<RobotId> = gone
+            .into_iter()
+            .filter(|&peer| plan.link(p.id, peer).is_none())
+            .collect();
         ls.cut(&cut);
-        while !ls.linked(&linked) {
+        loop {
+            ls.on_sessions(p.sessions().await);
+            if ls.linked(&linked) {
+                break;
+            }
             if ls.newer_than(t) {
                 continue 'steps;
             }
-            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
-                return Ok(end);
+            // zenoh tells no event when a session forms: look again soon.
+            if let Ok(e) = tokio::time::timeout(SESSION_POLL, p.subs.next(p.idle)).await {
+                if let Some(end) = note(&mut ls, &mut agent, e) {
+                    return Ok(end);
+                }
             }
         }
         let cmd = agent.on_scan(&scan);
@@ -305,6 +346,10 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         out.extend(agent.radio_step());
         let marks = agent.marks(&out);
         out.extend(marks);
+        tracing::debug!(
+            "step {t}: sent {:?}",
+            out.iter().map(|o| (o.to, o.key.as_str(), o.bytes.len())).collect::<Vec<_>>()
+        );
         send_radio(p.radio, out, true).await;
         while !ls.marked(t, &linked) {
             if ls.newer_than(t) {
@@ -314,11 +359,12 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                 return Ok(end);
             }
         }
+        tracing::debug!("step {t}: marked by {linked:?}");
         let missing = ls.unmarked(t, &linked);
         if !missing.is_empty() {
             tracing::warn!("step {t}: no marker from {missing:?}: their sessions were lost");
         }
-        for m in ls.take() {
+        for m in ls.take(p.id, t, &plan) {
             answers.extend(agent.take(m));
         }
         put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;

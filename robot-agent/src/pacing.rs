@@ -32,39 +32,67 @@ impl SimNow for SimClock {
     }
 }
 
+/// A link's metering: its rate, burst and how much a fresh budget is drained by at once (so
+/// that it starts with one step's budget rather than a whole burst: a fresh connection is not
+/// flooded).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Quota {
+    rate: ByteRate,
+    burst_cells: u32,
+    burst_bytes: u64,
+    start_drain: u32,
+}
+
+impl Quota {
+    /// `None` for an unlimited rate.
+    fn new(rate_bytes_per_s: Option<u64>, burst_bytes: u64, step_seconds: f64) -> Option<Quota> {
+        rate_bytes_per_s.filter(|&r| r > 0).map(|rate| {
+            let rate = ByteRate::new(rate);
+            let burst_cells = rate.cells_up(burst_bytes).max(1);
+            let step_cells =
+                ((rate.bytes_per_s as f64 * step_seconds.max(0.0)) / rate.cell_bytes as f64) as u64;
+            Quota {
+                rate,
+                burst_cells,
+                burst_bytes,
+                start_drain: u64::from(burst_cells).saturating_sub(step_cells.max(1)) as u32,
+            }
+        })
+    }
+}
+
+/// One neighbour's budget and the probe bytes held for the next spend.
+struct LinkBudget {
+    quota: Quota,
+    budget: ByteBudget<SimClock>,
+    held: u64,
+}
+
 /// Per-neighbour byte budgets on the simulated clock.
 pub struct Pacer {
-    /// `None`: unlimited bandwidth, nothing is metered. Else the rate and the burst in cells.
-    quota: Option<(ByteRate, u32)>,
+    /// The links' rate unless told otherwise ([`Pacer::set_rate`]); `None`: unlimited.
+    rate: Option<u64>,
+    /// The burst at `rate`; a link of another rate gets the same burst in steps.
     burst_bytes: u64,
-    /// Cells a new link's budget is drained by at once, so that it starts with one step's
-    /// budget rather than a whole burst (a fresh connection is not flooded).
-    start_drain: u32,
+    step_seconds: f64,
     step_ns: u64,
     clock: SimClock,
-    /// Per neighbour: its budget and the probe bytes held for the next spend.
-    links: HashMap<RobotId, (ByteBudget<SimClock>, u64)>,
+    /// Links whose rate is not `rate`.
+    rates: HashMap<RobotId, Option<u64>>,
+    links: HashMap<RobotId, LinkBudget>,
 }
 
 impl Pacer {
     /// Budgets of `rate_bytes_per_s` (`None`: unlimited) per link with bursts of `burst_bytes`,
     /// for steps of `step_seconds` simulated seconds. A link starts with one step's budget.
     pub fn new(rate_bytes_per_s: Option<u64>, burst_bytes: u64, step_seconds: f64) -> Pacer {
-        let mut start_drain = 0;
-        let quota = rate_bytes_per_s.filter(|&r| r > 0).map(|rate| {
-            let rate = ByteRate::new(rate);
-            let burst_cells = rate.cells_up(burst_bytes).max(1);
-            let step_cells =
-                ((rate.bytes_per_s as f64 * step_seconds.max(0.0)) / rate.cell_bytes as f64) as u64;
-            start_drain = u64::from(burst_cells).saturating_sub(step_cells.max(1)) as u32;
-            (rate, burst_cells)
-        });
         Pacer {
-            quota,
+            rate: rate_bytes_per_s.filter(|&r| r > 0),
             burst_bytes,
-            start_drain,
+            step_seconds,
             step_ns: (step_seconds.max(0.0) * 1e9).round() as u64,
             clock: SimClock::default(),
+            rates: HashMap::new(),
             links: HashMap::new(),
         }
     }
@@ -75,53 +103,83 @@ impl Pacer {
             .set_ns(u64::from(step).saturating_mul(self.step_ns));
     }
 
+    /// `peer`'s link now has `rate_bytes_per_s` (`None`: unlimited), with a burst of as many
+    /// steps as the default's. A change starts the link's budget afresh.
+    pub fn set_rate(&mut self, peer: RobotId, rate_bytes_per_s: Option<u64>) {
+        let rate = rate_bytes_per_s.filter(|&r| r > 0);
+        if self.rate_of(peer) != rate {
+            self.links.remove(&peer);
+            self.rates.insert(peer, rate);
+        }
+    }
+
+    fn rate_of(&self, peer: RobotId) -> Option<u64> {
+        self.rates.get(&peer).copied().unwrap_or(self.rate)
+    }
+
+    fn quota(&self, peer: RobotId) -> Option<Quota> {
+        let rate = self.rate_of(peer)?;
+        let burst = match self.rate {
+            Some(r) if r != rate => {
+                ((self.burst_bytes as f64) * rate as f64 / r as f64).round() as u64
+            }
+            _ => self.burst_bytes,
+        };
+        Quota::new(Some(rate), burst, self.step_seconds)
+    }
+
     /// Bytes `peer`'s link may carry now (`usize::MAX` if unlimited).
     pub fn available(&mut self, peer: RobotId) -> usize {
-        let Some((rate, burst_cells)) = self.quota else {
+        let Some(quota) = self.quota(peer) else {
             return usize::MAX;
         };
-        let cell = rate.cell_bytes;
-        let drain = self.start_drain;
-        let (budget, held) = self.links.entry(peer).or_insert_with(|| {
-            let budget = ByteBudget::new(rate, burst_cells, self.clock.clone());
-            if drain > 0 {
-                let _ = budget.take(drain);
+        let cell = quota.rate.cell_bytes;
+        let clock = &self.clock;
+        let link = self.links.entry(peer).or_insert_with(|| {
+            let budget = ByteBudget::new(quota.rate, quota.burst_cells, clock.clone());
+            if quota.start_drain > 0 {
+                let _ = budget.take(quota.start_drain);
             }
-            (budget, 0)
+            LinkBudget {
+                quota,
+                budget,
+                held: 0,
+            }
         });
-        match budget.take(1) {
+        match link.budget.take(1) {
             Take::Taken { remaining } => {
                 // Probe bytes held from calls that sent nothing are the link's all the same, but
                 // never lift what one step may send above the burst.
-                *held += cell;
-                let avail = *held + u64::from(remaining) * cell;
-                usize::try_from(avail.min(self.burst_bytes.max(cell))).unwrap_or(usize::MAX)
+                link.held += cell;
+                let avail = link.held + u64::from(remaining) * cell;
+                usize::try_from(avail.min(link.quota.burst_bytes.max(cell))).unwrap_or(usize::MAX)
             }
-            Take::NotYet { .. } | Take::OverBurst => usize::try_from(*held).unwrap_or(usize::MAX),
+            Take::NotYet { .. } | Take::OverBurst => {
+                usize::try_from(link.held).unwrap_or(usize::MAX)
+            }
         }
     }
 
     /// `bytes` were sent to `peer`: they are taken off its budget, as far as it reaches (a
     /// handshake is sent even when the budget is spent). Call after [`Pacer::available`].
     pub fn spend(&mut self, peer: RobotId, bytes: usize) {
-        let Some((rate, _)) = self.quota else { return };
-        let Some((budget, held)) = self.links.get_mut(&peer) else {
+        let Some(link) = self.links.get_mut(&peer) else {
             return;
         };
         let bytes = bytes as u64;
-        let from_held = bytes.min(*held);
-        *held -= from_held;
-        let mut cells = (bytes - from_held).div_ceil(rate.cell_bytes);
+        let from_held = bytes.min(link.held);
+        link.held -= from_held;
+        let mut cells = (bytes - from_held).div_ceil(link.quota.rate.cell_bytes);
         while cells > 0 {
             let n = u32::try_from(cells).unwrap_or(u32::MAX);
-            match budget.take(n) {
+            match link.budget.take(n) {
                 Take::Taken { .. } => cells -= u64::from(n),
                 // Over the budget: take what is left, one probe at a time tells how much.
                 Take::NotYet { .. } | Take::OverBurst => {
-                    if let Take::Taken { remaining } = budget.take(1) {
+                    if let Take::Taken { remaining } = link.budget.take(1) {
                         let rest = remaining.min(n.saturating_sub(1));
                         if rest > 0 {
-                            let _ = budget.take(rest);
+                            let _ = link.budget.take(rest);
                         }
                     }
                     break;
@@ -183,6 +241,27 @@ mod tests {
         assert_eq!(p.available(2), 500);
         p.at_step(10);
         assert_eq!(p.available(2), 1000, "idle steps fill up to the burst");
+    }
+
+    #[test]
+    fn a_link_told_another_rate_starts_afresh_at_that_rate() {
+        // 1000 B/s, bursts of 4 steps of 1 s; link 1 drops to 250 B/s.
+        let mut p = Pacer::new(Some(1000), 4000, 1.0);
+        p.at_step(0);
+        assert_eq!(p.available(1), 1000);
+        p.spend(1, 1000);
+        p.set_rate(1, Some(250));
+        assert_eq!(p.available(1), 250, "one step's budget at the new rate");
+        p.spend(1, 250);
+        p.at_step(40);
+        assert_eq!(p.available(1), 1000, "its burst is four steps of its rate");
+        assert_eq!(p.available(2), 1000, "other links keep the default");
+        // Told the rate it has: nothing changes.
+        p.spend(1, 500);
+        p.set_rate(1, Some(250));
+        assert_eq!(p.available(1), 500);
+        p.set_rate(1, None);
+        assert_eq!(p.available(1), usize::MAX);
     }
 
     #[test]

@@ -244,6 +244,11 @@ impl Radio {
         out
     }
 
+    /// The link to `peer` carries `rate` bytes per simulated second (lockstep: the step's plan).
+    pub fn set_rate(&mut self, peer: RobotId, rate: Option<u64>) {
+        self.pacer.set_rate(peer, rate);
+    }
+
     pub fn link_down(&mut self, peer: RobotId, sharing: &mut dyn Sharing) {
         self.pacer.forget(peer);
         if self.neighbours.remove(&peer) {

@@ -114,6 +114,11 @@ impl Chunk {
         }
     }
 
+    /// The counters its bytes count in (`None` for an unaccounted chunk).
+    fn counters(&self) -> Option<Arc<crate::accounting::DirCounters>> {
+        self.res.as_ref().map(|r| Arc::clone(r.counters()))
+    }
+
     /// The bytes were handed to the kernel (see [`Reservation::into_kernel`]): their length, and
     /// the counters to count them in once sent (`None` for an unaccounted chunk).
     fn into_kernel(mut self) -> (usize, Option<Arc<crate::accounting::DirCounters>>) {
@@ -375,26 +380,43 @@ impl InKernel {
         self.lock().bytes
     }
 
-    fn push(&mut self, piece: Chunk) {
-        let (n, counters) = piece.into_kernel();
-        // The first counters this connection's bytes count in: register with them.
-        let first = {
-            let mut p = self.lock();
-            p.bytes += n;
-            match (&p.counters, counters) {
-                (None, Some(c)) => {
-                    p.counters = Some(Arc::clone(&c));
-                    Some(c)
-                }
-                _ => None,
-            }
+    /// Registers with the counters `chunk`'s bytes count in, if this connection has none yet
+    /// (outside our lock: `take_step` takes the registry's lock, then ours).
+    fn register_for(&mut self, chunk: &Chunk) {
+        let Some(c) = chunk.counters() else {
+            return;
         };
-        // Registered outside the lock: `take_step` takes the registry's lock, then ours.
-        if let Some(c) = first {
-            let weak: std::sync::Weak<dyn crate::accounting::InFlight> =
-                Arc::downgrade(&self.pending) as _;
-            c.register(weak);
+        {
+            let mut p = self.lock();
+            if p.counters.is_some() {
+                return;
+            }
+            p.counters = Some(Arc::clone(&c));
         }
+        let weak: std::sync::Weak<dyn crate::accounting::InFlight> =
+            Arc::downgrade(&self.pending) as _;
+        c.register(weak);
+    }
+
+    /// Writes what `writer` takes of `chunk` now, and moves those bytes from netem's buffer to
+    /// the kernel's account under the lock a step's count takes too: the count sees them either
+    /// not written (queued) or written (in the kernel, counted once sent) — never already with
+    /// their receiver while still queued here, which would put them in the next step.
+    fn poll_write<W: AsyncWrite + Unpin>(
+        &self,
+        cx: &mut std::task::Context<'_>,
+        writer: &mut W,
+        chunk: &mut Chunk,
+    ) -> std::task::Poll<io::Result<usize>> {
+        let mut p = self.lock();
+        let r = std::pin::Pin::new(writer).poll_write(cx, chunk.bytes());
+        if let std::task::Poll::Ready(Ok(n)) = r {
+            if n > 0 {
+                let (k, _) = chunk.split_to(n).into_kernel();
+                p.bytes += k;
+            }
+        }
+        r
     }
 
     /// Counts as delivered whatever of the written bytes has left the socket.
@@ -503,16 +525,17 @@ pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
             }
             *left -= chunk.len() as u64;
         }
+        in_kernel.register_for(&chunk);
         while !chunk.is_empty() {
             let written = tokio::select! {
                 biased;
                 // Cut: the rest is dropped (counted as lost), nothing more is written.
                 () = cut(&mut gate) => return SinkEnd::Eof,
-                r = writer.write(chunk.bytes()) => r,
+                r = std::future::poll_fn(|cx| in_kernel.poll_write(cx, writer, &mut chunk)) => r,
             };
             match written {
                 Ok(0) => return SinkEnd::Error(io::ErrorKind::WriteZero),
-                Ok(n) => in_kernel.push(chunk.split_to(n)),
+                Ok(_) => {}
                 Err(e) => return SinkEnd::Error(e.kind()),
             }
             in_kernel.confirm();
