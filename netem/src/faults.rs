@@ -399,6 +399,34 @@ impl Fault {
     }
 }
 
+impl Fault {
+    /// Why this fault's effect on the robots is not in the step plans of a lockstep run with
+    /// markers (so it depends on timing); `None` if it is. The plan carries which links are up,
+    /// their rate, latency and jitter, and stalls; a reset, a toxic that closes connections
+    /// after some time or bytes, corruption, and a toxic that hits only some connections
+    /// (toxicity below 1) are not.
+    pub fn outside_plan(&self) -> Option<&'static str> {
+        match self {
+            Fault::Reset { .. } => Some("a reset closes sessions the plan keeps up"),
+            Fault::AddToxic { toxic, .. } | Fault::SetToxic { toxic, .. } => {
+                if toxic.toxicity < 1.0 {
+                    return Some("a toxic with toxicity below 1 hits connections by their number");
+                }
+                match toxic.kind {
+                    ToxicKind::Timeout { timeout_ms } if timeout_ms > 0 => {
+                        Some("a timeout toxic closes connections after a while")
+                    }
+                    ToxicKind::ResetPeer { .. } => Some("reset_peer closes connections"),
+                    ToxicKind::LimitData { .. } => Some("limit_data closes connections"),
+                    ToxicKind::Corrupt { .. } => Some("corrupt bytes break messages and sessions"),
+                    _ => None,
+                }
+            }
+            _ => None,
+        }
+    }
+}
+
 /// A fault applied when the simulation reaches `step`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ScheduledFault {

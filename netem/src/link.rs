@@ -433,33 +433,32 @@ impl Link {
         s
     }
 
-    /// The link as a step's plan announces it (steps of `step_ns`), if it is up: the slower
-    /// direction's own rate (a shared medium aside), latency and jitter rounded up to whole
-    /// steps, held if either direction is stalled. Every toxic counts, whatever its toxicity.
+    /// The link as a step's plan announces it (steps of `step_ns`), if it is up: per direction
+    /// its own rate (a shared medium aside) and its latency with the jitter at the most,
+    /// rounded up to whole steps; held if either direction is stalled. Every toxic counts,
+    /// whatever its toxicity.
     pub fn planned(&self, step_ns: u64) -> Option<PlannedLink> {
         if !self.is_up() {
             return None;
         }
         let toxics = self.toxics();
         let shapes = Dir::BOTH.map(|d| faults::planned(&self.params.base[d.index()], &toxics, d));
-        let rate = shapes
-            .iter()
-            .flat_map(|s| s.budgets.iter().filter(|b| !b.is_shared()))
-            .map(|b| b.rate_bytes_per_s())
-            .min();
-        let delay = shapes
-            .iter()
-            .map(|s| {
-                let ns = s.latency_ns.saturating_add(s.jitter_ns);
-                u32::try_from(ns.div_ceil(step_ns.max(1))).unwrap_or(u32::MAX)
-            })
-            .max()
-            .unwrap_or(0);
+        let rate = |s: &DirShape| {
+            s.budgets
+                .iter()
+                .filter(|b| !b.is_shared())
+                .map(|b| b.rate_bytes_per_s())
+                .min()
+        };
+        let delay = |s: &DirShape| {
+            let ns = s.latency_ns.saturating_add(s.jitter_ns);
+            u32::try_from(ns.div_ceil(step_ns.max(1))).unwrap_or(u32::MAX)
+        };
         Some(PlannedLink {
             a: self.params.a,
             b: self.params.b,
-            rate,
-            delay,
+            rate: [rate(&shapes[0]), rate(&shapes[1])],
+            delay: [delay(&shapes[0]), delay(&shapes[1])],
             held: shapes.iter().any(|s| s.stalled),
         })
     }

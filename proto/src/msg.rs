@@ -247,11 +247,11 @@ pub struct LinkPlan {
 pub struct PlannedLink {
     pub a: RobotId,
     pub b: RobotId,
-    /// The link's rate (bytes per simulated second, the slower direction); `None`: unlimited.
-    pub rate: Option<u64>,
-    /// Latency (with its jitter at the most) in whole steps: a message sent in step t is acted
-    /// on in step t + `delay`.
-    pub delay: u32,
+    /// Each direction's rate (bytes per simulated second), `[a → b, b → a]`; `None`: unlimited.
+    pub rate: [Option<u64>; 2],
+    /// Each direction's latency (with its jitter at the most) in whole steps, `[a → b, b → a]`:
+    /// a message sent in step t is acted on in step t + delay.
+    pub delay: [u32; 2],
     /// Stalled (a blackhole): the session stays, nothing is sent either way.
     pub held: bool,
 }
@@ -299,6 +299,21 @@ impl PlannedLink {
             (false, true) => Some(self.a),
             _ => None,
         }
+    }
+
+    /// The index of the direction from `from` (a → b is 0).
+    fn dir(&self, from: RobotId) -> usize {
+        usize::from(from != self.a)
+    }
+
+    /// The rate of the direction from `from`.
+    pub fn rate_from(&self, from: RobotId) -> Option<u64> {
+        self.rate[self.dir(from)]
+    }
+
+    /// The delay of the direction from `from`.
+    pub fn delay_from(&self, from: RobotId) -> u32 {
+        self.delay[self.dir(from)]
     }
 }
 
@@ -557,15 +572,15 @@ mod tests {
                 PlannedLink {
                     a: 0,
                     b: 1,
-                    rate: Some(1000),
-                    delay: 2,
+                    rate: [Some(1000), None],
+                    delay: [2, 0],
                     held: false,
                 },
                 PlannedLink {
                     a: 1,
                     b: 3,
-                    rate: None,
-                    delay: 0,
+                    rate: [None, None],
+                    delay: [0, 0],
                     held: true,
                 },
             ],
@@ -715,5 +730,14 @@ mod link_plan_tests {
         p.links[0].held = true;
         assert_eq!(p.neighbours(2), [0, 1]);
         assert!(p.link(3, 2).is_some_and(|l| l.held));
+        let l = PlannedLink {
+            a: 1,
+            b: 4,
+            rate: [Some(10), Some(20)],
+            delay: [3, 0],
+            held: false,
+        };
+        assert_eq!((l.rate_from(1), l.delay_from(1)), (Some(10), 3));
+        assert_eq!((l.rate_from(4), l.delay_from(4)), (Some(20), 0));
     }
 }

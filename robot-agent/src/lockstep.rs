@@ -174,7 +174,7 @@ impl Lockstep {
         for (due, m) in &mut self.inbox {
             if due.is_none() {
                 let from = m.from();
-                let delay = plan.link(me, from).map_or(0, |l| l.delay);
+                let delay = plan.link(me, from).map_or(0, |l| l.delay_from(from));
                 let d = t.saturating_add(delay).max(self.last_due.get(&from).copied().unwrap_or(0));
                 self.last_due.insert(from, d);
                 *due = Some(d);
@@ -273,13 +273,14 @@ mod tests {
     #[test]
     fn a_delayed_link_hands_messages_over_late_in_order_and_a_cut_drops_them() {
         let mut l = Lockstep::default();
+        // The delay from 1 to 0; the other way has none.
         let plan = |step, delay, held| LinkPlan {
             step,
             links: vec![PlannedLink {
                 a: 0,
                 b: 1,
-                rate: None,
-                delay,
+                rate: [None, None],
+                delay: [0, delay],
                 held,
             }],
         };

@@ -122,7 +122,17 @@ fn nondeterministic(plan: &Plan, rec: &Record) -> Vec<String> {
             "lockstep without step markers (clock.markers = false): robots take radio traffic as it arrives"
                 .to_string(),
         ),
-        ClockMode::Lockstep => {}
+        ClockMode::Lockstep => {
+            // Checked at start (netem refuses bad faults), so a table that does not parse here
+            // is not one netem applies.
+            if let Ok(faults) = netem::faults::parse_faults(&plan.scenario.faults) {
+                for f in faults {
+                    if let Some(reason) = f.fault.outside_plan() {
+                        why.push(format!("step {}: fault outside the step plan: {reason}", f.step));
+                    }
+                }
+            }
+        }
     }
     for st in &rec.statuses {
         if !st.missed.is_empty() {
