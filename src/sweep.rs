@@ -67,6 +67,41 @@ pub struct SweepArgs {
     /// The experiment's quick variant (its [quick] table): fewer seeds and points, smaller runs.
     #[arg(long)]
     pub quick: bool,
+    /// Only the grid points where KEY is VALUE, e.g. --only robots.count=8 (repeatable; several
+    /// values of one key are all kept). The runs go to the same directory as the whole grid's.
+    #[arg(long, value_name = "KEY=VALUE")]
+    pub only: Vec<String>,
+}
+
+/// Keeps only the values `only` names (`KEY=VALUE`, as the grid's values are written) of their
+/// grid keys.
+fn restrict(
+    grid: &mut BTreeMap<String, Vec<String>>,
+    only: &[String],
+) -> anyhow::Result<()> {
+    let mut wanted: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+    for o in only {
+        let Some((k, v)) = o.split_once('=') else {
+            bail!("--only {o:?}: expected KEY=VALUE");
+        };
+        wanted.entry(k.trim()).or_default().push(v.trim());
+    }
+    for (k, vs) in wanted {
+        let Some(values) = grid.get_mut(k) else {
+            let keys: Vec<&String> = grid.keys().collect();
+            bail!("--only {k}: not a grid key (the grid has {keys:?})");
+        };
+        let kept: Vec<String> = values
+            .iter()
+            .filter(|x| vs.contains(&x.as_str()))
+            .cloned()
+            .collect();
+        if kept.len() != vs.len() {
+            bail!("--only {k}: {vs:?} are not all among the grid's values {values:?}");
+        }
+        *values = kept;
+    }
+    Ok(())
 }
 
 #[derive(Debug, Deserialize)]
@@ -265,8 +300,9 @@ impl Plan {
             toml::from_str(&text).with_context(|| format!("experiment {file}"))?;
         let base_dir = args.experiment.parent().unwrap_or(Path::new("."));
         let scenario = exp.scenario.as_ref().map(|s| base_dir.join(s));
-        let (seeds, sets, grid) =
+        let (seeds, sets, mut grid) =
             variant(&exp, args.quick).with_context(|| format!("experiment {file}"))?;
+        restrict(&mut grid, &args.only)?;
         let spec = Spec {
             name: exp.name.clone(),
             command: std::env::args().collect::<Vec<_>>().join(" "),
@@ -427,6 +463,23 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_keeps_the_named_values_and_refuses_what_the_grid_lacks() {
+        let mut grid: BTreeMap<String, Vec<String>> = [
+            ("robots.count".to_string(), vec!["3".to_string(), "8".to_string()]),
+            ("seedless".to_string(), vec!["a".to_string()]),
+        ]
+        .into();
+        restrict(&mut grid, &["robots.count=8".into()]).unwrap();
+        assert_eq!(grid["robots.count"], ["8"]);
+        assert_eq!(grid["seedless"], ["a"]);
+        for bad in ["robots.count=5", "nope=1", "robots.count"] {
+            let mut g = grid.clone();
+            let e = restrict(&mut g, &[bad.into()]).unwrap_err().to_string();
+            assert!(e.contains("--only"), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn the_shipped_experiments_and_their_quick_variants_are_valid() {

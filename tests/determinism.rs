@@ -156,7 +156,7 @@ fn the_default_scenario_gives_the_same_run_alone_loaded_and_beside_another() {
     same_run_three_ways(
         "det-default",
         None,
-        &["clock.markers=true"],
+        &[],
         Duration::from_secs(180),
         |_| {},
     );

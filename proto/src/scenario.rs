@@ -37,8 +37,8 @@ pub struct Scenario {
 pub struct Clock {
     pub mode: ClockMode,
     /// Lockstep: robots act on radio traffic only at step boundaries (step markers, a barrier;
-    /// robot-agent's `lockstep` module), so that a run does not depend on process timing.
-    /// Work in progress (issue #13): off by default until it holds under every fault.
+    /// robot-agent's `lockstep` module), so that a run is a function of its scenario. On by
+    /// default; off, robots take radio traffic as it arrives (faster, not reproducible).
     pub markers: bool,
     pub step_seconds: f64,
     pub step_timeout_ms: u64,
@@ -261,7 +261,7 @@ impl Default for Clock {
     fn default() -> Self {
         Clock {
             mode: ClockMode::Lockstep,
-            markers: false,
+            markers: true,
             step_seconds: 1.0,
             step_timeout_ms: 2000,
             dead_after: 5,
