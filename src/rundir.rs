@@ -237,7 +237,17 @@ impl LinkLog {
         }
     }
 
-    /// Bytes that crossed any link, both ways.
+    /// Drops the reports of steps after `last`.
+    pub fn truncate(&mut self, last: Step) {
+        self.rows.retain(|(s, _)| *s <= last);
+        self.totals.clear();
+        for (_, l) in &self.rows {
+            let t = self.totals.entry((l.a, l.b)).or_default();
+            *t = (*t).max(l.bytes_total);
+        }
+    }
+
+    /// Bytes that crossed any link, both ways, up to the last report.
     pub fn wire_total(&self) -> u64 {
         self.totals.values().sum()
     }

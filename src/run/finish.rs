@@ -77,12 +77,15 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
         coverage_steps: coverage_steps(&eval.coverage_steps),
         best_coverage_pct: eval.best.0,
         reachable_cells: eval.reachable_cells(),
-        // netem's final counters when it wrote them (they include what crossed while the
-        // processes stopped), else the last per-step reports.
-        bytes_wire_total: Some(
+        // With step markers, up to the run's last step (what crossed while the processes
+        // stopped depends on timing). Else netem's final counters when it wrote them (they
+        // include that too), or the last per-step reports.
+        bytes_wire_total: Some(if plan.scenario.clock.marked() {
+            rec.links.wire_total()
+        } else {
             link_totals_wire(&plan.dir.join("link_totals.csv"))
-                .unwrap_or_else(|| rec.links.wire_total()),
-        ),
+                .unwrap_or_else(|| rec.links.wire_total())
+        }),
         bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum(),
         traffic_shares_pct: traffic_shares(&by_type),
         bytes_by_type: by_type,

@@ -191,7 +191,7 @@ impl Record {
     /// launcher waited for the last step's reports).
     pub fn truncate(&mut self) {
         if let Some((e, _)) = self.end {
-            self.links.rows.retain(|(s, _)| *s <= e);
+            self.links.truncate(e);
         }
     }
 
