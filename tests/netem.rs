@@ -282,7 +282,9 @@ fn a_link_offered_three_times_its_budget_stays_up_for_120_simulated_seconds() {
 }
 
 /// Every fault type, scheduled in one 4-robot run (radio `always`, so faults are the only cause
-/// of a link going down), with its effect checked in `links.csv` and `link_totals.csv`; the run
+/// of a link going down), with its effect checked in `links.csv` and `link_totals.csv`. Without
+/// step markers, so that netem itself delays, stalls and paces the bytes (with markers the
+/// receivers carry latency out, and robots do not send on a stalled link); the run
 /// goes on to its end with every process alive. Checks skip the step in which a fault starts or
 /// ends: a step's row counts what was delivered until the next step opened, after that step's
 /// faults took effect.
@@ -298,7 +300,7 @@ fn a_run_survives_every_fault_type_and_each_shows_its_effect() {
     };
     let mut text = String::from(
         "max_steps = 300\n[robots]\ncount = 4\n[world]\nmap = \"office\"\nwidth_m = 40.0\nheight_m = 30.0\n\
-         [clock]\nstep_timeout_ms = 10000\n[radio]\nmodel = \"always\"\nbandwidth_bytes_per_s = 1000\n\
+         [clock]\nstep_timeout_ms = 10000\nmarkers = false\n[radio]\nmodel = \"always\"\nbandwidth_bytes_per_s = 1000\n\
          [[faults]]\nstep = 20\nkind = \"partition\"\ngroups = [[0, 1], [2, 3]]\n\
          [[faults]]\nstep = 60\nkind = \"heal\"\n",
     );

@@ -819,4 +819,46 @@ mod tests {
         assert!((2700..3300).contains(&n), "{n}");
         assert!((0..100u64).all(|c| hits(1.0, 1, c) && !hits(0.0, 1, c)));
     }
+
+    #[test]
+    fn what_a_step_plan_carries_and_what_it_cannot() {
+        let pair = Some((0, 1));
+        for inside in [
+            Fault::Cut { pair: (0, 1) },
+            Fault::Partition {
+                groups: vec![vec![0], vec![1]],
+            },
+            Fault::Heal,
+            Fault::ResetAll,
+            Fault::blackhole(pair),
+            Fault::bandwidth(pair, 300),
+            Fault::latency(None, 2500, 400),
+        ] {
+            assert_eq!(inside.outside_plan(), None, "{inside:?}");
+        }
+        let mut partial = Toxic::both(ToxicKind::Latency {
+            latency_ms: 10,
+            jitter_ms: 0,
+        });
+        partial.toxicity = 0.5;
+        for outside in [
+            Fault::Reset { pair: None },
+            Fault::limit_data(pair, 100),
+            Fault::corrupt(pair, 0.01),
+            Fault::SetToxic {
+                pair,
+                toxic: Toxic::both(ToxicKind::Timeout { timeout_ms: 5 }),
+            },
+            Fault::AddToxic {
+                pair,
+                toxic: Toxic::both(ToxicKind::ResetPeer { timeout_ms: 5 }),
+            },
+            Fault::SetToxic {
+                pair,
+                toxic: partial,
+            },
+        ] {
+            assert!(outside.outside_plan().is_some(), "{outside:?}");
+        }
+    }
 }

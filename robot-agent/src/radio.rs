@@ -26,7 +26,10 @@ use crate::coord::{Addressed, CoordMsg, To};
 use crate::pacing::Pacer;
 use crate::sharing::{Share, Sharing};
 
-/// How many steps of unused radio budget a neighbour's credit can hold.
+/// How many steps of unused radio budget a neighbour's credit can hold (without step markers:
+/// netem smooths what a burst offers over the following steps). With step markers a step's
+/// traffic crosses within the step, so a link carries at most one step's budget per step
+/// (and the largest single-scan delta, which must go whole).
 pub const BURST_STEPS: usize = 4;
 
 /// The encoded size of the largest delta that carries one scan of `laser`.
@@ -165,8 +168,9 @@ pub struct Radio {
 impl Radio {
     /// Robot `id`'s radio in scenario `s` and `world`.
     pub fn new(id: RobotId, s: &Scenario, world: &WorldInfo) -> Radio {
+        let burst_steps = if s.clock.marked() { 1 } else { BURST_STEPS };
         let burst_bytes = budget_per_step(s, world)
-            .map_or(0, |b| (b * BURST_STEPS as f64) as u64)
+            .map_or(0, |b| (b * burst_steps as f64) as u64)
             .max(largest_delta_bytes(&world.laser) as u64);
         Radio {
             id,
