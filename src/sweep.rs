@@ -75,10 +75,7 @@ pub struct SweepArgs {
 
 /// Keeps only the values `only` names (`KEY=VALUE`, as the grid's values are written) of their
 /// grid keys.
-fn restrict(
-    grid: &mut BTreeMap<String, Vec<String>>,
-    only: &[String],
-) -> anyhow::Result<()> {
+fn restrict(grid: &mut BTreeMap<String, Vec<String>>, only: &[String]) -> anyhow::Result<()> {
     let mut wanted: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
     for o in only {
         let Some((k, v)) = o.split_once('=') else {
@@ -467,16 +464,21 @@ mod tests {
     #[test]
     fn only_keeps_the_named_values_and_refuses_what_the_grid_lacks() {
         let mut grid: BTreeMap<String, Vec<String>> = [
-            ("robots.count".to_string(), vec!["3".to_string(), "8".to_string()]),
+            (
+                "robots.count".to_string(),
+                vec!["3".to_string(), "8".to_string()],
+            ),
             ("seedless".to_string(), vec!["a".to_string()]),
         ]
         .into();
-        restrict(&mut grid, &["robots.count=8".into()]).unwrap();
+        restrict(&mut grid, &["robots.count=8".into()]).expect("8 is a value");
         assert_eq!(grid["robots.count"], ["8"]);
         assert_eq!(grid["seedless"], ["a"]);
         for bad in ["robots.count=5", "nope=1", "robots.count"] {
             let mut g = grid.clone();
-            let e = restrict(&mut g, &[bad.into()]).unwrap_err().to_string();
+            let e = restrict(&mut g, &[bad.into()])
+                .expect_err("refused")
+                .to_string();
             assert!(e.contains("--only"), "{bad}: {e}");
         }
     }

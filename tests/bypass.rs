@@ -87,7 +87,8 @@ async fn a_message_reaches_a_robot_out_of_range_only_through_the_robot_in_betwee
     for i in 0..3 {
         robots.push(
             open(
-                radio_peer(i as u16, 1, &[ep(radio[i])], &connects[i], None, &[], false).expect("radio config"),
+                radio_peer(i as u16, 1, &[ep(radio[i])], &connects[i], None, &[], false)
+                    .expect("radio config"),
             )
             .await,
         );

@@ -153,13 +153,7 @@ fn same_run_three_ways(
 
 #[test]
 fn the_default_scenario_gives_the_same_run_alone_loaded_and_beside_another() {
-    same_run_three_ways(
-        "det-default",
-        None,
-        &[],
-        Duration::from_secs(180),
-        |_| {},
-    );
+    same_run_three_ways("det-default", None, &[], Duration::from_secs(180), |_| {});
 }
 
 #[test]
@@ -208,5 +202,8 @@ fn the_faults_happened(run: &Path) {
     }
     assert_eq!(seen, [true; 3], "every fault's steps are in links.csv");
     // 300 B/s with a 4-step burst, plus one step's handshakes after the partition heals.
-    assert!(bw_bytes <= 2000, "a step carried {bw_bytes} bytes at 300 B/s");
+    assert!(
+        bw_bytes <= 2000,
+        "a step carried {bw_bytes} bytes at 300 B/s"
+    );
 }

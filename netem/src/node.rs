@@ -6,9 +6,7 @@ use std::time::Duration;
 
 use proto::grid::Grid;
 use proto::keys;
-use proto::msg::{
-    decode, encode, Control, LinkReport, LinkState, Status, Step, TruthMap,
-};
+use proto::msg::{decode, encode, Control, LinkReport, LinkState, Status, Step, TruthMap};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::{RadioModel, Scenario};
 use zenoh::qos::CongestionControl;

@@ -175,7 +175,9 @@ impl Lockstep {
             if due.is_none() {
                 let from = m.from();
                 let delay = plan.link(me, from).map_or(0, |l| l.delay_from(from));
-                let d = t.saturating_add(delay).max(self.last_due.get(&from).copied().unwrap_or(0));
+                let d = t
+                    .saturating_add(delay)
+                    .max(self.last_due.get(&from).copied().unwrap_or(0));
                 self.last_due.insert(from, d);
                 *due = Some(d);
             }

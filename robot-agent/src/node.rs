@@ -348,7 +348,9 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         out.extend(marks);
         tracing::debug!(
             "step {t}: sent {:?}",
-            out.iter().map(|o| (o.to, o.key.as_str(), o.bytes.len())).collect::<Vec<_>>()
+            out.iter()
+                .map(|o| (o.to, o.key.as_str(), o.bytes.len()))
+                .collect::<Vec<_>>()
         );
         send_radio(p.radio, out, true).await;
         while !ls.marked(t, &linked) {
