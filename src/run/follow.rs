@@ -213,18 +213,39 @@ impl Record {
             exits.extend(children.newly_exited());
         }
         for (name, pid, status) in &exits {
-            let mut what = format!("{name} (pid {pid}) exited: {}", describe(*status));
-            if status.code().is_some_and(|c| c != 0) {
-                what = format!("{what}: {}", last_log_line(&plan.log(name)));
-            }
-            progress.event(&format!("swarm run: {what}"));
-            self.failed.push(what);
+            self.exited(name, *pid, *status, plan, progress);
         }
         exits
             .iter()
             .filter_map(|(name, _, _)| needed(name))
             .min_by_key(|&(rank, _)| rank)
             .map(|(_, r)| r)
+    }
+
+    /// Once the last step is known, processes end by themselves (the world-server at the step
+    /// limit, the others after it): only one that fails (an error exit or a signal) is recorded.
+    fn on_crashes(&mut self, children: &mut Children, plan: &Plan, progress: &mut Progress) {
+        for (name, pid, status) in children.newly_exited() {
+            if !status.success() {
+                self.exited(&name, pid, status, plan, progress);
+            }
+        }
+    }
+
+    fn exited(
+        &mut self,
+        name: &str,
+        pid: u32,
+        status: std::process::ExitStatus,
+        plan: &Plan,
+        progress: &mut Progress,
+    ) {
+        let mut what = format!("{name} (pid {pid}) exited: {}", describe(status));
+        if status.code().is_some_and(|c| c != 0) {
+            what = format!("{what}: {}", last_log_line(&plan.log(name)));
+        }
+        progress.event(&format!("swarm run: {what}"));
+        self.failed.push(what);
     }
 }
 
@@ -284,10 +305,14 @@ pub async fn follow(
                 }
             },
             // Once the last step is known the processes may end by themselves (the world-server
-            // does at the step limit): their exits are the run's end, not failures.
+            // does at the step limit): their exits are the run's end, not failures; a crash
+            // still is one.
             _ = tick.tick() => match rec.end {
                 None => rec.on_exits(&mut run.children, plan, progress),
-                Some(_) => None,
+                Some(_) => {
+                    rec.on_crashes(&mut run.children, plan, progress);
+                    None
+                }
             },
             _ = tokio::signal::ctrl_c() => {
                 progress.event("swarm run: interrupted, stopping every process");
