@@ -218,7 +218,7 @@ impl Agent {
                 step: self.step,
                 sent: u32::try_from(sent).unwrap_or(u32::MAX),
             });
-            marks.extend(self.radio.send_one(p, &mark));
+            marks.extend(self.radio.send_paced(p, &mark));
         }
         marks
     }

@@ -26,11 +26,18 @@ use crate::coord::{Addressed, CoordMsg, To};
 use crate::pacing::Pacer;
 use crate::sharing::{Share, Sharing};
 
-/// How many steps of unused radio budget a neighbour's credit can hold (without step markers:
-/// netem smooths what a burst offers over the following steps). With step markers a step's
-/// traffic crosses within the step, so a link carries at most one step's budget per step
-/// (and the largest single-scan delta, which must go whole).
+/// How many steps of unused radio budget a neighbour's credit can hold. Without step markers
+/// netem smooths what a burst offers over the following steps; with them a step's traffic
+/// crosses within the step, so after idle steps a link may carry up to this many steps' budget
+/// in one (a log entry larger than one step's budget goes whole, and never starves).
 pub const BURST_STEPS: usize = 4;
+
+/// What zenoh adds on the wire to one radio message, with batching off (lockstep with step
+/// markers): the TCP link's length prefix, the frame and the put headers, the key's id.
+/// Measured: a 5-byte step marker is 24 bytes on the wire. With step markers pacing counts it,
+/// so that a link's bytes on the wire, not only its payload, stay within its rate (netem lets
+/// every step's traffic through, so nothing else would keep the wire rate).
+pub const WIRE_OVERHEAD_BYTES: usize = 19;
 
 /// The encoded size of the largest delta that carries one scan of `laser`.
 fn largest_delta_bytes(laser: &LaserSpec) -> usize {
@@ -161,6 +168,8 @@ pub struct Radio {
     /// The target last announced to the robots in range (`None`: none announced yet).
     announced: Option<Option<Cell>>,
     counters: Counters,
+    /// Bytes of framing a message costs its link besides its payload (see [`Radio::send`]).
+    overhead: usize,
     /// An undecodable payload was logged already.
     logged_bad: bool,
 }
@@ -168,9 +177,8 @@ pub struct Radio {
 impl Radio {
     /// Robot `id`'s radio in scenario `s` and `world`.
     pub fn new(id: RobotId, s: &Scenario, world: &WorldInfo) -> Radio {
-        let burst_steps = if s.clock.marked() { 1 } else { BURST_STEPS };
         let burst_bytes = budget_per_step(s, world)
-            .map_or(0, |b| (b * burst_steps as f64) as u64)
+            .map_or(0, |b| (b * BURST_STEPS as f64) as u64)
             .max(largest_delta_bytes(&world.laser) as u64);
         Radio {
             id,
@@ -180,6 +188,11 @@ impl Radio {
             backlog: Vec::new(),
             announced: None,
             counters: Counters::default(),
+            overhead: if s.clock.marked() {
+                WIRE_OVERHEAD_BYTES
+            } else {
+                0
+            },
             logged_bad: false,
         }
     }
@@ -198,6 +211,8 @@ impl Radio {
     }
 
     /// Hands packet `p` to robot `to`, counting its bytes; returns how many.
+    /// Encodes one message for `to`; returns what it costs the link: its payload, and with step
+    /// markers zenoh's framing ([`WIRE_OVERHEAD_BYTES`]).
     fn send(&mut self, to: RobotId, p: &Packet, out: &mut Vec<Outgoing>) -> usize {
         let c = &mut self.counters;
         c.bytes_sent += p.bytes.len() as u64;
@@ -209,13 +224,22 @@ impl Radio {
             key: (p.key)(to),
             bytes: p.bytes.clone(),
         });
-        p.bytes.len()
+        p.bytes.len() + self.overhead
     }
 
     /// Sends one message to one robot, outside any budget.
     pub fn send_one(&mut self, to: RobotId, msg: &Msg) -> Vec<Outgoing> {
         let mut out = Vec::new();
         self.send(to, &msg.pack(), &mut out);
+        out
+    }
+
+    /// Sends one message to one robot whatever the budget, and takes it off the budget (a step
+    /// marker: the link must carry it too).
+    pub fn send_paced(&mut self, to: RobotId, msg: &Msg) -> Vec<Outgoing> {
+        let mut out = Vec::new();
+        let cost = self.send(to, &msg.pack(), &mut out);
+        self.pacer.spend(to, cost);
         out
     }
 
