@@ -181,9 +181,7 @@ impl Agent {
     /// Lockstep: the link to `peer` carries `rate` bytes per simulated second (netem's plan;
     /// `None`: the scenario's bandwidth).
     pub fn set_rate(&mut self, peer: RobotId, rate: Option<u64>) {
-        if let Some(r) = rate {
-            self.radio.set_rate(peer, Some(r));
-        }
+        self.radio.set_rate(peer, rate);
     }
 
     /// Lockstep: the step's neighbours are exactly `linked` (netem's plan). Links that went

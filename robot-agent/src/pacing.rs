@@ -113,6 +113,13 @@ impl Pacer {
         }
     }
 
+    /// `peer`'s link has the default rate again.
+    pub fn default_rate(&mut self, peer: RobotId) {
+        if self.rates.remove(&peer).is_some_and(|r| r != self.rate) {
+            self.links.remove(&peer);
+        }
+    }
+
     fn rate_of(&self, peer: RobotId) -> Option<u64> {
         self.rates.get(&peer).copied().unwrap_or(self.rate)
     }
@@ -260,6 +267,8 @@ mod tests {
         p.spend(1, 500);
         p.set_rate(1, Some(250));
         assert_eq!(p.available(1), 500);
+        p.default_rate(1);
+        assert_eq!(p.available(1), 1000, "back to the default, afresh");
         p.set_rate(1, None);
         assert_eq!(p.available(1), usize::MAX);
     }

@@ -272,9 +272,13 @@ impl Radio {
         out
     }
 
-    /// The link to `peer` carries `rate` bytes per simulated second (lockstep: the step's plan).
+    /// The link to `peer` carries `rate` bytes per simulated second (lockstep: the step's plan;
+    /// `None`: the scenario's bandwidth).
     pub fn set_rate(&mut self, peer: RobotId, rate: Option<u64>) {
-        self.pacer.set_rate(peer, rate);
+        match rate {
+            Some(r) => self.pacer.set_rate(peer, Some(r)),
+            None => self.pacer.default_rate(peer),
+        }
     }
 
     pub fn link_down(&mut self, peer: RobotId, sharing: &mut dyn Sharing) {
