@@ -225,14 +225,11 @@ pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
 #[derive(Default)]
 pub struct LinkLog {
     pub rows: Vec<(Step, LinkState)>,
-    totals: BTreeMap<(u16, u16), u64>,
 }
 
 impl LinkLog {
     pub fn add(&mut self, r: LinkReport) {
         for l in r.links {
-            let t = self.totals.entry((l.a, l.b)).or_default();
-            *t = (*t).max(l.bytes_total);
             self.rows.push((r.step, l));
         }
     }
@@ -240,16 +237,16 @@ impl LinkLog {
     /// Drops the reports of steps after `last`.
     pub fn truncate(&mut self, last: Step) {
         self.rows.retain(|(s, _)| *s <= last);
-        self.totals.clear();
-        for (_, l) in &self.rows {
-            let t = self.totals.entry((l.a, l.b)).or_default();
-            *t = (*t).max(l.bytes_total);
-        }
     }
 
     /// Bytes that crossed any link, both ways, up to the last report.
     pub fn wire_total(&self) -> u64 {
-        self.totals.values().sum()
+        let mut totals: BTreeMap<(u16, u16), u64> = BTreeMap::new();
+        for (_, l) in &self.rows {
+            let t = totals.entry((l.a, l.b)).or_default();
+            *t = (*t).max(l.bytes_total);
+        }
+        totals.values().sum()
     }
 
     /// How long links took to reconnect after coming back up (see [`Reconnects`]).

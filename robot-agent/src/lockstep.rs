@@ -38,9 +38,6 @@ pub struct Lockstep {
     /// Received messages (markers aside) in the order they arrived, already counted and
     /// decoded; each with the step it is to be acted on in, once its marker came.
     inbox: Vec<(Option<Step>, Msg)>,
-    /// Per sender, the step its last message is to be acted on in (a link does not reorder:
-    /// a shorter delay does not let a message overtake one sent before it).
-    last_due: BTreeMap<RobotId, Step>,
     /// Peers whose radio liveliness token is seen (a stale one aside).
     tokens: BTreeSet<RobotId>,
     /// Peers this robot has a zenoh session with itself (a token can also come through
@@ -77,8 +74,10 @@ impl Lockstep {
                 self.tokens.insert(peer);
             }
         } else {
+            // The session went with its token: a new one must be listed again.
             self.stale.remove(&peer);
             self.tokens.remove(&peer);
+            self.direct.remove(&peer);
         }
     }
 
@@ -112,8 +111,6 @@ impl Lockstep {
         self.marks.retain(|&s, _| s >= t);
         self.inbox
             .retain(|(due, m)| due.is_none() || plan.link(me, m.from()).is_some());
-        self.last_due
-            .retain(|&from, _| plan.link(me, from).is_some());
         Some((scan, plan))
     }
 
@@ -171,15 +168,22 @@ impl Lockstep {
     /// the delay of the sender's link in `plan`; then takes what is due by `t` from links not
     /// held, sender by sender in id order, each sender's messages in arrival order.
     pub fn take(&mut self, me: RobotId, t: Step, plan: &LinkPlan) -> Vec<Msg> {
+        // A link does not reorder: a message is never due before one its sender sent earlier
+        // that still waits (a shorter delay does not let it overtake).
+        let mut floor: BTreeMap<RobotId, Step> = BTreeMap::new();
+        for (due, m) in &self.inbox {
+            if let Some(d) = due {
+                let f = floor.entry(m.from()).or_default();
+                *f = (*f).max(*d);
+            }
+        }
         for (due, m) in &mut self.inbox {
             if due.is_none() {
                 let from = m.from();
                 let delay = plan.link(me, from).map_or(0, |l| l.delay_from(from));
-                let d = t
-                    .saturating_add(delay)
-                    .max(self.last_due.get(&from).copied().unwrap_or(0));
-                self.last_due.insert(from, d);
-                *due = Some(d);
+                let f = floor.entry(from).or_default();
+                *f = t.saturating_add(delay).max(*f);
+                *due = Some(*f);
             }
         }
         let ready = |(due, m): &(Option<Step>, Msg)| {
@@ -318,6 +322,8 @@ mod tests {
         assert!(!l.linked(&[1]), "the old session's token, seen again");
         l.on_token(1, false);
         l.on_token(1, true);
+        assert!(!l.linked(&[1]), "the new session is not listed yet");
+        l.on_sessions([1].into());
         assert!(l.linked(&[1]));
     }
 }

@@ -231,7 +231,10 @@ pub async fn run_robot(
         radio: &radio,
         subs: &subs,
         idle: idle_timeout,
-        team: (0..s.robots.count).collect(),
+        peers: (0..s.robots.count)
+            .filter(|&r| r != id)
+            .filter_map(|r| Some((proto::node::radio_zid(r).parse().ok()?, r)))
+            .collect(),
     };
     if s.clock.marked() {
         lockstep(agent, &planes).await
@@ -247,8 +250,8 @@ struct Planes<'a> {
     radio: &'a Session,
     subs: &'a Subs,
     idle: Duration,
-    /// Every robot of the run.
-    team: Vec<RobotId>,
+    /// Every other robot of the run, by its radio session's zenoh id.
+    peers: BTreeMap<ZenohId, RobotId>,
 }
 
 /// How often a robot waiting for a link's session looks at zenoh's list of sessions.
@@ -257,16 +260,11 @@ const SESSION_POLL: Duration = Duration::from_millis(2);
 impl Planes<'_> {
     /// The robots this one has a radio session with (not through another robot).
     async fn sessions(&self) -> BTreeSet<RobotId> {
-        let ids: BTreeMap<ZenohId, RobotId> = self
-            .team
-            .iter()
-            .filter_map(|&r| Some((proto::node::radio_zid(r).parse().ok()?, r)))
-            .collect();
         self.radio
             .info()
             .peers_zid()
             .await
-            .filter_map(|z| ids.get(&z).copied())
+            .filter_map(|z| self.peers.get(&z).copied())
             .collect()
     }
 }
@@ -325,7 +323,8 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             .filter(|&peer| plan.link(p.id, peer).is_none())
             .collect();
         ls.cut(&cut);
-        loop {
+        // zenoh's list of sessions is asked for only while a link is not seen up.
+        while !ls.linked(&linked) {
             ls.on_sessions(p.sessions().await);
             if ls.linked(&linked) {
                 break;
