@@ -38,6 +38,8 @@ pub struct MetricsRow {
     pub splits_per_step: Option<f64>,
     /// The largest backlog of any neighbour after the step's sending (bytes that waited).
     pub backlog_bytes: u64,
+    /// `bids`: the robot decided alone.
+    pub alone: bool,
 }
 
 pub struct Evaluator {
@@ -59,6 +61,12 @@ pub struct Evaluator {
     pub saves: Vec<(Step, RobotId, u32, u64)>,
     /// For `views.csv`: every change of what a robot shows of another owner.
     pub views: Vec<(Step, RobotId, View)>,
+    /// The base station's node id: its reports are recorded (its map, its bytes) but it is no
+    /// robot, so its coverage is kept apart ([`Self::base_coverage_steps`]) and never decides
+    /// the exploration time.
+    pub base: Option<RobotId>,
+    /// Step at which the base station first knew each threshold's share.
+    pub base_coverage_steps: BTreeMap<u32, Step>,
 }
 
 impl Evaluator {
@@ -78,7 +86,15 @@ impl Evaluator {
             bad_telemetry: 0,
             saves: Vec::new(),
             views: Vec::new(),
+            base: None,
+            base_coverage_steps: BTreeMap::new(),
         }
+    }
+
+    /// Node `base` is the base station ([`Self::base`]).
+    pub fn with_base(mut self, base: Option<RobotId>) -> Evaluator {
+        self.base = base;
+        self
     }
 
     pub fn reachable_cells(&self) -> usize {
@@ -116,16 +132,22 @@ impl Evaluator {
         } else {
             100.0 * covered as f64 / self.reachable_count as f64
         };
-        if pct > self.best.0 {
+        let is_base = self.base == Some(t.robot);
+        if pct > self.best.0 && !is_base {
             self.best = (pct, t.robot);
         }
+        let steps = if is_base {
+            &mut self.base_coverage_steps
+        } else {
+            &mut self.coverage_steps
+        };
         for th in THRESHOLDS {
             if pct >= f64::from(th) {
-                let e = self.coverage_steps.entry(th).or_insert(t.step);
+                let e = steps.entry(th).or_insert(t.step);
                 *e = (*e).min(t.step);
             }
         }
-        if pct >= self.done_pct {
+        if pct >= self.done_pct && !is_base {
             self.exploration_step = Some(self.exploration_step.map_or(t.step, |s| s.min(t.step)));
         }
         self.rows.push(MetricsRow {
@@ -144,6 +166,7 @@ impl Evaluator {
             sent_by_type: t.sent_by_type.clone(),
             splits_per_step: t.splits_per_step,
             backlog_bytes: t.backlog_bytes.iter().map(|&(_, b)| b).max().unwrap_or(0),
+            alone: t.alone,
         });
         let before = self.last.get(&t.robot).map(|(_, b)| b);
         if let Some((len, digest)) = t.save {
@@ -187,6 +210,7 @@ mod tests {
             own_rle: vec![],
             save: None,
             views: vec![],
+            alone: false,
         }
     }
 
@@ -213,6 +237,20 @@ mod tests {
         assert_eq!(ev.coverage_steps.get(&50), Some(&7));
         assert_eq!(ev.coverage_steps.get(&100), Some(&7));
         assert_eq!(ev.best, (100.0, 1));
+    }
+
+    #[test]
+    fn the_base_station_is_recorded_but_never_decides_the_exploration_time() {
+        let truth = Grid::from_ascii("....\n");
+        let mut ev = Evaluator::new(truth.clone(), &truth, 99.0).with_base(Some(2));
+        ev.add(telemetry(2, 4, &truth));
+        assert_eq!(ev.exploration_step, None);
+        assert!(ev.coverage_steps.is_empty());
+        assert_eq!(ev.base_coverage_steps.get(&100), Some(&4));
+        assert_eq!(ev.rows.len(), 1, "its row is in metrics.csv");
+        ev.add(telemetry(0, 6, &truth));
+        assert_eq!(ev.exploration_step, Some(6));
+        assert_eq!(ev.best, (100.0, 0));
     }
 
     #[test]

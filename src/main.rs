@@ -30,6 +30,10 @@ enum Command {
     WorldServer(world_server::cli::Args),
     /// Run one robot-agent process (what `swarm run` starts, once per robot).
     RobotAgent(robot_agent::cli::Args),
+    /// Run the base-station process (what `swarm run` starts when the scenario's
+    /// [base_station] has enabled = true): a radio node that neither moves nor senses, node id
+    /// robots.count; it holds and relays every map it hears of and hosts the `bids` executive.
+    BaseStation(robot_agent::cli::BaseArgs),
     /// The netem link emulator: `serve` runs the process (what `swarm run` starts, one proxy
     /// per robot pair); `list`, `cut`, `restore`, `set`, `unset`, `reset` control the links of a
     /// running swarm through its HTTP API (--run RUN_DIR or --api ADDR).
@@ -53,6 +57,7 @@ fn main() -> ExitCode {
         },
         Command::WorldServer(args) => world_server::cli::main(args),
         Command::RobotAgent(args) => robot_agent::cli::main(args),
+        Command::BaseStation(args) => robot_agent::cli::base_main(args),
         Command::Netem(swarm::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),
         Command::Netem(cmd) => match swarm::netemctl::control(&cmd) {
             Ok(()) => ExitCode::SUCCESS,

@@ -187,6 +187,8 @@ pub struct MetricsCsv {
     pub neighbours: usize,
     pub splits_per_step: Option<Fixed<4>>,
     pub backlog_bytes: u64,
+    /// `bids`: the robot decided alone (no fresh assignment from the executive).
+    pub alone: Flag,
 }
 
 impl From<&MetricsRow> for MetricsCsv {
@@ -207,6 +209,7 @@ impl From<&MetricsRow> for MetricsCsv {
             neighbours: r.neighbours,
             splits_per_step: r.splits_per_step.map(Fixed),
             backlog_bytes: r.backlog_bytes,
+            alone: Flag(r.alone),
         }
     }
 }
@@ -623,6 +626,7 @@ mod tests {
                 sent_by_type: v,
                 splits_per_step: None,
                 backlog_bytes: 0,
+                alone: false,
             }
         };
         let dir = std::env::temp_dir().join(format!("swarm-traffic-{}", std::process::id()));
@@ -639,15 +643,15 @@ mod tests {
         let got: Vec<&str> = text.lines().collect();
         assert_eq!(
             got[0],
-            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells,mark"
+            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells,mark,bid,task"
         );
         assert_eq!(
             &got[1..],
             [
-                "0,0,10,0,0,0,0,0,0,0,0,1,0,0",
-                "0,1,2,0,0,0,0,0,0,0,0,0,0,0",
-                "1,0,15,0,0,0,0,0,0,0,0,0,0,0",
-                "1,1,3,0,0,0,0,0,0,0,0,0,0,0",
+                "0,0,10,0,0,0,0,0,0,0,0,1,0,0,0,0",
+                "0,1,2,0,0,0,0,0,0,0,0,0,0,0,0,0",
+                "1,0,15,0,0,0,0,0,0,0,0,0,0,0,0,0",
+                "1,1,3,0,0,0,0,0,0,0,0,0,0,0,0,0",
             ]
         );
     }
@@ -657,7 +661,7 @@ mod tests {
         let h = |v: anyhow::Result<Vec<String>>| v.unwrap_or_default().join(",");
         assert_eq!(
             h(header::<MetricsCsv>()),
-            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes"
+            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone"
         );
         assert_eq!(
             h(header::<LinkCsv>()),
@@ -693,9 +697,9 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(
             lines[1],
-            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9"
+            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0"
         );
-        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0");
+        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0");
         let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             (back[0].idle, back[0].target_y, back[1].target_x),

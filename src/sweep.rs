@@ -14,6 +14,8 @@
 //! [grid]                          # every combination of these values is one grid point
 //! "exchange.mode" = ["raw-scans", "polygon"]
 //! "robots.count" = [3, 8]
+//! [with]                          # extra overrides at the grid points where KEY=VALUE
+//! "exchange.mode=raw-scans" = ["exchange.hello_every_steps=5"]
 //! [quick]                         # `--quick`: fewer seeds, extra overrides, fewer grid values
 //! seeds = 2
 //! set = ["max_steps=600"]
@@ -112,6 +114,10 @@ struct Experiment {
     set: Vec<String>,
     #[serde(default)]
     grid: BTreeMap<String, Vec<toml::Value>>,
+    /// Extra overrides for the grid points where `KEY=VALUE` (e.g. a generated world's size
+    /// that goes with its kind).
+    #[serde(default)]
+    with: BTreeMap<String, Vec<String>>,
     /// Summary fields (dotted paths) reported besides the standard ones.
     #[serde(default)]
     fields: Vec<String>,
@@ -155,6 +161,8 @@ struct Identity {
     name: String,
     scenario: Option<PathBuf>,
     set: Vec<String>,
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    with: BTreeMap<String, Vec<String>>,
 }
 
 fn check_identity(out: &Path, id: &Identity) -> anyhow::Result<()> {
@@ -245,12 +253,40 @@ fn variant(exp: &Experiment, quick: bool) -> anyhow::Result<Variant> {
     Ok((seeds, sets, grid))
 }
 
+/// The overrides of grid point `p`: its values, then the `[with]` entries that match them.
+fn point_sets(p: &Point, with: &BTreeMap<String, Vec<String>>) -> Vec<String> {
+    let own: Vec<String> = p.0.iter().map(|(k, v)| format!("{k}={v}")).collect();
+    let extra = own.iter().filter_map(|kv| with.get(kv)).flatten().cloned();
+    own.iter().cloned().chain(extra).collect()
+}
+
+/// Every `[with]` key names a grid key and one of its values.
+fn check_with(
+    with: &BTreeMap<String, Vec<String>>,
+    grid: &BTreeMap<String, Vec<String>>,
+) -> anyhow::Result<()> {
+    for kv in with.keys() {
+        let known = kv
+            .split_once('=')
+            .is_some_and(|(k, v)| grid.get(k).is_some_and(|vs| vs.iter().any(|x| x == v)));
+        if !known {
+            bail!("[with] key {kv:?} is not KEY=VALUE of a grid key and one of its values");
+        }
+    }
+    Ok(())
+}
+
 /// Every point's scenario must load (keys, types, ranges) before any run starts: a typo would
 /// otherwise fail every run.
-fn check_points(scenario: Option<&Path>, sets: &[String], points: &[Point]) -> anyhow::Result<()> {
+fn check_points(
+    scenario: Option<&Path>,
+    sets: &[String],
+    points: &[Point],
+    with: &BTreeMap<String, Vec<String>>,
+) -> anyhow::Result<()> {
     for p in points {
         let mut all = sets.to_vec();
-        all.extend(p.0.iter().map(|(k, v)| format!("{k}={v}")));
+        all.extend(point_sets(p, with));
         if let Err(e) = resolve(scenario, &all) {
             let at = if p.0.is_empty() {
                 String::new()
@@ -308,8 +344,12 @@ impl Plan {
             tables: exp.table.clone(),
         };
         crate::report::check(&spec, &grid.keys().cloned().collect::<Vec<_>>())?;
+        let full: BTreeMap<String, Vec<String>> = (exp.grid.iter())
+            .map(|(k, vs)| (k.clone(), vs.iter().map(value_text).collect()))
+            .collect();
+        check_with(&exp.with, &full).with_context(|| format!("experiment {file}"))?;
         let points = points(&grid);
-        check_points(scenario.as_deref(), &sets, &points)?;
+        check_points(scenario.as_deref(), &sets, &points, &exp.with)?;
         let out = args.out.clone().unwrap_or_else(|| {
             let quick = if args.quick { "-quick" } else { "" };
             PathBuf::from("sweeps").join(format!("{}{quick}", exp.name))
@@ -319,6 +359,7 @@ impl Plan {
             name: exp.name.clone(),
             scenario: scenario.clone(),
             set: sets.clone(),
+            with: exp.with.clone(),
         };
         check_identity(&out, &id)?;
         Ok(Plan {
@@ -347,12 +388,7 @@ impl Plan {
     /// `swarm run` of one job, its output thrown away (the run directory has it all).
     fn command(&self, exe: &Path, (point, seed, dir): &Job) -> Command {
         let set = (self.sets.iter().cloned())
-            .chain(
-                self.points[*point]
-                    .0
-                    .iter()
-                    .map(|(k, v)| format!("{k}={v}")),
-            )
+            .chain(point_sets(&self.points[*point], &self.exp.with))
             .chain([format!("seed={seed}")])
             .collect();
         let args = crate::run::RunArgs {
@@ -502,7 +538,7 @@ mod tests {
                 };
                 let keys: Vec<String> = grid.keys().cloned().collect();
                 crate::report::check(&spec, &keys)
-                    .and_then(|()| check_points(None, &sets, &points(&grid)))
+                    .and_then(|()| check_points(None, &sets, &points(&grid), &exp.with))
                     .unwrap_or_else(|err| panic!("{} (quick {quick}): {err}", e.path().display()));
             }
             n += 1;
@@ -513,8 +549,38 @@ mod tests {
     #[test]
     fn a_typo_in_an_override_is_found_before_any_run() {
         let p = Point(vec![("robots.cont".into(), "3".into())]);
-        let err = check_points(None, &[], &[p]).map_err(|e| e.to_string());
+        let err = check_points(None, &[], &[p], &BTreeMap::new()).map_err(|e| e.to_string());
         assert!(err.is_err_and(|e| e.contains("robots.cont") && e.contains("grid point")));
+    }
+
+    #[test]
+    fn with_adds_overrides_where_its_value_is_and_names_only_grid_values() {
+        let with: BTreeMap<String, Vec<String>> = [(
+            "world.map=empty".to_string(),
+            vec!["world.width_m=20".to_string()],
+        )]
+        .into();
+        let at = |map: &str| Point(vec![("world.map".into(), map.into())]);
+        assert_eq!(
+            point_sets(&at("empty"), &with),
+            ["world.map=empty", "world.width_m=20"]
+        );
+        assert_eq!(point_sets(&at("corridor"), &with), ["world.map=corridor"]);
+        let grid: BTreeMap<String, Vec<String>> = [(
+            "world.map".to_string(),
+            vec!["empty".to_string(), "corridor".to_string()],
+        )]
+        .into();
+        assert!(check_with(&with, &grid).is_ok());
+        let typo: BTreeMap<String, Vec<String>> = [("world.map=emtpy".to_string(), vec![])].into();
+        assert!(check_with(&typo, &grid).is_err());
+        let bad = [(
+            "world.map=empty".to_string(),
+            vec!["world.widht_m=20".to_string()],
+        )]
+        .into();
+        let err = check_points(None, &[], &[at("empty")], &bad).map_err(|e| e.to_string());
+        assert!(err.is_err_and(|e| e.contains("world.widht_m")));
     }
 
     #[test]

@@ -4,6 +4,7 @@
 
 mod support;
 
+mod bids;
 mod bypass;
 mod cli;
 mod determinism;

@@ -71,7 +71,8 @@ pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
                     Err(e) => { tracing::warn!("bad status: {e}"); continue; }
                 };
                 // Opening this step closes the previous one: its links' state and bytes.
-                let poses: Vec<_> = st.robots.iter().map(|r| (r.id, r.pose, r.alive)).collect();
+                // The base station is a node like a robot (it only never moves).
+                let poses: Vec<_> = st.robots.iter().chain(&st.base).map(|r| (r.id, r.pose, r.alive)).collect();
                 let rows = netem.advance(st.step, &poses);
                 // The step's links first: lockstep robots wait for them before they act.
                 let plan = netem.plan();

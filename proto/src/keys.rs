@@ -77,6 +77,16 @@ pub fn radio_team(to: RobotId) -> String {
     format!("radio/{to}/team")
 }
 
+/// Radio: bids (`bids` coordination) addressed to node `to`.
+pub fn radio_bid(to: RobotId) -> String {
+    format!("radio/{to}/bid")
+}
+
+/// Radio: the executive's assignments (`bids` coordination) addressed to node `to`.
+pub fn radio_task(to: RobotId) -> String {
+    format!("radio/{to}/task")
+}
+
 /// Radio: target announcements (`targ`) addressed to robot `to`.
 pub fn radio_targ(to: RobotId) -> String {
     format!("radio/{to}/targ")

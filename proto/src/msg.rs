@@ -12,7 +12,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 5;
+pub const PROTOCOL_VERSION: u16 = 6;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -85,6 +85,9 @@ pub struct Status {
     pub step: Step,
     pub robots: Vec<RobotStatus>,
     pub collisions_total: u64,
+    /// The base station (node `robots.count`), if the run has one: where it stands and whether
+    /// its process is up. It never moves.
+    pub base: Option<RobotStatus>,
     /// Lockstep: the live robots whose command for the previous step did not come before
     /// `clock.step_timeout_ms` — the world went on without them, so a wall-clock timeout
     /// decided something and the run is not reproducible.
@@ -139,6 +142,9 @@ pub struct Telemetry {
     pub save: Option<(u32, u64)>,
     /// Polygon exchange: what the robot shows of every other owner.
     pub views: Vec<View>,
+    /// `bids`: the robot decided alone this step (no assignment from the executive younger
+    /// than `coordination.bids.assignment_timeout_steps`).
+    pub alone: bool,
 }
 
 /// A receiver's view of another owner's approximation (telemetry): `held` ops of the owner's
@@ -172,10 +178,12 @@ pub enum Traffic {
     Scan,
     Cells,
     Mark,
+    Bid,
+    Task,
 }
 
 impl Traffic {
-    pub const ALL: [Traffic; 12] = [
+    pub const ALL: [Traffic; 14] = [
         Traffic::Ins,
         Traffic::Rep,
         Traffic::Del,
@@ -188,6 +196,8 @@ impl Traffic {
         Traffic::Scan,
         Traffic::Cells,
         Traffic::Mark,
+        Traffic::Bid,
+        Traffic::Task,
     ];
 
     /// The op types of the polygon exchange's log, in Table 6.1 order.
@@ -208,7 +218,13 @@ impl Traffic {
             Traffic::Em | Traffic::Chg => Some(5.0),
             Traffic::Del | Traffic::Rm => Some(2.0),
             Traffic::Save => Some(1.0),
-            Traffic::Conn | Traffic::Targ | Traffic::Scan | Traffic::Cells | Traffic::Mark => None,
+            Traffic::Conn
+            | Traffic::Targ
+            | Traffic::Scan
+            | Traffic::Cells
+            | Traffic::Mark
+            | Traffic::Bid
+            | Traffic::Task => None,
         }
     }
 
@@ -227,6 +243,8 @@ impl Traffic {
             Traffic::Scan => "scan",
             Traffic::Cells => "cells",
             Traffic::Mark => "mark",
+            Traffic::Bid => "bid",
+            Traffic::Task => "task",
         }
     }
 }
@@ -390,6 +408,52 @@ pub struct TeamEntry {
     pub cell: Cell,
     pub target: Option<Cell>,
     pub neighbours: Vec<RobotId>,
+}
+
+/// Radio (`bids`, Simmons et al. 2000): robots' bids on their way to the executive in the base
+/// station, relayed by every node (each holds the newest bid of every robot and passes it to the
+/// neighbours that lack it). Accounted as `bid`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Bids {
+    pub from: RobotId,
+    pub bids: Vec<Bid>,
+}
+
+/// One robot's bid, made at `step`: its best frontier cells.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Bid {
+    pub robot: RobotId,
+    pub step: Step,
+    pub offers: Vec<Offer>,
+}
+
+/// One frontier cell of a bid: its expected information gain (unknown cells), its path cost
+/// from the robot (tenths of a cell) and its information-gain region (`igr_min` and the
+/// rectangle's width and height − 1, in cells).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Offer {
+    pub cell: Cell,
+    pub gain_cells: u32,
+    pub cost_decicells: u32,
+    pub igr_min: Cell,
+    pub igr_extent: (u16, u16),
+}
+
+/// Radio (`bids`): the executive's assignment table issued at `step`, relayed from the base
+/// station by every node (the newest wins). Accounted as `task`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Tasks {
+    pub from: RobotId,
+    pub step: Step,
+    pub tasks: Vec<TaskEntry>,
+}
+
+/// One robot's assignment: a frontier cell and its information-gain region (as in [`Offer`]),
+/// or `None`: idle (nothing left worth its gain), it stays where it is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TaskEntry {
+    pub robot: RobotId,
+    pub task: Option<(Cell, Cell, (u16, u16))>,
 }
 
 /// One laser scan as shared on the radio in the `raw-scans` exchange. Ranges are quantized to
@@ -594,6 +658,12 @@ mod tests {
                 distance_m: 3.5,
             }],
             collisions_total: 2,
+            base: Some(RobotStatus {
+                id: 1,
+                pose,
+                alive: true,
+                distance_m: 0.0,
+            }),
             missed: vec![1],
         });
         round_trip(Telemetry {
@@ -621,6 +691,7 @@ mod tests {
                 shown: 10,
                 digest: 7,
             }],
+            alone: true,
         });
         round_trip(Control::Stop);
         round_trip(LinkReport {
@@ -659,6 +730,34 @@ mod tests {
             from: 2,
             step: 41,
             cell: None,
+        });
+        round_trip(Bids {
+            from: 2,
+            bids: vec![Bid {
+                robot: 1,
+                step: 30,
+                offers: vec![Offer {
+                    cell: Cell::new(3, 4),
+                    gain_cells: 120,
+                    cost_decicells: 455,
+                    igr_min: Cell::new(0, 1),
+                    igr_extent: (10, 12),
+                }],
+            }],
+        });
+        round_trip(Tasks {
+            from: 4,
+            step: 31,
+            tasks: vec![
+                TaskEntry {
+                    robot: 0,
+                    task: Some((Cell::new(3, 4), Cell::new(0, 1), (10, 12))),
+                },
+                TaskEntry {
+                    robot: 1,
+                    task: None,
+                },
+            ],
         });
         round_trip(Team {
             from: 1,
@@ -705,6 +804,8 @@ mod tests {
             let _ = decode::<Hello>(&bytes);
             let _ = decode::<Target>(&bytes);
             let _ = decode::<Team>(&bytes);
+            let _ = decode::<Bids>(&bytes);
+            let _ = decode::<Tasks>(&bytes);
             let _ = decode::<OpChunk>(&bytes);
             let _ = decode::<Scan>(&bytes);
             let _ = decode::<Status>(&bytes);

@@ -26,6 +26,7 @@ pub struct Scenario {
     pub exchange: Exchange,
     pub bandwidth: Bandwidth,
     pub coordination: Coordination,
+    pub base_station: BaseStation,
     pub netem: Netem,
     /// Faults netem applies when the run reaches a step: `[[faults]]` tables with `step`, `kind`
     /// and the kind's fields (see configs/default.toml). Parsed and checked by netem.
@@ -224,6 +225,65 @@ pub struct Coordination {
     /// `burgard`: the sub-team reassigns at least this often (and whenever a member's target is
     /// reached or the sub-team changes).
     pub replan_every_steps: u32,
+    /// `bids` (Simmons et al. 2000): bids, the central executive and the fallback.
+    pub bids: Bids,
+}
+
+/// `coordination.bids`: Simmons et al.'s bids and central executive (robot-agent's `coord::bids`
+/// and `coord::executive`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Bids {
+    /// The most frontier cells one bid offers.
+    pub offers: u32,
+    /// The most bytes one bid may take on the radio (offers beyond it are left out).
+    pub max_bid_bytes: u32,
+    /// Frontier cells of a bid are at least this far apart (the paper: about a robot radius).
+    pub frontier_spacing_m: f64,
+    /// The nominal sensor range of the information gain; `None`: `sensor.max_range_m`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gain_range_m: Option<f64>,
+    /// Net utility = gain (m² of unknown area) − `cost_weight` × path cost (m).
+    pub cost_weight: f64,
+    /// The executive assigns nothing whose discounted gain is at most this (m²).
+    pub min_gain_m2: f64,
+    /// Gains of frontier cells inside the IGR of a robot's current task are divided by this.
+    pub hysteresis: f64,
+    /// Steps the executive waits after a new bid for others before it assigns.
+    pub wait_steps: u32,
+    /// A robot with no assignment younger than this decides alone on its own bid.
+    pub assignment_timeout_steps: u32,
+    /// A robot bids again once this much of its planning grid (m²) changed since its last bid,
+    /// or when its task is reached or no longer a frontier.
+    pub rebid_changed_m2: f64,
+}
+
+impl Default for Bids {
+    fn default() -> Self {
+        Bids {
+            offers: 8,
+            max_bid_bytes: 256,
+            frontier_spacing_m: 0.3,
+            gain_range_m: None,
+            cost_weight: 1.0,
+            min_gain_m2: 0.5,
+            hysteresis: 0.85,
+            wait_steps: 1,
+            assignment_timeout_steps: 10,
+            rebid_changed_m2: 2.0,
+        }
+    }
+}
+
+/// `[base_station]`: a radio node that does not move or sense (robot-agent's `base`), node id
+/// `robots.count`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BaseStation {
+    pub enabled: bool,
+    /// Where it stands, `[x, y]` in metres; `None`: in the robots' spawn area.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pose: Option<[f64; 2]>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -251,6 +311,7 @@ impl Default for Scenario {
             exchange: Exchange::default(),
             bandwidth: Bandwidth::default(),
             coordination: Coordination::default(),
+            base_station: BaseStation::default(),
             netem: Netem::default(),
             faults: Vec::new(),
         }
@@ -344,6 +405,7 @@ impl Default for Coordination {
             burgard_search: false,
             search_tries: 200,
             replan_every_steps: 10,
+            bids: Bids::default(),
         }
     }
 }
@@ -374,7 +436,15 @@ pub enum ScenarioError {
 }
 
 /// Names of the world kinds generated from the seed rather than loaded from a file.
-pub const GENERATED_WORLDS: [&str; 3] = ["unstructured", "mixed", "office"];
+pub const GENERATED_WORLDS: [&str; 7] = [
+    "unstructured",
+    "mixed",
+    "office",
+    "corridor",
+    "two-corridors",
+    "empty",
+    "random",
+];
 
 impl Scenario {
     /// Reads a scenario file and applies `KEY=VALUE` overrides.
@@ -557,7 +627,71 @@ impl Scenario {
         if let Some(p) = b.p_comm.filter(|p| !(*p > 0.0 && *p <= 1.0)) {
             return Err(invalid("bandwidth.p_comm", p, "must be in (0, 1]"));
         }
+        s.validate_bids()?;
+        if let Some([x, y]) = s.base_station.pose {
+            if !(x.is_finite() && y.is_finite()) {
+                return Err(invalid(
+                    "base_station.pose",
+                    format!("[{x}, {y}]"),
+                    "must be two finite numbers [x, y] in metres",
+                ));
+            }
+        }
+        if s.coordination.strategy == Strategy::Bids && !s.base_station.enabled {
+            return Err(invalid(
+                "coordination.strategy",
+                "\"bids\"",
+                "needs the central executive's node: set base_station.enabled = true",
+            ));
+        }
         s.check_implemented()
+    }
+
+    fn validate_bids(&self) -> Result<(), ScenarioError> {
+        let b = &self.coordination.bids;
+        at_least("coordination.bids.offers", f64::from(b.offers), 1.0)?;
+        at_least(
+            "coordination.bids.max_bid_bytes",
+            f64::from(b.max_bid_bytes),
+            64.0,
+        )?;
+        at_least(
+            "coordination.bids.frontier_spacing_m",
+            b.frontier_spacing_m,
+            0.0,
+        )?;
+        if let Some(r) = b.gain_range_m {
+            positive("coordination.bids.gain_range_m", r)?;
+        }
+        at_least("coordination.bids.cost_weight", b.cost_weight, 0.0)?;
+        at_least("coordination.bids.min_gain_m2", b.min_gain_m2, 0.0)?;
+        if !(b.hysteresis > 0.0 && b.hysteresis <= 1.0) {
+            return Err(invalid(
+                "coordination.bids.hysteresis",
+                b.hysteresis,
+                "must be in (0, 1]",
+            ));
+        }
+        at_least(
+            "coordination.bids.assignment_timeout_steps",
+            f64::from(b.assignment_timeout_steps),
+            1.0,
+        )?;
+        at_least(
+            "coordination.bids.rebid_changed_m2",
+            b.rebid_changed_m2,
+            0.0,
+        )
+    }
+
+    /// Radio nodes: the robots, then the base station if there is one.
+    pub fn nodes(&self) -> u16 {
+        self.robots.count + u16::from(self.base_station.enabled)
+    }
+
+    /// The base station's node id (`robots.count`), if there is one.
+    pub fn base_id(&self) -> Option<u16> {
+        self.base_station.enabled.then_some(self.robots.count)
     }
 
     /// Values the schema reserves for features that are not built yet are refused by name,
@@ -565,12 +699,12 @@ impl Scenario {
     fn check_implemented(&self) -> Result<(), ScenarioError> {
         if !matches!(
             self.coordination.strategy,
-            Strategy::Uncoordinated | Strategy::Decentralized | Strategy::Burgard
+            Strategy::Uncoordinated | Strategy::Decentralized | Strategy::Burgard | Strategy::Bids
         ) {
             return Err(invalid(
                 "coordination.strategy",
                 format!("{:?}", self.coordination.strategy),
-                "\"decentralized\", \"burgard\" and \"uncoordinated\" are implemented; \"bids\", \"roles\" and \"pack\" are not yet",
+                "\"decentralized\", \"burgard\", \"bids\" and \"uncoordinated\" are implemented; \"roles\" and \"pack\" are not yet",
             ));
         }
         Ok(())
@@ -676,10 +810,14 @@ fn type_name(v: &toml::Value) -> &'static str {
 }
 
 /// Keys without a default value (absent from the serialized default), accepted as numbers.
-const OPTIONAL_FLOAT_KEYS: [&str; 2] = [
+const OPTIONAL_FLOAT_KEYS: [&str; 3] = [
     "radio.pathloss_threshold_dbm",
     "radio.range_pct_of_diagonal",
+    "coordination.bids.gain_range_m",
 ];
+
+/// Keys without a default value, accepted as arrays of two numbers.
+const OPTIONAL_PAIR_KEYS: [&str; 1] = ["base_station.pose"];
 
 /// Checks every key of `user` against `schema` (the serialized default scenario), naming the
 /// full dotted key of the first unknown key or wrong type. Integers are accepted where floats are
@@ -693,6 +831,17 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
         };
         let optional = OPTIONAL_FLOAT_KEYS.contains(&key.as_str());
         if optional && matches!(v, toml::Value::Float(_) | toml::Value::Integer(_)) {
+            continue;
+        }
+        if OPTIONAL_PAIR_KEYS.contains(&key.as_str()) {
+            let pair = v.as_array().filter(|a| {
+                a.len() == 2
+                    && a.iter()
+                        .all(|x| matches!(x, toml::Value::Float(_) | toml::Value::Integer(_)))
+            });
+            if pair.is_none() {
+                return Err(invalid(&key, v, "must be [x, y] in metres"));
+            }
             continue;
         }
         let Some(want) = schema.get(k) else {
@@ -782,7 +931,20 @@ mod tests {
             (err("seed = [", &[]), "TOML"),
             (
                 err("", &["coordination.strategy=\"bids\""]),
+                "base_station.enabled",
+            ),
+            (
+                err("", &["coordination.strategy=\"roles\""]),
                 "coordination.strategy",
+            ),
+            (
+                err("", &["coordination.bids.hysteresis=0"]),
+                "coordination.bids.hysteresis",
+            ),
+            (err("", &["base_station.pose=[1]"]), "base_station.pose"),
+            (
+                err("", &["base_station.pose=\"here\""]),
+                "base_station.pose",
             ),
             (err("", &["coordination.beta=-1"]), "coordination.beta"),
             (

@@ -23,6 +23,9 @@ use crate::sharing::{self, Sharing};
 
 pub struct Agent {
     pub id: RobotId,
+    /// The base station (`[base_station]`, node `robots.count`): it neither senses nor moves;
+    /// it exchanges maps like any node and runs its strategy's executive, if there is one.
+    base: bool,
     world: WorldInfo,
     /// G_s: what this robot sensed itself, and the beam counts behind it.
     own: Grid,
@@ -59,12 +62,14 @@ impl Agent {
     pub fn new(id: RobotId, world: WorldInfo, s: &Scenario) -> Agent {
         let empty = Grid::new(world.map.width, world.map.height, Occ::Unknown);
         let max_range_cells = world.laser.max_range_m / world.map.resolution_m;
+        let base = s.base_id() == Some(id);
         Agent {
             id,
+            base,
             own_evidence: Evidence::new(&empty),
             own_changed: Vec::new(),
             sharing: sharing::new(s, id, &world, radio::budget_per_step(s, &world)),
-            coordinator: coord::new(s, max_range_cells),
+            coordinator: coord::new(s, id, &world, max_range_cells),
             heard: Heard::default(),
             right_of_way: RightOfWay::new(id, s.robots.radius_m, world.map.resolution_m),
             radio: Radio::new(id, s, &world),
@@ -86,6 +91,16 @@ impl Agent {
     pub fn on_scan(&mut self, scan: &Scan) -> Cmd {
         self.step = scan.step;
         self.pose = scan.pose;
+        if self.base {
+            // The base station's tick: nothing sensed, nothing logged, no move; its planning
+            // grid is what reached it (telemetry), its strategy the executive.
+            self.planning = self.planning_grid();
+            return Cmd {
+                step: scan.step,
+                robot: self.id,
+                waypoint: None,
+            };
+        }
         let w = &self.world;
         self.own_changed =
             self.own_evidence
@@ -282,6 +297,7 @@ impl Agent {
             bytes_received: c.bytes_received,
             grid_rle: g.to_rle(),
             idle: self.idle,
+            alone: self.coordinator.alone(),
             neighbours: self.radio.neighbours().iter().copied().collect(),
             decode_errors: c.decode_errors,
             sent_by_type: c.sent_by_type.to_vec(),

@@ -22,17 +22,36 @@ pub struct Args {
     #[arg(long)]
     pub id: RobotId,
     #[command(flatten)]
+    pub node: NodeArgs,
+}
+
+/// The base station of a run (`[base_station] enabled = true`): a radio node that neither
+/// moves nor senses, node id robots.count. It joins the radio plane through netem like a robot,
+/// holds and relays every owner's map it hears of, and hosts the `bids` strategy's executive.
+/// Normally started by `swarm run`.
+#[derive(Parser, Debug, Clone, PartialEq)]
+#[command(name = "base-station", version)]
+pub struct BaseArgs {
+    #[command(flatten)]
+    pub node: NodeArgs,
+}
+
+/// The flags every radio node shares (robots and the base station).
+#[derive(clap::Args, Debug, Clone, PartialEq)]
+pub struct NodeArgs {
+    #[command(flatten)]
     pub scenario: ScenarioArgs,
-    /// Radio-plane endpoint this robot listens on, e.g. tcp/127.0.0.1:7500 (repeatable).
+    /// Radio-plane endpoint this node listens on, e.g. tcp/127.0.0.1:7500 (repeatable).
     #[arg(long = "radio-listen", value_name = "ENDPOINT")]
     pub radio_listen: Vec<String>,
-    /// Radio-plane endpoint to connect to (a peer robot, or netem's proxy for the pair); repeatable.
+    /// Radio-plane endpoint to connect to (a peer, or netem's proxy for the pair); repeatable.
     #[arg(long = "radio-connect", value_name = "ENDPOINT")]
     pub radio_connect: Vec<String>,
     /// A zenoh JSON5 configuration file for the radio-plane session.
     #[arg(long = "radio-config", value_name = "FILE")]
     pub radio_config: Option<PathBuf>,
-    /// Seconds without a scan after which the robot assumes the world is gone and exits.
+    /// Seconds without a scan (the base station: a tick) after which the node assumes the world
+    /// is gone and exits.
     #[arg(long, default_value_t = IDLE_TIMEOUT_S, value_name = "SECONDS")]
     pub idle_timeout_s: f64,
     /// Sim-plane zenoh options (--connect the world-server's router).
@@ -43,11 +62,10 @@ pub struct Args {
 /// Default of `--idle-timeout-s`.
 pub const IDLE_TIMEOUT_S: f64 = 60.0;
 
-impl Args {
-    /// Robot `id` of `scenario` with every other flag at its default.
-    pub fn new(id: RobotId, scenario: PathBuf, zenoh: ZenohArgs) -> Args {
-        Args {
-            id,
+impl NodeArgs {
+    /// The node of `scenario` with every other flag at its default.
+    pub fn new(scenario: PathBuf, zenoh: ZenohArgs) -> NodeArgs {
+        NodeArgs {
             scenario: ScenarioArgs::file(scenario),
             radio_listen: Vec::new(),
             radio_connect: Vec::new(),
@@ -57,10 +75,9 @@ impl Args {
         }
     }
 
-    /// The flags that parse back into these arguments (how `swarm run` starts the process).
+    /// The flags that parse back into these arguments.
     pub fn to_argv(&self) -> Vec<String> {
-        let mut a = vec!["--id".into(), self.id.to_string()];
-        a.extend(self.scenario.to_argv());
+        let mut a = self.scenario.to_argv();
         for e in &self.radio_listen {
             a.extend(["--radio-listen".into(), e.clone()]);
         }
@@ -76,15 +93,49 @@ impl Args {
     }
 }
 
-async fn run(args: Args) -> anyhow::Result<End> {
-    let scenario = Scenario::load(&args.scenario.file, &args.scenario.set)?;
-    if args.id >= scenario.robots.count {
-        anyhow::bail!(
-            "--id {} is out of range: the scenario has robots.count = {}",
-            args.id,
-            scenario.robots.count
-        );
+impl Args {
+    /// Robot `id` of `scenario` with every other flag at its default.
+    pub fn new(id: RobotId, scenario: PathBuf, zenoh: ZenohArgs) -> Args {
+        Args {
+            id,
+            node: NodeArgs::new(scenario, zenoh),
+        }
     }
+
+    /// The flags that parse back into these arguments (how `swarm run` starts the process).
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut a = vec!["--id".into(), self.id.to_string()];
+        a.extend(self.node.to_argv());
+        a
+    }
+}
+
+impl BaseArgs {
+    /// The flags that parse back into these arguments (how `swarm run` starts the process).
+    pub fn to_argv(&self) -> Vec<String> {
+        self.node.to_argv()
+    }
+}
+
+/// Which node a process is: robot `id`, or the scenario's base station.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Role {
+    Robot(RobotId),
+    Base,
+}
+
+async fn run(role: Role, args: NodeArgs) -> anyhow::Result<End> {
+    let scenario = Scenario::load(&args.scenario.file, &args.scenario.set)?;
+    let id = match role {
+        Role::Robot(id) if id < scenario.robots.count => id,
+        Role::Robot(id) => anyhow::bail!(
+            "--id {id} is out of range: the scenario has robots.count = {}",
+            scenario.robots.count
+        ),
+        Role::Base => scenario
+            .base_id()
+            .context("the scenario has no base station: set base_station.enabled = true")?,
+    };
     let sim = zenoh::open(args.zenoh.client(20_000)?)
         .await
         .map_err(zerr)
@@ -92,8 +143,8 @@ async fn run(args: Args) -> anyhow::Result<End> {
     let world = world_info(&sim, Duration::from_secs(20)).await?;
     let lockstep = scenario.clock.marked();
     let radio_cfg = radio_peer(
-        args.id,
-        scenario.robots.count,
+        id,
+        scenario.nodes(),
         &args.radio_listen,
         &args.radio_connect,
         args.radio_config.as_deref(),
@@ -105,35 +156,44 @@ async fn run(args: Args) -> anyhow::Result<End> {
         .map_err(zerr)
         .context("opening the radio plane")?;
     let idle = Duration::from_secs_f64(args.idle_timeout_s.max(0.1));
-    let end = run_robot(args.id, &scenario, sim.clone(), radio.clone(), world, idle).await?;
+    let end = run_robot(id, &scenario, sim.clone(), radio.clone(), world, idle).await?;
     close_quickly(radio).await;
     close_quickly(sim).await;
     Ok(end)
 }
 
-/// The whole process: one tokio runtime, logging, exit code.
+/// The whole process of robot `args.id`: one tokio runtime, logging, exit code.
 pub fn main(args: Args) -> ExitCode {
+    let name = format!("robot-agent {}", args.id);
+    process(&name, Role::Robot(args.id), args.node)
+}
+
+/// The whole process of the base station.
+pub fn base_main(args: BaseArgs) -> ExitCode {
+    process("base-station", Role::Base, args.node)
+}
+
+fn process(name: &str, role: Role, args: NodeArgs) -> ExitCode {
     init_logging();
-    let id = args.id;
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("robot-agent {id}: cannot start the runtime: {e}");
+            eprintln!("{name}: cannot start the runtime: {e}");
             return ExitCode::FAILURE;
         }
     };
-    match runtime.block_on(run(args)) {
+    match runtime.block_on(run(role, args)) {
         Ok(End::Stopped) => ExitCode::SUCCESS,
         Ok(End::WorldGone) => {
-            eprintln!("robot-agent {id}: the world-server is gone; exiting");
+            eprintln!("{name}: the world-server is gone; exiting");
             ExitCode::SUCCESS
         }
         Ok(End::WorldSilent) => {
-            eprintln!("robot-agent {id}: no scan from the world-server for too long; exiting");
+            eprintln!("{name}: no scan from the world-server for too long; exiting");
             ExitCode::FAILURE
         }
         Err(e) => {
-            eprintln!("robot-agent {id}: {e:#}");
+            eprintln!("{name}: {e:#}");
             ExitCode::FAILURE
         }
     }
@@ -153,12 +213,15 @@ mod tests {
                 ..ZenohArgs::default()
             },
         );
-        args.scenario.set = vec!["exchange.hello_every_steps=5".into()];
-        args.radio_listen = vec!["tcp/127.0.0.1:7503".into()];
-        args.radio_connect = vec!["tcp/127.0.0.1:7600".into(), "tcp/127.0.0.1:7601".into()];
-        args.radio_config = Some(PathBuf::from("radio.json5"));
-        args.idle_timeout_s = 0.25;
+        args.node.scenario.set = vec!["exchange.hello_every_steps=5".into()];
+        args.node.radio_listen = vec!["tcp/127.0.0.1:7503".into()];
+        args.node.radio_connect = vec!["tcp/127.0.0.1:7600".into(), "tcp/127.0.0.1:7601".into()];
+        args.node.radio_config = Some(PathBuf::from("radio.json5"));
+        args.node.idle_timeout_s = 0.25;
         let argv = std::iter::once("robot-agent".to_string()).chain(args.to_argv());
         assert_eq!(Args::parse_from(argv), args);
+        let base = BaseArgs { node: args.node };
+        let argv = std::iter::once("base-station".to_string()).chain(base.to_argv());
+        assert_eq!(BaseArgs::parse_from(argv), base);
     }
 }

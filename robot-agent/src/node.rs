@@ -231,7 +231,7 @@ pub async fn run_robot(
         radio: &radio,
         subs: &subs,
         idle: idle_timeout,
-        peers: (0..s.robots.count)
+        peers: (0..s.nodes())
             .filter(|&r| r != id)
             .filter_map(|r| Some((proto::node::radio_zid(r).parse().ok()?, r)))
             .collect(),

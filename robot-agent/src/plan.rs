@@ -22,7 +22,7 @@ use crate::grid::supercover;
 
 /// Costs that differ by less than this count as equal when frontiers are ranked, so that the
 /// tie-break by position is not decided by the rounding of sums of 1 and √2.
-const COST_TIE_QUANTUM: f64 = 1e-6;
+pub(crate) const COST_TIE_QUANTUM: f64 = 1e-6;
 
 /// Marks a cell without predecessor (the start, and unreachable cells).
 const NO_PRED: u32 = u32::MAX;

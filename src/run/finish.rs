@@ -56,6 +56,7 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
         step: 0,
         robots: Vec::new(),
         collisions_total: 0,
+        base: None,
         missed: Vec::new(),
     });
     let per_robot_types: Vec<Vec<u64>> = eval

@@ -75,7 +75,8 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         run.truth_grid.clone(),
         &run.reachable,
         plan.scenario.done_pct,
-    );
+    )
+    .with_base(plan.scenario.base_id());
     if !args.quiet {
         eprintln!(
             "swarm run: {} robots on {} ({} reachable free cells), run directory {}, netem API http://{}",

@@ -33,8 +33,8 @@ impl Plan {
     }
 }
 
-/// The loopback ports of a run: the sim plane's router, netem's HTTP API, every robot's radio
-/// listener, and netem's proxy of every robot pair.
+/// The loopback ports of a run: the sim plane's router, netem's HTTP API, every radio node's
+/// listener (robots, then the base station), and netem's proxy of every pair of nodes.
 pub struct Ports {
     pub sim: u16,
     pub http: u16,
@@ -81,7 +81,7 @@ pub fn prepare(args: &RunArgs) -> anyhow::Result<Plan> {
     let dir = run_dir(args, &name, scenario.robots.count)?;
     let scenario_file = dir.join("scenario.toml");
     std::fs::write(&scenario_file, scenario.to_toml()).context("writing scenario.toml")?;
-    let ports = Ports::pick(scenario.robots.count)?;
+    let ports = Ports::pick(scenario.nodes())?;
     Ok(Plan {
         scenario,
         name,

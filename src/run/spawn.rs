@@ -71,6 +71,16 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
         let name = format!("robot-{i}");
         children.spawn(&name, &exe, &robot_argv(plan, i), &plan.log(&name))?;
     }
+    if let Some(b) = plan.scenario.base_id() {
+        let args = robot_agent::cli::BaseArgs {
+            node: node_args(plan, b),
+        };
+        let argv: Vec<String> = ["base-station".to_string()]
+            .into_iter()
+            .chain(args.to_argv())
+            .collect();
+        children.spawn("base-station", &exe, &argv, &plan.log("base-station"))?;
+    }
     Ok(Started {
         children,
         sim,
@@ -132,13 +142,23 @@ fn netem_argv(plan: &Plan) -> Vec<String> {
         .collect()
 }
 
-fn robot_argv(plan: &Plan, i: RobotId) -> Vec<String> {
-    let mut args = robot_agent::cli::Args::new(i, plan.scenario_file.clone(), sim_client(plan));
+/// Node `i`'s flags: it listens on its radio port and connects to netem's proxy of every pair
+/// in which it has the lower id.
+fn node_args(plan: &Plan, i: RobotId) -> robot_agent::cli::NodeArgs {
+    let mut args = robot_agent::cli::NodeArgs::new(plan.scenario_file.clone(), sim_client(plan));
     args.radio_listen = vec![endpoint(plan.ports.radio[usize::from(i)])];
     args.radio_connect = (plan.ports.pairs.iter())
         .filter(|&&(a, _, _)| a == i)
         .map(|&(_, _, port)| endpoint(port))
         .collect();
+    args
+}
+
+fn robot_argv(plan: &Plan, i: RobotId) -> Vec<String> {
+    let args = robot_agent::cli::Args {
+        id: i,
+        node: node_args(plan, i),
+    };
     ["robot-agent".to_string()]
         .into_iter()
         .chain(args.to_argv())

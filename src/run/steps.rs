@@ -33,15 +33,12 @@ pub struct StepOrder {
 
 impl StepOrder {
     pub fn on_status(&mut self, st: &Status) {
-        let alive = st.robots.iter().filter(|r| r.alive).map(|r| r.id).collect();
-        // Not awaited any more: robots this status shows dead (at every earlier step), and
+        // Every node reports: the robots and the base station.
+        let nodes = || st.robots.iter().chain(&st.base);
+        let alive = nodes().filter(|r| r.alive).map(|r| r.id).collect();
+        // Not awaited any more: nodes this status shows dead (at every earlier step), and
         // those the world went on without at the step before.
-        let dead: Vec<RobotId> = st
-            .robots
-            .iter()
-            .filter(|r| !r.alive)
-            .map(|r| r.id)
-            .collect();
+        let dead: Vec<RobotId> = nodes().filter(|r| !r.alive).map(|r| r.id).collect();
         for (&step, awaited) in self.alive.iter_mut() {
             awaited.retain(|id| !dead.contains(id));
             if step.saturating_add(1) == st.step {
@@ -104,6 +101,7 @@ mod tests {
                 })
                 .collect(),
             collisions_total: 0,
+            base: None,
             missed: Vec::new(),
         }
     }

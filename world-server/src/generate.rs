@@ -27,17 +27,30 @@ pub enum GenKind {
     Unstructured,
     Mixed,
     Office,
+    /// Simmons et al. (2000), environment A: an office along one corridor.
+    Corridor,
+    /// Environment B: an office along two parallel corridors.
+    TwoCorridors,
+    /// Environment C: one obstacle-free room.
+    Empty,
+    /// Environments D/E: 15 % of the floor covered by random obstacles.
+    Random,
 }
 
 impl FromStr for GenKind {
     type Err = GenError;
 
-    /// The scenario names `unstructured`, `mixed` and `office`.
+    /// The scenario names `unstructured`, `mixed`, `office`, `corridor`, `two-corridors`,
+    /// `empty` and `random`.
     fn from_str(s: &str) -> Result<GenKind, GenError> {
         match s {
             "unstructured" => Ok(GenKind::Unstructured),
             "mixed" => Ok(GenKind::Mixed),
             "office" => Ok(GenKind::Office),
+            "corridor" => Ok(GenKind::Corridor),
+            "two-corridors" => Ok(GenKind::TwoCorridors),
+            "empty" => Ok(GenKind::Empty),
+            "random" => Ok(GenKind::Random),
             other => Err(GenError::UnknownKind(other.into())),
         }
     }
@@ -45,7 +58,7 @@ impl FromStr for GenKind {
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum GenError {
-    #[error("unknown map kind {0:?} (expected unstructured, mixed or office)")]
+    #[error("unknown map kind {0:?} (expected unstructured, mixed, office, corridor, two-corridors, empty or random)")]
     UnknownKind(String),
     #[error("resolution {resolution_m} m must be a positive finite number")]
     BadResolution { resolution_m: f64 },
@@ -182,7 +195,18 @@ pub fn generate(
             scatter(&mut g, &mut rng, &p, interior, None, cover);
         }
         GenKind::Office => {
-            office(&mut g, &mut rng, &p, interior);
+            office(&mut g, &mut rng, &p, interior, None);
+        }
+        GenKind::Corridor => {
+            office(&mut g, &mut rng, &p, interior, Some(1));
+        }
+        GenKind::TwoCorridors => {
+            office(&mut g, &mut rng, &p, interior, Some(2));
+        }
+        GenKind::Empty => fill(&mut g, interior, Occ::Free),
+        GenKind::Random => {
+            fill(&mut g, interior, Occ::Free);
+            scatter(&mut g, &mut rng, &p, interior, None, RANDOM_COVER);
         }
         GenKind::Mixed => {
             fill(&mut g, interior, Occ::Free);
@@ -201,6 +225,10 @@ pub fn generate(
     let info = MapInfo::at_origin(g.width(), g.height(), resolution_m);
     Ok(TruthMap { info, grid: g })
 }
+
+/// The share of the floor the `random` kind covers with obstacles (Simmons et al. 2000, "15 %
+/// random obstacles").
+const RANDOM_COVER: f64 = 0.15;
 
 /// Scatters rectangles, bars, discs and blobs over `region` (outside `avoid`) until about
 /// `cover` of its free cells are occupied. Each obstacle's bounding box, grown by more than a
@@ -322,13 +350,28 @@ struct Band {
 
 /// Lays out an office inside `area` (all occupied on entry): double-loaded corridors across the
 /// whole width, joined by vertical spines, with rooms on both sides, each with a door onto its
-/// corridor and sometimes a door to its neighbour. Returns the corridors.
-fn office(g: &mut Grid, rng: &mut ChaCha8Rng, p: &Params, area: Rect) -> Vec<Rect> {
+/// corridor and sometimes a door to its neighbour. Returns the corridors. `corridors`: exactly
+/// that many corridors, the rooms' depth fitted to the height (as deep as the area allows, at
+/// least 2 m; fewer corridors when even that does not fit); `None`: as many as rooms 3–5 m deep
+/// allow.
+fn office(
+    g: &mut Grid,
+    rng: &mut ChaCha8Rng,
+    p: &Params,
+    area: Rect,
+    corridors: Option<i32>,
+) -> Vec<Rect> {
     let t = p.wall;
     let cw = p.cells(rng.gen_range(1.4..2.2)).max(p.door);
-    let rd = between(rng, p.cells(3.0), p.cells(5.0));
+    let mut rd = between(rng, p.cells(3.0), p.cells(5.0));
+    if let Some(n) = corridors.filter(|&n| n > 0) {
+        // n units of two room bands and a corridor, with walls between: n·unit + (n − 1)·t.
+        let unit = (area.h() - (n - 1) * t) / n;
+        rd = ((unit - cw - 2 * t) / 2).max(p.cells(2.0));
+    }
     let unit = 2 * rd + cw + 2 * t;
     let units = (area.h() + t) / (unit + t);
+    let units = corridors.map_or(units, |n| units.min(n));
     let mut bands = Vec::new();
     let mut corridors = Vec::new();
     if units >= 1 {
@@ -450,7 +493,7 @@ fn building(g: &mut Grid, rng: &mut ChaCha8Rng, p: &Params, area: Rect) -> Optio
     let outer = Rect::new(x0, y0, x0 + bw, y0 + bh);
     fill(g, outer, Occ::Occupied);
     let inner = outer.grow(-t);
-    for c in office(g, rng, p, inner) {
+    for c in office(g, rng, p, inner, None) {
         // An entrance as high as the corridor (at most 2.2 m) through each end wall.
         let eh = c.h().min(p.cells(2.2));
         let ey = c.y0 + (c.h() - eh) / 2;
@@ -514,7 +557,15 @@ mod tests {
     use crate::reachable::largest_free_component;
     use proptest::prelude::*;
 
-    const KINDS: [GenKind; 3] = [GenKind::Unstructured, GenKind::Mixed, GenKind::Office];
+    const KINDS: [GenKind; 7] = [
+        GenKind::Unstructured,
+        GenKind::Mixed,
+        GenKind::Office,
+        GenKind::Corridor,
+        GenKind::TwoCorridors,
+        GenKind::Empty,
+        GenKind::Random,
+    ];
 
     /// The guarantees of every generated map: closed, ternary-free of unknown, one free region.
     fn check_invariants(map: &TruthMap) -> Result<(), String> {
@@ -561,6 +612,9 @@ mod tests {
                 generate(kind, 30.0, 20.0, 0.1, 42).as_ref(),
                 "{kind:?}"
             );
+            if kind == GenKind::Empty {
+                continue; // one room: nothing to draw
+            }
             assert_ne!(
                 a.grid,
                 generate(kind, 30.0, 20.0, 0.1, 43)
@@ -583,8 +637,10 @@ mod tests {
             let (lo, hi) = fractions
                 .iter()
                 .fold((1.0f64, 0.0f64), |(lo, hi), &f| (lo.min(f), hi.max(f)));
+            // One empty room is all floor (its own test checks it exactly).
+            let hi_max = if kind == GenKind::Empty { 1.0 } else { 0.95 };
             assert!(
-                lo > 0.45 && hi < 0.95,
+                lo > 0.45 && hi < hi_max,
                 "{kind:?}: free fraction {lo:.3}..{hi:.3}"
             );
         }
@@ -619,6 +675,37 @@ mod tests {
         }
     }
 
+    /// Simmons et al.'s simulation worlds: one corridor and two parallel corridors across a
+    /// 25 × 20 m office, an empty 20 × 20 m room, 15 % random obstacles.
+    #[test]
+    fn the_bids_worlds_have_their_corridors_and_cover() {
+        // A corridor is a band of rows free across the whole width inside the outer wall.
+        let corridor_rows = |g: &Grid| {
+            let mut rows = 0;
+            let mut inside = false;
+            for y in 0..g.height() as i32 {
+                let across = (1..g.width() as i32 - 1).all(|x| g.get(Cell::new(x, y)) == Occ::Free);
+                if across && !inside {
+                    rows += 1;
+                }
+                inside = across;
+            }
+            rows
+        };
+        for seed in 0..5 {
+            let one = generate(GenKind::Corridor, 25.0, 20.0, 0.2, seed).expect("size");
+            assert_eq!(corridor_rows(&one.grid), 1, "seed {seed}");
+            let two = generate(GenKind::TwoCorridors, 25.0, 20.0, 0.2, seed).expect("size");
+            assert_eq!(corridor_rows(&two.grid), 2, "seed {seed}");
+            let empty = generate(GenKind::Empty, 20.0, 20.0, 0.2, seed).expect("size");
+            let inner = (empty.grid.width() - 2) * (empty.grid.height() - 2);
+            assert_eq!(empty.grid.count(Occ::Free), inner as usize, "one free room");
+            let random = generate(GenKind::Random, 20.0, 20.0, 0.2, seed).expect("size");
+            let cover = 1.0 - random.grid.count(Occ::Free) as f64 / f64::from(inner);
+            assert!((0.10..0.20).contains(&cover), "seed {seed}: cover {cover}");
+        }
+    }
+
     #[test]
     fn open_free_removes_slivers_only() {
         let mut g = Grid::from_ascii(
@@ -640,6 +727,7 @@ mod tests {
         assert_eq!("office".parse(), Ok(GenKind::Office));
         assert_eq!("mixed".parse(), Ok(GenKind::Mixed));
         assert_eq!("unstructured".parse(), Ok(GenKind::Unstructured));
+        assert_eq!("two-corridors".parse(), Ok(GenKind::TwoCorridors));
         assert_eq!(
             "maze".parse::<GenKind>(),
             Err(GenError::UnknownKind("maze".into()))

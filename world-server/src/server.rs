@@ -117,10 +117,11 @@ pub async fn serve(
         .declare_token(keys::WORLD_ALIVE)
         .await
         .map_err(zerr)?;
-    let n = world.bodies.len();
+    // Robots, then the base station: every node's token is awaited, and its command each step.
+    let n = world.nodes();
     let mut bad = BadInput::default();
 
-    // Wait for every robot's sim-plane token: a robot declares it once its subscribers are up.
+    // Wait for every node's sim-plane token: a node declares it once its subscribers are up.
     let mut present = HashSet::new();
     let deadline = Instant::now() + opts.startup_timeout;
     while present.len() < n {
@@ -136,11 +137,11 @@ pub async fn serve(
             c = ctl.recv_async() => if c.is_ok() { return Ok(End::Stopped { step: 0 }) },
             _ = sleep_until(deadline) => {
                 let missing: Vec<usize> = (0..n).filter(|i| !present.contains(&(*i as RobotId))).collect();
-                return Err(ZenohError(format!("robots {missing:?} did not join within {:?}", opts.startup_timeout)));
+                return Err(ZenohError(format!("nodes {missing:?} did not join within {:?} (robots 0..robots.count, then the base station)", opts.startup_timeout)));
             }
         }
     }
-    tracing::info!("all {n} robots joined");
+    tracing::info!("all {n} nodes joined");
 
     let timeout = match s.clock.mode {
         ClockMode::Lockstep => Duration::from_millis(s.clock.step_timeout_ms),
@@ -168,10 +169,13 @@ pub async fn serve(
                 put(&session, &keys::scan(id), encode(&scan)).await?;
             }
         }
+        if let Some((id, tick)) = world.base_tick(step) {
+            put(&session, &keys::scan(id), encode(&tick)).await?;
+        }
         let mut got: HashMap<RobotId, Cmd> = HashMap::new();
         let mut stop = false;
         loop {
-            let waiting = world.alive().any(|id| !got.contains_key(&id));
+            let waiting = world.awaited().any(|id| !got.contains_key(&id));
             if s.clock.mode == ClockMode::Lockstep && !waiting {
                 break;
             }
@@ -211,7 +215,7 @@ pub async fn serve(
         }
         // Lockstep: whom the world went on without (the step timed out).
         let missed: Vec<RobotId> = match s.clock.mode {
-            ClockMode::Lockstep => world.alive().filter(|id| !got.contains_key(id)).collect(),
+            ClockMode::Lockstep => world.awaited().filter(|id| !got.contains_key(id)).collect(),
             ClockMode::Realtime => Vec::new(),
         };
         if !missed.is_empty() {

@@ -29,6 +29,18 @@ pub enum WorldError {
     Generate(#[from] GenError),
     #[error("world.map = {0:?} is a file path but the scenario gave no file to load")]
     NoMapFile(String),
+    #[error("base_station.pose = [{0}, {1}] lies outside the map")]
+    BaseOutside(f64, f64),
+}
+
+/// The base station: a radio node that neither moves nor senses (node id `robots.count`). The
+/// world only ticks it — a scan without beams each step — so that it keeps step with the
+/// robots, and reports where it stands (netem's radio models need it).
+#[derive(Clone, Debug)]
+pub struct Base {
+    pub id: RobotId,
+    pub pose: Pose,
+    pub alive: bool,
 }
 
 /// One robot's body.
@@ -48,6 +60,7 @@ pub struct World {
     /// Free cells 4-connected to the spawn area: what exploration must cover.
     pub reachable: Grid,
     pub bodies: Vec<Body>,
+    pub base: Option<Base>,
     laser: LaserSpec,
     max_step_m: f64,
     radius_m: f64,
@@ -63,12 +76,8 @@ impl World {
     /// `world.resolution_m`, places the robots and computes the reachable region from them.
     pub fn build(s: &Scenario, map_file: Option<&Path>) -> Result<World, WorldError> {
         let truth = match s.world.map.as_str() {
-            "unstructured" | "mixed" | "office" => {
-                let kind = match s.world.map.as_str() {
-                    "unstructured" => GenKind::Unstructured,
-                    "mixed" => GenKind::Mixed,
-                    _ => GenKind::Office,
-                };
+            name if s.world_is_generated() => {
+                let kind: GenKind = name.parse()?;
                 generate(
                     kind,
                     s.world.width_m,
@@ -106,10 +115,33 @@ impl World {
                 }
             })
             .collect();
+        let base = match (s.base_id(), s.base_station.pose) {
+            (None, _) => None,
+            (Some(id), Some([x, y])) => {
+                if !truth.grid.contains(truth.info.cell_of(x, y)) {
+                    return Err(WorldError::BaseOutside(x, y));
+                }
+                Some(Base {
+                    id,
+                    pose: Pose { x, y, theta: 0.0 },
+                    alive: true,
+                })
+            }
+            // In the spawn area: where robot 0 starts (the spawn cluster's anchor).
+            (Some(id), None) => {
+                let (x, y) = truth.info.centre_of(spawn[0]);
+                Some(Base {
+                    id,
+                    pose: Pose { x, y, theta: 0.0 },
+                    alive: true,
+                })
+            }
+        };
         Ok(World {
             truth,
             reachable,
             bodies,
+            base,
             laser: s.laser(),
             max_step_m: s.robots.speed_m_per_s * s.clock.step_seconds,
             radius_m: s.robots.radius_m,
@@ -141,6 +173,21 @@ impl World {
             grid_rle: self.truth.grid.to_rle(),
             reachable_rle: self.reachable.to_rle(),
         }
+    }
+
+    /// The base station's tick of `step`: a scan without beams at its pose (`None`: no base
+    /// station, or it is gone).
+    pub fn base_tick(&self, step: Step) -> Option<(RobotId, Scan)> {
+        let b = self.base.as_ref().filter(|b| b.alive)?;
+        Some((
+            b.id,
+            Scan {
+                step,
+                pose: b.pose,
+                ranges: Vec::new(),
+                last_move: MoveOutcome::Stayed,
+            },
+        ))
     }
 
     /// The scan robot `id` receives at `step` (its pose after the previous step's moves).
@@ -228,11 +275,25 @@ impl World {
         }
     }
 
-    /// Marks a robot dead at once (its sim-plane session vanished).
+    /// Marks a robot (or the base station) dead at once (its sim-plane session vanished).
     pub fn kill(&mut self, id: RobotId) {
         if let Some(b) = self.bodies.get_mut(usize::from(id)) {
             b.alive = false;
         }
+        if let Some(b) = self.base.as_mut().filter(|b| b.id == id) {
+            b.alive = false;
+        }
+    }
+
+    /// Every node the world waits for in a step: the live robots, then the base station.
+    pub fn awaited(&self) -> impl Iterator<Item = RobotId> + '_ {
+        self.alive()
+            .chain(self.base.iter().filter(|b| b.alive).map(|b| b.id))
+    }
+
+    /// Node ids: the robots, then the base station.
+    pub fn nodes(&self) -> usize {
+        self.bodies.len() + usize::from(self.base.is_some())
     }
 
     pub fn alive(&self) -> impl Iterator<Item = RobotId> + '_ {
@@ -253,6 +314,12 @@ impl World {
                 })
                 .collect(),
             collisions_total: self.collisions_total,
+            base: self.base.as_ref().map(|b| RobotStatus {
+                id: b.id,
+                pose: b.pose,
+                alive: b.alive,
+                distance_m: 0.0,
+            }),
             missed: Vec::new(),
         }
     }

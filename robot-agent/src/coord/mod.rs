@@ -28,14 +28,19 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use proto::grid::{Cell, Grid, Occ};
-use proto::msg::{decode, encode, DecodeError, RobotId, Step, Target, Team, Traffic};
+use proto::msg::{
+    decode, encode, Bids, DecodeError, RobotId, Step, Target, Tasks, Team, Traffic, WorldInfo,
+};
 use proto::scenario::{Scenario, Strategy};
 
 use crate::grid::supercover;
 use crate::plan::CostMap;
 
+pub mod bids;
 pub mod burgard;
 pub mod decentralized;
+pub mod executive;
+pub mod relay;
 pub mod uncoordinated;
 
 /// How the agent talks to a coordination strategy, whichever it is.
@@ -61,11 +66,34 @@ pub trait Coordinator: Send {
 
     /// A coordination message heard on the radio (this robot is `me`).
     fn on_message(&mut self, _me: RobotId, _msg: &CoordMsg) {}
+
+    /// The robot decided alone at its last step although the strategy has it follow someone
+    /// else's decisions (`bids`: no assignment younger than the timeout).
+    fn alone(&self) -> bool {
+        false
+    }
 }
 
-/// The strategy of scenario `s` (`max_range_cells`: the laser's range in cells).
-pub fn new(s: &Scenario, max_range_cells: f64) -> Box<dyn Coordinator> {
+/// The strategy of node `id` in scenario `s` (`max_range_cells`: the laser's range in cells).
+/// The base station runs the strategy's central part (`bids`: the executive) or nothing.
+pub fn new(
+    s: &Scenario,
+    id: RobotId,
+    world: &WorldInfo,
+    max_range_cells: f64,
+) -> Box<dyn Coordinator> {
     let c = &s.coordination;
+    if let (Some(base), Strategy::Bids) = (s.base_id(), c.strategy) {
+        let settings = bids::Settings::new(s, world);
+        return if id == base {
+            Box::new(executive::Executive::new(id, settings))
+        } else {
+            Box::new(bids::Bidding::new(id, base, settings))
+        };
+    }
+    if s.base_id() == Some(id) {
+        return Box::new(uncoordinated::Uncoordinated);
+    }
     let params = Params {
         beta: c.beta,
         max_range_cells,
@@ -125,6 +153,10 @@ pub struct Status<'a> {
 pub enum CoordMsg {
     /// `burgard`: the sub-team table.
     Team(Team),
+    /// `bids`: robots' bids on their way to the executive.
+    Bids(Bids),
+    /// `bids`: the executive's assignment table.
+    Tasks(Tasks),
 }
 
 impl CoordMsg {
@@ -132,6 +164,8 @@ impl CoordMsg {
     pub fn from(&self) -> RobotId {
         match self {
             CoordMsg::Team(t) => t.from,
+            CoordMsg::Bids(b) => b.from,
+            CoordMsg::Tasks(t) => t.from,
         }
     }
 
@@ -139,6 +173,8 @@ impl CoordMsg {
     pub fn traffic(&self) -> Traffic {
         match self {
             CoordMsg::Team(_) => Traffic::Targ,
+            CoordMsg::Bids(_) => Traffic::Bid,
+            CoordMsg::Tasks(_) => Traffic::Task,
         }
     }
 
@@ -146,12 +182,16 @@ impl CoordMsg {
     pub fn key(&self) -> fn(RobotId) -> String {
         match self {
             CoordMsg::Team(_) => proto::keys::radio_team,
+            CoordMsg::Bids(_) => proto::keys::radio_bid,
+            CoordMsg::Tasks(_) => proto::keys::radio_task,
         }
     }
 
     pub fn encode(&self) -> Vec<u8> {
         match self {
             CoordMsg::Team(t) => encode(t),
+            CoordMsg::Bids(b) => encode(b),
+            CoordMsg::Tasks(t) => encode(t),
         }
     }
 
@@ -159,6 +199,8 @@ impl CoordMsg {
     pub fn decode(kind: &str, bytes: &[u8]) -> Option<Result<CoordMsg, DecodeError>> {
         match kind {
             "team" => Some(decode::<Team>(bytes).map(CoordMsg::Team)),
+            "bid" => Some(decode::<Bids>(bytes).map(CoordMsg::Bids)),
+            "task" => Some(decode::<Tasks>(bytes).map(CoordMsg::Tasks)),
             _ => None,
         }
     }
