@@ -14,8 +14,8 @@ const SCENARIO: &str = "\
 max_steps = 1500
 [world]
 map = \"office\"
-width_m = 24.0
-height_m = 16.0
+width_m = 30.0
+height_m = 20.0
 [robots]
 count = 3
 [radio]
@@ -95,7 +95,7 @@ fn bids_reach_the_base_station_and_assignments_come_back_over_netem() {
 #[test]
 fn cut_off_from_the_base_robots_decide_alone_and_follow_it_again_once_it_is_back() {
     let dir = TempDir::new("bids-cut");
-    let (cut, heal) = (30.0, 90.0);
+    let (cut, heal) = (20.0, 50.0);
     let run = run(
         &dir,
         &format!(

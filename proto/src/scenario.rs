@@ -240,9 +240,8 @@ pub struct Bids {
     pub max_bid_bytes: u32,
     /// Frontier cells of a bid are at least this far apart (the paper: about a robot radius).
     pub frontier_spacing_m: f64,
-    /// The nominal sensor range of the information gain; `None`: `sensor.max_range_m`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub gain_range_m: Option<f64>,
+    /// The nominal sensor range of the information gain (m).
+    pub gain_range_m: f64,
     /// Net utility = gain (m² of unknown area) − `cost_weight` × path cost (m).
     pub cost_weight: f64,
     /// The executive assigns nothing whose discounted gain is at most this (m²).
@@ -264,9 +263,9 @@ impl Default for Bids {
             offers: 8,
             max_bid_bytes: 256,
             frontier_spacing_m: 0.3,
-            gain_range_m: None,
+            gain_range_m: 2.0,
             cost_weight: 1.0,
-            min_gain_m2: 0.5,
+            min_gain_m2: 0.0,
             hysteresis: 0.85,
             wait_steps: 1,
             assignment_timeout_steps: 10,
@@ -660,9 +659,7 @@ impl Scenario {
             b.frontier_spacing_m,
             0.0,
         )?;
-        if let Some(r) = b.gain_range_m {
-            positive("coordination.bids.gain_range_m", r)?;
-        }
+        positive("coordination.bids.gain_range_m", b.gain_range_m)?;
         at_least("coordination.bids.cost_weight", b.cost_weight, 0.0)?;
         at_least("coordination.bids.min_gain_m2", b.min_gain_m2, 0.0)?;
         if !(b.hysteresis > 0.0 && b.hysteresis <= 1.0) {
@@ -810,10 +807,9 @@ fn type_name(v: &toml::Value) -> &'static str {
 }
 
 /// Keys without a default value (absent from the serialized default), accepted as numbers.
-const OPTIONAL_FLOAT_KEYS: [&str; 3] = [
+const OPTIONAL_FLOAT_KEYS: [&str; 2] = [
     "radio.pathloss_threshold_dbm",
     "radio.range_pct_of_diagonal",
-    "coordination.bids.gain_range_m",
 ];
 
 /// Keys without a default value, accepted as arrays of two numbers.

@@ -283,7 +283,7 @@ impl Settings {
             offers: b.offers as usize,
             max_bid_bytes: b.max_bid_bytes as usize,
             spacing_cells: b.frontier_spacing_m / res,
-            range_cells: b.gain_range_m.unwrap_or(world.laser.max_range_m) / res,
+            range_cells: b.gain_range_m / res,
             weights: Weights {
                 gain_weight: res * res,
                 cost_weight: b.cost_weight * res,
