@@ -70,6 +70,8 @@ pub mod render;
 pub mod right_of_way;
 /// What a robot shares over the radio: one implementation per exchange mode.
 pub mod sharing;
+/// de Hoog et al. §IV: Hilditch's thinning of the free space and rendezvous points on it.
+pub mod skeleton;
 /// The splitting frequency s from the bandwidth: eq. 5.5/5.6 or closed loop (§5.3).
 pub mod splitting;
 /// The compact wire encoding of delta ops (Table 6.1).
