@@ -32,8 +32,10 @@ pub struct Agent {
     own_evidence: Evidence,
     /// Cells of G_s the last scan changed.
     own_changed: Vec<Cell>,
-    /// The planning grid of the last step (built once per step, reused by telemetry).
+    /// The planning grid of the last step (built once per step, reused by telemetry) and how
+    /// many of its cells are known.
     planning: Grid,
+    known: usize,
     /// What it shares and how peers' shares reach its planning grid (by exchange mode).
     sharing: Box<dyn Sharing>,
     /// How it picks its target (by coordination strategy).
@@ -80,6 +82,7 @@ impl Agent {
             world,
             own: empty.clone(),
             planning: empty,
+            known: 0,
             pose: Pose::default(),
             step: 0,
             target: None,
@@ -94,7 +97,7 @@ impl Agent {
         if self.base {
             // The base station's tick: nothing sensed, nothing logged, no move; its planning
             // grid is what reached it (telemetry), its strategy the executive.
-            self.planning = self.planning_grid();
+            self.build_planning();
             return Cmd {
                 step: scan.step,
                 robot: self.id,
@@ -121,13 +124,20 @@ impl Agent {
         self.sharing.planning_grid(&self.own)
     }
 
+    /// Builds this step's planning grid and counts its known cells (once per step).
+    fn build_planning(&mut self) {
+        self.planning = self.planning_grid();
+        let g = &self.planning;
+        self.known = g.len() - g.count(Occ::Unknown);
+    }
+
     fn my_cell(&self) -> Cell {
         self.world.map.cell_of(self.pose.x, self.pose.y)
     }
 
     /// This step's target and the waypoint toward it (or out of another robot's way).
     fn plan(&mut self) -> Option<(f64, f64)> {
-        self.planning = self.planning_grid();
+        self.build_planning();
         let g = &self.planning;
         let me = self.my_cell();
         let ObstaclePenalty {
@@ -149,6 +159,7 @@ impl Agent {
             step: self.step,
             me,
             grid: g,
+            known: self.known,
             costs: &costs,
             penalty: penalty.as_deref(),
             candidates: &candidates,
@@ -292,7 +303,7 @@ impl Agent {
             step: self.step,
             pose: self.pose,
             target: self.target.map(|t| self.world.map.centre_of(t)),
-            known_cells: (g.len() - g.count(Occ::Unknown)) as u32,
+            known_cells: self.known as u32,
             bytes_sent: c.bytes_sent,
             bytes_received: c.bytes_received,
             grid_rle: g.to_rle(),

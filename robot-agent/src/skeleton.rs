@@ -32,77 +32,51 @@ const RING: [(i32, i32); 8] = [
     (-1, 1),
 ];
 
-/// A set of cells of a `width × height` grid.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Mask {
-    width: i32,
-    height: i32,
-    on: Vec<bool>,
+/// Whether `c` is free in `g` (cells outside the grid are not).
+fn on(g: &Grid, c: Cell) -> bool {
+    g.get(c) == Occ::Free
 }
 
-impl Mask {
-    /// The free cells of `g`.
-    pub fn free(g: &Grid) -> Mask {
-        Mask {
-            width: g.width() as i32,
-            height: g.height() as i32,
-            on: g.cells().iter().map(|&c| c == Occ::Free).collect(),
-        }
-    }
-
-    /// Whether `c` is in the set (cells outside the grid are not).
-    pub fn get(&self, c: Cell) -> bool {
-        let inside = c.x >= 0 && c.y >= 0 && c.x < self.width && c.y < self.height;
-        inside && self.on[(c.y * self.width + c.x) as usize]
-    }
-
-    fn set(&mut self, c: Cell, v: bool) {
-        if c.x >= 0 && c.y >= 0 && c.x < self.width && c.y < self.height {
-            self.on[(c.y * self.width + c.x) as usize] = v;
-        }
-    }
-
-    /// The cells in the set, row by row from the bottom.
-    pub fn cells(&self) -> Vec<Cell> {
-        (0..self.height)
-            .flat_map(|y| (0..self.width).map(move |x| Cell::new(x, y)))
-            .filter(|&c| self.get(c))
-            .collect()
-    }
+/// The free cells of `g`, row by row from the bottom.
+pub fn free_cells(g: &Grid) -> Vec<Cell> {
+    (0..g.len())
+        .map(|i| g.cell_of(i))
+        .filter(|&c| on(g, c))
+        .collect()
 }
 
-/// The ring around `c`: whether p2 … p9 are in `m`.
-fn ring(m: &Mask, c: Cell) -> [bool; 8] {
-    RING.map(|(dx, dy)| m.get(Cell::new(c.x + dx, c.y + dy)))
+/// The ring around `c`: whether p2 … p9 are free in `g`.
+fn ring(g: &Grid, c: Cell) -> [bool; 8] {
+    RING.map(|(dx, dy)| on(g, Cell::new(c.x + dx, c.y + dy)))
 }
 
 /// T(p1): the number of (out, in) patterns in p2, p3, …, p9, p2.
-pub fn traversal(m: &Mask, c: Cell) -> u8 {
-    let r = ring(m, c);
+pub fn traversal(g: &Grid, c: Cell) -> u8 {
+    let r = ring(g, c);
     (0..8).filter(|&i| !r[i] && r[(i + 1) % 8]).count() as u8
 }
 
-/// Hilditch's conditions for removing cell `c` of `m` (p2 = north, p4 = east, p6 = south, p8 =
-/// west).
-fn removable(m: &Mask, c: Cell) -> bool {
-    let r = ring(m, c);
+/// Hilditch's conditions for removing free cell `c` of `g` (p2 = north, p4 = east, p6 = south,
+/// p8 = west).
+fn removable(g: &Grid, c: Cell) -> bool {
+    let r = ring(g, c);
     let b = r.iter().filter(|&&v| v).count();
-    if !(2..=6).contains(&b) || traversal(m, c) != 1 {
+    if !(2..=6).contains(&b) || traversal(g, c) != 1 {
         return false;
     }
     let (p2, p4, p6, p8) = (r[0], r[2], r[4], r[6]);
     let north = Cell::new(c.x, c.y + 1);
     let east = Cell::new(c.x + 1, c.y);
-    (!(p2 && p4 && p8) || traversal(m, north) != 1)
-        && (!(p2 && p4 && p6) || traversal(m, east) != 1)
+    (!(p2 && p4 && p8) || traversal(g, north) != 1)
+        && (!(p2 && p4 && p6) || traversal(g, east) != 1)
 }
 
-/// Hilditch's thinning of `free` (see the module doc).
-pub fn thin(free: &Mask) -> Mask {
-    let mut m = free.clone();
+/// Hilditch's thinning of the free cells of `g` (see the module doc): `g` with the peeled cells
+/// occupied, so that its free cells are the skeleton.
+pub fn thin(g: &Grid) -> Grid {
+    let mut m = g.clone();
     loop {
-        let gone: Vec<Cell> = m
-            .cells()
+        let gone: Vec<Cell> = free_cells(&m)
             .into_iter()
             .filter(|&c| removable(&m, c))
             .collect();
@@ -112,7 +86,7 @@ pub fn thin(free: &Mask) -> Mask {
         let mut removed = 0;
         for c in gone {
             if removable(&m, c) {
-                m.set(c, false);
+                m.set(c, Occ::Occupied);
                 removed += 1;
             }
         }
@@ -123,9 +97,9 @@ pub fn thin(free: &Mask) -> Mask {
 }
 
 /// Algorithm 1 on a skeleton: (cell, T) of every rendezvous point, junctions first.
-pub fn rendezvous_points(skeleton: &Mask, fill: f64, prune: f64) -> Vec<(Cell, u8)> {
+pub fn rendezvous_points(skeleton: &Grid, fill: f64, prune: f64) -> Vec<(Cell, u8)> {
     let dist = |a: Cell, b: Cell| f64::from(a.x - b.x).hypot(f64::from(a.y - b.y));
-    let cells = skeleton.cells();
+    let cells = free_cells(skeleton);
     let mut points: Vec<(Cell, u8)> = cells
         .iter()
         .map(|&c| (c, traversal(skeleton, c)))
@@ -150,13 +124,13 @@ pub fn rendezvous_points(skeleton: &Mask, fill: f64, prune: f64) -> Vec<(Cell, u
 mod tests {
     use super::*;
 
-    fn skeleton_of(pic: &str) -> Mask {
-        thin(&Mask::free(&Grid::from_ascii(pic)))
+    fn skeleton_of(pic: &str) -> Grid {
+        thin(&Grid::from_ascii(pic))
     }
 
     /// Free cells of the skeleton connected (8-neighbourhood) as one piece.
-    fn connected(m: &Mask) -> bool {
-        let cells = m.cells();
+    fn connected(m: &Grid) -> bool {
+        let cells = free_cells(m);
         let Some(&first) = cells.first() else {
             return true;
         };
@@ -166,7 +140,7 @@ mod tests {
             let c = seen[i];
             for (dx, dy) in RING {
                 let n = Cell::new(c.x + dx, c.y + dy);
-                if m.get(n) && !seen.contains(&n) {
+                if on(m, n) && !seen.contains(&n) {
                     seen.push(n);
                 }
             }
@@ -188,7 +162,7 @@ mod tests {
 ####################
 ",
         );
-        let cells = m.cells();
+        let cells = free_cells(&m);
         assert!(!cells.is_empty());
         assert!(connected(&m));
         // One cell wide: every column holds at most one skeleton cell, away from the ends.
@@ -215,33 +189,32 @@ mod tests {
 ",
         );
         assert!(connected(&m));
-        let junctions: Vec<Cell> = m
-            .cells()
+        let junctions: Vec<Cell> = free_cells(&m)
             .into_iter()
             .filter(|&c| traversal(&m, c) >= 3)
             .collect();
-        assert!(!junctions.is_empty(), "{:?}", m.cells());
+        assert!(!junctions.is_empty(), "{:?}", free_cells(&m));
         for j in &junctions {
             assert!((9..=11).contains(&j.x) && (6..=8).contains(&j.y), "{j:?}");
         }
     }
 
     /// The number of 8-connected pieces of `m`.
-    fn pieces(m: &Mask) -> usize {
+    fn pieces(m: &Grid) -> usize {
         let mut left = m.clone();
         let mut n = 0;
-        for c in m.cells() {
-            if !left.get(c) {
+        for c in free_cells(m) {
+            if !on(&left, c) {
                 continue;
             }
             n += 1;
             let mut stack = vec![c];
-            left.set(c, false);
+            left.set(c, Occ::Occupied);
             while let Some(p) = stack.pop() {
                 for (dx, dy) in RING {
                     let q = Cell::new(p.x + dx, p.y + dy);
-                    if left.get(q) {
-                        left.set(q, false);
+                    if on(&left, q) {
+                        left.set(q, Occ::Occupied);
                         stack.push(q);
                     }
                 }
@@ -266,9 +239,9 @@ mod tests {
                     }
                 }
             }
-            let free = Mask::free(&g);
+            let free = g;
             let sk = thin(&free);
-            proptest::prop_assert!(sk.cells().iter().all(|&c| free.get(c)));
+            proptest::prop_assert!(free_cells(&sk).iter().all(|&c| on(&free, c)));
             proptest::prop_assert_eq!(pieces(&sk), pieces(&free));
             proptest::prop_assert_eq!(thin(&sk), sk);
         }
@@ -276,11 +249,11 @@ mod tests {
 
     #[test]
     fn traversal_counts_branches() {
-        let m = Mask::free(&Grid::from_ascii(".#.\n#.#\n.#.\n"));
+        let m = Grid::from_ascii(".#.\n#.#\n.#.\n");
         assert_eq!(traversal(&m, Cell::new(1, 1)), 4);
-        let m = Mask::free(&Grid::from_ascii("...\n...\n...\n"));
+        let m = Grid::from_ascii("...\n...\n...\n");
         assert_eq!(traversal(&m, Cell::new(1, 1)), 0);
-        let m = Mask::free(&Grid::from_ascii("###\n...\n###\n"));
+        let m = Grid::from_ascii("###\n...\n###\n");
         assert_eq!(traversal(&m, Cell::new(1, 1)), 2);
     }
 
@@ -296,7 +269,7 @@ mod tests {
             }
             pic.push('\n');
         }
-        let m = Mask::free(&Grid::from_ascii(&pic));
+        let m = Grid::from_ascii(&pic);
         let points = rendezvous_points(&m, 4.0, 3.0);
         assert_eq!(points.first(), Some(&(Cell::new(10, 3), 3)));
         let dist = |a: Cell, b: Cell| f64::from(a.x - b.x).hypot(f64::from(a.y - b.y));
@@ -306,7 +279,7 @@ mod tests {
             }
         }
         // Every skeleton cell is near a point (filling).
-        for c in m.cells() {
+        for c in free_cells(&m) {
             assert!(points.iter().any(|&(p, _)| dist(p, c) < 4.0 + 3.0), "{c:?}");
         }
         assert!(points.len() >= 6, "{points:?}");

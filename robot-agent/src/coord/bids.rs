@@ -28,7 +28,7 @@ use proto::scenario::Scenario;
 use super::executive::{assign, Bidder};
 use super::relay::Relay;
 use super::{Addressed, CoordMsg, Coordinator, Situation, Status};
-use crate::plan::{self, CostMap, COST_TIE_QUANTUM};
+use crate::plan::{CostMap, COST_TIE_QUANTUM};
 
 /// An information-gain region: the bounding rectangle of a frontier cell's gain, in cells, both
 /// corners inclusive.
@@ -96,15 +96,16 @@ impl Weights {
     }
 }
 
-/// Frontier cells per the paper: free, reachable (cost known), ≥1 unknown 4-neighbour inside the
-/// grid (the cells of [`crate::plan::frontiers`]), and at least `spacing_cells` (Euclidean,
-/// between cell centres) from every other chosen one; chosen greedily in order of increasing
-/// cost (ties by `(y, x)`) so that the choice is deterministic and prefers near cells. Returned in
-/// that order. A `spacing_cells` of 0 or less keeps every frontier cell.
-pub fn frontier_cells(g: &Grid, costs: &CostMap, spacing_cells: f64) -> Vec<Cell> {
-    let mut candidates: Vec<(i64, Cell)> = plan::frontiers(g, costs)
-        .into_iter()
-        .filter_map(|c| {
+/// Frontier cells per the paper, among `frontiers` (the cells of [`crate::plan::frontiers`]:
+/// free, ≥1 unknown 4-neighbour inside the grid; the agent's candidates): the reachable ones
+/// (cost known), each at least `spacing_cells` (Euclidean, between cell centres) from every
+/// other chosen one; chosen greedily in order of increasing cost (ties by `(y, x)`) so that the
+/// choice is deterministic and prefers near cells. Returned in that order. A `spacing_cells` of
+/// 0 or less keeps every reachable frontier cell.
+pub fn frontier_cells(frontiers: &[Cell], costs: &CostMap, spacing_cells: f64) -> Vec<Cell> {
+    let mut candidates: Vec<(i64, Cell)> = frontiers
+        .iter()
+        .filter_map(|&c| {
             let cost = costs.cost(c)?;
             Some(((cost / COST_TIE_QUANTUM).round() as i64, c))
         })
@@ -222,13 +223,14 @@ fn gain_with(g: &Grid, f: Cell, range_cells: f64, s: &mut Scratch) -> Option<(u3
     (count > 0).then_some((count, igr))
 }
 
-/// A robot's bid: every spaced frontier cell ([`frontier_cells`]) with its gain
-/// ([`information_gain`]), cost and IGR, the best `max_offers` by net utility
+/// A robot's bid: every spaced frontier cell of `frontiers` ([`frontier_cells`]) with its gain
+/// ([`information_gain`]) on `g`, cost and IGR, the best `max_offers` by net utility
 /// `weights.net(gain, cost)`, best first; ties go to the lower cost, then the lower `(y, x)`.
 /// Frontier cells without gain (a range below one cell) offer nothing. Offers of negative net
 /// utility stay in: whether a task is worth taking is the executive's call (its minimum gain).
 pub fn bid(
     g: &Grid,
+    frontiers: &[Cell],
     costs: &CostMap,
     spacing_cells: f64,
     range_cells: f64,
@@ -236,7 +238,7 @@ pub fn bid(
     weights: Weights,
 ) -> Vec<Offer> {
     let mut scratch = Scratch::default();
-    let mut offers: Vec<(f64, Offer)> = frontier_cells(g, costs, spacing_cells)
+    let mut offers: Vec<(f64, Offer)> = frontier_cells(frontiers, costs, spacing_cells)
         .into_iter()
         .filter_map(|cell| {
             let cost_cells = costs.cost(cell)?;
@@ -295,6 +297,12 @@ impl Settings {
             rebid_cells: (b.rebid_changed_m2 / (res * res)).ceil() as usize,
         }
     }
+
+    /// Half the assignment timeout (at least a step): how often the executive reissues its
+    /// table and a robot bids at the least, so that neither's silence reads as absence.
+    pub fn half_timeout(&self) -> Step {
+        (self.timeout_steps / 2).max(1)
+    }
 }
 
 /// An offer as it crosses the radio (cost in tenths of a cell, the region as corner + extent).
@@ -338,14 +346,14 @@ pub fn region(min: Cell, e: (u16, u16)) -> Igr {
 }
 
 /// The offers that fit in `max_bytes` once encoded as a [`Bid`] (best first, as given).
-fn within_bytes(me: RobotId, step: Step, offers: Vec<Offer>, max_bytes: usize) -> Bid {
+fn within_bytes(me: RobotId, step: Step, offers: &[Offer], max_bytes: usize) -> Bid {
     let mut bid = Bid {
         robot: me,
         step,
         offers: Vec::new(),
     };
     for o in offers {
-        bid.offers.push(to_wire(&o));
+        bid.offers.push(to_wire(o));
         if encode(&Bids {
             from: me,
             bids: vec![bid.clone()],
@@ -365,8 +373,9 @@ fn within_bytes(me: RobotId, step: Step, offers: Vec<Offer>, max_bytes: usize) -
 ///
 /// When it bids (the rule the paper leaves to "each time the map is updated"): at its first
 /// step; once `rebid_changed_m2` of its planning grid became known since its last bid; when
-/// its target is reached or stops being a frontier; and after half a timeout without a bid. Between an assignment that no longer holds
-/// (its cell explored) and the next one, it goes to its own best offer.
+/// its target is reached or stops being a frontier; and after half a timeout without a bid.
+/// Between an assignment that no longer holds (its cell explored) and the next one, it goes to
+/// its own best offer.
 pub struct Bidding {
     me: RobotId,
     settings: Settings,
@@ -425,10 +434,10 @@ impl Bidding {
 
 impl Coordinator for Bidding {
     fn choose(&mut self, s: &Situation<'_>) -> Option<Cell> {
-        let known = s.grid.len() - s.grid.count(Occ::Unknown);
+        let known = s.known;
         // A robot that has not bid for half a timeout bids again, so that the executive does
         // not take its silence for absence.
-        let keep_alive = (self.settings.timeout_steps / 2).max(1);
+        let keep_alive = self.settings.half_timeout();
         let changed = self.own.as_ref().is_none_or(|(_, k, at)| {
             known.abs_diff(*k) >= self.settings.rebid_cells
                 || s.step >= at.saturating_add(keep_alive)
@@ -436,21 +445,19 @@ impl Coordinator for Bidding {
         let lost = s.target.is_some() && !s.valid;
         if changed || lost {
             let st = &self.settings;
-            let offers: Vec<Offer> = bid(
+            let mut offers = bid(
                 s.grid,
+                s.candidates,
                 s.costs,
                 st.spacing_cells,
                 st.range_cells,
                 st.offers,
                 st.weights,
-            )
-            .into_iter()
-            .filter(|o| s.candidates.contains(&o.cell))
-            .collect();
-            let wire = within_bytes(self.me, s.step, offers.clone(), st.max_bid_bytes);
-            let kept = wire.offers.len();
+            );
+            let wire = within_bytes(self.me, s.step, &offers, st.max_bid_bytes);
+            offers.truncate(wire.offers.len());
             self.relay.put_bid(wire);
-            self.own = Some((offers.into_iter().take(kept).collect(), known, s.step));
+            self.own = Some((offers, known, s.step));
         }
         let choice = match self.assignment(s.step) {
             Some(assigned) => {
@@ -523,7 +530,7 @@ pub(crate) const TWO_ROOMS_OPEN_AT_THE_BACK: &str = "\
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::costs;
+    use crate::plan::{costs, frontiers};
     use proptest::prelude::*;
 
     /// Gain and cost in cells, one for one.
@@ -677,9 +684,9 @@ mod tests {
         );
         let start = Cell::new(0, 0);
         let map = costs(&g, start);
-        let all = plan::frontiers(&g, &map);
+        let all = frontiers(&g, &map);
         assert_eq!(all.len(), 12);
-        let spaced = frontier_cells(&g, &map, 3.0);
+        let spaced = frontier_cells(&all, &map, 3.0);
         // The nearest first, then every third cell along the row.
         let xs: Vec<i32> = spaced.iter().map(|c| c.x).collect();
         assert_eq!(xs, vec![0, 3, 6, 9]);
@@ -693,8 +700,11 @@ mod tests {
         assert!(all
             .iter()
             .all(|&c| spaced.iter().any(|&s| dist(c, s) < 3.0)));
-        assert_eq!(frontier_cells(&g, &map, 0.0).len(), 12);
-        assert_eq!(frontier_cells(&g, &map, f64::NAN).len(), 12);
+        assert_eq!(frontier_cells(&frontiers(&g, &map), &map, 0.0).len(), 12);
+        assert_eq!(
+            frontier_cells(&frontiers(&g, &map), &map, f64::NAN).len(),
+            12
+        );
     }
 
     #[test]
@@ -702,7 +712,7 @@ mod tests {
         let g = Grid::from_ascii(TWO_ROOMS);
         // In the corridor below the left room's door.
         let map = costs(&g, Cell::new(2, 1));
-        let offers = bid(&g, &map, 2.0, 5.0, 10, UNIT);
+        let offers = bid(&g, &frontiers(&g, &map), &map, 2.0, 5.0, 10, UNIT);
         assert!(!offers.is_empty());
         let net = |o: &Offer| UNIT.net(f64::from(o.gain_cells), o.cost_cells);
         for pair in offers.windows(2) {
@@ -717,9 +727,12 @@ mod tests {
                 Some((o.gain_cells, o.igr))
             );
         }
-        let two = bid(&g, &map, 2.0, 5.0, 2, UNIT);
+        let two = bid(&g, &frontiers(&g, &map), &map, 2.0, 5.0, 2, UNIT);
         assert_eq!(two, offers[..2].to_vec());
-        assert!(bid(&g, &map, 2.0, 0.5, 10, UNIT).is_empty(), "no gain");
+        assert!(
+            bid(&g, &frontiers(&g, &map), &map, 2.0, 0.5, 10, UNIT).is_empty(),
+            "no gain"
+        );
     }
 
     fn arb_grid() -> impl Strategy<Value = Grid> {
@@ -765,8 +778,8 @@ mod tests {
         ) {
             let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
             let map = costs(&g, start);
-            let all = plan::frontiers(&g, &map);
-            let spaced = frontier_cells(&g, &map, spacing);
+            let all = frontiers(&g, &map);
+            let spaced = frontier_cells(&all, &map, spacing);
             for (i, &a) in spaced.iter().enumerate() {
                 prop_assert!(all.contains(&a));
                 for &b in &spaced[i + 1..] {

@@ -299,7 +299,7 @@ impl Coordinator for Executive {
         self.assigned
             .retain(|_, (_, bid)| s.step < bid.saturating_add(st.timeout_steps));
         let dropped = self.assigned.len() != before;
-        let heartbeat = (st.timeout_steps / 2).max(1);
+        let heartbeat = st.half_timeout();
         let due = changed
             || dropped
             || self
@@ -335,7 +335,7 @@ impl Coordinator for Executive {
 mod tests {
     use super::*;
     use crate::coord::bids::{bid, information_gain, TWO_ROOMS, TWO_ROOMS_OPEN_AT_THE_BACK};
-    use crate::plan::costs;
+    use crate::plan::{costs, frontiers};
     use proptest::prelude::*;
     use proto::grid::Grid;
 
@@ -386,8 +386,8 @@ mod tests {
         // Both in the corridor, nearer the left room's door.
         let (r1, r2) = (Cell::new(2, 1), Cell::new(3, 1));
         let (c1, c2) = (costs(&g, r1), costs(&g, r2));
-        let b1 = bid(&g, &c1, 2.0, 5.0, 10, UNIT);
-        let b2 = bid(&g, &c2, 2.0, 5.0, 10, UNIT);
+        let b1 = bid(&g, &frontiers(&g, &c1), &c1, 2.0, 5.0, 10, UNIT);
+        let b2 = bid(&g, &frontiers(&g, &c2), &c2, 2.0, 5.0, 10, UNIT);
         // Alone, each would take the left room.
         assert!(
             left_room(b1[0].cell) && left_room(b2[0].cell),

@@ -123,6 +123,8 @@ pub struct Situation<'a> {
     pub me: Cell,
     /// The planning grid.
     pub grid: &'a Grid,
+    /// How many of its cells are known (free or occupied).
+    pub known: usize,
     /// This robot's path costs on the planning grid.
     pub costs: &'a CostMap,
     /// The obstacle penalty `costs` were computed with (for other robots' costs; `None`: off).
