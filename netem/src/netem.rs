@@ -299,27 +299,13 @@ fn validate(cfg: &NetemConfig) -> Result<(), NetemError> {
 }
 
 fn radio_model(cfg: &NetemConfig) -> Model {
-    let e = &cfg.radio;
     match cfg.radio.model {
         RadioModel::Always => Model::Always,
         RadioModel::Disk => Model::Disk {
             range_m: cfg.radio.range_m,
         },
-        RadioModel::Pathloss => Model::PathLoss(PathLoss {
-            ref_dbm: e.pathloss_ref_dbm,
-            ref_distance_m: e.pathloss_ref_distance_m,
-            exponent: e.pathloss_exponent,
-            wall_attenuation_db: e.pathloss_wall_attenuation_db,
-            max_walls: e.pathloss_max_walls,
-            threshold_dbm: e.pathloss_threshold_dbm.unwrap_or_else(|| {
-                PathLoss::threshold_for_range(
-                    e.pathloss_ref_dbm,
-                    e.pathloss_ref_distance_m,
-                    e.pathloss_exponent,
-                    cfg.radio.range_m,
-                )
-            }),
-        }),
+        // `of` gives the model for exactly this variant.
+        RadioModel::Pathloss => PathLoss::of(&cfg.radio).map_or(Model::Always, Model::PathLoss),
     }
 }
 

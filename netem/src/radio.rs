@@ -26,43 +26,7 @@ use proto::scenario::RadioModel;
 use proto::traverse::{clip, Corners, Traversal};
 use serde::Serialize;
 
-/// Parameters of the path loss model (defaults: free space, RADAR's wall factor and cap).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PathLoss {
-    /// P(d₀), dBm.
-    pub ref_dbm: f64,
-    /// d₀, metres.
-    pub ref_distance_m: f64,
-    /// N.
-    pub exponent: f64,
-    /// WAF, dB per wall.
-    pub wall_attenuation_db: f64,
-    /// C.
-    pub max_walls: u32,
-    /// Link up iff the signal is at least this, dBm.
-    pub threshold_dbm: f64,
-}
-
-impl PathLoss {
-    /// The threshold at which the free-space range is `range_m`.
-    pub fn threshold_for_range(
-        ref_dbm: f64,
-        ref_distance_m: f64,
-        exponent: f64,
-        range_m: f64,
-    ) -> f64 {
-        ref_dbm - 10.0 * exponent * (range_m.max(1e-9) / ref_distance_m.max(1e-9)).log10()
-    }
-
-    /// S for a distance and a wall count, dBm. Distances below d₀ read as d₀.
-    pub fn signal_dbm(&self, distance_m: f64, walls: u32) -> f64 {
-        let d0 = self.ref_distance_m.max(1e-9);
-        let d = distance_m.max(d0);
-        self.ref_dbm
-            - 10.0 * self.exponent * (d / d0).log10()
-            - f64::from(walls.min(self.max_walls)) * self.wall_attenuation_db
-    }
-}
+pub use proto::pathloss::PathLoss;
 
 /// A radio model with what it needs to decide.
 #[derive(Clone, Debug)]

@@ -82,6 +82,11 @@ pub fn radio_bid(to: RobotId) -> String {
     format!("radio/{to}/bid")
 }
 
+/// Radio: a robot's role state (`roles` coordination) addressed to node `to`.
+pub fn radio_role(to: RobotId) -> String {
+    format!("radio/{to}/role")
+}
+
 /// Radio: the executive's assignments (`bids` coordination) addressed to node `to`.
 pub fn radio_task(to: RobotId) -> String {
     format!("radio/{to}/task")

@@ -15,5 +15,6 @@ pub mod keys;
 pub mod msg;
 #[cfg(feature = "node")]
 pub mod node;
+pub mod pathloss;
 pub mod scenario;
 pub mod traverse;

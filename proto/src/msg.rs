@@ -12,7 +12,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 6;
+pub const PROTOCOL_VERSION: u16 = 7;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -180,10 +180,11 @@ pub enum Traffic {
     Mark,
     Bid,
     Task,
+    Role,
 }
 
 impl Traffic {
-    pub const ALL: [Traffic; 14] = [
+    pub const ALL: [Traffic; 15] = [
         Traffic::Ins,
         Traffic::Rep,
         Traffic::Del,
@@ -198,6 +199,7 @@ impl Traffic {
         Traffic::Mark,
         Traffic::Bid,
         Traffic::Task,
+        Traffic::Role,
     ];
 
     /// The op types of the polygon exchange's log, in Table 6.1 order.
@@ -224,7 +226,8 @@ impl Traffic {
             | Traffic::Cells
             | Traffic::Mark
             | Traffic::Bid
-            | Traffic::Task => None,
+            | Traffic::Task
+            | Traffic::Role => None,
         }
     }
 
@@ -245,6 +248,7 @@ impl Traffic {
             Traffic::Mark => "mark",
             Traffic::Bid => "bid",
             Traffic::Task => "task",
+            Traffic::Role => "role",
         }
     }
 }
@@ -454,6 +458,103 @@ pub struct Tasks {
 pub struct TaskEntry {
     pub robot: RobotId,
     pub task: Option<(Cell, Cell, (u16, u16))>,
+}
+
+/// Radio (`roles`, de Hoog, Cameron & Visser 2010): a robot's place in the team hierarchy, its
+/// state and its meeting plans, sent to the robots in range when it changes and every few steps.
+/// Not relayed as such; the roster it carries spreads from robot to robot. Accounted as `role`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Role {
+    pub from: RobotId,
+    pub step: Step,
+    pub cell: Cell,
+    /// Where it is heading (the role swap rule's goal); `None`: nowhere.
+    pub goal: Option<Cell>,
+    pub state: RoleState,
+    /// Where it meets its own parent next: the base station's cell, or the rendezvous agreed with
+    /// its parent relay (a child times its next meeting by the trip there and back).
+    pub parent_point: Option<Cell>,
+    /// Every robot's place as the sender knows it.
+    pub roster: Vec<Seat>,
+    /// The sender has nothing more waiting for the addressee on the radio.
+    pub caught_up: bool,
+    pub swap: Option<Swap>,
+}
+
+/// A place in the hierarchy: branch `branch` below the base station, `depth` hops down it (0: the
+/// base station's child). The last place of a branch is its explorer, the others relays.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+pub struct Place {
+    pub branch: u16,
+    pub depth: u16,
+}
+
+/// Robot `robot` holds `place` since step `since` (the newest claim of a place wins).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Seat {
+    pub robot: RobotId,
+    pub place: Place,
+    pub since: Step,
+}
+
+/// A meeting agreed between a child and its parent: where (`primary`, else `fallback`), by which
+/// step the parent is expected there (`due`), and when the child made the agreement (`made`,
+/// its version).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Rendezvous {
+    pub primary: Cell,
+    pub fallback: Cell,
+    pub due: Step,
+    pub made: Step,
+}
+
+/// What a robot is doing in its role (de Hoog et al. Fig. 2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Phase {
+    /// Explorer: going to frontiers.
+    Explore,
+    /// Explorer: on its way to the rendezvous with its parent.
+    Return,
+    /// Explorer: at the rendezvous, waiting for its parent.
+    Wait,
+    /// Either role: the parent (or child) did not come; at or on the way to the fallback point.
+    Fallback,
+    /// Either role: met its parent, staying until what it carries has crossed.
+    Deliver,
+    /// Relay: on its way to its parent.
+    ToParent,
+    /// Relay: on its way to (or waiting at) the rendezvous with its child.
+    ToChild,
+}
+
+/// A robot's role state — what a role swap hands over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RoleState {
+    pub place: Place,
+    pub phase: Phase,
+    /// The step the phase began.
+    pub since: Step,
+    /// The meeting with its parent (agreed by this robot as the child).
+    pub with_parent: Option<Rendezvous>,
+    /// The meeting with its child (agreed by the child).
+    pub with_child: Option<Rendezvous>,
+}
+
+/// The role swap handshake (de Hoog et al. §V): the lower id proposes with its state, the other
+/// takes that state and answers with its own, which the proposer then takes. `stamp` is the
+/// proposal's step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Swap {
+    Propose {
+        to: RobotId,
+        stamp: Step,
+        state: RoleState,
+    },
+    Accept {
+        to: RobotId,
+        stamp: Step,
+        state: RoleState,
+    },
 }
 
 /// One laser scan as shared on the radio in the `raw-scans` exchange. Ranges are quantized to
@@ -759,6 +860,40 @@ mod tests {
                 },
             ],
         });
+        let state = RoleState {
+            place: Place {
+                branch: 2,
+                depth: 1,
+            },
+            phase: Phase::Fallback,
+            since: 40,
+            with_parent: Some(Rendezvous {
+                primary: Cell::new(5, 6),
+                fallback: Cell::new(-1, 2),
+                due: 90,
+                made: 41,
+            }),
+            with_child: None,
+        };
+        round_trip(Role {
+            from: 3,
+            step: 44,
+            cell: Cell::new(7, 8),
+            goal: Some(Cell::new(9, 1)),
+            state,
+            parent_point: Some(Cell::new(0, 0)),
+            roster: vec![Seat {
+                robot: 3,
+                place: state.place,
+                since: 12,
+            }],
+            caught_up: true,
+            swap: Some(Swap::Accept {
+                to: 1,
+                stamp: 43,
+                state,
+            }),
+        });
         round_trip(Team {
             from: 1,
             entries: vec![TeamEntry {
@@ -806,6 +941,7 @@ mod tests {
             let _ = decode::<Team>(&bytes);
             let _ = decode::<Bids>(&bytes);
             let _ = decode::<Tasks>(&bytes);
+            let _ = decode::<Role>(&bytes);
             let _ = decode::<OpChunk>(&bytes);
             let _ = decode::<Scan>(&bytes);
             let _ = decode::<Status>(&bytes);

@@ -227,6 +227,54 @@ pub struct Coordination {
     pub replan_every_steps: u32,
     /// `bids` (Simmons et al. 2000): bids, the central executive and the fallback.
     pub bids: Bids,
+    /// `roles` (de Hoog et al. 2010): the team hierarchy, rendezvous and role swaps.
+    pub roles: Roles,
+}
+
+/// `coordination.roles`: de Hoog, Cameron and Visser's role-based exploration (robot-agent's
+/// `coord::roles`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Roles {
+    /// Branches below the base station; 0: as many as it takes to give every branch
+    /// `relays_per_branch` relays and an explorer (the last branch may be shorter).
+    pub branches: u32,
+    /// Relays between the base station and the explorer of a branch.
+    pub relays_per_branch: u32,
+    /// The role swap rule (§V): the dynamic hierarchy; off, the roles stay as dealt.
+    pub swap: bool,
+    /// Rendezvous points nearest the explorer's next frontier that it chooses among.
+    pub candidates: u32,
+    /// Algorithm 1's filling distance T₁ (m): skeleton points this far from every rendezvous
+    /// point so far become one.
+    pub fill_m: f64,
+    /// Algorithm 1's pruning distance T₂ (m): of two rendezvous points closer than this, one goes.
+    pub prune_m: f64,
+    /// Steps a robot waits at a rendezvous past the agreed step before it tries the fallback.
+    pub patience_steps: u32,
+    /// While in range of its parent, an explorer agrees a new rendezvous at least this often.
+    pub refresh_steps: u32,
+    /// At a meeting, the most steps a robot stays for what it carries to cross the radio.
+    pub linger_steps: u32,
+    /// A robot sends its role state to each robot in range when it changes and at least this often.
+    pub status_every_steps: u32,
+}
+
+impl Default for Roles {
+    fn default() -> Self {
+        Roles {
+            branches: 0,
+            relays_per_branch: 1,
+            swap: true,
+            candidates: 5,
+            fill_m: 4.0,
+            prune_m: 2.0,
+            patience_steps: 10,
+            refresh_steps: 5,
+            linger_steps: 10,
+            status_every_steps: 5,
+        }
+    }
 }
 
 /// `coordination.bids`: Simmons et al.'s bids and central executive (robot-agent's `coord::bids`
@@ -405,6 +453,7 @@ impl Default for Coordination {
             search_tries: 200,
             replan_every_steps: 10,
             bids: Bids::default(),
+            roles: Roles::default(),
         }
     }
 }
@@ -627,6 +676,7 @@ impl Scenario {
             return Err(invalid("bandwidth.p_comm", p, "must be in (0, 1]"));
         }
         s.validate_bids()?;
+        s.validate_roles()?;
         if let Some([x, y]) = s.base_station.pose {
             if !(x.is_finite() && y.is_finite()) {
                 return Err(invalid(
@@ -641,6 +691,13 @@ impl Scenario {
                 "coordination.strategy",
                 "\"bids\"",
                 "needs the central executive's node: set base_station.enabled = true",
+            ));
+        }
+        if s.coordination.strategy == Strategy::Roles && !s.base_station.enabled {
+            return Err(invalid(
+                "coordination.strategy",
+                "\"roles\"",
+                "needs the hierarchy's root: set base_station.enabled = true",
             ));
         }
         s.check_implemented()
@@ -681,6 +738,44 @@ impl Scenario {
         )
     }
 
+    fn validate_roles(&self) -> Result<(), ScenarioError> {
+        let r = &self.coordination.roles;
+        let n = u64::from(self.robots.count);
+        let per = u64::from(r.relays_per_branch) + 1;
+        if r.branches > 0 {
+            let b = u64::from(r.branches);
+            if b * per < n || (b - 1) * per >= n {
+                return Err(invalid(
+                    "coordination.roles.branches",
+                    r.branches,
+                    &format!(
+                        "{} robots with {} relays per branch make {} branches (the last may be shorter); 0 derives it",
+                        n,
+                        r.relays_per_branch,
+                        n.div_ceil(per)
+                    ),
+                ));
+            }
+        }
+        at_least(
+            "coordination.roles.candidates",
+            f64::from(r.candidates),
+            1.0,
+        )?;
+        at_least("coordination.roles.prune_m", r.prune_m, 0.0)?;
+        at_least("coordination.roles.fill_m", r.fill_m, r.prune_m.max(0.1))?;
+        at_least(
+            "coordination.roles.refresh_steps",
+            f64::from(r.refresh_steps),
+            1.0,
+        )?;
+        at_least(
+            "coordination.roles.status_every_steps",
+            f64::from(r.status_every_steps),
+            1.0,
+        )
+    }
+
     /// Radio nodes: the robots, then the base station if there is one.
     pub fn nodes(&self) -> u16 {
         self.robots.count + u16::from(self.base_station.enabled)
@@ -696,12 +791,16 @@ impl Scenario {
     fn check_implemented(&self) -> Result<(), ScenarioError> {
         if !matches!(
             self.coordination.strategy,
-            Strategy::Uncoordinated | Strategy::Decentralized | Strategy::Burgard | Strategy::Bids
+            Strategy::Uncoordinated
+                | Strategy::Decentralized
+                | Strategy::Burgard
+                | Strategy::Bids
+                | Strategy::Roles
         ) {
             return Err(invalid(
                 "coordination.strategy",
                 format!("{:?}", self.coordination.strategy),
-                "\"decentralized\", \"burgard\", \"bids\" and \"uncoordinated\" are implemented; \"roles\" and \"pack\" are not yet",
+                "\"decentralized\", \"burgard\", \"bids\", \"roles\" and \"uncoordinated\" are implemented; \"pack\" is not yet",
             ));
         }
         Ok(())
@@ -931,7 +1030,25 @@ mod tests {
             ),
             (
                 err("", &["coordination.strategy=\"roles\""]),
+                "base_station.enabled",
+            ),
+            (
+                err("", &["coordination.strategy=\"pack\""]),
                 "coordination.strategy",
+            ),
+            (
+                err("", &["robots.count=10", "coordination.roles.branches=3"]),
+                "coordination.roles.branches",
+            ),
+            (
+                err(
+                    "",
+                    &[
+                        "coordination.roles.fill_m=1",
+                        "coordination.roles.prune_m=2",
+                    ],
+                ),
+                "coordination.roles.fill_m",
             ),
             (
                 err("", &["coordination.bids.hysteresis=0"]),

@@ -189,6 +189,7 @@ impl Agent {
             me: self.my_cell(),
             target: self.target,
             neighbours: self.radio.neighbours(),
+            backlog: self.radio.backlog(),
         });
         let sharing = self.sharing.as_mut();
         self.radio.step(self.step, self.target, &coord, sharing)

@@ -66,6 +66,9 @@ pub mod raw_scans;
 pub mod refine;
 /// Painting approximations onto cells: Algorithm 9's steps (1)–(5), renders, exploration view.
 pub mod render;
+/// de Hoog et al. §III-D, §IV: where and by when a child meets its parent (rendezvous points,
+/// estimated radio reach, the parent's predicted trip).
+pub mod rendezvous;
 /// Right of way: rejected moves and blacklist, bumps, giving way, planning around.
 pub mod right_of_way;
 /// What a robot shares over the radio: one implementation per exchange mode.

@@ -5,8 +5,8 @@
 //! This module holds what every strategy shares — the utility and discount arithmetic below,
 //! the table of other robots' announced targets ([`Heard`]) and the interface
 //! ([`Coordinator`]) — and one file per strategy holds its state and its messages:
-//! [`decentralized`], [`burgard`], [`uncoordinated`]. [`new`] registers them by
-//! `coordination.strategy`.
+//! [`decentralized`], [`burgard`], [`uncoordinated`], [`bids`] (with [`executive`] and
+//! [`relay`]), [`roles`] (with [`hierarchy`]). [`new`] registers them by `coordination.strategy`.
 //!
 //! * Utility (thesis eq. 4.4, Burgard eq. 1): every frontier cell starts at U = 1; a target t'
 //!   chosen by another robot lowers the utility of every frontier t by P(‖t − t'‖), the
@@ -29,7 +29,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{
-    decode, encode, Bids, DecodeError, RobotId, Step, Target, Tasks, Team, Traffic, WorldInfo,
+    decode, encode, Bids, DecodeError, RobotId, Role, Step, Target, Tasks, Team, Traffic, WorldInfo,
 };
 use proto::scenario::{Scenario, Strategy};
 
@@ -40,7 +40,9 @@ pub mod bids;
 pub mod burgard;
 pub mod decentralized;
 pub mod executive;
+pub mod hierarchy;
 pub mod relay;
+pub mod roles;
 pub mod uncoordinated;
 
 /// How the agent talks to a coordination strategy, whichever it is.
@@ -99,6 +101,10 @@ pub fn new(
         max_range_cells,
         half_life_steps: Some(c.target_half_life_steps).filter(|&h| h > 0.0),
     };
+    if let (Some(base), Strategy::Roles) = (s.base_id(), c.strategy) {
+        let settings = roles::Settings::new(s, world, params);
+        return Box::new(roles::Roles::new(id, base, settings));
+    }
     match c.strategy {
         // Scenario validation refuses the reserved values that are not built yet; a scenario
         // that skipped it gets the nearest frontier, as it always did.
@@ -147,6 +153,8 @@ pub struct Status<'a> {
     pub me: Cell,
     pub target: Option<Cell>,
     pub neighbours: &'a BTreeSet<RobotId>,
+    /// Per neighbour, the bytes that waited for it after the last step's sending.
+    pub backlog: &'a [(RobotId, u64)],
 }
 
 /// A coordination message, by strategy (a new strategy that talks adds its variant here, with
@@ -159,6 +167,8 @@ pub enum CoordMsg {
     Bids(Bids),
     /// `bids`: the executive's assignment table.
     Tasks(Tasks),
+    /// `roles`: a robot's role state, to a robot in range.
+    Role(Role),
 }
 
 impl CoordMsg {
@@ -168,6 +178,7 @@ impl CoordMsg {
             CoordMsg::Team(t) => t.from,
             CoordMsg::Bids(b) => b.from,
             CoordMsg::Tasks(t) => t.from,
+            CoordMsg::Role(r) => r.from,
         }
     }
 
@@ -177,6 +188,7 @@ impl CoordMsg {
             CoordMsg::Team(_) => Traffic::Targ,
             CoordMsg::Bids(_) => Traffic::Bid,
             CoordMsg::Tasks(_) => Traffic::Task,
+            CoordMsg::Role(_) => Traffic::Role,
         }
     }
 
@@ -186,6 +198,7 @@ impl CoordMsg {
             CoordMsg::Team(_) => proto::keys::radio_team,
             CoordMsg::Bids(_) => proto::keys::radio_bid,
             CoordMsg::Tasks(_) => proto::keys::radio_task,
+            CoordMsg::Role(_) => proto::keys::radio_role,
         }
     }
 
@@ -194,6 +207,7 @@ impl CoordMsg {
             CoordMsg::Team(t) => encode(t),
             CoordMsg::Bids(b) => encode(b),
             CoordMsg::Tasks(t) => encode(t),
+            CoordMsg::Role(r) => encode(r),
         }
     }
 
@@ -203,6 +217,7 @@ impl CoordMsg {
             "team" => Some(decode::<Team>(bytes).map(CoordMsg::Team)),
             "bid" => Some(decode::<Bids>(bytes).map(CoordMsg::Bids)),
             "task" => Some(decode::<Tasks>(bytes).map(CoordMsg::Tasks)),
+            "role" => Some(decode::<Role>(bytes).map(CoordMsg::Role)),
             _ => None,
         }
     }

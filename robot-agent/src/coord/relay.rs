@@ -209,6 +209,7 @@ mod tests {
                     ),
                     CoordMsg::Tasks(t) => format!("tasks {}", t.step),
                     CoordMsg::Team(_) => "team".into(),
+                    CoordMsg::Role(_) => "role".into(),
                 };
                 (to, what)
             })
