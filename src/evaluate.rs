@@ -14,11 +14,13 @@ use std::collections::BTreeMap;
 use proto::grid::{Grid, Occ};
 use proto::msg::{RobotId, Step, Telemetry, View};
 
+use crate::awareness::{known_cells, SharedKnowledge};
+
 /// Coverage thresholds reported in `summary.json` (`coverage_steps`).
 pub const THRESHOLDS: [u32; 4] = [50, 90, 95, 100];
 
 /// One row of `metrics.csv`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct MetricsRow {
     pub step: Step,
     pub robot: RobotId,
@@ -40,6 +42,12 @@ pub struct MetricsRow {
     pub backlog_bytes: u64,
     /// `bids`: the robot decided alone.
     pub alone: bool,
+    /// Team awareness (de Hoog et al. 2010, Fig. 5c): the share of this robot's known space that
+    /// every robot knows ([`Evaluator::share_rows_since`]); `None` for the base station.
+    pub shared_pct: Option<f64>,
+    /// Fig. 5d: steps since this robot's last contact with the base station, set once the
+    /// run's links are all in (`None` for the base station, or without one).
+    pub steps_since_base: Option<Step>,
 }
 
 pub struct Evaluator {
@@ -67,6 +75,8 @@ pub struct Evaluator {
     pub base: Option<RobotId>,
     /// Step at which the base station first knew each threshold's share.
     pub base_coverage_steps: BTreeMap<u32, Step>,
+    /// What every robot knows, from the latest grid of each (the base station is no member).
+    shared: SharedKnowledge,
 }
 
 impl Evaluator {
@@ -88,7 +98,14 @@ impl Evaluator {
             views: Vec::new(),
             base: None,
             base_coverage_steps: BTreeMap::new(),
+            shared: SharedKnowledge::default(),
         }
+    }
+
+    /// The team is robots `0..robots`: whose knowledge [`MetricsRow::shared_pct`] intersects.
+    pub fn with_team(mut self, robots: u16) -> Evaluator {
+        self.shared = SharedKnowledge::new(robots, self.reachable.len());
+        self
     }
 
     /// Node `base` is the base station ([`Self::base`]).
@@ -110,16 +127,10 @@ impl Evaluator {
                 return;
             }
         };
-        let (mut covered, mut correct) = (0usize, 0u32);
-        for ((&r, &truth), &seen) in self
-            .reachable
-            .iter()
-            .zip(self.truth.cells())
-            .zip(grid.cells())
-        {
-            if r && seen != Occ::Unknown {
-                covered += 1;
-            }
+        let known = known_cells(&grid, &self.reachable);
+        let covered = known.iter().filter(|&&k| k).count();
+        let mut correct = 0u32;
+        for (&truth, &seen) in self.truth.cells().iter().zip(grid.cells()) {
             let agrees = match seen {
                 Occ::Unknown => false,
                 Occ::Free => truth == Occ::Free,
@@ -133,6 +144,9 @@ impl Evaluator {
             100.0 * covered as f64 / self.reachable_count as f64
         };
         let is_base = self.base == Some(t.robot);
+        if !is_base {
+            self.shared.update(t.robot, known);
+        }
         if pct > self.best.0 && !is_base {
             self.best = (pct, t.robot);
         }
@@ -167,6 +181,8 @@ impl Evaluator {
             splits_per_step: t.splits_per_step,
             backlog_bytes: t.backlog_bytes.iter().map(|&(_, b)| b).max().unwrap_or(0),
             alone: t.alone,
+            shared_pct: None,
+            steps_since_base: None,
         });
         let before = self.last.get(&t.robot).map(|(_, b)| b);
         if let Some((len, digest)) = t.save {
@@ -181,6 +197,18 @@ impl Evaluator {
             }
         }
         self.last.insert(t.robot, (grid, t));
+    }
+
+    /// Sets [`MetricsRow::shared_pct`] of the robot rows from `from` on, from the latest grid of
+    /// every robot. Called once the reports taken together are all added: in lockstep a whole
+    /// step's, so every share compares grids of the same step; in realtime each report as it
+    /// comes, against the other robots' latest grids (which may be a step older or newer).
+    pub fn share_rows_since(&mut self, from: usize) {
+        for row in self.rows.iter_mut().skip(from) {
+            if self.base != Some(row.robot) {
+                row.shared_pct = self.shared.share_pct(row.robot);
+            }
+        }
     }
 }
 
@@ -251,6 +279,29 @@ mod tests {
         ev.add(telemetry(0, 6, &truth));
         assert_eq!(ev.exploration_step, Some(6));
         assert_eq!(ev.best, (100.0, 0));
+    }
+
+    #[test]
+    fn a_step_s_shares_compare_the_robots_grids_of_that_step_and_skip_the_base_station() {
+        let truth = Grid::from_ascii("....\n");
+        let mut ev = Evaluator::new(truth.clone(), &truth, 99.0)
+            .with_base(Some(2))
+            .with_team(2);
+        ev.add(telemetry(0, 0, &Grid::from_ascii("..??\n")));
+        ev.add(telemetry(1, 0, &Grid::from_ascii(".#.?\n")));
+        ev.add(telemetry(2, 0, &truth));
+        ev.share_rows_since(0);
+        let shares: Vec<Option<f64>> = ev.rows.iter().map(|r| r.shared_pct).collect();
+        assert_eq!(shares, [Some(100.0), Some(200.0 / 3.0), None]);
+        let from = ev.rows.len();
+        ev.add(telemetry(0, 1, &Grid::from_ascii("?.??\n")));
+        ev.share_rows_since(from);
+        assert_eq!(ev.rows[from].shared_pct, Some(100.0));
+        assert_eq!(
+            ev.rows[0].shared_pct,
+            Some(100.0),
+            "earlier rows stay as they were"
+        );
     }
 
     #[test]

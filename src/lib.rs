@@ -3,6 +3,8 @@
 //! It also carries every role's entry point (`swarm world-server`, `swarm robot-agent`), so one
 //! binary is all a machine needs.
 
+/// Team awareness (de Hoog et al. 2010, Fig. 5): shared knowledge, contact with the base station.
+pub mod awareness;
 /// Child processes: spawn, watch, reap.
 pub mod children;
 /// Coverage and exploration time from telemetry.

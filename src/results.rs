@@ -7,8 +7,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-/// The summary fields every sweep reports per run and aggregates per point.
-pub const FIELDS: [&str; 7] = [
+/// The summary fields every sweep reports per run and aggregates per point. The `awareness`
+/// ones (de Hoog et al. 2010, Fig. 5b–d) are empty in runs without a base station.
+pub const FIELDS: [&str; 12] = [
     "exploration_steps",
     "steps",
     "bytes_wire_total",
@@ -16,6 +17,11 @@ pub const FIELDS: [&str; 7] = [
     "approx_error_avg",
     "backlog_max_bytes",
     "wall_seconds",
+    "awareness.base_known_pct",
+    "awareness.base_known_pct_mean",
+    "awareness.shared_pct_mean",
+    "awareness.steps_since_base_mean",
+    "awareness.steps_since_base_max",
 ];
 
 /// One grid point: its overrides, as `KEY=VALUE`, in key order.

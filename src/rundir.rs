@@ -53,6 +53,8 @@ pub struct Summary {
     pub radio_decode_errors: u64,
     /// How many steps links needed to reconnect after coming back into range or being restored.
     pub reconnect: ReconnectSummary,
+    /// Team awareness (de Hoog et al. 2010, Fig. 5b–d); `null` without a base station.
+    pub awareness: Option<AwarenessSummary>,
     pub failed_processes: Vec<String>,
     /// Lockstep: whether nothing but the scenario decided the run. `false` in realtime mode, and
     /// when a wall-clock timeout decided something or a process failed; `nondeterministic` says
@@ -62,6 +64,22 @@ pub struct Summary {
     /// sha256 of the run's outputs ([`DIGESTED`] and `grids/`): two runs with the same digest
     /// wrote the same tables and grids, byte for byte.
     pub run_digest: String,
+}
+
+/// `awareness` in `summary.json`: the team-awareness metrics of de Hoog, Cameron and Visser
+/// (TAROS 2010, Fig. 5b–d), over the run. Step means weigh every step the same.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct AwarenessSummary {
+    /// Fig. 5b: the share of the reachable free cells the base station knew at its last step.
+    pub base_known_pct: Option<f64>,
+    /// Its mean over the steps.
+    pub base_known_pct_mean: Option<f64>,
+    /// Fig. 5c: the mean over steps of the robots' mean `shared_pct`.
+    pub shared_pct_mean: Option<f64>,
+    /// Fig. 5d: the mean over steps of the robots' mean `steps_since_base`, and its largest
+    /// value.
+    pub steps_since_base_mean: Option<f64>,
+    pub steps_since_base_max: Option<Step>,
 }
 
 /// The run directory's tables that a run's digest covers (none of them holds a wall-clock
@@ -189,6 +207,13 @@ pub struct MetricsCsv {
     pub backlog_bytes: u64,
     /// `bids`: the robot decided alone (no fresh assignment from the executive).
     pub alone: Flag,
+    /// Team awareness (de Hoog et al. 2010, Fig. 5c); empty on the base station's rows. The
+    /// last two columns are new: tables written before them read back as empty.
+    #[serde(default)]
+    pub shared_pct: Option<Fixed<3>>,
+    /// Fig. 5d; empty on the base station's rows and without a base station.
+    #[serde(default)]
+    pub steps_since_base: Option<Step>,
 }
 
 impl From<&MetricsRow> for MetricsCsv {
@@ -210,6 +235,8 @@ impl From<&MetricsRow> for MetricsCsv {
             splits_per_step: r.splits_per_step.map(Fixed),
             backlog_bytes: r.backlog_bytes,
             alone: Flag(r.alone),
+            shared_pct: r.shared_pct.map(Fixed),
+            steps_since_base: r.steps_since_base,
         }
     }
 }
@@ -240,6 +267,20 @@ impl LinkLog {
     /// Drops the reports of steps after `last`.
     pub fn truncate(&mut self, last: Step) {
         self.rows.retain(|(s, _)| *s <= last);
+    }
+
+    /// The pairs whose link was up, per step (sorted, so the same log gives the same map
+    /// whatever order the reports came in).
+    pub fn up_by_step(&self) -> BTreeMap<Step, Vec<(RobotId, RobotId)>> {
+        let mut up: BTreeMap<Step, Vec<(RobotId, RobotId)>> = BTreeMap::new();
+        for (step, l) in self.rows.iter().filter(|(_, l)| l.up) {
+            up.entry(*step).or_default().push((l.a, l.b));
+        }
+        for pairs in up.values_mut() {
+            pairs.sort_unstable();
+            pairs.dedup();
+        }
+        up
     }
 
     /// Bytes that crossed any link, both ways, up to the last report.
@@ -627,6 +668,8 @@ mod tests {
                 splits_per_step: None,
                 backlog_bytes: 0,
                 alone: false,
+                shared_pct: None,
+                steps_since_base: None,
             }
         };
         let dir = std::env::temp_dir().join(format!("swarm-traffic-{}", std::process::id()));
@@ -661,7 +704,7 @@ mod tests {
         let h = |v: anyhow::Result<Vec<String>>| v.unwrap_or_default().join(",");
         assert_eq!(
             h(header::<MetricsCsv>()),
-            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone"
+            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone,shared_pct,steps_since_base"
         );
         assert_eq!(
             h(header::<LinkCsv>()),
@@ -687,6 +730,8 @@ mod tests {
                 idle: Flag(true),
                 splits_per_step: Some(Fixed(0.25)),
                 backlog_bytes: 9,
+                shared_pct: Some(Fixed(62.5)),
+                steps_since_base: Some(4),
                 ..MetricsCsv::default()
             },
             MetricsCsv::default(),
@@ -697,15 +742,29 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(
             lines[1],
-            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0"
+            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4"
         );
-        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0");
+        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,");
         let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             (back[0].idle, back[0].target_y, back[1].target_x),
             (Flag(true), Some(Fixed(7.0)), None)
         );
         assert_eq!(back[0].splits_per_step, Some(Fixed(0.25)));
+        assert_eq!(
+            (
+                back[0].shared_pct,
+                back[0].steps_since_base,
+                back[1].shared_pct
+            ),
+            (Some(Fixed(62.5)), Some(4), None)
+        );
+        // A table written before the awareness columns reads back without them.
+        let old = "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone\n\
+                   3,1,1.235,-2.000,0,0,,,0,0,12.346,1,0,,9,0\n";
+        std::fs::write(&path, old).unwrap_or_else(|e| panic!("{e}"));
+        let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((back[0].backlog_bytes, back[0].steps_since_base), (9, None));
         let saves = [SaveCsv {
             step: 1,
             robot: 2,

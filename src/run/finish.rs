@@ -15,12 +15,13 @@ use zenoh::qos::CongestionControl;
 use super::follow::Record;
 use super::prepare::Plan;
 use super::spawn::Started;
-use crate::evaluate::Evaluator;
+use crate::awareness::{mean_of_step_means, steps_since_base};
+use crate::evaluate::{Evaluator, MetricsRow};
 use crate::progress::Progress;
 use crate::render::{robot_colour, Picture};
 use crate::rundir::{
     bytes_by_type, coverage_steps, link_totals_wire, traffic_shares, write_links, write_metrics,
-    write_pgm, write_saves_and_views, write_traffic, Summary, SCHEMA_VERSION,
+    write_pgm, write_saves_and_views, write_traffic, AwarenessSummary, Summary, SCHEMA_VERSION,
 };
 
 /// Tells everyone to stop, waits for every child (killing what does not stop), and collects the
@@ -47,6 +48,27 @@ pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) {
         ));
     }
     proto::node::close_quickly(sim.session).await;
+}
+
+/// Sets every robot row's steps since its last contact with the base station (de Hoog et al.
+/// 2010, Fig. 5d), from the links netem reported up at each step. Done at the end: netem
+/// reports a step only once the next one opens, so the links of a step may come after its
+/// telemetry. Nothing without a base station.
+pub fn score_contact(plan: &Plan, rec: &mut Record) {
+    let Some(base) = plan.scenario.base_id() else {
+        return;
+    };
+    let Some(last) = rec.eval.rows.iter().map(|r| r.step).max() else {
+        return;
+    };
+    let nodes = usize::from(plan.scenario.nodes());
+    let since = steps_since_base(nodes, base, &rec.links.up_by_step(), last);
+    for row in rec.eval.rows.iter_mut().filter(|r| r.robot != base) {
+        row.steps_since_base = since
+            .get(row.step as usize)
+            .and_then(|n| n.get(usize::from(row.robot)))
+            .copied();
+    }
 }
 
 /// `summary.json`'s content.
@@ -110,6 +132,7 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
         distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
         radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
         reconnect: (&rec.links.reconnects()).into(),
+        awareness: eval.base.map(|b| awareness(&eval.rows, b)),
         failed_processes: rec.failed.clone(),
         deterministic: false,
         nondeterministic: nondeterministic(plan, rec),
@@ -177,6 +200,21 @@ fn backlogs(eval: &Evaluator) -> (u64, f64) {
     (b.iter().copied().max().unwrap_or(0), mean)
 }
 
+/// `awareness` in `summary.json` from `metrics.csv`'s rows, `base` being the base station's id.
+fn awareness(rows: &[MetricsRow], base: proto::msg::RobotId) -> AwarenessSummary {
+    let at_base = || rows.iter().filter(|r| r.robot == base);
+    let robots = || rows.iter().filter(|r| r.robot != base);
+    AwarenessSummary {
+        base_known_pct: at_base().max_by_key(|r| r.step).map(|r| r.coverage_pct),
+        base_known_pct_mean: mean_of_step_means(at_base().map(|r| (r.step, r.coverage_pct))),
+        shared_pct_mean: mean_of_step_means(robots().filter_map(|r| Some((r.step, r.shared_pct?)))),
+        steps_since_base_mean: mean_of_step_means(
+            robots().filter_map(|r| Some((r.step, f64::from(r.steps_since_base?)))),
+        ),
+        steps_since_base_max: robots().filter_map(|r| r.steps_since_base).max(),
+    }
+}
+
 /// Mean over the robots of their own e_avg (polygon exchange only).
 fn approx_error_avg(eval: &Evaluator) -> Option<f64> {
     let e: Vec<f64> = eval
@@ -236,4 +274,44 @@ pub fn write_pictures(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(step: u32, robot: u16, coverage_pct: f64, shared: f64, since: u32) -> MetricsRow {
+        MetricsRow {
+            step,
+            robot,
+            coverage_pct,
+            shared_pct: (robot != 2).then_some(shared),
+            steps_since_base: (robot != 2).then_some(since),
+            ..MetricsRow::default()
+        }
+    }
+
+    #[test]
+    fn awareness_takes_the_base_station_s_last_coverage_and_step_means_of_the_robots() {
+        // Robots 0 and 1, base station 2; step 1 lacks robot 1's report.
+        let rows = [
+            row(0, 0, 10.0, 100.0, 0),
+            row(0, 1, 10.0, 50.0, 0),
+            row(0, 2, 20.0, 0.0, 0),
+            row(1, 0, 30.0, 80.0, 6),
+            row(1, 2, 40.0, 0.0, 0),
+        ];
+        let a = awareness(&rows, 2);
+        assert_eq!(
+            a,
+            AwarenessSummary {
+                base_known_pct: Some(40.0),
+                base_known_pct_mean: Some(30.0),
+                shared_pct_mean: Some(77.5),
+                steps_since_base_mean: Some(3.0),
+                steps_since_base_max: Some(6),
+            }
+        );
+        assert_eq!(awareness(&[], 2), AwarenessSummary::default());
+    }
 }

@@ -143,9 +143,13 @@ impl Record {
     /// Evaluates reports of `step`; decides the end if they show it (exploration done, or every
     /// live robot idle for a few steps in a row: nothing is left to explore).
     fn took(&mut self, step: Step, reports: Vec<Telemetry>) {
+        let from = self.eval.rows.len();
         for t in reports {
             self.eval.add(t);
         }
+        // Lockstep: the whole step is in, so every share compares grids of this step.
+        // Realtime: one report, against every other robot's latest grid.
+        self.eval.share_rows_since(from);
         if self.end.is_some() {
             return;
         }

@@ -76,7 +76,8 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         &run.reachable,
         plan.scenario.done_pct,
     )
-    .with_base(plan.scenario.base_id());
+    .with_base(plan.scenario.base_id())
+    .with_team(plan.robots());
     if !args.quiet {
         eprintln!(
             "swarm run: {} robots on {} ({} reachable free cells), run directory {}, netem API http://{}",
@@ -93,6 +94,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
     finish::stop(run, &mut rec, &mut progress).await;
     rec.truncate();
+    finish::score_contact(&plan, &mut rec);
     let mut summary = finish::summary(&plan, &rec, exit_reason, started);
     finish::write_tables(&plan.dir, &rec)?;
     finish::write_pictures(&plan.dir, (&truth, info), &rec, &mut progress)?;

@@ -1,0 +1,383 @@
+//! Team awareness: how much of what the team knows is shared, and how long robots have been out
+//! of touch with the base station — two of the four metrics of de Hoog, Cameron and Visser,
+//! *Autonomous Multi-Robot Exploration in Communication-Limited Environments* (TAROS 2010,
+//! Fig. 5; the other two are coverage over time and the share known at the base station, which
+//! the evaluator already gives).
+//!
+//! * **Shared knowledge** (Fig. 5c): for robot r with known space K_r, the share of K_r that
+//!   every robot of the team knows, |K_1 ∩ … ∩ K_N| / |K_r| × 100 (100 when K_r is empty). K_q
+//!   is what the evaluator counts as coverage: the truth's reachable free cells that robot q's
+//!   planning grid has free or occupied ([`known_cells`]). [`SharedKnowledge`] keeps, per cell,
+//!   how many robots know it, so that replacing one robot's grid is one pass over the cells and
+//!   the intersection's size is a counter — never a comparison of every pair of robots.
+//! * **Contact with the base station** (Fig. 5d): steps since a robot last had contact with
+//!   the base station, directly or carried by robots in between ([`steps_since_base`]). Contact
+//!   is transitive within a step (a chain of up links is a multi-hop route) and carried over
+//!   time by mobile relays: a relay that touched the base at step 100 and meets the explorer at
+//!   step 150 brings the explorer the base's state of step 100.
+
+use std::collections::BTreeMap;
+
+use proto::grid::{Grid, Occ};
+use proto::msg::{RobotId, Step};
+
+/// The cells robot `grid` knows: reachable (`reachable[i]`) and free or occupied in its grid —
+/// the evaluator's notion of coverage. A grid of another size knows nothing beyond the overlap.
+pub fn known_cells(grid: &Grid, reachable: &[bool]) -> Vec<bool> {
+    let mut known: Vec<bool> = reachable
+        .iter()
+        .zip(grid.cells())
+        .map(|(&r, &seen)| r && seen != Occ::Unknown)
+        .collect();
+    known.resize(reachable.len(), false);
+    known
+}
+
+/// What every robot of a team knows, kept up to date one robot's grid at a time.
+#[derive(Clone, Debug, Default)]
+pub struct SharedKnowledge {
+    /// Per robot of the team (ids `0..team`): the cells it knows (empty until its first grid)
+    /// and how many.
+    known: Vec<(Vec<bool>, usize)>,
+    /// Per cell, how many robots know it.
+    holders: Vec<u16>,
+    /// Cells every robot knows: |K_1 ∩ … ∩ K_N|.
+    common: usize,
+}
+
+impl SharedKnowledge {
+    /// A team of `team` robots (ids `0..team`) over `cells` cells, none known yet.
+    pub fn new(team: u16, cells: usize) -> SharedKnowledge {
+        SharedKnowledge {
+            known: vec![(Vec::new(), 0); usize::from(team)],
+            holders: vec![0; cells],
+            common: 0,
+        }
+    }
+
+    fn team(&self) -> usize {
+        self.known.len()
+    }
+
+    /// Robot `robot` now knows `known` (one flag per cell, as [`known_cells`] gives), instead of
+    /// what it knew. A robot outside the team (the base station) is ignored.
+    pub fn update(&mut self, robot: RobotId, mut known: Vec<bool>) {
+        let team = self.team();
+        let Some((before, _)) = self.known.get_mut(usize::from(robot)) else {
+            return;
+        };
+        known.resize(self.holders.len(), false);
+        let before = std::mem::take(before);
+        for (i, (h, &now)) in self.holders.iter_mut().zip(&known).enumerate() {
+            let was = before.get(i).copied().unwrap_or(false);
+            if was == now {
+                continue;
+            }
+            let everyone_before = usize::from(*h) == team;
+            if now {
+                *h += 1;
+            } else {
+                *h -= 1;
+            }
+            let everyone_now = usize::from(*h) == team;
+            match (everyone_before, everyone_now) {
+                (false, true) => self.common += 1,
+                (true, false) => self.common -= 1,
+                _ => {}
+            }
+        }
+        let count = known.iter().filter(|&&k| k).count();
+        self.known[usize::from(robot)] = (known, count);
+    }
+
+    /// |K_1 ∩ … ∩ K_N| / |K_robot| × 100: the share of what `robot` knows that every robot
+    /// knows; 100 when it knows nothing (nothing of it is unshared). `None` outside the team.
+    pub fn share_pct(&self, robot: RobotId) -> Option<f64> {
+        let &(_, count) = self.known.get(usize::from(robot))?;
+        Some(if count == 0 {
+            100.0
+        } else {
+            100.0 * self.common as f64 / count as f64
+        })
+    }
+}
+
+/// Each robot's share of its known space that every robot knows (Fig. 5c), for one step's known
+/// sets (robot i knows `known[i]`).
+pub fn shared_pcts(known: &[Vec<bool>]) -> Vec<f64> {
+    let cells = known.iter().map(Vec::len).max().unwrap_or(0);
+    let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
+    let mut s = SharedKnowledge::new(team, cells);
+    for (r, k) in (0..team).zip(known) {
+        s.update(r, k.clone());
+    }
+    (0..team).filter_map(|r| s.share_pct(r)).collect()
+}
+
+/// The links up at each step, as node pairs (from `links.csv`'s `up`).
+pub type UpLinks = BTreeMap<Step, Vec<(RobotId, RobotId)>>;
+
+/// Per step `0..=last`, every node's steps since its last contact with the base station
+/// (Fig. 5d): `[s][node]`.
+///
+/// Every node had contact at step 0 (the run starts at the base). At step s the base station's
+/// own contact is s; the nodes that links up at s connect, directly or through others, share
+/// the latest contact any of them has. A step without links carries nothing. Node ids from
+/// `nodes` on (and a `base` outside them) are ignored.
+pub fn steps_since_base(nodes: usize, base: RobotId, up: &UpLinks, last: Step) -> Vec<Vec<Step>> {
+    let mut contact: Vec<Step> = vec![0; nodes];
+    let mut out = Vec::with_capacity(last as usize + 1);
+    for s in 0..=last {
+        if let Some(c) = contact.get_mut(usize::from(base)) {
+            *c = s;
+        }
+        let links = up.get(&s).map_or(&[][..], Vec::as_slice);
+        carry_contact(&mut contact, links);
+        out.push(contact.iter().map(|&c| s - c).collect());
+    }
+    out
+}
+
+/// Every node takes the latest contact of the component the links put it in.
+fn carry_contact(contact: &mut [Step], links: &[(RobotId, RobotId)]) {
+    let roots = components(contact.len(), links);
+    let mut latest: BTreeMap<usize, Step> = BTreeMap::new();
+    for (&root, &c) in roots.iter().zip(contact.iter()) {
+        let l = latest.entry(root).or_insert(c);
+        *l = (*l).max(c);
+    }
+    for (c, root) in contact.iter_mut().zip(&roots) {
+        if let Some(&l) = latest.get(root) {
+            *c = l;
+        }
+    }
+}
+
+/// The connected components of `nodes` nodes under `links` (union–find): each node's
+/// component's representative.
+fn components(nodes: usize, links: &[(RobotId, RobotId)]) -> Vec<usize> {
+    fn find(parent: &mut [usize], mut x: usize) -> usize {
+        while parent[x] != x {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
+        }
+        x
+    }
+    let mut parent: Vec<usize> = (0..nodes).collect();
+    for &(a, b) in links {
+        let (a, b) = (usize::from(a), usize::from(b));
+        if a >= nodes || b >= nodes {
+            continue;
+        }
+        let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
+        parent[ra.max(rb)] = ra.min(rb);
+    }
+    (0..nodes).map(|x| find(&mut parent, x)).collect()
+}
+
+/// The mean over steps of each step's mean of `values` (step, value): every step weighs the
+/// same however many robots reported it. `None` without values.
+pub fn mean_of_step_means(values: impl IntoIterator<Item = (Step, f64)>) -> Option<f64> {
+    let mut by_step: BTreeMap<Step, (f64, u32)> = BTreeMap::new();
+    for (s, v) in values {
+        let e = by_step.entry(s).or_default();
+        *e = (e.0 + v, e.1 + 1);
+    }
+    let n = by_step.len();
+    (n > 0).then(|| {
+        by_step
+            .values()
+            .map(|&(sum, k)| sum / f64::from(k))
+            .sum::<f64>()
+            / n as f64
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Known sets of hand-drawn grids over an all-reachable 4×1 world.
+    fn known(pics: &[&str]) -> Vec<Vec<bool>> {
+        pics.iter()
+            .map(|p| known_cells(&Grid::from_ascii(p), &[true; 4]))
+            .collect()
+    }
+
+    #[test]
+    fn disjoint_knowledge_is_not_shared() {
+        assert_eq!(shared_pcts(&known(&["..??", "??.#"])), [0.0, 0.0]);
+    }
+
+    #[test]
+    fn overlapping_knowledge_is_shared_in_part() {
+        // Robot 0 knows 3 cells, robot 1 knows 2, both know 1 (occupied counts as known).
+        assert_eq!(shared_pcts(&known(&["..#?", "??#."])), [100.0 / 3.0, 50.0]);
+    }
+
+    #[test]
+    fn identical_knowledge_is_all_shared() {
+        assert_eq!(shared_pcts(&known(&[".#.?", ".#.?"])), [100.0, 100.0]);
+    }
+
+    #[test]
+    fn a_robot_that_knows_nothing_has_nothing_unshared() {
+        assert_eq!(shared_pcts(&known(&["????", "...."])), [100.0, 0.0]);
+    }
+
+    #[test]
+    fn unreachable_cells_are_not_known() {
+        let k = known_cells(&Grid::from_ascii("..#."), &[true, false, true, false]);
+        assert_eq!(k, [true, false, true, false]);
+    }
+
+    #[test]
+    fn a_new_grid_replaces_what_a_robot_knew_and_the_base_station_is_no_member() {
+        let mut s = SharedKnowledge::new(2, 4);
+        s.update(0, vec![true, true, false, false]);
+        s.update(1, vec![true, false, false, false]);
+        assert_eq!(s.share_pct(0), Some(50.0));
+        s.update(1, vec![true, true, true, false]);
+        assert_eq!(
+            (s.share_pct(0), s.share_pct(1)),
+            (Some(100.0), Some(200.0 / 3.0))
+        );
+        s.update(0, vec![false, false, false, true]);
+        assert_eq!(s.share_pct(0), Some(0.0));
+        s.update(2, vec![true; 4]);
+        assert_eq!(s.share_pct(2), None);
+    }
+
+    /// (step, [(a, b)]) links up, as `links.csv` would list them.
+    fn up(links: &[(Step, &[(RobotId, RobotId)])]) -> UpLinks {
+        links.iter().map(|&(s, l)| (s, l.to_vec())).collect()
+    }
+
+    #[test]
+    fn direct_contact_resets_the_count() {
+        // Robot 0 and the base (node 1) linked at steps 2 and 5 only.
+        let since = steps_since_base(2, 1, &up(&[(2, &[(0, 1)]), (5, &[(0, 1)])]), 6);
+        let robot: Vec<Step> = since.iter().map(|n| n[0]).collect();
+        assert_eq!(robot, [0, 1, 0, 1, 2, 0, 1]);
+        assert!(
+            since.iter().all(|n| n[1] == 0),
+            "the base is always in touch"
+        );
+    }
+
+    #[test]
+    fn a_relay_carries_the_contact_it_had() {
+        // Explorer 0, relay 1, base 2: the relay meets the base at step 3, the explorer at 6.
+        let since = steps_since_base(3, 2, &up(&[(3, &[(1, 2)]), (6, &[(0, 1)])]), 7);
+        let explorer: Vec<Step> = since.iter().map(|n| n[0]).collect();
+        let relay: Vec<Step> = since.iter().map(|n| n[1]).collect();
+        assert_eq!(
+            explorer,
+            [0, 1, 2, 3, 4, 5, 3, 4],
+            "contact of step 3, from the relay"
+        );
+        assert_eq!(relay, [0, 1, 2, 0, 1, 2, 3, 4]);
+    }
+
+    #[test]
+    fn a_chain_of_links_is_contact_within_the_step() {
+        let since = steps_since_base(3, 2, &up(&[(4, &[(0, 1), (1, 2)])]), 4);
+        assert_eq!(since[4], [0, 0, 0]);
+        assert_eq!(since[3], [3, 3, 0]);
+    }
+
+    #[test]
+    fn a_robot_never_in_touch_counts_from_the_start_and_links_down_carry_nothing() {
+        // Robots 0 and 1 meet at steps 1 and 3 but never the base (node 2).
+        let since = steps_since_base(3, 2, &up(&[(1, &[(0, 1)]), (3, &[(0, 1)])]), 4);
+        assert_eq!(
+            since.iter().map(|n| n[0]).collect::<Vec<_>>(),
+            [0, 1, 2, 3, 4]
+        );
+        // Links to nodes that do not exist are ignored.
+        assert_eq!(steps_since_base(1, 0, &up(&[(0, &[(0, 9)])]), 0), [[0]]);
+    }
+
+    #[test]
+    fn step_means_weigh_every_step_the_same() {
+        assert_eq!(
+            mean_of_step_means([(0, 10.0), (0, 30.0), (1, 40.0)]),
+            Some(30.0)
+        );
+        assert_eq!(mean_of_step_means([]), None);
+    }
+
+    /// Fig. 5c counted the plain way: the intersection of every set, over each set.
+    fn naive(known: &[Vec<bool>]) -> Vec<f64> {
+        let common = (0..known[0].len())
+            .filter(|&i| known.iter().all(|k| k[i]))
+            .count();
+        known
+            .iter()
+            .map(|k| match k.iter().filter(|&&x| x).count() {
+                0 => 100.0,
+                n => 100.0 * common as f64 / n as f64,
+            })
+            .collect()
+    }
+
+    fn arb_links(nodes: u16) -> impl Strategy<Value = UpLinks> {
+        proptest::collection::btree_map(
+            0..40u32,
+            proptest::collection::vec((0..nodes, 0..nodes), 0..4),
+            0..20,
+        )
+    }
+
+    proptest! {
+        #[test]
+        fn contact_is_within_the_run_and_the_base_component_is_in_touch(
+            links in arb_links(5),
+            base in 0..5u16,
+        ) {
+            let since = steps_since_base(5, base, &links, 40);
+            for (s, nodes) in since.iter().enumerate() {
+                let s = s as Step;
+                prop_assert!(nodes.iter().all(|&n| n <= s));
+                prop_assert_eq!(nodes[usize::from(base)], 0);
+                let roots = components(5, links.get(&s).map_or(&[][..], Vec::as_slice));
+                for (n, root) in roots.iter().enumerate() {
+                    if *root == roots[usize::from(base)] {
+                        prop_assert_eq!(nodes[n], 0, "node {} linked to the base at {}", n, s);
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn shares_are_percentages_and_equal_when_all_know_the_same(
+            known in proptest::collection::vec(proptest::collection::vec(any::<bool>(), 12), 1..5),
+        ) {
+            let pcts = shared_pcts(&known);
+            for &p in &pcts {
+                prop_assert!((0.0..=100.0).contains(&p), "{}", p);
+            }
+            prop_assert_eq!(pcts, naive(&known));
+            let same = vec![known[0].clone(); known.len()];
+            let pcts = shared_pcts(&same);
+            prop_assert!(pcts.iter().all(|&p| p == 100.0), "{:?}", pcts);
+        }
+
+        #[test]
+        fn updating_in_place_agrees_with_counting_afresh(
+            first in proptest::collection::vec(proptest::collection::vec(any::<bool>(), 8), 3),
+            then in proptest::collection::vec(any::<bool>(), 8),
+            who in 0..3u16,
+        ) {
+            let mut s = SharedKnowledge::new(3, 8);
+            for (r, k) in (0..3).zip(&first) {
+                s.update(r, k.clone());
+            }
+            s.update(who, then.clone());
+            let mut now = first.clone();
+            now[usize::from(who)] = then;
+            prop_assert_eq!((0..3).filter_map(|r| s.share_pct(r)).collect::<Vec<_>>(), naive(&now));
+        }
+    }
+}
