@@ -308,6 +308,16 @@ impl Roles {
 
     fn set_phase(&mut self, phase: Phase) {
         if phase != self.state.phase {
+            tracing::debug!(
+                "robot {} step {}: {:?} {:?} -> {:?} (parent {:?}, child {:?})",
+                self.me,
+                self.step,
+                self.state.place,
+                self.state.phase,
+                phase,
+                self.state.with_parent,
+                self.state.with_child
+            );
             self.state.phase = phase;
             self.state.since = self.step;
         }
@@ -431,14 +441,13 @@ impl Roles {
     }
 
     /// The point the current phase heads for (`None`: nowhere to go).
-    fn goal_of(&self, s: &Situation<'_>, parent_met: bool, child_met: bool) -> Option<Cell> {
+    fn goal_of(&self, s: &Situation<'_>) -> Option<Cell> {
         let st = &self.state;
         match (self.role(), st.phase) {
             (_, Phase::Deliver) => Some(s.me),
             (Role::Explorer, Phase::Explore) => self.frontier,
             (Role::Explorer, Phase::Return | Phase::Wait) => st.with_parent.map(|r| r.primary),
             (Role::Explorer, Phase::Fallback) => st.with_parent.map(|r| r.fallback),
-            (Role::Relay, _) if parent_met && child_met => Some(s.me),
             (Role::Relay, Phase::ToParent) => self.parent_point().or_else(|| {
                 let parent = self.parent()?;
                 self.heard.get(&parent).map(|h| h.msg.cell)
@@ -552,7 +561,7 @@ impl Coordinator for Roles {
                 sense.return_now = relay_parent
                     && self.state.with_parent.is_some()
                     && (late || self.frontier.is_none());
-                let goal = self.goal_of(s, sense.parent_met, false);
+                let goal = self.goal_of(s);
                 self.measure(s, goal, &mut sense);
                 let next = explorer_next(self.state.phase, self.state.since, due, &sense, &timing);
                 if self.state.phase == Phase::Fallback && next == Phase::Explore {
@@ -564,7 +573,7 @@ impl Coordinator for Roles {
                 self.set_phase(next);
             }
             Role::Relay => {
-                let goal = self.goal_of(s, sense.parent_met, sense.child_met);
+                let goal = self.goal_of(s);
                 self.measure(s, goal, &mut sense);
                 let due = self.state.with_child.map(|r| r.due);
                 let next = relay_next(self.state.phase, self.state.since, due, &sense, &timing);
@@ -586,7 +595,7 @@ impl Coordinator for Roles {
             }
         }
         self.parent_was_met = sense.parent_met;
-        self.goal = self.goal_of(s, sense.parent_met, sense.child_met);
+        self.goal = self.goal_of(s);
         self.consider_swap(s);
         self.goal
     }
