@@ -484,7 +484,7 @@ pub enum ScenarioError {
 }
 
 /// Names of the world kinds generated from the seed rather than loaded from a file.
-pub const GENERATED_WORLDS: [&str; 7] = [
+pub const GENERATED_WORLDS: [&str; 8] = [
     "unstructured",
     "mixed",
     "office",
@@ -492,6 +492,7 @@ pub const GENERATED_WORLDS: [&str; 7] = [
     "two-corridors",
     "empty",
     "random",
+    "library",
 ];
 
 impl Scenario {

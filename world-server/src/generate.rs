@@ -1,5 +1,7 @@
 //! Seeded map generators: `unstructured` (scattered obstacles, outdoor-like), `office` (rooms
-//! and corridors, no furniture) and `mixed` (a building amid scattered obstacles).
+//! and corridors, no furniture) and `mixed` (a building amid scattered obstacles); Simmons et
+//! al.'s `corridor`, `two-corridors`, `empty` and `random`; and `library` (rows of shelves in a
+//! hall ringed by rooms, in [`library`]).
 //!
 //! docs/design.md §3 lets a scenario generate its truth map from a seed instead of loading one, with
 //! the three environment types of the thesis's experiments. A generated map is a closed world:
@@ -21,6 +23,8 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::map::TruthMap;
 
+mod library;
+
 /// Which kind of world to generate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum GenKind {
@@ -35,13 +39,15 @@ pub enum GenKind {
     Empty,
     /// Environments D/E: 15 % of the floor covered by random obstacles.
     Random,
+    /// de Hoog et al. (2010)'s library floor: a hall of shelf rows ringed by rooms.
+    Library,
 }
 
 impl FromStr for GenKind {
     type Err = GenError;
 
     /// The scenario names `unstructured`, `mixed`, `office`, `corridor`, `two-corridors`,
-    /// `empty` and `random`.
+    /// `empty`, `random` and `library`.
     fn from_str(s: &str) -> Result<GenKind, GenError> {
         match s {
             "unstructured" => Ok(GenKind::Unstructured),
@@ -51,6 +57,7 @@ impl FromStr for GenKind {
             "two-corridors" => Ok(GenKind::TwoCorridors),
             "empty" => Ok(GenKind::Empty),
             "random" => Ok(GenKind::Random),
+            "library" => Ok(GenKind::Library),
             other => Err(GenError::UnknownKind(other.into())),
         }
     }
@@ -58,7 +65,7 @@ impl FromStr for GenKind {
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum GenError {
-    #[error("unknown map kind {0:?} (expected unstructured, mixed, office, corridor, two-corridors, empty or random)")]
+    #[error("unknown map kind {0:?} (expected unstructured, mixed, office, corridor, two-corridors, empty, random or library)")]
     UnknownKind(String),
     #[error("resolution {resolution_m} m must be a positive finite number")]
     BadResolution { resolution_m: f64 },
@@ -208,6 +215,7 @@ pub fn generate(
             fill(&mut g, interior, Occ::Free);
             scatter(&mut g, &mut rng, &p, interior, None, RANDOM_COVER);
         }
+        GenKind::Library => library::library(&mut g, &mut rng, &p, interior),
         GenKind::Mixed => {
             fill(&mut g, interior, Occ::Free);
             let house = building(&mut g, &mut rng, &p, interior);
@@ -557,7 +565,7 @@ mod tests {
     use crate::reachable::largest_free_component;
     use proptest::prelude::*;
 
-    const KINDS: [GenKind; 7] = [
+    const KINDS: [GenKind; 8] = [
         GenKind::Unstructured,
         GenKind::Mixed,
         GenKind::Office,
@@ -565,6 +573,7 @@ mod tests {
         GenKind::TwoCorridors,
         GenKind::Empty,
         GenKind::Random,
+        GenKind::Library,
     ];
 
     /// The guarantees of every generated map: closed, ternary-free of unknown, one free region.
@@ -657,10 +666,10 @@ mod tests {
     }
 
     #[test]
-    fn offices_and_mixed_maps_have_rooms_behind_doors() {
+    fn offices_mixed_maps_and_libraries_have_rooms_behind_doors() {
         // Doors are 1 m wide, rooms at least 3 m: opening the free space by a 1.2 m square closes
         // every door and leaves the rooms as separate regions.
-        for kind in [GenKind::Office, GenKind::Mixed] {
+        for kind in [GenKind::Office, GenKind::Mixed, GenKind::Library] {
             for seed in 0..5 {
                 let mut g = generate(kind, 40.0, 30.0, 0.2, seed)
                     .expect("valid size")
@@ -706,6 +715,29 @@ mod tests {
         }
     }
 
+    /// de Hoog et al.'s library: a line across the stacks hall crosses many shelf rows, each as
+    /// thick as a shelf (0.5 m, three cells at 0.2 m), which no other kind of world has.
+    #[test]
+    fn the_library_has_rows_of_shelves() {
+        // Occupied runs exactly a shelf thick along a line of cells.
+        let shelves = |line: Vec<Occ>| {
+            line.split(|&o| o == Occ::Free)
+                .filter(|run| run.len() == 3)
+                .count()
+        };
+        for seed in 0..10 {
+            let g = generate(GenKind::Library, 40.0, 30.0, 0.2, seed)
+                .expect("valid size")
+                .grid;
+            let (w, h) = (g.width() as i32, g.height() as i32);
+            let at = |x, y| g.get(Cell::new(x, y));
+            let across = (0..h).map(|y| shelves((0..w).map(|x| at(x, y)).collect()));
+            let down = (0..w).map(|x| shelves((0..h).map(|y| at(x, y)).collect()));
+            let most = across.chain(down).max();
+            assert!(most >= Some(6), "seed {seed}: at most {most:?} rows");
+        }
+    }
+
     #[test]
     fn open_free_removes_slivers_only() {
         let mut g = Grid::from_ascii(
@@ -728,6 +760,7 @@ mod tests {
         assert_eq!("mixed".parse(), Ok(GenKind::Mixed));
         assert_eq!("unstructured".parse(), Ok(GenKind::Unstructured));
         assert_eq!("two-corridors".parse(), Ok(GenKind::TwoCorridors));
+        assert_eq!("library".parse(), Ok(GenKind::Library));
         assert_eq!(
             "maze".parse::<GenKind>(),
             Err(GenError::UnknownKind("maze".into()))
