@@ -12,6 +12,7 @@ mod lifecycle;
 mod mapping;
 mod netem;
 mod polygon;
+mod roles;
 mod runs;
 mod sweep;
 mod wire;
