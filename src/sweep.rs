@@ -16,6 +16,8 @@
 //! "robots.count" = [3, 8]
 //! [with]                          # extra overrides at the grid points where KEY=VALUE
 //! "exchange.mode=raw-scans" = ["exchange.hello_every_steps=5"]
+//! # a grid key "@name" is a label: no scenario key, only its [with] overrides apply
+//! # ("@variant" = ["a", "b"] with "@variant=a" = [...] and "@variant=b" = [...])
 //! [quick]                         # `--quick`: fewer seeds, extra overrides, fewer grid values
 //! seeds = 2
 //! set = ["max_steps=600"]
@@ -253,12 +255,23 @@ fn variant(exp: &Experiment, quick: bool) -> anyhow::Result<Variant> {
     Ok((seeds, sets, grid))
 }
 
-/// The overrides of grid point `p`: its values, then the `[with]` entries that match them.
+/// The overrides of grid point `p`: its values, then the `[with]` entries that match them. A
+/// grid key that starts with `@` is a label, not a scenario key: it names a bundle of overrides
+/// that `[with]` gives (e.g. `"@variant" = ["static", "dynamic"]` with
+/// `"@variant=static" = ["coordination.roles.swap=false"]`), so that a grid can compare
+/// settings that are not the values of one key.
 fn point_sets(p: &Point, with: &BTreeMap<String, Vec<String>>) -> Vec<String> {
     let own: Vec<String> = p.0.iter().map(|(k, v)| format!("{k}={v}")).collect();
     let extra = own.iter().filter_map(|kv| with.get(kv)).flatten().cloned();
-    own.iter().cloned().chain(extra).collect()
+    own.iter()
+        .filter(|kv| !kv.starts_with(LABEL))
+        .cloned()
+        .chain(extra)
+        .collect()
 }
+
+/// The first character of a label grid key ([`point_sets`]).
+const LABEL: char = '@';
 
 /// Every `[with]` key names a grid key and one of its values.
 fn check_with(
@@ -581,6 +594,46 @@ mod tests {
         .into();
         let err = check_points(None, &[], &[at("empty")], &bad).map_err(|e| e.to_string());
         assert!(err.is_err_and(|e| e.contains("world.widht_m")));
+    }
+
+    #[test]
+    fn a_label_key_brings_only_its_with_overrides() {
+        let with: BTreeMap<String, Vec<String>> = [
+            (
+                "@variant=static".to_string(),
+                vec![
+                    "coordination.strategy=roles".to_string(),
+                    "coordination.roles.swap=false".to_string(),
+                    "base_station.enabled=true".to_string(),
+                ],
+            ),
+            (
+                "@variant=greedy".to_string(),
+                vec!["coordination.strategy=burgard".to_string()],
+            ),
+        ]
+        .into();
+        let at = |v: &str| {
+            Point(vec![
+                ("@variant".into(), v.into()),
+                ("robots.count".into(), "10".into()),
+            ])
+        };
+        assert_eq!(
+            point_sets(&at("static"), &with),
+            [
+                "robots.count=10",
+                "coordination.strategy=roles",
+                "coordination.roles.swap=false",
+                "base_station.enabled=true"
+            ]
+        );
+        assert_eq!(
+            point_sets(&at("greedy"), &with),
+            ["robots.count=10", "coordination.strategy=burgard"]
+        );
+        let ok = check_points(None, &[], &[at("static"), at("greedy")], &with);
+        assert!(ok.is_ok(), "{ok:?}");
     }
 
     #[test]

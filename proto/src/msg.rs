@@ -474,11 +474,32 @@ pub struct Role {
     /// Where it meets its own parent next: the base station's cell, or the rendezvous agreed with
     /// its parent relay (a child times its next meeting by the trip there and back).
     pub parent_point: Option<Cell>,
-    /// Every robot's place as the sender knows it.
+    /// A digest of every robot's place as the sender knows it ([`roster_digest`]) ...
+    pub roster_digest: u32,
+    /// ... and the places themselves, sent only to a robot whose digest differs.
     pub roster: Vec<Seat>,
     /// The sender has nothing more waiting for the addressee on the radio.
     pub caught_up: bool,
     pub swap: Option<Swap>,
+}
+
+/// A digest of a roster (FNV-1a over its seats in the order given): robots whose digests agree
+/// need not send each other their rosters.
+pub fn roster_digest(seats: &[Seat]) -> u32 {
+    let mut h: u32 = 0x811c_9dc5;
+    for s in seats {
+        let bytes = [
+            s.robot.to_le_bytes(),
+            s.place.branch.to_le_bytes(),
+            s.place.depth.to_le_bytes(),
+        ]
+        .concat();
+        for b in bytes.into_iter().chain(s.since.to_le_bytes()) {
+            h ^= u32::from(b);
+            h = h.wrapping_mul(0x0100_0193);
+        }
+    }
+    h
 }
 
 /// A place in the hierarchy: branch `branch` below the base station, `depth` hops down it (0: the
@@ -882,6 +903,7 @@ mod tests {
             goal: Some(Cell::new(9, 1)),
             state,
             parent_point: Some(Cell::new(0, 0)),
+            roster_digest: 7,
             roster: vec![Seat {
                 robot: 3,
                 place: state.place,

@@ -272,7 +272,7 @@ impl Default for Roles {
             patience_steps: 10,
             refresh_steps: 5,
             linger_steps: 10,
-            status_every_steps: 5,
+            status_every_steps: 10,
         }
     }
 }

@@ -41,7 +41,7 @@ use super::{decentralized, Addressed, CoordMsg, Coordinator, Params, Situation, 
 use crate::plan;
 use crate::rendezvous::{self, Agreeing, Meeting, Reach};
 
-/// A robot's message older than this (steps) is not acted on (swaps, agreements).
+/// A robot's message older than this (steps) is not acted on for an agreement.
 const FRESH_STEPS: Step = 2;
 
 /// A swap proposal not answered within this many steps is given up.
@@ -289,10 +289,15 @@ impl Roles {
 
     /// A message from `robot` no older than [`FRESH_STEPS`].
     fn fresh(&self, robot: RobotId) -> Option<&RoleMsg> {
+        self.recent(robot, FRESH_STEPS)
+    }
+
+    /// A message from `robot` no older than `steps`.
+    fn recent(&self, robot: RobotId, steps: Step) -> Option<&RoleMsg> {
         self.heard
             .get(&robot)
             .map(|h| &h.msg)
-            .filter(|m| self.step.saturating_sub(m.step) <= FRESH_STEPS)
+            .filter(|m| self.step.saturating_sub(m.step) <= steps)
     }
 
     /// Where this robot meets its parent: the base station's cell, or the agreed rendezvous.
@@ -477,7 +482,10 @@ impl Roles {
             if b == self.base {
                 continue;
             }
-            let Some(m) = self.fresh(b) else { continue };
+            // Robots in range repeat their state at least every `status_every` steps.
+            let Some(m) = self.recent(b, self.st.status_every + 1) else {
+                continue;
+            };
             let Some(gb) = m.goal else { continue };
             if m.state.place == self.state.place || !self.st.shape.contains(m.state.place) {
                 continue;
@@ -616,6 +624,9 @@ impl Coordinator for Roles {
             .filter(|&n| n != self.base && n != self.me)
             .collect();
         let mut out = Vec::new();
+        let seats = self.roster.seats();
+        let digest = proto::msg::roster_digest(&seats);
+        let parent = self.parent();
         for to in peers {
             let swap = match (self.pending, self.answer) {
                 (Some((b, stamp)), _) if b == to => Some(Swap::Propose {
@@ -633,8 +644,19 @@ impl Coordinator for Roles {
                 goal: self.goal,
                 state: self.state,
                 parent_point: self.parent_point(),
-                roster: self.roster.seats(),
-                caught_up: !self.backlog.iter().any(|&(p, b)| p == to && b > 0),
+                roster_digest: digest,
+                roster: if self
+                    .heard
+                    .get(&to)
+                    .is_some_and(|h| h.msg.roster_digest == digest)
+                {
+                    Vec::new()
+                } else {
+                    seats.clone()
+                },
+                // Only a parent reads it (it waits for its child's data before it leaves).
+                caught_up: parent == Some(to)
+                    && !self.backlog.iter().any(|&(p, b)| p == to && b > 0),
                 swap,
             };
             let gist = RoleMsg {
