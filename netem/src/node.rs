@@ -64,6 +64,10 @@ pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
     let mut last: Option<Step> = None;
     loop {
         tokio::select! {
+            // Statuses first: the world's last status (at its step limit) closes the last step
+            // and is followed at once by the world's exit; taken in random order, netem would
+            // sometimes leave before reporting that step's links.
+            biased;
             s = statuses.recv_async() => {
                 let Ok(s) = s else { return Ok(()) };
                 let st = match decode::<Status>(&s.payload().to_bytes()) {
