@@ -686,15 +686,15 @@ mod tests {
         let got: Vec<&str> = text.lines().collect();
         assert_eq!(
             got[0],
-            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells,mark,bid,task"
+            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells,mark,bid,task,role"
         );
         assert_eq!(
             &got[1..],
             [
-                "0,0,10,0,0,0,0,0,0,0,0,1,0,0,0,0",
-                "0,1,2,0,0,0,0,0,0,0,0,0,0,0,0,0",
-                "1,0,15,0,0,0,0,0,0,0,0,0,0,0,0,0",
-                "1,1,3,0,0,0,0,0,0,0,0,0,0,0,0,0",
+                "0,0,10,0,0,0,0,0,0,0,0,1,0,0,0,0,0",
+                "0,1,2,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
+                "1,0,15,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
+                "1,1,3,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
             ]
         );
     }
