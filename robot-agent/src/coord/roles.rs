@@ -339,13 +339,13 @@ impl Roles {
     fn settle_swaps(&mut self) {
         for (from, swap) in std::mem::take(&mut self.swaps_in) {
             match swap {
-                Swap::Accept { to, stamp, state } if to == self.me => {
-                    if self.pending == Some((from, stamp)) {
-                        let mine = self.state.place;
-                        self.take(state, stamp + 1);
-                        self.roster.set(from, mine, stamp + 1);
-                        self.pending = None;
-                    }
+                Swap::Accept { to, stamp, state }
+                    if to == self.me && self.pending == Some((from, stamp)) =>
+                {
+                    let mine = self.state.place;
+                    self.take(state, stamp + 1);
+                    self.roster.set(from, mine, stamp + 1);
+                    self.pending = None;
                 }
                 Swap::Propose { to, stamp, state } if to == self.me => {
                     let cooled = self
