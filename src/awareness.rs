@@ -1,9 +1,12 @@
-//! Team awareness: how much of what the team knows is shared, and how long robots have been out
-//! of touch with the base station — two of the four metrics of de Hoog, Cameron and Visser,
-//! *Autonomous Multi-Robot Exploration in Communication-Limited Environments* (TAROS 2010,
-//! Fig. 5; the other two are coverage over time and the share known at the base station, which
-//! the evaluator already gives).
+//! Team awareness: how much the team knows together, how much of it is shared, and how long
+//! robots have been out of touch with the base station — three of the four metrics of de Hoog,
+//! Cameron and Visser, *Autonomous Multi-Robot Exploration in Communication-Limited
+//! Environments* (TAROS 2010, Fig. 5; the fourth, the share known at the base station, is the
+//! base station's own coverage, which the evaluator already gives).
 //!
+//! * **Team coverage** (Fig. 5a): the share of the truth's reachable free cells that at least
+//!   one robot knows, |K_1 ∪ … ∪ K_N| — from the same per-cell holder counts, a counter of the
+//!   cells with a holder ([`SharedKnowledge::known_by_anyone`]).
 //! * **Shared knowledge** (Fig. 5c): for robot r with known space K_r, the share of K_r that
 //!   every robot of the team knows, |K_1 ∩ … ∩ K_N| / |K_r| × 100 (100 when K_r is empty). K_q
 //!   is what the evaluator counts as coverage: the truth's reachable free cells that robot q's
@@ -43,6 +46,8 @@ pub struct SharedKnowledge {
     holders: Vec<u16>,
     /// Cells every robot knows: |K_1 ∩ … ∩ K_N|.
     common: usize,
+    /// Cells some robot knows: |K_1 ∪ … ∪ K_N|.
+    anyone: usize,
 }
 
 impl SharedKnowledge {
@@ -52,6 +57,7 @@ impl SharedKnowledge {
             known: vec![(Vec::new(), 0); usize::from(team)],
             holders: vec![0; cells],
             common: 0,
+            anyone: 0,
         }
     }
 
@@ -85,9 +91,25 @@ impl SharedKnowledge {
                 (true, false) => self.common -= 1,
                 _ => {}
             }
+            // A cell joins the union with its first holder and leaves it with its last.
+            match (now, *h) {
+                (true, 1) => self.anyone += 1,
+                (false, 0) => self.anyone -= 1,
+                _ => {}
+            }
         }
         let count = known.iter().filter(|&&k| k).count();
         self.known[usize::from(robot)] = (known, count);
+    }
+
+    /// |K_1 ∪ … ∪ K_N|: the cells at least one robot of the team knows.
+    pub fn known_by_anyone(&self) -> usize {
+        self.anyone
+    }
+
+    /// Whether `robot` is one of the team (the base station is not).
+    pub fn is_member(&self, robot: RobotId) -> bool {
+        usize::from(robot) < self.team()
     }
 
     /// |K_1 ∩ … ∩ K_N| / |K_robot| × 100: the share of what `robot` knows that every robot
@@ -102,15 +124,24 @@ impl SharedKnowledge {
     }
 }
 
+impl SharedKnowledge {
+    /// The team of one step's known sets: robot i knows `known[i]`.
+    pub fn of(known: &[Vec<bool>]) -> SharedKnowledge {
+        let cells = known.iter().map(Vec::len).max().unwrap_or(0);
+        let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
+        let mut s = SharedKnowledge::new(team, cells);
+        for (r, k) in (0..team).zip(known) {
+            s.update(r, k.clone());
+        }
+        s
+    }
+}
+
 /// Each robot's share of its known space that every robot knows (Fig. 5c), for one step's known
 /// sets (robot i knows `known[i]`).
 pub fn shared_pcts(known: &[Vec<bool>]) -> Vec<f64> {
-    let cells = known.iter().map(Vec::len).max().unwrap_or(0);
+    let s = SharedKnowledge::of(known);
     let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
-    let mut s = SharedKnowledge::new(team, cells);
-    for (r, k) in (0..team).zip(known) {
-        s.update(r, k.clone());
-    }
     (0..team).filter_map(|r| s.share_pct(r)).collect()
 }
 
@@ -227,6 +258,25 @@ mod tests {
     }
 
     #[test]
+    fn a_cell_is_in_the_union_once_and_leaves_it_with_its_last_holder() {
+        let mut s = SharedKnowledge::new(3, 4);
+        s.update(0, vec![true, true, false, false]);
+        s.update(1, vec![true, false, true, false]);
+        assert_eq!(s.known_by_anyone(), 3, "cell 0 counts once");
+        s.update(0, vec![false, false, false, false]);
+        assert_eq!(
+            s.known_by_anyone(),
+            2,
+            "cell 0 still has robot 1, cell 1 had only robot 0"
+        );
+        s.update(1, vec![false; 4]);
+        assert_eq!(s.known_by_anyone(), 0);
+        s.update(3, vec![true; 4]);
+        assert_eq!(s.known_by_anyone(), 0, "the base station is no member");
+        assert!(s.is_member(2) && !s.is_member(3));
+    }
+
+    #[test]
     fn unreachable_cells_are_not_known() {
         let k = known_cells(&Grid::from_ascii("..#."), &[true, false, true, false]);
         assert_eq!(k, [true, false, true, false]);
@@ -308,6 +358,13 @@ mod tests {
         assert_eq!(mean_of_step_means([]), None);
     }
 
+    /// Fig. 5a counted the plain way: the cells some set holds.
+    fn naive_union(known: &[Vec<bool>]) -> usize {
+        (0..known[0].len())
+            .filter(|&i| known.iter().any(|k| k[i]))
+            .count()
+    }
+
     /// Fig. 5c counted the plain way: the intersection of every set, over each set.
     fn naive(known: &[Vec<bool>]) -> Vec<f64> {
         let common = (0..known[0].len())
@@ -351,7 +408,7 @@ mod tests {
         }
 
         #[test]
-        fn shares_are_percentages_and_equal_when_all_know_the_same(
+        fn shares_are_percentages_the_union_holds_every_set_and_all_agree_when_all_know_the_same(
             known in proptest::collection::vec(proptest::collection::vec(any::<bool>(), 12), 1..5),
         ) {
             let pcts = shared_pcts(&known);
@@ -359,9 +416,16 @@ mod tests {
                 prop_assert!((0.0..=100.0).contains(&p), "{}", p);
             }
             prop_assert_eq!(pcts, naive(&known));
+            let union = SharedKnowledge::of(&known).known_by_anyone();
+            prop_assert_eq!(union, naive_union(&known));
+            for k in &known {
+                prop_assert!(union >= k.iter().filter(|&&x| x).count());
+            }
             let same = vec![known[0].clone(); known.len()];
             let pcts = shared_pcts(&same);
             prop_assert!(pcts.iter().all(|&p| p == 100.0), "{:?}", pcts);
+            let one = known[0].iter().filter(|&&x| x).count();
+            prop_assert_eq!(SharedKnowledge::of(&same).known_by_anyone(), one);
         }
 
         #[test]
@@ -378,6 +442,7 @@ mod tests {
             let mut now = first.clone();
             now[usize::from(who)] = then;
             prop_assert_eq!((0..3).filter_map(|r| s.share_pct(r)).collect::<Vec<_>>(), naive(&now));
+            prop_assert_eq!(s.known_by_anyone(), naive_union(&now));
         }
     }
 }

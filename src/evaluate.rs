@@ -48,6 +48,10 @@ pub struct MetricsRow {
     /// Fig. 5d: steps since this robot's last contact with the base station, set once the
     /// run's links are all in (`None` for the base station, or without one).
     pub steps_since_base: Option<Step>,
+    /// Fig. 5a: the share of the truth's reachable free cells that at least one robot knows
+    /// (the union of the team's known space; [`Evaluator::share_rows_since`]); `None` for the
+    /// base station.
+    pub team_pct: Option<f64>,
 }
 
 pub struct Evaluator {
@@ -118,6 +122,15 @@ impl Evaluator {
         self.reachable_count
     }
 
+    /// `cells` as a percentage of the reachable free cells (100 when there are none).
+    fn pct_of_reachable(&self, cells: usize) -> f64 {
+        if self.reachable_count == 0 {
+            100.0
+        } else {
+            100.0 * cells as f64 / self.reachable_count as f64
+        }
+    }
+
     /// Scores one telemetry message.
     pub fn add(&mut self, t: Telemetry) {
         let grid = match Grid::from_rle(&t.grid_rle) {
@@ -138,11 +151,7 @@ impl Evaluator {
             };
             correct += u32::from(agrees);
         }
-        let pct = if self.reachable_count == 0 {
-            100.0
-        } else {
-            100.0 * covered as f64 / self.reachable_count as f64
-        };
+        let pct = self.pct_of_reachable(covered);
         let is_base = self.base == Some(t.robot);
         if !is_base {
             self.shared.update(t.robot, known);
@@ -183,6 +192,7 @@ impl Evaluator {
             alone: t.alone,
             shared_pct: None,
             steps_since_base: None,
+            team_pct: None,
         });
         let before = self.last.get(&t.robot).map(|(_, b)| b);
         if let Some((len, digest)) = t.save {
@@ -199,14 +209,18 @@ impl Evaluator {
         self.last.insert(t.robot, (grid, t));
     }
 
-    /// Sets [`MetricsRow::shared_pct`] of the robot rows from `from` on, from the latest grid of
-    /// every robot. Called once the reports taken together are all added: in lockstep a whole
-    /// step's, so every share compares grids of the same step; in realtime each report as it
+    /// Sets [`MetricsRow::shared_pct`] and [`MetricsRow::team_pct`] of the robot rows from
+    /// `from` on, from the latest grid of every robot. Called once the reports taken together
+    /// are all added: in lockstep a whole step's, so every share compares grids of the same step
+    /// and every robot row of the step gets the same `team_pct`; in realtime each report as it
     /// comes, against the other robots' latest grids (which may be a step older or newer).
     pub fn share_rows_since(&mut self, from: usize) {
+        // The union is kept up to date by the holder counts: no pass over the robots here.
+        let team_pct = self.pct_of_reachable(self.shared.known_by_anyone());
         for row in self.rows.iter_mut().skip(from) {
             if self.base != Some(row.robot) {
                 row.shared_pct = self.shared.share_pct(row.robot);
+                row.team_pct = self.shared.is_member(row.robot).then_some(team_pct);
             }
         }
     }
@@ -302,6 +316,37 @@ mod tests {
             Some(100.0),
             "earlier rows stay as they were"
         );
+    }
+
+    #[test]
+    fn a_step_s_team_coverage_is_the_union_of_the_robots_known_cells_on_every_robot_row() {
+        // 4 reachable cells; robot 0 knows cells 0–1, robot 1 cells 0 and 2, the base all.
+        let truth = Grid::from_ascii("....\n");
+        let mut ev = Evaluator::new(truth.clone(), &truth, 99.0)
+            .with_base(Some(2))
+            .with_team(2);
+        ev.add(telemetry(0, 0, &Grid::from_ascii("..??\n")));
+        ev.add(telemetry(1, 0, &Grid::from_ascii(".?#?\n")));
+        ev.add(telemetry(2, 0, &truth));
+        ev.share_rows_since(0);
+        let team: Vec<Option<f64>> = ev.rows.iter().map(|r| r.team_pct).collect();
+        assert_eq!(team, [Some(75.0), Some(75.0), None]);
+        assert!(
+            ev.rows
+                .iter()
+                .all(|r| r.team_pct >= Some(r.coverage_pct) || r.robot == 2),
+            "the union holds what each robot knows"
+        );
+        // Robot 1 forgets nothing but robot 0 now knows the rest: the whole map.
+        let from = ev.rows.len();
+        ev.add(telemetry(0, 1, &Grid::from_ascii("...#\n")));
+        ev.add(telemetry(1, 1, &Grid::from_ascii(".?#?\n")));
+        ev.share_rows_since(from);
+        assert_eq!(
+            (ev.rows[from].team_pct, ev.rows[from + 1].team_pct),
+            (Some(100.0), Some(100.0))
+        );
+        assert_eq!(ev.rows[0].team_pct, Some(75.0), "earlier rows stay");
     }
 
     #[test]

@@ -3,10 +3,13 @@
 //! It also carries every role's entry point (`swarm world-server`, `swarm robot-agent`), so one
 //! binary is all a machine needs.
 
-/// Team awareness (de Hoog et al. 2010, Fig. 5): shared knowledge, contact with the base station.
+/// Team awareness (de Hoog et al. 2010, Fig. 5): team coverage, shared knowledge, contact with
+/// the base station.
 pub mod awareness;
 /// Child processes: spawn, watch, reap.
 pub mod children;
+/// `[[curve]]` of a sweep report: a `metrics.csv` column over the steps, averaged over seeds.
+pub mod curve;
 /// Coverage and exploration time from telemetry.
 pub mod evaluate;
 /// `swarm netem`: the netem process and runtime link control over its HTTP API.

@@ -1,6 +1,6 @@
-//! Charts of a sweep's results (plotters): lines of means with 95 % error bars, one line per
-//! series, written as SVG and PNG. Text uses a bundled subset of DejaVu Sans
-//! (`assets/fonts/`), so no system font library is needed.
+//! Charts of a sweep's results (plotters): lines of means with 95 % error bars (or, over many
+//! steps, a shaded band), one line per series, written as SVG and PNG. Text uses a bundled
+//! subset of DejaVu Sans (`assets/fonts/`), so no system font library is needed.
 
 use std::path::Path;
 use std::sync::OnceLock;
@@ -46,6 +46,9 @@ pub struct Chart {
     pub log_y: bool,
     /// Draw each point (a marker and its error bar), not only the line.
     pub markers: bool,
+    /// Shade each line's interval (from `lo` to `hi`) behind it: for lines of many points,
+    /// where error bars would crowd.
+    pub band: bool,
     pub lines: Vec<Line>,
 }
 
@@ -218,6 +221,15 @@ fn render<DB: DrawingBackend>(
         let [r, g, b] = robot_colour(i);
         let colour = RGBColor(r, g, b);
         let pts = drawn_points(line, log);
+        if c.band && pts.iter().any(|&(_, _, lo, hi)| lo < hi) {
+            // Along the upper edge, then back along the lower one.
+            let upper = pts.iter().map(|&(x, _, _, hi)| (x, hi));
+            let lower = pts.iter().rev().map(|&(x, _, lo, _)| (x, lo));
+            chart.draw_series(std::iter::once(Polygon::new(
+                upper.chain(lower).collect::<Vec<_>>(),
+                colour.mix(0.18).filled(),
+            )))?;
+        }
         chart
             .draw_series(LineSeries::new(
                 pts.iter().map(|&(x, y, _, _)| (x, y)),

@@ -1,10 +1,14 @@
-//! A sweep's report: the experiment file's `[[plot]]`, `[[timeline]]` and `[[table]]` entries
-//! drawn from its results, and `report.md` that embeds them with a table of every grid point.
+//! A sweep's report: the experiment file's `[[plot]]`, `[[timeline]]`, `[[curve]]` and
+//! `[[table]]` entries drawn from its results, and `report.md` that embeds them with a table of
+//! every grid point.
 //!
 //! * `[[plot]]`: a field's mean (95 % error bars) against a grid key `x`, one line per value of
 //!   `series`; one chart per combination of the other grid keys.
 //! * `[[timeline]]`: per step, the bytes crossing all links both ways (`links.csv`) and the largest backlog
 //!   a robot holds (`metrics.csv`), of each point's first seed; one line per value of `series`.
+//! * `[[curve]]`: per step, a `metrics.csv` column's mean over the seeds of a point (shaded: its
+//!   95 % t-interval), one line per value of `series`, one chart per combination of the other
+//!   grid keys ([`crate::curve`]: which rows, and finished runs keeping their last value).
 //! * `[[table]]`: fields' means in rows of grid keys, pooling the runs of `average_over` keys.
 
 use std::collections::BTreeMap;
@@ -14,9 +18,10 @@ use std::path::Path;
 use anyhow::Context;
 use serde::Deserialize;
 
+use crate::curve::{mean_over_runs, read_series, CurveSpec};
 use crate::plot::{draw, short_number, Chart, Line, Mean, XAxis};
 use crate::results::{Point, Results};
-use crate::rundir::{read_rows, LinkCsv, MetricsCsv};
+use crate::rundir::{header, read_rows, LinkCsv, MetricsCsv};
 use proto::msg::Step;
 
 #[derive(Clone, Debug, Deserialize)]
@@ -69,10 +74,12 @@ pub struct Spec {
     pub command: String,
     pub plots: Vec<PlotSpec>,
     pub timelines: Vec<TimelineSpec>,
+    pub curves: Vec<CurveSpec>,
     pub tables: Vec<TableSpec>,
 }
 
-/// Checks that every key a spec names is a grid key.
+/// Checks that every key a spec names is a grid key, and every curve's column a `metrics.csv`
+/// column.
 pub fn check(spec: &Spec, keys: &[String]) -> anyhow::Result<()> {
     let known = |k: &String, what: &str| {
         anyhow::ensure!(
@@ -92,6 +99,18 @@ pub fn check(spec: &Spec, keys: &[String]) -> anyhow::Result<()> {
         if let Some(s) = &t.series {
             known(s, "timeline.series")?;
         }
+    }
+    let columns = header::<MetricsCsv>()?;
+    for c in &spec.curves {
+        if let Some(s) = &c.series {
+            known(s, "curve.series")?;
+        }
+        anyhow::ensure!(
+            columns.contains(&c.column),
+            "curve.column = {:?} is not a metrics.csv column (columns: {})",
+            c.column,
+            columns.join(", ")
+        );
     }
     for t in &spec.tables {
         for k in t.rows.iter().chain(&t.average_over) {
@@ -240,6 +259,7 @@ fn plot(r: &Results, spec: &PlotSpec, dir: &Path) -> anyhow::Result<Vec<(String,
             },
             log_y: spec.log_y,
             markers: true,
+            band: false,
             lines,
         };
         draw(&chart, &dir.join(&stem))?;
@@ -332,11 +352,74 @@ fn timeline(r: &Results, spec: &TimelineSpec, dir: &Path) -> anyhow::Result<Vec<
                 x: XAxis::Numeric,
                 log_y: false,
                 markers: false,
+                band: false,
                 lines,
             };
             draw(&chart, &dir.join(&stem))?;
             out.push((title, stem));
         }
+    }
+    Ok(out)
+}
+
+/// Draws one `[[curve]]`: a chart per facet, a line per series value, each line the mean over
+/// the point's finished runs (failed runs have no summary and are left out).
+fn curve(r: &Results, spec: &CurveSpec, dir: &Path) -> anyhow::Result<Vec<(String, String)>> {
+    let values = values_of(&r.points);
+    let series_values = spec
+        .series
+        .as_ref()
+        .and_then(|s| values.get(s).cloned())
+        .unwrap_or_else(|| vec![String::new()]);
+    let except: Vec<&str> = spec.series.iter().map(String::as_str).collect();
+    let mut out = Vec::new();
+    for facet in facets(&r.points, &except) {
+        let mut lines = Vec::new();
+        for sv in &series_values {
+            let which = |p: &Point| {
+                matches(p, &facet)
+                    && spec
+                        .series
+                        .as_ref()
+                        .is_none_or(|s| p.get(s) == Some(sv.as_str()))
+            };
+            // One point's runs at a time, each already reduced to a value per step.
+            let runs = (r.runs.iter())
+                .filter(|run| run.summary.is_some() && which(&r.points[run.point]))
+                .map(|run| {
+                    let metrics = run.dir.join("metrics.csv");
+                    read_series(&metrics, &spec.column, spec.rows, run.base_station())
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let points = mean_over_runs(&runs, spec.max_step);
+            if points.is_empty() {
+                continue;
+            }
+            let seeds = runs.iter().filter(|v| !v.is_empty()).count();
+            let name = match &spec.series {
+                Some(s) => format!("{} ({seeds} seeds)", label(s, sv)),
+                None => format!("{seeds} seeds"),
+            };
+            lines.push(Line { name, points });
+        }
+        let title = if facet.is_empty() {
+            spec.title.clone()
+        } else {
+            format!("{}: {}", spec.title, facet_title(&facet))
+        };
+        let stem = facet_stem(&spec.name, &facet);
+        let chart = Chart {
+            title: title.clone(),
+            x_label: "step (a finished run keeps its last value)".into(),
+            y_label: spec.y_label.clone().unwrap_or_else(|| spec.column.clone()),
+            x: XAxis::Numeric,
+            log_y: false,
+            markers: false,
+            band: true,
+            lines,
+        };
+        draw(&chart, &dir.join(&stem))?;
+        out.push((title, stem));
     }
     Ok(out)
 }
@@ -442,6 +525,20 @@ pub fn write(r: &Results, spec: &Spec, out: &Path) -> anyhow::Result<()> {
             let _ = writeln!(md, "![{title}](plots/{stem}.svg)\n");
         }
     }
+    for c in &spec.curves {
+        let _ = writeln!(md, "## {}\n", c.title);
+        let _ = writeln!(
+            md,
+            "`{}` of `metrics.csv` per step ({}), averaged over the seeds of each point \
+             (shaded: 95 % t-interval). A run that ended before the longest run of its point \
+             is finished and keeps its last value.\n",
+            c.column,
+            c.rows.describe()
+        );
+        for (title, stem) in curve(r, c, &dir)? {
+            let _ = writeln!(md, "![{title}](plots/{stem}.svg)\n");
+        }
+    }
     for t in &spec.tables {
         md.push_str(&table(r, t));
     }
@@ -490,6 +587,78 @@ mod tests {
         assert_eq!(label("radio.bandwidth_bytes_per_s", "250"), "0.25 kB/s");
         assert_eq!(label("robots.count", "8"), "8 robots");
         assert_eq!(label("world.map", "office"), "office");
+    }
+
+    fn curve_spec(column: &str, series: &str) -> CurveSpec {
+        CurveSpec {
+            name: "c".into(),
+            title: "C".into(),
+            column: column.into(),
+            rows: crate::curve::Rows::First,
+            y_label: None,
+            series: Some(series.into()),
+            max_step: None,
+        }
+    }
+
+    #[test]
+    fn a_curve_names_a_grid_key_and_a_metrics_column() {
+        let keys = ["coordination.strategy".to_string()];
+        let spec = |c: CurveSpec| Spec {
+            curves: vec![c],
+            ..Spec::default()
+        };
+        assert!(check(
+            &spec(curve_spec("team_pct", "coordination.strategy")),
+            &keys
+        )
+        .is_ok());
+        let e = check(&spec(curve_spec("team_pc", "coordination.strategy")), &keys);
+        assert!(e.is_err_and(|e| e.to_string().contains("metrics.csv column")));
+        assert!(check(&spec(curve_spec("team_pct", "robots.count")), &keys).is_err());
+    }
+
+    #[test]
+    fn a_curve_draws_a_line_per_series_value_from_the_finished_runs() {
+        let dir = std::env::temp_dir().join(format!("swarm-report-curve-{}", std::process::id()));
+        let point = |v: &str| Point(vec![("k".into(), v.into())]);
+        let mut runs = Vec::new();
+        for (i, (p, seed, table)) in [
+            (0, 1, "step,robot,team_pct\n0,0,10\n1,0,30\n"),
+            (0, 2, "step,robot,team_pct\n0,0,20\n"),
+            (1, 1, "step,robot,team_pct\n0,0,50\n"),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let run = dir.join(format!("run{i}"));
+            std::fs::create_dir_all(&run).unwrap_or_else(|e| panic!("{e}"));
+            std::fs::write(run.join("metrics.csv"), table).unwrap_or_else(|e| panic!("{e}"));
+            runs.push(crate::results::Run {
+                point: p,
+                seed,
+                dir: run,
+                summary: Some(serde_json::json!({"robots": 1, "awareness": null})),
+            });
+        }
+        // A failed run (no summary) and its missing table are left out.
+        runs.push(crate::results::Run {
+            point: 1,
+            seed: 2,
+            dir: dir.join("failed"),
+            summary: None,
+        });
+        let r = Results {
+            points: vec![point("a"), point("b")],
+            fields: Vec::new(),
+            runs,
+        };
+        let charts = curve(&r, &curve_spec("team_pct", "k"), &dir);
+        let drawn = dir.join("c.svg").exists() && dir.join("c.png").exists();
+        let _ = std::fs::remove_dir_all(&dir);
+        let charts = charts.unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(charts, [("C".to_string(), "c".to_string())]);
+        assert!(drawn);
     }
 
     #[test]

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 /// The summary fields every sweep reports per run and aggregates per point. The `awareness`
-/// ones (de Hoog et al. 2010, Fig. 5b–d) are empty in runs without a base station.
-pub const FIELDS: [&str; 12] = [
+/// ones (de Hoog et al. 2010, Fig. 5) are empty in runs without a base station.
+pub const FIELDS: [&str; 13] = [
     "exploration_steps",
     "steps",
     "bytes_wire_total",
@@ -22,6 +22,7 @@ pub const FIELDS: [&str; 12] = [
     "awareness.shared_pct_mean",
     "awareness.steps_since_base_mean",
     "awareness.steps_since_base_max",
+    "awareness.team_pct_mean",
 ];
 
 /// One grid point: its overrides, as `KEY=VALUE`, in key order.
@@ -122,6 +123,16 @@ impl Run {
             dir,
             summary,
         }
+    }
+
+    /// The base station's node id (`robots.count`) if the run had one: its summary's
+    /// `awareness` is `null` without.
+    pub fn base_station(&self) -> Option<proto::msg::RobotId> {
+        let s = self.summary.as_ref()?;
+        if s["awareness"].is_null() {
+            return None;
+        }
+        s["robots"].as_u64().and_then(|r| r.try_into().ok())
     }
 
     pub fn complete(&self) -> bool {
@@ -298,5 +309,19 @@ mod tests {
         assert_eq!(run(true).value("exploration_steps"), Some(10.0));
         assert_eq!(run(false).value("exploration_steps"), None);
         assert_eq!(run(false).value("steps"), Some(20.0));
+    }
+
+    #[test]
+    fn the_base_station_is_node_robots_count_when_the_run_had_awareness() {
+        let run = |summary: serde_json::Value| Run {
+            point: 0,
+            seed: 1,
+            dir: PathBuf::new(),
+            summary: Some(summary),
+        };
+        let with = run(serde_json::json!({"robots": 3, "awareness": {"base_known_pct": 50.0}}));
+        assert_eq!(with.base_station(), Some(3));
+        let without = run(serde_json::json!({"robots": 3, "awareness": null}));
+        assert_eq!(without.base_station(), None);
     }
 }

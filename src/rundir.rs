@@ -53,7 +53,7 @@ pub struct Summary {
     pub radio_decode_errors: u64,
     /// How many steps links needed to reconnect after coming back into range or being restored.
     pub reconnect: ReconnectSummary,
-    /// Team awareness (de Hoog et al. 2010, Fig. 5b–d); `null` without a base station.
+    /// Team awareness (de Hoog et al. 2010, Fig. 5); `null` without a base station.
     pub awareness: Option<AwarenessSummary>,
     pub failed_processes: Vec<String>,
     /// Lockstep: whether nothing but the scenario decided the run. `false` in realtime mode, and
@@ -67,7 +67,7 @@ pub struct Summary {
 }
 
 /// `awareness` in `summary.json`: the team-awareness metrics of de Hoog, Cameron and Visser
-/// (TAROS 2010, Fig. 5b–d), over the run. Step means weigh every step the same.
+/// (TAROS 2010, Fig. 5), over the run. Step means weigh every step the same.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct AwarenessSummary {
     /// Fig. 5b: the share of the reachable free cells the base station knew at its last step.
@@ -80,6 +80,8 @@ pub struct AwarenessSummary {
     /// value.
     pub steps_since_base_mean: Option<f64>,
     pub steps_since_base_max: Option<Step>,
+    /// Fig. 5a: the mean over steps of `team_pct` (what the team knows together).
+    pub team_pct_mean: Option<f64>,
 }
 
 /// The run directory's tables that a run's digest covers (none of them holds a wall-clock
@@ -208,12 +210,16 @@ pub struct MetricsCsv {
     /// `bids`: the robot decided alone (no fresh assignment from the executive).
     pub alone: Flag,
     /// Team awareness (de Hoog et al. 2010, Fig. 5c); empty on the base station's rows. The
-    /// last two columns are new: tables written before them read back as empty.
+    /// last three columns are new: tables written before them read back as empty.
     #[serde(default)]
     pub shared_pct: Option<Fixed<3>>,
     /// Fig. 5d; empty on the base station's rows and without a base station.
     #[serde(default)]
     pub steps_since_base: Option<Step>,
+    /// Fig. 5a: the percentage of the reachable free cells that at least one robot knows (the
+    /// same on every robot row of a step in lockstep); empty on the base station's rows.
+    #[serde(default)]
+    pub team_pct: Option<Fixed<3>>,
 }
 
 impl From<&MetricsRow> for MetricsCsv {
@@ -237,6 +243,7 @@ impl From<&MetricsRow> for MetricsCsv {
             alone: Flag(r.alone),
             shared_pct: r.shared_pct.map(Fixed),
             steps_since_base: r.steps_since_base,
+            team_pct: r.team_pct.map(Fixed),
         }
     }
 }
@@ -670,6 +677,7 @@ mod tests {
                 alone: false,
                 shared_pct: None,
                 steps_since_base: None,
+                team_pct: None,
             }
         };
         let dir = std::env::temp_dir().join(format!("swarm-traffic-{}", std::process::id()));
@@ -704,7 +712,7 @@ mod tests {
         let h = |v: anyhow::Result<Vec<String>>| v.unwrap_or_default().join(",");
         assert_eq!(
             h(header::<MetricsCsv>()),
-            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone,shared_pct,steps_since_base"
+            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone,shared_pct,steps_since_base,team_pct"
         );
         assert_eq!(
             h(header::<LinkCsv>()),
@@ -732,6 +740,7 @@ mod tests {
                 backlog_bytes: 9,
                 shared_pct: Some(Fixed(62.5)),
                 steps_since_base: Some(4),
+                team_pct: Some(Fixed(87.5)),
                 ..MetricsCsv::default()
             },
             MetricsCsv::default(),
@@ -742,9 +751,9 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(
             lines[1],
-            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4"
+            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4,87.500"
         );
-        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,");
+        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,,");
         let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             (back[0].idle, back[0].target_y, back[1].target_x),
@@ -759,12 +768,23 @@ mod tests {
             ),
             (Some(Fixed(62.5)), Some(4), None)
         );
+        assert_eq!(
+            (back[0].team_pct, back[1].team_pct),
+            (Some(Fixed(87.5)), None)
+        );
         // A table written before the awareness columns reads back without them.
         let old = "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone\n\
                    3,1,1.235,-2.000,0,0,,,0,0,12.346,1,0,,9,0\n";
         std::fs::write(&path, old).unwrap_or_else(|e| panic!("{e}"));
         let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!((back[0].backlog_bytes, back[0].steps_since_base), (9, None));
+        assert_eq!(
+            (
+                back[0].backlog_bytes,
+                back[0].steps_since_base,
+                back[0].team_pct
+            ),
+            (9, None, None)
+        );
         let saves = [SaveCsv {
             step: 1,
             robot: 2,

@@ -33,6 +33,14 @@
 //! name = "load"
 //! title = "Channel load"
 //! series = "exchange.mode"
+//! [[curve]]                       # per step: a metrics.csv column, mean over seeds
+//! name = "team"
+//! title = "Known by the team"
+//! column = "team_pct"             # any metrics.csv column
+//! rows = "first"                  # robots (mean) | base | max | first (lowest robot id)
+//! y_label = "% of the environment"
+//! series = "exchange.mode"
+//! max_step = 1500                 # optional: the x axis ends here
 //! [[table]]                       # fields' means in rows of grid keys
 //! title = "Shares"
 //! rows = ["robots.count"]
@@ -48,6 +56,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use serde::Deserialize;
 
+use crate::curve::CurveSpec;
 use crate::progress::Progress;
 use crate::report::{PlotSpec, Spec, TableSpec, TimelineSpec};
 use crate::results::{points, Point, Results, Run, FIELDS};
@@ -129,6 +138,8 @@ struct Experiment {
     plot: Vec<PlotSpec>,
     #[serde(default)]
     timeline: Vec<TimelineSpec>,
+    #[serde(default)]
+    curve: Vec<CurveSpec>,
     #[serde(default)]
     table: Vec<TableSpec>,
 }
@@ -354,6 +365,7 @@ impl Plan {
             command: std::env::args().collect::<Vec<_>>().join(" "),
             plots: exp.plot.clone(),
             timelines: exp.timeline.clone(),
+            curves: exp.curve.clone(),
             tables: exp.table.clone(),
         };
         crate::report::check(&spec, &grid.keys().cloned().collect::<Vec<_>>())?;
@@ -546,6 +558,7 @@ mod tests {
                 let spec = Spec {
                     plots: exp.plot.clone(),
                     timelines: exp.timeline.clone(),
+                    curves: exp.curve.clone(),
                     tables: exp.table.clone(),
                     ..Spec::default()
                 };

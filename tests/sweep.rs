@@ -1,6 +1,6 @@
 //! `swarm sweep`: a tiny sweep of 2 grid points × 2 seeds writes one `runs.csv` row per run, one
-//! `results.csv` row per point, its plots (SVG and PNG) and `report.md`; running it again runs
-//! nothing, and a directory of other settings is refused.
+//! `results.csv` row per point, its plots and curves (SVG and PNG) and `report.md`; running it
+//! again runs nothing, and a directory of other settings is refused.
 
 use std::path::Path;
 use std::process::Command;
@@ -32,6 +32,7 @@ fn a_tiny_sweep_writes_its_tables_and_resumes() {
          [grid]\n\"exchange.mode\" = [\"raw-scans\", \"polygon\"]\n\
          [[plot]]\nname = \"time\"\ntitle = \"Exploration time\"\nx = \"exchange.mode\"\ny = \"exploration_steps\"\n\
          [[timeline]]\nname = \"channel\"\ntitle = \"Channel load\"\nseries = \"exchange.mode\"\n\
+         [[curve]]\nname = \"team\"\ntitle = \"Known by the team\"\ncolumn = \"team_pct\"\nrows = \"first\"\nseries = \"exchange.mode\"\n\
          [[table]]\ntitle = \"Vertex share\"\nrows = [\"exchange.mode\"]\ncolumns = [\"traffic_shares_pct.vertex\"]\n",
     )
     .expect("write experiment");
@@ -77,15 +78,15 @@ fn a_tiny_sweep_writes_its_tables_and_resumes() {
             _ => assert!(share.is_err() || share == Ok(0.0), "{r:?}"),
         }
     }
-    // The report embeds a chart per plot and two per timeline facet, and each exists as SVG
-    // and PNG.
+    // The report embeds a chart per plot, two per timeline facet and one per curve facet, and
+    // each exists as SVG and PNG.
     let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
     let charts: Vec<&str> = report
         .lines()
         .filter_map(|l| l.strip_prefix("![").and_then(|l| l.split("](").nth(1)))
         .map(|l| l.trim_end_matches(')'))
         .collect();
-    assert_eq!(charts.len(), 3, "{report}");
+    assert_eq!(charts.len(), 4, "{report}");
     for c in &charts {
         let svg = std::fs::read_to_string(out.join(c)).expect("svg");
         assert!(svg.starts_with("<svg") && svg.contains("<text"), "{c}");

@@ -212,6 +212,7 @@ fn awareness(rows: &[MetricsRow], base: proto::msg::RobotId) -> AwarenessSummary
             robots().filter_map(|r| Some((r.step, f64::from(r.steps_since_base?)))),
         ),
         steps_since_base_max: robots().filter_map(|r| r.steps_since_base).max(),
+        team_pct_mean: mean_of_step_means(robots().filter_map(|r| Some((r.step, r.team_pct?)))),
     }
 }
 
@@ -287,6 +288,8 @@ mod tests {
             coverage_pct,
             shared_pct: (robot != 2).then_some(shared),
             steps_since_base: (robot != 2).then_some(since),
+            // The union of the step's robots: here each step's largest robot coverage.
+            team_pct: (robot != 2).then_some(if step == 0 { 10.0 } else { 30.0 }),
             ..MetricsRow::default()
         }
     }
@@ -310,6 +313,7 @@ mod tests {
                 shared_pct_mean: Some(77.5),
                 steps_since_base_mean: Some(3.0),
                 steps_since_base_max: Some(6),
+                team_pct_mean: Some(20.0),
             }
         );
         assert_eq!(awareness(&[], 2), AwarenessSummary::default());
