@@ -289,15 +289,19 @@ fn load_over_time(run: &Path) -> anyhow::Result<(PerStep, PerStep)> {
     Ok((per_step(load), per_step(backlog)))
 }
 
-/// Draws one `[[timeline]]`: two charts (link load, backlog) per facet.
-fn timeline(r: &Results, spec: &TimelineSpec, dir: &Path) -> anyhow::Result<Vec<(String, String)>> {
+/// The values of grid key `series` (one empty value without it), and the keys a facet leaves
+/// out.
+fn series_of<'a>(r: &Results, series: Option<&'a String>) -> (Vec<String>, Vec<&'a str>) {
     let values = values_of(&r.points);
-    let series_values = spec
-        .series
-        .as_ref()
+    let series_values = series
         .and_then(|s| values.get(s).cloned())
         .unwrap_or_else(|| vec![String::new()]);
-    let except: Vec<&str> = spec.series.iter().map(String::as_str).collect();
+    (series_values, series.iter().map(|s| s.as_str()).collect())
+}
+
+/// Draws one `[[timeline]]`: two charts (link load, backlog) per facet.
+fn timeline(r: &Results, spec: &TimelineSpec, dir: &Path) -> anyhow::Result<Vec<(String, String)>> {
+    let (series_values, except) = series_of(r, spec.series.as_ref());
     let mut out = Vec::new();
     for facet in facets(&r.points, &except) {
         let mut load = Vec::new();
@@ -365,13 +369,7 @@ fn timeline(r: &Results, spec: &TimelineSpec, dir: &Path) -> anyhow::Result<Vec<
 /// Draws one `[[curve]]`: a chart per facet, a line per series value, each line the mean over
 /// the point's finished runs (failed runs have no summary and are left out).
 fn curve(r: &Results, spec: &CurveSpec, dir: &Path) -> anyhow::Result<Vec<(String, String)>> {
-    let values = values_of(&r.points);
-    let series_values = spec
-        .series
-        .as_ref()
-        .and_then(|s| values.get(s).cloned())
-        .unwrap_or_else(|| vec![String::new()]);
-    let except: Vec<&str> = spec.series.iter().map(String::as_str).collect();
+    let (series_values, except) = series_of(r, spec.series.as_ref());
     let mut out = Vec::new();
     for facet in facets(&r.points, &except) {
         let mut lines = Vec::new();

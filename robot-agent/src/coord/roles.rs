@@ -30,7 +30,7 @@
 //! Knowledge crosses only where the radio carries it: the strategy decides where robots go; the
 //! map exchange (`exchange.mode`) moves the maps between whoever is in range.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 
 use proto::grid::Cell;
 use proto::msg::{Phase, Place, RobotId, Role as RoleMsg, RoleState, Step, Swap, WorldInfo};
@@ -182,12 +182,6 @@ fn fallback_done(since: Step, i: &Sense, t: &Timing) -> bool {
     (i.at_goal && waited) || stuck || !i.reachable
 }
 
-/// What the robot last heard from another robot.
-#[derive(Clone, Debug)]
-struct Heard {
-    msg: RoleMsg,
-}
-
 /// The `roles` strategy of one robot.
 pub struct Roles {
     me: RobotId,
@@ -195,12 +189,12 @@ pub struct Roles {
     st: Settings,
     state: RoleState,
     roster: Roster,
-    heard: BTreeMap<RobotId, Heard>,
+    /// The last message heard from each robot.
+    heard: BTreeMap<RobotId, RoleMsg>,
     swaps_in: Vec<(RobotId, Swap)>,
     /// The frontier the explorer goes to while exploring.
     frontier: Option<Cell>,
     goal: Option<Cell>,
-    cell: Cell,
     step: Step,
     base_cell: Option<Cell>,
     parent_was_met: bool,
@@ -215,7 +209,6 @@ pub struct Roles {
     last_swap: Option<Step>,
     /// Per neighbour, the last message sent (step, and the message with step and cell cleared).
     sent: BTreeMap<RobotId, (Step, RoleMsg)>,
-    neighbours: BTreeSet<RobotId>,
     backlog: Vec<(RobotId, u64)>,
 }
 
@@ -250,7 +243,6 @@ impl Roles {
             swaps_in: Vec::new(),
             frontier: None,
             goal: None,
-            cell: Cell::new(0, 0),
             step: 0,
             parent_was_met: false,
             delivered: None,
@@ -259,7 +251,6 @@ impl Roles {
             answer: None,
             last_swap: None,
             sent: BTreeMap::new(),
-            neighbours: BTreeSet::new(),
             backlog: Vec::new(),
         }
     }
@@ -296,7 +287,6 @@ impl Roles {
     fn recent(&self, robot: RobotId, steps: Step) -> Option<&RoleMsg> {
         self.heard
             .get(&robot)
-            .map(|h| &h.msg)
             .filter(|m| self.step.saturating_sub(m.step) <= steps)
     }
 
@@ -455,13 +445,13 @@ impl Roles {
             (Role::Explorer, Phase::Fallback) => st.with_parent.map(|r| r.fallback),
             (Role::Relay, Phase::ToParent) => self.parent_point().or_else(|| {
                 let parent = self.parent()?;
-                self.heard.get(&parent).map(|h| h.msg.cell)
+                self.heard.get(&parent).map(|h| h.cell)
             }),
             (Role::Relay, Phase::Fallback) => st.with_child.map(|r| r.fallback),
             (Role::Relay, _) => st.with_child.map(|r| r.primary).or_else(|| {
                 self.child()
                     .and_then(|c| self.heard.get(&c))
-                    .map(|h| h.msg.cell)
+                    .map(|h| h.cell)
             }),
             (Role::Explorer, _) => self.frontier,
         }
@@ -541,7 +531,6 @@ impl Roles {
 impl Coordinator for Roles {
     fn choose(&mut self, s: &Situation<'_>) -> Option<Cell> {
         self.step = s.step;
-        self.cell = s.me;
         self.base_cell.get_or_insert(s.me);
         self.settle_swaps();
         let (parent, child) = (self.parent(), self.child());
@@ -609,7 +598,6 @@ impl Coordinator for Roles {
     }
 
     fn messages(&mut self, st: &Status<'_>) -> Vec<Addressed> {
-        self.neighbours = st.neighbours.clone();
         self.backlog = st.backlog.to_vec();
         self.sent.retain(|r, _| st.neighbours.contains(r));
         if let Some((_, stamp, _)) = self.answer {
@@ -648,7 +636,7 @@ impl Coordinator for Roles {
                 roster: if self
                     .heard
                     .get(&to)
-                    .is_some_and(|h| h.msg.roster_digest == digest)
+                    .is_some_and(|h| h.roster_digest == digest)
                 {
                     Vec::new()
                 } else {
@@ -688,7 +676,7 @@ impl Coordinator for Roles {
         if m.from == me || m.from == self.base {
             return;
         }
-        if self.heard.get(&m.from).is_some_and(|h| h.msg.step > m.step) {
+        if self.heard.get(&m.from).is_some_and(|h| h.step > m.step) {
             return;
         }
         self.roster.merge(&m.roster);
@@ -707,7 +695,7 @@ impl Coordinator for Roles {
                 }
             }
         }
-        self.heard.insert(m.from, Heard { msg: m.clone() });
+        self.heard.insert(m.from, m.clone());
     }
 }
 
