@@ -207,6 +207,9 @@ pub struct Roles {
     /// An answer to send: to whom, the proposal's step, the state handed over.
     answer: Option<(RobotId, Step, RoleState)>,
     last_swap: Option<Step>,
+    /// Per neighbour, the step of its message last weighed for a swap: each message is
+    /// weighed once, so the neighbour's cost field is computed only when it says something new.
+    weighed: BTreeMap<RobotId, Step>,
     /// Per neighbour, the last message sent (step, and the message with step and cell cleared).
     sent: BTreeMap<RobotId, (Step, RoleMsg)>,
     backlog: Vec<(RobotId, u64)>,
@@ -250,6 +253,7 @@ impl Roles {
             pending: None,
             answer: None,
             last_swap: None,
+            weighed: BTreeMap::new(),
             sent: BTreeMap::new(),
             backlog: Vec::new(),
         }
@@ -476,11 +480,15 @@ impl Roles {
             let Some(m) = self.recent(b, self.st.status_every + 1) else {
                 continue;
             };
-            let Some(gb) = m.goal else { continue };
-            if m.state.place == self.state.place || !self.st.shape.contains(m.state.place) {
+            let (said, goal, place, cell) = (m.step, m.goal, m.state.place, m.cell);
+            if self.weighed.insert(b, said) == Some(said) {
                 continue;
             }
-            let theirs = plan::costs_with(s.grid, m.cell, s.penalty);
+            let Some(gb) = goal else { continue };
+            if place == self.state.place || !self.st.shape.contains(place) {
+                continue;
+            }
+            let theirs = plan::costs_with(s.grid, cell, s.penalty);
             let (Some(a_ga), Some(a_gb), Some(b_gb), Some(b_ga)) = (
                 s.costs.cost(ga),
                 s.costs.cost(gb),
