@@ -171,7 +171,7 @@ pub fn steps_since_base(nodes: usize, base: RobotId, up: &UpLinks, last: Step) -
 
 /// Every node takes the latest contact of the component the links put it in.
 fn carry_contact(contact: &mut [Step], links: &[(RobotId, RobotId)]) {
-    let roots = components(contact.len(), links);
+    let roots = crate::connectivity::components(contact.len(), links);
     let mut latest: BTreeMap<usize, Step> = BTreeMap::new();
     for (&root, &c) in roots.iter().zip(contact.iter()) {
         let l = latest.entry(root).or_insert(c);
@@ -182,28 +182,6 @@ fn carry_contact(contact: &mut [Step], links: &[(RobotId, RobotId)]) {
             *c = l;
         }
     }
-}
-
-/// The connected components of `nodes` nodes under `links` (union–find): each node's
-/// component's representative.
-fn components(nodes: usize, links: &[(RobotId, RobotId)]) -> Vec<usize> {
-    fn find(parent: &mut [usize], mut x: usize) -> usize {
-        while parent[x] != x {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        x
-    }
-    let mut parent: Vec<usize> = (0..nodes).collect();
-    for &(a, b) in links {
-        let (a, b) = (usize::from(a), usize::from(b));
-        if a >= nodes || b >= nodes {
-            continue;
-        }
-        let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
-        parent[ra.max(rb)] = ra.min(rb);
-    }
-    (0..nodes).map(|x| find(&mut parent, x)).collect()
 }
 
 /// The mean over steps of each step's mean of `values` (step, value): every step weighs the
@@ -398,7 +376,7 @@ mod tests {
                 let s = s as Step;
                 prop_assert!(nodes.iter().all(|&n| n <= s));
                 prop_assert_eq!(nodes[usize::from(base)], 0);
-                let roots = components(5, links.get(&s).map_or(&[][..], Vec::as_slice));
+                let roots = crate::connectivity::components(5, links.get(&s).map_or(&[][..], Vec::as_slice));
                 for (n, root) in roots.iter().enumerate() {
                     if *root == roots[usize::from(base)] {
                         prop_assert_eq!(nodes[n], 0, "node {} linked to the base at {}", n, s);

@@ -12,7 +12,7 @@
 use std::collections::BTreeMap;
 
 use proto::grid::{Grid, Occ};
-use proto::msg::{RobotId, Step, Telemetry, View};
+use proto::msg::{Judged, RobotId, Step, Telemetry, View};
 
 use crate::awareness::{known_cells, SharedKnowledge};
 
@@ -52,6 +52,10 @@ pub struct MetricsRow {
     /// (the union of the team's known space; [`Evaluator::share_rows_since`]); `None` for the
     /// base station.
     pub team_pct: Option<f64>,
+    /// Rooker and Birk 2005, Fig. 6: the percentage of robot pairs that can reach each other
+    /// over the step's links, directly or through others; set once the run's links are all in
+    /// (`None` for the base station).
+    pub comm_level_pct: Option<f64>,
 }
 
 pub struct Evaluator {
@@ -73,6 +77,8 @@ pub struct Evaluator {
     pub saves: Vec<(Step, RobotId, u32, u64)>,
     /// For `views.csv`: every change of what a robot shows of another owner.
     pub views: Vec<(Step, RobotId, View)>,
+    /// `pack`: every leader's judgement of its group's links.
+    pub judged: Vec<Judged>,
     /// The base station's node id: its reports are recorded (its map, its bytes) but it is no
     /// robot, so its coverage is kept apart ([`Self::base_coverage_steps`]) and never decides
     /// the exploration time.
@@ -100,6 +106,7 @@ impl Evaluator {
             bad_telemetry: 0,
             saves: Vec::new(),
             views: Vec::new(),
+            judged: Vec::new(),
             base: None,
             base_coverage_steps: BTreeMap::new(),
             shared: SharedKnowledge::default(),
@@ -193,7 +200,9 @@ impl Evaluator {
             shared_pct: None,
             steps_since_base: None,
             team_pct: None,
+            comm_level_pct: None,
         });
+        self.judged.extend(t.judged.clone());
         let before = self.last.get(&t.robot).map(|(_, b)| b);
         if let Some((len, digest)) = t.save {
             if before.and_then(|b| b.save).map(|(l, _)| l) != Some(len) {
@@ -253,6 +262,7 @@ mod tests {
             save: None,
             views: vec![],
             alone: false,
+            judged: None,
         }
     }
 

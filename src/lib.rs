@@ -8,6 +8,9 @@
 pub mod awareness;
 /// Child processes: spawn, watch, reap.
 pub mod children;
+/// Who can talk over a step's links: the communication level (Rooker and Birk 2005) and the
+/// `pack` leaders' link judgements checked against netem.
+pub mod connectivity;
 /// `[[curve]]` of a sweep report: a `metrics.csv` column over the steps, averaged over seeds.
 pub mod curve;
 /// Coverage and exploration time from telemetry.

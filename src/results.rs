@@ -8,8 +8,9 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 /// The summary fields every sweep reports per run and aggregates per point. The `awareness`
-/// ones (de Hoog et al. 2010, Fig. 5) are empty in runs without a base station.
-pub const FIELDS: [&str; 13] = [
+/// ones (de Hoog et al. 2010, Fig. 5) are empty in runs without a base station,
+/// `link_judgement` in runs of strategies other than `pack`.
+pub const FIELDS: [&str; 16] = [
     "exploration_steps",
     "steps",
     "bytes_wire_total",
@@ -23,6 +24,9 @@ pub const FIELDS: [&str; 13] = [
     "awareness.steps_since_base_mean",
     "awareness.steps_since_base_max",
     "awareness.team_pct_mean",
+    "comm_level_pct.min",
+    "comm_level_pct.mean",
+    "link_judgement.wrong_pct",
 ];
 
 /// One grid point: its overrides, as `KEY=VALUE`, in key order.

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::evaluate::{MetricsRow, THRESHOLDS};
 
 /// Version of the run-directory schema, written into `summary.json`.
-pub const SCHEMA_VERSION: u32 = 4;
+pub const SCHEMA_VERSION: u32 = 5;
 
 /// `summary.json`.
 #[derive(Debug, Serialize)]
@@ -55,6 +55,11 @@ pub struct Summary {
     pub reconnect: ReconnectSummary,
     /// Team awareness (de Hoog et al. 2010, Fig. 5); `null` without a base station.
     pub awareness: Option<AwarenessSummary>,
+    /// Rooker and Birk 2005, Fig. 6: the communication level over the steps (`metrics.csv`'s
+    /// `comm_level_pct`), its lowest and its mean.
+    pub comm_level_pct: Option<CommLevel>,
+    /// `pack`: the leaders' judgements of their links against netem's; `null` for the others.
+    pub link_judgement: Option<crate::connectivity::LinkJudgement>,
     pub failed_processes: Vec<String>,
     /// Lockstep: whether nothing but the scenario decided the run. `false` in realtime mode, and
     /// when a wall-clock timeout decided something or a process failed; `nondeterministic` says
@@ -82,6 +87,13 @@ pub struct AwarenessSummary {
     pub steps_since_base_max: Option<Step>,
     /// Fig. 5a: the mean over steps of `team_pct` (what the team knows together).
     pub team_pct_mean: Option<f64>,
+}
+
+/// `comm_level_pct` in `summary.json`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct CommLevel {
+    pub min: f64,
+    pub mean: f64,
 }
 
 /// The run directory's tables that a run's digest covers (none of them holds a wall-clock
@@ -220,6 +232,11 @@ pub struct MetricsCsv {
     /// same on every robot row of a step in lockstep); empty on the base station's rows.
     #[serde(default)]
     pub team_pct: Option<Fixed<3>>,
+    /// Rooker and Birk 2005, Fig. 6: the percentage of robot pairs that can reach each other
+    /// over the step's links (netem's `up`), directly or through others; empty on the base
+    /// station's rows.
+    #[serde(default)]
+    pub comm_level_pct: Option<Fixed<3>>,
 }
 
 impl From<&MetricsRow> for MetricsCsv {
@@ -244,6 +261,7 @@ impl From<&MetricsRow> for MetricsCsv {
             shared_pct: r.shared_pct.map(Fixed),
             steps_since_base: r.steps_since_base,
             team_pct: r.team_pct.map(Fixed),
+            comm_level_pct: r.comm_level_pct.map(Fixed),
         }
     }
 }
@@ -678,6 +696,7 @@ mod tests {
                 shared_pct: None,
                 steps_since_base: None,
                 team_pct: None,
+                comm_level_pct: None,
             }
         };
         let dir = std::env::temp_dir().join(format!("swarm-traffic-{}", std::process::id()));
@@ -694,15 +713,15 @@ mod tests {
         let got: Vec<&str> = text.lines().collect();
         assert_eq!(
             got[0],
-            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells,mark,bid,task,role"
+            "step,robot,ins,rep,del,em,chg,rm,conn,targ,save,scan,cells,mark,bid,task,role,move"
         );
         assert_eq!(
             &got[1..],
             [
-                "0,0,10,0,0,0,0,0,0,0,0,1,0,0,0,0,0",
-                "0,1,2,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
-                "1,0,15,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
-                "1,1,3,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
+                "0,0,10,0,0,0,0,0,0,0,0,1,0,0,0,0,0,0",
+                "0,1,2,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
+                "1,0,15,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
+                "1,1,3,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0",
             ]
         );
     }
@@ -712,7 +731,7 @@ mod tests {
         let h = |v: anyhow::Result<Vec<String>>| v.unwrap_or_default().join(",");
         assert_eq!(
             h(header::<MetricsCsv>()),
-            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone,shared_pct,steps_since_base,team_pct"
+            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone,shared_pct,steps_since_base,team_pct,comm_level_pct"
         );
         assert_eq!(
             h(header::<LinkCsv>()),
@@ -741,6 +760,7 @@ mod tests {
                 shared_pct: Some(Fixed(62.5)),
                 steps_since_base: Some(4),
                 team_pct: Some(Fixed(87.5)),
+                comm_level_pct: Some(Fixed(100.0)),
                 ..MetricsCsv::default()
             },
             MetricsCsv::default(),
@@ -751,9 +771,9 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(
             lines[1],
-            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4,87.500"
+            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4,87.500,100.000"
         );
-        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,,");
+        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,,,");
         let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             (back[0].idle, back[0].target_y, back[1].target_x),

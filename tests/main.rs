@@ -11,6 +11,7 @@ mod determinism;
 mod lifecycle;
 mod mapping;
 mod netem;
+mod pack;
 mod polygon;
 mod roles;
 mod runs;

@@ -87,6 +87,11 @@ pub fn radio_role(to: RobotId) -> String {
     format!("radio/{to}/role")
 }
 
+/// Radio: the pack table and the leader's moves (`pack` coordination) addressed to node `to`.
+pub fn radio_move(to: RobotId) -> String {
+    format!("radio/{to}/move")
+}
+
 /// Radio: the executive's assignments (`bids` coordination) addressed to node `to`.
 pub fn radio_task(to: RobotId) -> String {
     format!("radio/{to}/task")

@@ -12,7 +12,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 7;
+pub const PROTOCOL_VERSION: u16 = 8;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -145,6 +145,18 @@ pub struct Telemetry {
     /// `bids`: the robot decided alone this step (no assignment from the executive younger
     /// than `coordination.bids.assignment_timeout_steps`).
     pub alone: bool,
+    /// `pack`: what the robot, leading its group, judged of the links of the configuration it
+    /// chose (checked by the launcher against netem's links of that step).
+    pub judged: Option<Judged>,
+}
+
+/// A leader's judgement of its group's links at `step` (`pack`): among the pairs of `group`,
+/// those it expects up — from its own map and the radio model's parameters, never the truth.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Judged {
+    pub step: Step,
+    pub group: Vec<RobotId>,
+    pub up: Vec<(RobotId, RobotId)>,
 }
 
 /// A receiver's view of another owner's approximation (telemetry): `held` ops of the owner's
@@ -181,10 +193,11 @@ pub enum Traffic {
     Bid,
     Task,
     Role,
+    Move,
 }
 
 impl Traffic {
-    pub const ALL: [Traffic; 15] = [
+    pub const ALL: [Traffic; 16] = [
         Traffic::Ins,
         Traffic::Rep,
         Traffic::Del,
@@ -200,6 +213,7 @@ impl Traffic {
         Traffic::Bid,
         Traffic::Task,
         Traffic::Role,
+        Traffic::Move,
     ];
 
     /// The op types of the polygon exchange's log, in Table 6.1 order.
@@ -227,7 +241,8 @@ impl Traffic {
             | Traffic::Mark
             | Traffic::Bid
             | Traffic::Task
-            | Traffic::Role => None,
+            | Traffic::Role
+            | Traffic::Move => None,
         }
     }
 
@@ -249,6 +264,7 @@ impl Traffic {
             Traffic::Bid => "bid",
             Traffic::Task => "task",
             Traffic::Role => "role",
+            Traffic::Move => "move",
         }
     }
 }
@@ -481,6 +497,41 @@ pub struct Role {
     /// The sender has nothing more waiting for the addressee on the radio.
     pub caught_up: bool,
     pub swap: Option<Swap>,
+}
+
+/// Radio (`pack`, Rooker & Birk 2005): the pack table — every robot's newest report (cell and
+/// radio neighbours), its own first, relayed from robot to robot like `burgard`'s sub-team table
+/// — and the newest plan of the sender's leader it holds, which reaches the members a hop per
+/// step. Accounted as `move`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Pack {
+    pub from: RobotId,
+    pub entries: Vec<TeamEntry>,
+    pub plan: Option<Plan>,
+}
+
+/// A group leader's moves for the coming steps, made at step `made`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Plan {
+    pub leader: RobotId,
+    pub made: Step,
+    /// By step, ascending.
+    pub steps: Vec<StepMoves>,
+}
+
+/// The configuration change of one step: each member's move from one cell to another (a
+/// member not listed stays).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StepMoves {
+    pub step: Step,
+    pub moves: Vec<Move>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Move {
+    pub robot: RobotId,
+    pub from: Cell,
+    pub to: Cell,
 }
 
 /// A digest of a roster (FNV-1a over its seats in the order given): robots whose digests agree
@@ -814,6 +865,11 @@ mod tests {
                 digest: 7,
             }],
             alone: true,
+            judged: Some(Judged {
+                step: 12,
+                group: vec![0, 2, 3],
+                up: vec![(0, 2), (2, 3)],
+            }),
         });
         round_trip(Control::Stop);
         round_trip(LinkReport {
@@ -916,6 +972,28 @@ mod tests {
                 state,
             }),
         });
+        round_trip(Pack {
+            from: 2,
+            entries: vec![TeamEntry {
+                robot: 0,
+                step: 8,
+                cell: Cell::new(3, 4),
+                target: None,
+                neighbours: vec![2],
+            }],
+            plan: Some(Plan {
+                leader: 0,
+                made: 8,
+                steps: vec![StepMoves {
+                    step: 9,
+                    moves: vec![Move {
+                        robot: 2,
+                        from: Cell::new(5, 5),
+                        to: Cell::new(7, 5),
+                    }],
+                }],
+            }),
+        });
         round_trip(Team {
             from: 1,
             entries: vec![TeamEntry {
@@ -964,6 +1042,7 @@ mod tests {
             let _ = decode::<Bids>(&bytes);
             let _ = decode::<Tasks>(&bytes);
             let _ = decode::<Role>(&bytes);
+            let _ = decode::<Pack>(&bytes);
             let _ = decode::<OpChunk>(&bytes);
             let _ = decode::<Scan>(&bytes);
             let _ = decode::<Status>(&bytes);

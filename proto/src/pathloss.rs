@@ -6,7 +6,10 @@
 //! netem decides links with it on the truth map; a robot estimates with the same formula, on its
 //! own map, how far it could be heard from a place (the `roles` strategy's rendezvous points).
 
+use crate::geom::MapInfo;
+use crate::grid::{Cell, Grid, Occ};
 use crate::scenario::{Radio, RadioModel};
+use crate::traverse::{clip, Corners, Traversal};
 
 /// Parameters of the path loss model (defaults: free space, RADAR's wall factor and cap).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -65,5 +68,120 @@ impl PathLoss {
                 )
             }),
         })
+    }
+}
+
+/// The number of walls — maximal runs of cells that `wall` says are solid — the segment `a`–`b`
+/// (metres) crosses on `grid`. The parts of the segment outside the map cross nothing. netem
+/// counts on the truth map (every non-free cell is wall); a robot on its own map (only cells it
+/// knows occupied).
+pub fn count_walls(
+    map: &MapInfo,
+    grid: &Grid,
+    a: (f64, f64),
+    b: (f64, f64),
+    wall: impl Fn(Occ) -> bool,
+) -> u32 {
+    let res = map.resolution_m;
+    if res.is_nan() || res <= 0.0 || grid.is_empty() {
+        return 0;
+    }
+    // Cell coordinates: cell (i, j) covers [i, i+1) × [j, j+1).
+    let to_cell = |p: (f64, f64)| ((p.0 - map.origin_x_m) / res, (p.1 - map.origin_y_m) / res);
+    let (p0, p1) = (to_cell(a), to_cell(b));
+    let (w, h) = (f64::from(grid.width()), f64::from(grid.height()));
+    let Some((t0, t1)) = clip(p0, p1, (0.0, 0.0), (w, h)) else {
+        return 0;
+    };
+    let (dx, dy) = (p1.0 - p0.0, p1.1 - p0.1);
+    let (p0, p1) = (
+        (p0.0 + t0 * dx, p0.1 + t0 * dy),
+        (p0.0 + t1 * dx, p0.1 + t1 * dy),
+    );
+    // A clipped end on the map's far border lies in the last column (row), not beyond it.
+    let last = |v: f64, n: f64| (v.floor() as i64).clamp(0, n as i64 - 1) as i32;
+    let start = Cell::new(last(p0.0, w), last(p0.1, h));
+    let end = Cell::new(last(p1.0, w), last(p1.1, h));
+    // The plain traversal: a wall is counted where the line enters it, and a line through a
+    // corner between two wall cells crosses one of them.
+    let cells = Traversal::between(p0, start, p1, end, Corners::Thin).map(|x| x.cell);
+    let mut walls = 0;
+    let mut in_wall = false;
+    for cell in std::iter::once(start).chain(cells) {
+        let solid = wall(grid.get(cell));
+        if solid && !in_wall {
+            walls += 1;
+        }
+        in_wall = solid;
+    }
+    walls
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn map(g: &Grid) -> MapInfo {
+        MapInfo::at_origin(g.width(), g.height(), 1.0)
+    }
+
+    const ROOMS: &str = "
+        ..#..#..
+        ..#..#..
+        ..##.#..
+        ........
+    ";
+
+    fn walls(pic: &str, a: (f64, f64), b: (f64, f64)) -> u32 {
+        let g = Grid::from_ascii(pic);
+        count_walls(&map(&g), &g, a, b, |o| o != Occ::Free)
+    }
+
+    #[test]
+    fn walls_are_runs_of_non_free_cells_along_the_segment() {
+        // Row y = 3 is the top line: two single walls.
+        assert_eq!(walls(ROOMS, (0.5, 3.5), (7.5, 3.5)), 2);
+        // A thick wall (x = 2..3 on row y = 1) counts once.
+        assert_eq!(walls(ROOMS, (0.5, 1.5), (4.5, 1.5)), 1);
+        // Along the free bottom row: none.
+        assert_eq!(walls(ROOMS, (0.5, 0.5), (7.5, 0.5)), 0);
+        // Symmetric.
+        assert_eq!(walls(ROOMS, (7.5, 3.5), (0.5, 3.5)), 2);
+        // Unknown counts as solid when the caller says so, and not otherwise.
+        assert_eq!(walls("..?..\n", (0.5, 0.5), (4.5, 0.5)), 1);
+        let g = Grid::from_ascii("..?#.\n");
+        let seen = |o: Occ| o == Occ::Occupied;
+        assert_eq!(count_walls(&map(&g), &g, (0.5, 0.5), (4.5, 0.5), seen), 1);
+    }
+
+    #[test]
+    fn segments_outside_the_map_are_clipped() {
+        assert_eq!(walls(ROOMS, (-100.5, 3.5), (100.5, 3.5)), 2);
+        assert_eq!(walls(ROOMS, (-5.0, -5.0), (-1.0, -1.0)), 0);
+        assert_eq!(walls(ROOMS, (f64::NAN, 0.0), (1.0, 1.0)), 0);
+        assert_eq!(walls(ROOMS, (-1e6, 3.5), (1e6, 3.5)), 2);
+        // Absurd poses cost nothing (precision is gone, the walk is bounded by the map).
+        assert!(walls(ROOMS, (-1e300, 3.5), (1e300, 3.5)) <= 2);
+    }
+
+    proptest! {
+        #[test]
+        fn wall_count_is_bounded_symmetric_and_total(
+            cells in proptest::collection::vec(0u8..3, 64),
+            ax in -3.0f64..11.0, ay in -3.0f64..11.0, bx in -3.0f64..11.0, by in -3.0f64..11.0,
+        ) {
+            let mut g = Grid::new(8, 8, Occ::Free);
+            for (i, v) in cells.iter().enumerate() {
+                let occ = [Occ::Free, Occ::Occupied, Occ::Unknown][*v as usize];
+                g.set(g.cell_of(i), occ);
+            }
+            let m = map(&g);
+            let n = count_walls(&m, &g, (ax, ay), (bx, by), |o| o != Occ::Free);
+            prop_assert!(n <= 8);
+            let back = count_walls(&m, &g, (bx, by), (ax, ay), |o| o != Occ::Free);
+            // Corner-grazing segments may pick the other side cell when reversed.
+            prop_assert!(n.abs_diff(back) <= 2, "{} vs {}", n, back);
+        }
     }
 }

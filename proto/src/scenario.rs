@@ -229,6 +229,39 @@ pub struct Coordination {
     pub bids: Bids,
     /// `roles` (de Hoog et al. 2010): the team hierarchy, rendezvous and role swaps.
     pub roles: Roles,
+    /// `pack` (Rooker & Birk 2005): random configuration changes scored by the utility.
+    pub pack: Pack,
+}
+
+/// `coordination.pack`: Rooker and Birk's communicative exploration (robot-agent's
+/// `coord::pack`): the leader of each connected group scores `configurations` random
+/// configuration changes per step and sends the best as moves.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Pack {
+    /// k, the random configuration changes scored per step (the paper: 50).
+    pub configurations: u32,
+    /// The utility of a robot's new position on (or a step nearer to) a frontier (the paper: 1).
+    pub frontier_utility: f64,
+    /// The utility of any other possible position (the paper: 0).
+    pub other_utility: f64,
+    /// The utility of an impossible position: an obstacle, unknown space, a teammate's new
+    /// position (the paper: −100).
+    pub impossible_utility: f64,
+    /// δ, added to a configuration whose communication graph is not connected (the paper: −10).
+    pub disconnect_penalty: f64,
+}
+
+impl Default for Pack {
+    fn default() -> Self {
+        Pack {
+            configurations: 50,
+            frontier_utility: 1.0,
+            other_utility: 0.0,
+            impossible_utility: -100.0,
+            disconnect_penalty: -10.0,
+        }
+    }
 }
 
 /// `coordination.roles`: de Hoog, Cameron and Visser's role-based exploration (robot-agent's
@@ -454,6 +487,7 @@ impl Default for Coordination {
             replan_every_steps: 10,
             bids: Bids::default(),
             roles: Roles::default(),
+            pack: Pack::default(),
         }
     }
 }
@@ -678,6 +712,7 @@ impl Scenario {
         }
         s.validate_bids()?;
         s.validate_roles()?;
+        s.validate_pack()?;
         if let Some([x, y]) = s.base_station.pose {
             if !(x.is_finite() && y.is_finite()) {
                 return Err(invalid(
@@ -701,7 +736,7 @@ impl Scenario {
                 "needs the hierarchy's root: set base_station.enabled = true",
             ));
         }
-        s.check_implemented()
+        Ok(())
     }
 
     fn validate_bids(&self) -> Result<(), ScenarioError> {
@@ -777,6 +812,50 @@ impl Scenario {
         )
     }
 
+    fn validate_pack(&self) -> Result<(), ScenarioError> {
+        let p = &self.coordination.pack;
+        if !(1..=100_000).contains(&p.configurations) {
+            return Err(invalid(
+                "coordination.pack.configurations",
+                p.configurations,
+                "must be in 1..=100000",
+            ));
+        }
+        let utilities = [
+            ("coordination.pack.frontier_utility", p.frontier_utility),
+            ("coordination.pack.other_utility", p.other_utility),
+            ("coordination.pack.impossible_utility", p.impossible_utility),
+            ("coordination.pack.disconnect_penalty", p.disconnect_penalty),
+        ];
+        for (key, v) in utilities {
+            if !v.is_finite() {
+                return Err(invalid(key, v, "must be a finite number"));
+            }
+        }
+        if p.frontier_utility <= p.other_utility {
+            return Err(invalid(
+                "coordination.pack.frontier_utility",
+                p.frontier_utility,
+                "must be above other_utility, or nothing draws the pack to frontiers",
+            ));
+        }
+        if p.impossible_utility >= p.other_utility {
+            return Err(invalid(
+                "coordination.pack.impossible_utility",
+                p.impossible_utility,
+                "must be below other_utility",
+            ));
+        }
+        if p.disconnect_penalty > 0.0 {
+            return Err(invalid(
+                "coordination.pack.disconnect_penalty",
+                p.disconnect_penalty,
+                "must be at most 0 (a penalty)",
+            ));
+        }
+        Ok(())
+    }
+
     /// Radio nodes: the robots, then the base station if there is one.
     pub fn nodes(&self) -> u16 {
         self.robots.count + u16::from(self.base_station.enabled)
@@ -785,26 +864,6 @@ impl Scenario {
     /// The base station's node id (`robots.count`), if there is one.
     pub fn base_id(&self) -> Option<u16> {
         self.base_station.enabled.then_some(self.robots.count)
-    }
-
-    /// Values the schema reserves for features that are not built yet are refused by name,
-    /// rather than silently running something else.
-    fn check_implemented(&self) -> Result<(), ScenarioError> {
-        if !matches!(
-            self.coordination.strategy,
-            Strategy::Uncoordinated
-                | Strategy::Decentralized
-                | Strategy::Burgard
-                | Strategy::Bids
-                | Strategy::Roles
-        ) {
-            return Err(invalid(
-                "coordination.strategy",
-                format!("{:?}", self.coordination.strategy),
-                "\"decentralized\", \"burgard\", \"bids\", \"roles\" and \"uncoordinated\" are implemented; \"pack\" is not yet",
-            ));
-        }
-        Ok(())
     }
 
     /// The world is generated from the seed (not loaded from a file).
@@ -1034,8 +1093,16 @@ mod tests {
                 "base_station.enabled",
             ),
             (
-                err("", &["coordination.strategy=\"pack\""]),
-                "coordination.strategy",
+                err("", &["coordination.pack.configurations=0"]),
+                "coordination.pack.configurations",
+            ),
+            (
+                err("", &["coordination.pack.frontier_utility=0"]),
+                "coordination.pack.frontier_utility",
+            ),
+            (
+                err("", &["coordination.pack.disconnect_penalty=5"]),
+                "coordination.pack.disconnect_penalty",
             ),
             (
                 err("", &["robots.count=10", "coordination.roles.branches=3"]),

@@ -14,7 +14,7 @@ use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{Cmd, Mark, RobotId, Scan, Step, Telemetry, WorldInfo};
 use proto::scenario::Scenario;
 
-use crate::coord::{self, Coordinator, Heard, Situation, Status};
+use crate::coord::{self, Coordinator, Heard, Situation, Status, Steer};
 use crate::grid::Evidence;
 use crate::plan;
 use crate::radio::{self, Msg, Outgoing, Radio};
@@ -169,6 +169,17 @@ impl Agent {
             heard: &self.heard,
         });
         let w = &self.world;
+        match self.coordinator.steer() {
+            Steer::Target => {}
+            Steer::Stay => {
+                self.idle = frontiers.is_empty();
+                return None;
+            }
+            Steer::To(c) => {
+                self.idle = frontiers.is_empty();
+                return (c != me).then(|| w.map.centre_of(c));
+            }
+        }
         let max_cells = w.max_speed_m_per_s * w.step_seconds / w.map.resolution_m;
         if let Some(aside) = self.right_of_way.give_way(g, me, &self.heard, max_cells) {
             self.idle = false;
@@ -310,6 +321,7 @@ impl Agent {
             grid_rle: g.to_rle(),
             idle: self.idle,
             alone: self.coordinator.alone(),
+            judged: self.coordinator.judged(),
             neighbours: self.radio.neighbours().iter().copied().collect(),
             decode_errors: c.decode_errors,
             sent_by_type: c.sent_by_type.to_vec(),

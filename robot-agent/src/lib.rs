@@ -62,6 +62,8 @@ pub mod radio;
 pub mod raster;
 /// The raw-scans exchange: per-owner logs, handshakes, sent-index table.
 pub mod raw_scans;
+/// A robot's estimate of the radio from its own map: reach from a place, links between two.
+pub mod reach;
 /// Douglas–Peucker refinement over all polygons with one priority queue (§4.3).
 pub mod refine;
 /// Painting approximations onto cells: Algorithm 9's steps (1)–(5), renders, exploration view.

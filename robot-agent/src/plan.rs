@@ -174,6 +174,19 @@ pub fn obstacle_penalty(g: &Grid, sigma: f64, weight: f64) -> Vec<f32> {
 
 /// [`costs`] with a per-cell penalty ([`obstacle_penalty`]; `None`: none).
 pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
+    dijkstra(g, start, &[start], penalty)
+}
+
+/// The cost of reaching every cell from the nearest of `sources` (a multi-source Dijkstra, no
+/// penalty): e.g. the distance of every cell to the nearest frontier. Sources outside the grid
+/// are left out; [`CostMap::start`] is the first source (a path leads to the nearest source
+/// only through [`path_to`] from it, so do not ask for paths).
+pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
+    let start = sources.first().copied().unwrap_or(Cell::new(-1, -1));
+    dijkstra(g, start, sources, None)
+}
+
+fn dijkstra(g: &Grid, start: Cell, sources: &[Cell], penalty: Option<&[f32]>) -> CostMap {
     let mut map = CostMap {
         width: g.width(),
         height: g.height(),
@@ -181,14 +194,16 @@ pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
         dist: vec![f64::INFINITY; g.len()],
         pred: vec![NO_PRED; g.len()],
     };
-    let Some(s) = map.index(start) else {
-        return map;
-    };
-    map.dist[s] = 0.0;
-    let mut heap = BinaryHeap::from([Entry {
-        cost: 0.0,
-        index: s,
-    }]);
+    let mut heap = BinaryHeap::new();
+    for &c in sources {
+        if let Some(s) = map.index(c) {
+            map.dist[s] = 0.0;
+            heap.push(Entry {
+                cost: 0.0,
+                index: s,
+            });
+        }
+    }
     while let Some(Entry { cost, index }) = heap.pop() {
         if cost > map.dist[index] {
             continue;

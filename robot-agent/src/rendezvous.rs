@@ -6,96 +6,22 @@
 //!   skeleton, its junctions and filling points, pruned); of the `candidates` points nearest the
 //!   place the child heads for next (an explorer's next frontier), the one with the highest
 //!   neighbour traversal T — the most important junction — and on ties the best estimated radio
-//!   reach ([`Reach`]), then the nearest. The fallback point is where the parent stands at the
+//!   reach ([`crate::reach::Reach`]), then the nearest. The fallback point is where the parent stands at the
 //!   agreement: both have just been there.
 //! * By when: the parent's trip — from where it stands to its own meeting point (the base station,
 //!   or its parent's rendezvous), and from there to the new point — at the robots' speed, on the
 //!   same map ([`agree`]). The paper's explorer uses that prediction to explore until it must turn
 //!   back; so does ours ([`crate::coord::roles`]).
 
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Cell, Grid};
 use proto::msg::{Rendezvous, Step};
-use proto::pathloss::PathLoss;
-use proto::scenario::{RadioModel, Scenario};
 
-use crate::grid::supercover;
 use crate::plan::{self, CostMap};
+use crate::reach::Reach;
 use crate::skeleton;
-
-/// Directions [`Reach::estimate`] casts.
-const REACH_RAYS: usize = 16;
 
 /// Steps of slack added to a predicted trip (the parent's turn at its own meeting point).
 const SLACK_STEPS: Step = 2;
-
-/// How far a robot at a place could be heard, estimated from what it knows: its own map and the
-/// radio model's parameters — never the truth.
-#[derive(Clone, Debug)]
-pub enum Reach {
-    /// `always`: everywhere; every place is as good.
-    Unlimited,
-    /// `disk`: the range, whatever the walls (cells).
-    Disk { range_cells: f64 },
-    /// `pathloss`: the model, with walls counted on the robot's map (occupied cells; unknown
-    /// space is not counted) and distances converted at `res_m` metres per cell.
-    PathLoss {
-        model: PathLoss,
-        range_cells: f64,
-        res_m: f64,
-    },
-}
-
-impl Reach {
-    pub fn new(s: &Scenario, res_m: f64) -> Reach {
-        let range_cells = s.radio.range_m / res_m;
-        match (s.radio.model, PathLoss::of(&s.radio)) {
-            (RadioModel::Always, _) => Reach::Unlimited,
-            (RadioModel::Pathloss, Some(model)) => Reach::PathLoss {
-                model,
-                range_cells,
-                res_m,
-            },
-            _ => Reach::Disk { range_cells },
-        }
-    }
-
-    /// The mean, over [`REACH_RAYS`] directions from the centre of `p`, of the farthest distance
-    /// (cells) at which a robot there would still be heard: the free-space range for `disk`; for
-    /// `pathloss` the farthest point of each ray whose signal, through the walls the ray has
-    /// crossed so far, is at least the threshold.
-    pub fn estimate(&self, g: &Grid, p: Cell) -> f64 {
-        let (model, range_cells, res_m) = match self {
-            Reach::Unlimited => return f64::INFINITY,
-            Reach::Disk { range_cells } => return *range_cells,
-            Reach::PathLoss {
-                model,
-                range_cells,
-                res_m,
-            } => (model, *range_cells, *res_m),
-        };
-        let from = (f64::from(p.x) + 0.5, f64::from(p.y) + 0.5);
-        let mut total = 0.0;
-        for k in 0..REACH_RAYS {
-            let a = std::f64::consts::TAU * k as f64 / REACH_RAYS as f64;
-            let to = (
-                from.0 + range_cells * a.cos(),
-                from.1 + range_cells * a.sin(),
-            );
-            let (mut walls, mut in_wall, mut heard) = (0u32, false, 0.0f64);
-            for c in supercover(from, to) {
-                let solid = g.get(c) == Occ::Occupied;
-                walls += u32::from(solid && !in_wall);
-                in_wall = solid;
-                let d = f64::from(c.x - p.x).hypot(f64::from(c.y - p.y));
-                if model.signal_dbm(d * res_m, walls) >= model.threshold_dbm {
-                    heard = heard.max(d);
-                }
-            }
-            total += heard;
-        }
-        total / REACH_RAYS as f64
-    }
-}
 
 /// How a child agrees a rendezvous (from `[coordination.roles]`, in cells and steps).
 #[derive(Clone, Debug)]
@@ -205,39 +131,6 @@ pub fn agree(g: &Grid, mine: &CostMap, m: &Meeting, a: &Agreeing) -> Option<Rend
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn pathloss(range_m: f64) -> Reach {
-        let s = Scenario::from_toml(
-            "",
-            &[
-                "radio.model=\"pathloss\"".into(),
-                format!("radio.range_m={range_m}"),
-            ],
-        )
-        .expect("scenario");
-        Reach::new(&s, 1.0)
-    }
-
-    #[test]
-    fn walls_on_the_robots_own_map_shorten_the_estimated_reach() {
-        let free = Grid::new(41, 41, Occ::Free);
-        let mut walled = free.clone();
-        for y in 0..41 {
-            walled.set(Cell::new(23, y), Occ::Occupied);
-        }
-        let mut unknown = free.clone();
-        for y in 0..41 {
-            unknown.set(Cell::new(23, y), Occ::Unknown);
-        }
-        let r = pathloss(10.0);
-        let p = Cell::new(20, 20);
-        let open_reach = r.estimate(&free, p);
-        assert!((open_reach - 10.0).abs() < 1.0, "{open_reach}");
-        assert!(r.estimate(&walled, p) < open_reach);
-        // Unknown space is not a wall.
-        assert_eq!(r.estimate(&unknown, p), open_reach);
-        assert_eq!(Reach::Disk { range_cells: 7.0 }.estimate(&walled, p), 7.0);
-    }
 
     #[test]
     fn the_point_near_the_frontier_with_the_highest_traversal_wins() {

@@ -15,13 +15,19 @@ use zenoh::qos::CongestionControl;
 use super::follow::Record;
 use super::prepare::Plan;
 use super::spawn::Started;
+use std::collections::BTreeMap;
+
+use proto::msg::Step;
+
 use crate::awareness::{mean_of_step_means, steps_since_base};
+use crate::connectivity::{check_judgements, comm_level_pct};
 use crate::evaluate::{Evaluator, MetricsRow};
 use crate::progress::Progress;
 use crate::render::{robot_colour, Picture};
 use crate::rundir::{
     bytes_by_type, coverage_steps, link_totals_wire, traffic_shares, write_links, write_metrics,
-    write_pgm, write_saves_and_views, write_traffic, AwarenessSummary, Summary, SCHEMA_VERSION,
+    write_pgm, write_saves_and_views, write_traffic, AwarenessSummary, CommLevel, Summary,
+    SCHEMA_VERSION,
 };
 
 /// Tells everyone to stop, waits for every child (killing what does not stop), and collects the
@@ -69,6 +75,37 @@ pub fn score_contact(plan: &Plan, rec: &mut Record) {
             .and_then(|n| n.get(usize::from(row.robot)))
             .copied();
     }
+}
+
+/// Sets every robot row's communication level (Rooker and Birk 2005, Fig. 6) from the links
+/// netem reported up at its step, like [`score_contact`] once they are all in. A step without
+/// links up has every robot alone.
+pub fn score_comm_level(plan: &Plan, rec: &mut Record) {
+    let robots = usize::from(plan.scenario.robots.count);
+    let nodes = usize::from(plan.scenario.nodes());
+    let up = rec.links.up_by_step();
+    let base = plan.scenario.base_id();
+    let mut level: BTreeMap<Step, f64> = BTreeMap::new();
+    for row in rec.eval.rows.iter_mut().filter(|r| Some(r.robot) != base) {
+        let pct = *level.entry(row.step).or_insert_with(|| {
+            let links = up.get(&row.step).map_or(&[][..], Vec::as_slice);
+            comm_level_pct(robots, nodes, links)
+        });
+        row.comm_level_pct = Some(pct);
+    }
+}
+
+/// `summary.json`'s `comm_level_pct`: the lowest and the mean over the steps.
+fn comm_level(rows: &[MetricsRow]) -> Option<CommLevel> {
+    let by_step: BTreeMap<Step, f64> = rows
+        .iter()
+        .filter_map(|r| Some((r.step, r.comm_level_pct?)))
+        .collect();
+    let n = by_step.len();
+    (n > 0).then(|| CommLevel {
+        min: by_step.values().copied().fold(f64::INFINITY, f64::min),
+        mean: by_step.values().sum::<f64>() / n as f64,
+    })
 }
 
 /// `summary.json`'s content.
@@ -133,6 +170,15 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
         radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
         reconnect: (&rec.links.reconnects()).into(),
         awareness: eval.base.map(|b| awareness(&eval.rows, b)),
+        comm_level_pct: comm_level(&eval.rows),
+        // Judgements of steps netem reported (the run's last step may have none).
+        link_judgement: rec
+            .links
+            .rows
+            .iter()
+            .map(|(s, _)| *s)
+            .max()
+            .and_then(|reported| check_judgements(&eval.judged, &rec.links.up_by_step(), reported)),
         failed_processes: rec.failed.clone(),
         deterministic: false,
         nondeterministic: nondeterministic(plan, rec),
@@ -317,5 +363,30 @@ mod tests {
             }
         );
         assert_eq!(awareness(&[], 2), AwarenessSummary::default());
+    }
+
+    #[test]
+    fn the_communication_level_is_summed_up_over_steps() {
+        let at = |step, robot, pct: Option<f64>| MetricsRow {
+            step,
+            robot,
+            comm_level_pct: pct,
+            ..MetricsRow::default()
+        };
+        let rows = [
+            at(0, 0, Some(100.0)),
+            at(0, 1, Some(100.0)),
+            at(1, 0, Some(50.0)),
+            at(1, 2, None),
+            at(2, 1, Some(0.0)),
+        ];
+        assert_eq!(
+            comm_level(&rows),
+            Some(CommLevel {
+                min: 0.0,
+                mean: 50.0
+            })
+        );
+        assert_eq!(comm_level(&[at(0, 2, None)]), None);
     }
 }

@@ -95,6 +95,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     finish::stop(run, &mut rec, &mut progress).await;
     rec.truncate();
     finish::score_contact(&plan, &mut rec);
+    finish::score_comm_level(&plan, &mut rec);
     let mut summary = finish::summary(&plan, &rec, exit_reason, started);
     finish::write_tables(&plan.dir, &rec)?;
     finish::write_pictures(&plan.dir, (&truth, info), &rec, &mut progress)?;

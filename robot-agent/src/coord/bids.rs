@@ -490,7 +490,7 @@ impl Coordinator for Bidding {
             CoordMsg::Tasks(t) => {
                 self.relay.on_tasks(t);
             }
-            CoordMsg::Team(_) | CoordMsg::Role(_) => {}
+            CoordMsg::Team(_) | CoordMsg::Role(_) | CoordMsg::Pack(_) => {}
         }
     }
 

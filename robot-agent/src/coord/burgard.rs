@@ -10,11 +10,10 @@
 //! replans when its target is no longer usable, when its sub-team changes and every
 //! `replan_every_steps` steps.
 
-use std::collections::BTreeMap;
-
 use proto::grid::{Cell, Grid};
-use proto::msg::{RobotId, Step, Team, TeamEntry};
+use proto::msg::{RobotId, Step, Team};
 
+use super::team::{self, Table};
 use super::{
     best, decay, discount, normalized, Addressed, CoordMsg, Coordinator, Params, Situation, Status,
     To,
@@ -24,11 +23,6 @@ use crate::plan::{self, CostMap};
 /// A sub-team table entry older than this many steps no longer counts (its robot is gone from
 /// the sub-team).
 const TEAM_FRESH_STEPS: Step = 3;
-
-/// Whether a table entry still counts at `step`.
-fn fresh(e: &TeamEntry, step: Step) -> bool {
-    e.step + TEAM_FRESH_STEPS >= step
-}
 
 /// The sub-team of the last assignment and the step it was made at.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -44,7 +38,7 @@ pub struct Burgard {
     search_tries: u32,
     replan_every_steps: u32,
     /// The latest report of every robot heard of, directly or relayed.
-    team: BTreeMap<RobotId, TeamEntry>,
+    team: Table,
     assigned: Assignment,
 }
 
@@ -55,7 +49,7 @@ impl Burgard {
             search,
             search_tries,
             replan_every_steps,
-            team: BTreeMap::new(),
+            team: Table::new(TEAM_FRESH_STEPS),
             assigned: Assignment::default(),
         }
     }
@@ -63,32 +57,7 @@ impl Burgard {
     /// The robots this one can reach over current links, transitively (itself included,
     /// sorted), from its own neighbours and the fresh entries of its team table.
     fn sub_team(&self, s: &Situation<'_>) -> Vec<RobotId> {
-        let mut edges: Vec<(RobotId, RobotId)> = s.neighbours.iter().map(|&n| (s.id, n)).collect();
-        for e in self.team.values().filter(|e| fresh(e, s.step)) {
-            edges.extend(e.neighbours.iter().map(|&n| (e.robot, n)));
-        }
-        let mut team = vec![s.id];
-        let mut i = 0;
-        while i < team.len() {
-            let r = team[i];
-            for &(a, b) in &edges {
-                let other = if a == r {
-                    b
-                } else if b == r {
-                    a
-                } else {
-                    continue;
-                };
-                if !team.contains(&other) {
-                    team.push(other);
-                }
-            }
-            i += 1;
-        }
-        // A member counts once its report (and so its cell) is known.
-        team.retain(|r| *r == s.id || self.team.get(r).is_some_and(|e| fresh(e, s.step)));
-        team.sort_unstable();
-        team
+        self.team.group(s.id, s.neighbours, s.step, None)
     }
 
     /// This robot's target in the sub-team's assignment, computed on its own planning grid from
@@ -98,7 +67,7 @@ impl Burgard {
         let maps: Vec<CostMap> = team
             .iter()
             .filter(|&&r| r != s.id)
-            .filter_map(|r| self.team.get(r))
+            .filter_map(|&r| self.team.get(r, s.step))
             .map(|e| plan::costs_with(s.grid, e.cell, s.penalty))
             .collect();
         let mut costs: Vec<&CostMap> = Vec::with_capacity(team.len());
@@ -114,7 +83,7 @@ impl Burgard {
         }
         let fixed: Vec<(Cell, f64)> = self
             .team
-            .values()
+            .all()
             .filter(|e| !team.contains(&e.robot))
             .filter_map(|e| Some((e.target?, f64::from(s.step.saturating_sub(e.step)))))
             .collect();
@@ -130,17 +99,10 @@ impl Burgard {
 
     /// The team table to send: this robot's own entry and every fresh one it holds.
     fn team_msg(&self, s: &Status<'_>) -> Team {
-        let mut entries = vec![TeamEntry {
-            robot: s.id,
-            step: s.step,
-            cell: s.me,
-            target: s.target,
-            neighbours: s.neighbours.iter().copied().collect(),
-        }];
-        entries.extend(self.team.values().filter(|e| fresh(e, s.step)).cloned());
+        let own = team::entry(s.id, s.step, s.me, s.target, s.neighbours);
         Team {
             from: s.id,
-            entries,
+            entries: self.team.to_send(own),
         }
     }
 }
@@ -169,14 +131,7 @@ impl Coordinator for Burgard {
     #[allow(irrefutable_let_patterns)] // other strategies' messages are not for it
     fn on_message(&mut self, me: RobotId, msg: &CoordMsg) {
         let CoordMsg::Team(t) = msg else { return };
-        for e in &t.entries {
-            if e.robot == me {
-                continue;
-            }
-            if self.team.get(&e.robot).is_none_or(|old| old.step < e.step) {
-                self.team.insert(e.robot, e.clone());
-            }
-        }
+        self.team.merge(me, &t.entries);
     }
 }
 

@@ -6,7 +6,8 @@
 //! the table of other robots' announced targets ([`Heard`]) and the interface
 //! ([`Coordinator`]) — and one file per strategy holds its state and its messages:
 //! [`decentralized`], [`burgard`], [`uncoordinated`], [`bids`] (with [`executive`] and
-//! [`relay`]), [`roles`] (with [`hierarchy`]). [`new`] registers them by `coordination.strategy`.
+//! [`relay`]), [`roles`] (with [`hierarchy`]), [`pack`]; [`team`] is the team table `burgard` and
+//! `pack` share. [`new`] registers them by `coordination.strategy`.
 //!
 //! * Utility (thesis eq. 4.4, Burgard eq. 1): every frontier cell starts at U = 1; a target t'
 //!   chosen by another robot lowers the utility of every frontier t by P(‖t − t'‖), the
@@ -29,7 +30,8 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{
-    decode, encode, Bids, DecodeError, RobotId, Role, Step, Target, Tasks, Team, Traffic, WorldInfo,
+    decode, encode, Bids, DecodeError, Judged, Pack, RobotId, Role, Step, Target, Tasks, Team,
+    Traffic, WorldInfo,
 };
 use proto::scenario::{Scenario, Strategy};
 
@@ -41,8 +43,10 @@ pub mod burgard;
 pub mod decentralized;
 pub mod executive;
 pub mod hierarchy;
+pub mod pack;
 pub mod relay;
 pub mod roles;
+pub mod team;
 pub mod uncoordinated;
 
 /// How the agent talks to a coordination strategy, whichever it is.
@@ -74,6 +78,28 @@ pub trait Coordinator: Send {
     fn alone(&self) -> bool {
         false
     }
+
+    /// How the robot moves this step: toward the target `choose` named (planned by the agent,
+    /// with the right of way), or as the strategy says (`pack`: the move the leader sent).
+    fn steer(&self) -> Steer {
+        Steer::Target
+    }
+
+    /// What the robot, leading its group, judged of the links of its last decision (`pack`).
+    fn judged(&self) -> Option<Judged> {
+        None
+    }
+}
+
+/// How a robot moves in a step ([`Coordinator::steer`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Steer {
+    /// Toward the target, along the agent's plan.
+    Target,
+    /// Nowhere.
+    Stay,
+    /// Straight to this cell's centre (within a step's length).
+    To(Cell),
 }
 
 /// The strategy of node `id` in scenario `s` (`max_range_cells`: the laser's range in cells).
@@ -106,9 +132,10 @@ pub fn new(
         return Box::new(roles::Roles::new(id, base, settings));
     }
     match c.strategy {
-        // Scenario validation refuses the reserved values that are not built yet; a scenario
-        // that skipped it gets the nearest frontier, as it always did.
-        Strategy::Uncoordinated | Strategy::Bids | Strategy::Roles | Strategy::Pack => {
+        Strategy::Pack => Box::new(pack::Pack::new(id, pack::Settings::new(s, world))),
+        // `bids` and `roles` need a base station (scenario validation says so); without one,
+        // the nearest frontier.
+        Strategy::Uncoordinated | Strategy::Bids | Strategy::Roles => {
             Box::new(uncoordinated::Uncoordinated)
         }
         Strategy::Decentralized => Box::new(decentralized::Decentralized::new(params)),
@@ -169,6 +196,8 @@ pub enum CoordMsg {
     Tasks(Tasks),
     /// `roles`: a robot's role state, to a robot in range.
     Role(Role),
+    /// `pack`: the pack table and the leader's moves.
+    Pack(Pack),
 }
 
 impl CoordMsg {
@@ -179,6 +208,7 @@ impl CoordMsg {
             CoordMsg::Bids(b) => b.from,
             CoordMsg::Tasks(t) => t.from,
             CoordMsg::Role(r) => r.from,
+            CoordMsg::Pack(p) => p.from,
         }
     }
 
@@ -189,6 +219,7 @@ impl CoordMsg {
             CoordMsg::Bids(_) => Traffic::Bid,
             CoordMsg::Tasks(_) => Traffic::Task,
             CoordMsg::Role(_) => Traffic::Role,
+            CoordMsg::Pack(_) => Traffic::Move,
         }
     }
 
@@ -199,6 +230,7 @@ impl CoordMsg {
             CoordMsg::Bids(_) => proto::keys::radio_bid,
             CoordMsg::Tasks(_) => proto::keys::radio_task,
             CoordMsg::Role(_) => proto::keys::radio_role,
+            CoordMsg::Pack(_) => proto::keys::radio_move,
         }
     }
 
@@ -208,6 +240,7 @@ impl CoordMsg {
             CoordMsg::Bids(b) => encode(b),
             CoordMsg::Tasks(t) => encode(t),
             CoordMsg::Role(r) => encode(r),
+            CoordMsg::Pack(p) => encode(p),
         }
     }
 
@@ -218,6 +251,7 @@ impl CoordMsg {
             "bid" => Some(decode::<Bids>(bytes).map(CoordMsg::Bids)),
             "task" => Some(decode::<Tasks>(bytes).map(CoordMsg::Tasks)),
             "role" => Some(decode::<Role>(bytes).map(CoordMsg::Role)),
+            "move" => Some(decode::<Pack>(bytes).map(CoordMsg::Pack)),
             _ => None,
         }
     }

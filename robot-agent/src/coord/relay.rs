@@ -210,6 +210,7 @@ mod tests {
                     CoordMsg::Tasks(t) => format!("tasks {}", t.step),
                     CoordMsg::Team(_) => "team".into(),
                     CoordMsg::Role(_) => "role".into(),
+                    CoordMsg::Pack(_) => "move".into(),
                 };
                 (to, what)
             })

@@ -39,7 +39,8 @@ use proto::scenario::Scenario;
 use super::hierarchy::{swap_pays, Role, Roster, Shape};
 use super::{decentralized, Addressed, CoordMsg, Coordinator, Params, Situation, Status, To};
 use crate::plan;
-use crate::rendezvous::{self, Agreeing, Meeting, Reach};
+use crate::reach::Reach;
+use crate::rendezvous::{self, Agreeing, Meeting};
 
 /// A robot's message older than this (steps) is not acted on for an agreement.
 const FRESH_STEPS: Step = 2;
