@@ -487,6 +487,7 @@ impl Coordinator for Pack {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     const UTILITIES: Utilities = Utilities {
         frontier: 1.0,
@@ -667,6 +668,49 @@ mod tests {
                     d <= step.max(std::f64::consts::SQRT_2) + 1e-9,
                     "{step}: {dx},{dy}"
                 );
+            }
+        }
+    }
+
+    proptest! {
+        /// Whatever the map and wherever a connected group stands, the change the leader takes
+        /// keeps it connected (by its own estimate) and asks no robot for an impossible move:
+        /// standing still is always a candidate, and every worse change loses to it.
+        #[test]
+        fn the_chosen_change_keeps_a_connected_group_connected_and_possible(
+            cells in proptest::collection::vec(0u8..10, 24 * 24),
+            starts in proptest::collection::vec((0i32..24, 0i32..24), 1..6),
+            seed in 0u64..1000,
+            range in 3.0f64..10.0,
+        ) {
+            let mut g = Grid::new(24, 24, Occ::Free);
+            for (i, v) in cells.iter().enumerate() {
+                let occ = match v { 0 => Occ::Occupied, 1 => Occ::Unknown, _ => Occ::Free };
+                g.set(g.cell_of(i), occ);
+            }
+            let mut from: Vec<Cell> = Vec::new();
+            for &(x, y) in &starts {
+                let c = Cell::new(x, y);
+                let apart = from.iter().all(|o| f64::from(o.x - x).hypot(f64::from(o.y - y)) >= 1.5);
+                if g.get(c) == Occ::Free && apart {
+                    from.push(c);
+                }
+            }
+            let frontier: Vec<Cell> = (0..g.len())
+                .map(|i| g.cell_of(i))
+                .filter(|&c| g.get(c) == Occ::Free
+                    && c.neighbours4().iter().any(|&n| g.contains(n) && g.get(n) == Occ::Unknown))
+                .collect();
+            let field = plan::costs_from(&g, &frontier);
+            let reach = Reach::Disk { range_cells: range };
+            let sc = scoring(&g, &field, &reach);
+            prop_assume!(!from.is_empty() && sc.connected(&from));
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let (to, u) = best_change(&sc, &offsets(2.5), &from, 50, &mut rng);
+            prop_assert!(sc.connected(&to), "{:?} -> {:?}", from, to);
+            prop_assert!(u >= sc.total(&from, &from));
+            for i in 0..to.len() {
+                prop_assert!(sc.possible(&from, &to, i), "robot {} {:?} -> {:?}", i, from[i], to[i]);
             }
         }
     }
