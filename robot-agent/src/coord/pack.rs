@@ -20,9 +20,10 @@
 //!   which checks it against what netem then does.
 //! * **Leader and moves**: a group is what the team table ([`super::team`]) says can talk,
 //!   transitively; its leader is its lowest id. The leader's decisions travel over the radio
-//!   (`Pack` messages, package type `move`), relayed member to member, one hop per step — so a
-//!   leader whose farthest member is D hops away plans each change D steps ahead, on the
-//!   positions its earlier changes will have produced (a pipeline of planned steps). A robot
+//!   (`Pack` messages, package type `move`), relayed member to member, one hop per step — so the
+//!   leader of n robots, whose farthest member is at most n − 1 hops away, plans each change
+//!   n − 1 steps ahead, on the positions its earlier changes will have produced (a pipeline of
+//!   planned steps). A robot
 //!   that holds no move of its leader for a step, or is not where the move starts, stays. When a
 //!   group splits, each part's table soon says so and its lowest id leads it; parts that meet
 //!   merge under the lower leader.
@@ -303,15 +304,14 @@ impl Pack {
         c
     }
 
-    /// As the leader of `group`: plans the change of the first step its farthest member can
-    /// still hear of in time, unless the pipeline already reaches that far.
-    fn lead(&mut self, s: &Situation<'_>, group: &[RobotId], edges: &[(RobotId, RobotId)]) {
+    /// As the leader of `group`: plans the change of the first step every member can still hear
+    /// of in time, unless the pipeline already reaches that far. A member is at most
+    /// `group.len() − 1` hops away; the table's links would say how far each is, but they are
+    /// reports of past steps, and a member whose move comes a step late stays while the leader
+    /// counts on its move.
+    fn lead(&mut self, s: &Situation<'_>, group: &[RobotId]) {
         let t = s.step;
-        let far = Table::hops(self.me, group, edges)
-            .values()
-            .copied()
-            .max()
-            .unwrap_or(0);
+        let far = Step::try_from(group.len().saturating_sub(1)).unwrap_or(Step::MAX);
         let at = t.saturating_add(far);
         if self.planned.range(at..).next().is_some() {
             return;
@@ -415,10 +415,9 @@ impl Coordinator for Pack {
         self.judged = None;
         let base = self.st.base;
         let group = self.table.group(self.me, s.neighbours, s.step, base);
-        let edges = self.table.edges(self.me, s.neighbours, s.step, base);
         let leader = leader(&group).unwrap_or(self.me);
         if leader == self.me {
-            self.lead(s, &group, &edges);
+            self.lead(s, &group);
         }
         self.steer = match self.my_move(leader, s) {
             Some(to) => Steer::To(to),

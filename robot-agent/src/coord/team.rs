@@ -104,7 +104,7 @@ impl Table {
     }
 
     /// The links the group is made of: `me`'s and those of the fresh reports.
-    pub fn edges(
+    fn edges(
         &self,
         me: RobotId,
         neighbours: &BTreeSet<RobotId>,
@@ -117,37 +117,6 @@ impl Table {
         }
         edges.retain(|&(a, b)| Some(a) != ignore && Some(b) != ignore && a != b);
         edges
-    }
-
-    /// Hops from `from` to every member of `group` over `edges` (breadth first; members it
-    /// cannot reach are left out).
-    pub fn hops(
-        from: RobotId,
-        group: &[RobotId],
-        edges: &[(RobotId, RobotId)],
-    ) -> BTreeMap<RobotId, u32> {
-        let mut hops = BTreeMap::from([(from, 0)]);
-        let mut frontier = vec![from];
-        let mut h = 0;
-        while !frontier.is_empty() {
-            h += 1;
-            let mut next = Vec::new();
-            for &r in &frontier {
-                for &(a, b) in edges {
-                    let other = match (a == r, b == r) {
-                        (true, _) => b,
-                        (_, true) => a,
-                        _ => continue,
-                    };
-                    if group.contains(&other) && !hops.contains_key(&other) {
-                        hops.insert(other, h);
-                        next.push(other);
-                    }
-                }
-            }
-            frontier = next;
-        }
-        hops
     }
 }
 
@@ -202,13 +171,5 @@ mod tests {
         // A link counts from either end; the base station carries none.
         t.merge(0, &[report(2, 11, &[1, 9]), report(3, 11, &[9])]);
         assert_eq!(t.group(0, &BTreeSet::from([1, 9]), 11, Some(9)), [0, 1, 2]);
-    }
-
-    #[test]
-    fn hops_count_links_from_the_leader() {
-        let edges = [(0, 1), (1, 2), (2, 3), (0, 4)];
-        let h = Table::hops(0, &[0, 1, 2, 3, 4], &edges);
-        assert_eq!(h.values().copied().collect::<Vec<_>>(), [0, 1, 2, 3, 1]);
-        assert_eq!(Table::hops(0, &[0, 1], &edges).len(), 2, "members only");
     }
 }
