@@ -70,9 +70,10 @@ pub struct Settings {
     /// Robots whose centres are closer than this (cells) collide.
     pub collide_cells: f64,
     pub reach: Reach,
-    /// The pack judges links between cell centres; a robot stands anywhere in its cell (at the
-    /// start, or where the world stopped it), so every distance counts this much more: the
-    /// largest error of two positions rounded to their cells' centres (√2 cells).
+    /// Cells every distance the radio is judged at counts more: the leader judges between cell
+    /// centres, and a robot stands anywhere in its cell (at the start, or where the world
+    /// stopped it) — √2 cells for two positions — and a move it counted on may not have been
+    /// made (the world refused it, or it came late) — one step.
     pub slack_cells: f64,
     /// Reports older than this no longer count (a hop per step across the team).
     pub fresh_steps: Step,
@@ -85,6 +86,7 @@ impl Settings {
     pub fn new(s: &Scenario, world: &WorldInfo) -> Settings {
         let p = &s.coordination.pack;
         let res = world.map.resolution_m;
+        let step_cells = world.max_speed_m_per_s * world.step_seconds / res;
         Settings {
             configurations: p.configurations as usize,
             utilities: Utilities {
@@ -93,10 +95,10 @@ impl Settings {
                 impossible: p.impossible_utility,
                 disconnect: p.disconnect_penalty,
             },
-            offsets: offsets(world.max_speed_m_per_s * world.step_seconds / res),
+            offsets: offsets(step_cells),
             collide_cells: 2.0 * s.robots.radius_m / res,
             reach: Reach::new(s, res),
-            slack_cells: std::f64::consts::SQRT_2,
+            slack_cells: std::f64::consts::SQRT_2 + step_cells,
             fresh_steps: Step::from(s.robots.count) + 1,
             seed: s.seed,
             base: s.base_id(),
