@@ -173,11 +173,13 @@ fn facets(points: &[Point], except: &[&str]) -> Vec<Vec<(String, String)>> {
     out
 }
 
-fn facet_title(f: &[(String, String)]) -> String {
-    f.iter()
-        .map(|(k, v)| label(k, v))
-        .collect::<Vec<_>>()
-        .join(", ")
+/// A chart's title: `title`, then the facet's values if it has any.
+fn facet_title(title: &str, f: &[(String, String)]) -> String {
+    if f.is_empty() {
+        return title.to_string();
+    }
+    let values: Vec<String> = f.iter().map(|(k, v)| label(k, v)).collect();
+    format!("{title}: {}", values.join(", "))
 }
 
 fn facet_stem(name: &str, f: &[(String, String)]) -> String {
@@ -242,11 +244,7 @@ fn plot(r: &Results, spec: &PlotSpec, dir: &Path) -> anyhow::Result<Vec<(String,
             };
             lines.push(Line { name, points });
         }
-        let title = if facet.is_empty() {
-            spec.title.clone()
-        } else {
-            format!("{}: {}", spec.title, facet_title(&facet))
-        };
+        let title = facet_title(&spec.title, &facet);
         let stem = facet_stem(&spec.name, &facet);
         let chart = Chart {
             title: title.clone(),
@@ -343,11 +341,7 @@ fn timeline(r: &Results, spec: &TimelineSpec, dir: &Path) -> anyhow::Result<Vec<
             ("load", load, "bytes per step, all links"),
             ("backlog", backlog, "largest backlog of a robot (bytes)"),
         ] {
-            let title = if facet.is_empty() {
-                format!("{} ({what})", spec.title)
-            } else {
-                format!("{} ({what}): {}", spec.title, facet_title(&facet))
-            };
+            let title = facet_title(&format!("{} ({what})", spec.title), &facet);
             let stem = facet_stem(&format!("{}-{what}", spec.name), &facet);
             let chart = Chart {
                 title: title.clone(),
@@ -400,11 +394,7 @@ fn curve(r: &Results, spec: &CurveSpec, dir: &Path) -> anyhow::Result<Vec<(Strin
             };
             lines.push(Line { name, points });
         }
-        let title = if facet.is_empty() {
-            spec.title.clone()
-        } else {
-            format!("{}: {}", spec.title, facet_title(&facet))
-        };
+        let title = facet_title(&spec.title, &facet);
         let stem = facet_stem(&spec.name, &facet);
         let chart = Chart {
             title: title.clone(),

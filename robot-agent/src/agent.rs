@@ -169,16 +169,15 @@ impl Agent {
             heard: &self.heard,
         });
         let w = &self.world;
-        match self.coordinator.steer() {
-            Steer::Target => {}
-            Steer::Stay => {
-                self.idle = frontiers.is_empty();
-                return None;
-            }
-            Steer::To(c) => {
-                self.idle = frontiers.is_empty();
-                return (c != me).then(|| w.map.centre_of(c));
-            }
+        let steered = match self.coordinator.steer() {
+            Steer::Target => None,
+            Steer::Stay => Some(None),
+            Steer::To(c) => Some((c != me).then(|| w.map.centre_of(c))),
+        };
+        if let Some(waypoint) = steered {
+            // The strategy moves the robot itself: idle only when nothing is left to explore.
+            self.idle = frontiers.is_empty();
+            return waypoint;
         }
         let max_cells = w.max_speed_m_per_s * w.step_seconds / w.map.resolution_m;
         if let Some(aside) = self.right_of_way.give_way(g, me, &self.heard, max_cells) {

@@ -19,7 +19,7 @@ use std::collections::BTreeMap;
 
 use proto::msg::Step;
 
-use crate::awareness::{mean_of_step_means, steps_since_base};
+use crate::awareness::{mean_of_step_means, steps_since_base, UpLinks};
 use crate::connectivity::{check_judgements, comm_level_pct};
 use crate::evaluate::{Evaluator, MetricsRow};
 use crate::progress::Progress;
@@ -60,7 +60,7 @@ pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) {
 /// 2010, Fig. 5d), from the links netem reported up at each step. Done at the end: netem
 /// reports a step only once the next one opens, so the links of a step may come after its
 /// telemetry. Nothing without a base station.
-pub fn score_contact(plan: &Plan, rec: &mut Record) {
+pub fn score_contact(plan: &Plan, rec: &mut Record, up: &UpLinks) {
     let Some(base) = plan.scenario.base_id() else {
         return;
     };
@@ -68,7 +68,7 @@ pub fn score_contact(plan: &Plan, rec: &mut Record) {
         return;
     };
     let nodes = usize::from(plan.scenario.nodes());
-    let since = steps_since_base(nodes, base, &rec.links.up_by_step(), last);
+    let since = steps_since_base(nodes, base, up, last);
     for row in rec.eval.rows.iter_mut().filter(|r| r.robot != base) {
         row.steps_since_base = since
             .get(row.step as usize)
@@ -80,10 +80,9 @@ pub fn score_contact(plan: &Plan, rec: &mut Record) {
 /// Sets every robot row's communication level (Rooker and Birk 2005, Fig. 6) from the links
 /// netem reported up at its step, like [`score_contact`] once they are all in. A step without
 /// links up has every robot alone.
-pub fn score_comm_level(plan: &Plan, rec: &mut Record) {
+pub fn score_comm_level(plan: &Plan, rec: &mut Record, up: &UpLinks) {
     let robots = usize::from(plan.scenario.robots.count);
     let nodes = usize::from(plan.scenario.nodes());
-    let up = rec.links.up_by_step();
     let base = plan.scenario.base_id();
     let mut level: BTreeMap<Step, f64> = BTreeMap::new();
     for row in rec.eval.rows.iter_mut().filter(|r| Some(r.robot) != base) {
@@ -109,7 +108,14 @@ fn comm_level(rows: &[MetricsRow]) -> Option<CommLevel> {
 }
 
 /// `summary.json`'s content.
-pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Instant) -> Summary {
+/// `up`: the links netem reported up, by step ([`crate::rundir::LinkLog::up_by_step`]).
+pub fn summary(
+    plan: &Plan,
+    rec: &Record,
+    up: &UpLinks,
+    exit_reason: ExitReason,
+    started: Instant,
+) -> Summary {
     let eval = &rec.eval;
     let last = rec.last_status().cloned().unwrap_or(Status {
         step: 0,
@@ -178,7 +184,7 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
             .iter()
             .map(|(s, _)| *s)
             .max()
-            .and_then(|reported| check_judgements(&eval.judged, &rec.links.up_by_step(), reported)),
+            .and_then(|reported| check_judgements(&eval.judged, up, reported)),
         failed_processes: rec.failed.clone(),
         deterministic: false,
         nondeterministic: nondeterministic(plan, rec),

@@ -94,9 +94,10 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
     finish::stop(run, &mut rec, &mut progress).await;
     rec.truncate();
-    finish::score_contact(&plan, &mut rec);
-    finish::score_comm_level(&plan, &mut rec);
-    let mut summary = finish::summary(&plan, &rec, exit_reason, started);
+    let up = rec.links.up_by_step();
+    finish::score_contact(&plan, &mut rec, &up);
+    finish::score_comm_level(&plan, &mut rec, &up);
+    let mut summary = finish::summary(&plan, &rec, &up, exit_reason, started);
     finish::write_tables(&plan.dir, &rec)?;
     finish::write_pictures(&plan.dir, (&truth, info), &rec, &mut progress)?;
     summary.run_digest = run_digest(&plan.dir)?;

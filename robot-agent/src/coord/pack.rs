@@ -277,7 +277,8 @@ pub struct Pack {
     /// This robot's move for the current step, decided in `choose`.
     steer: Steer,
     judged: Option<Judged>,
-    step: Step,
+    /// The leader of this robot's group, as `choose` found it this step.
+    leader: RobotId,
 }
 
 impl Pack {
@@ -290,7 +291,7 @@ impl Pack {
             planned: BTreeMap::new(),
             steer: Steer::Stay,
             judged: None,
-            step: 0,
+            leader: me,
         }
     }
 
@@ -413,11 +414,11 @@ impl Pack {
 
 impl Coordinator for Pack {
     fn choose(&mut self, s: &Situation<'_>) -> Option<Cell> {
-        self.step = s.step;
         self.judged = None;
         let base = self.st.base;
         let group = self.table.group(self.me, s.neighbours, s.step, base);
         let leader = leader(&group).unwrap_or(self.me);
+        self.leader = leader;
         if leader == self.me {
             self.lead(s, &group);
         }
@@ -448,11 +449,10 @@ impl Coordinator for Pack {
             return Vec::new();
         }
         let own = team::entry(self.me, st.step, st.me, None, &neighbours);
-        let group = self.table.group(self.me, &neighbours, st.step, base);
-        let plan = match leader(&group) {
-            Some(l) if l == self.me => Some(self.own_plan(st.step)),
-            Some(l) => self.plans.get(&l).cloned(),
-            None => None,
+        let plan = if self.leader == self.me {
+            Some(self.own_plan(st.step))
+        } else {
+            self.plans.get(&self.leader).cloned()
         };
         let msg = PackMsg {
             from: self.me,
