@@ -6,7 +6,6 @@
 //! early return, and `PR_SET_PDEATHSIG = SIGKILL` set in each child, so that even a launcher
 //! killed with SIGKILL takes its children with it.
 
-use std::fs::File;
 use std::path::Path;
 use std::process::{ExitStatus, Stdio};
 use std::time::Duration;
@@ -78,7 +77,12 @@ impl Children {
         args: &[String],
         log: &Path,
     ) -> anyhow::Result<u32> {
-        let out = File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        // Appended: a restarted process keeps its earlier lives' output in the same log.
+        let out = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(log)
+            .with_context(|| format!("opening {}", log.display()))?;
         let err = out.try_clone()?;
         let mut cmd = Command::new(exe);
         cmd.args(args)
@@ -112,6 +116,42 @@ impl Children {
             }
         }
         out
+    }
+
+    /// The running process named `name` (the newest, if it was restarted).
+    fn running(&mut self, name: &str) -> Option<&mut Proc> {
+        self.procs
+            .iter_mut()
+            .rev()
+            .find(|p| p.name == name && p.exited.is_none())
+    }
+
+    /// Sends `signal` to the running process named `name`; `false` if there is none (it
+    /// exited, or was never started) or the signal could not be sent.
+    pub fn signal(&mut self, name: &str, signal: libc::c_int) -> bool {
+        let Some(p) = self.running(name) else {
+            return false;
+        };
+        let Ok(pid) = libc::pid_t::try_from(p.pid) else {
+            return false;
+        };
+        // SAFETY: kill(2) on a child we spawned and have not reaped (its pid is still ours).
+        #[allow(unsafe_code)]
+        let r = unsafe { libc::kill(pid, signal) };
+        r == 0
+    }
+
+    /// SIGKILLs the running process named `name` and reaps it; its exit is not reported by
+    /// [`Self::newly_exited`] (whoever killed it knows). `false` if none was running.
+    pub async fn kill(&mut self, name: &str) -> bool {
+        let Some(p) = self.running(name) else {
+            return false;
+        };
+        let _ = p.child.start_kill();
+        if let Ok(status) = p.child.wait().await {
+            p.exited = Some(status);
+        }
+        true
     }
 
     pub fn pids(&self) -> Vec<u32> {

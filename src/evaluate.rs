@@ -263,6 +263,8 @@ mod tests {
             views: vec![],
             alone: false,
             judged: None,
+            life: 0,
+            log_bytes: Vec::new(),
         }
     }
 

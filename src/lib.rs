@@ -35,5 +35,7 @@ pub mod results;
 pub mod run;
 /// The run directory's files.
 pub mod rundir;
+/// Supervision and process faults: kill, restart, freeze, thaw; restarts by policy.
+pub mod supervise;
 /// `swarm sweep`: grids of runs × seeds, run a few at a time, resumable.
 pub mod sweep;

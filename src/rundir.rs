@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::evaluate::{MetricsRow, THRESHOLDS};
 
 /// Version of the run-directory schema, written into `summary.json`.
-pub const SCHEMA_VERSION: u32 = 5;
+pub const SCHEMA_VERSION: u32 = 6;
 
 /// `summary.json`.
 #[derive(Debug, Serialize)]
@@ -61,6 +61,12 @@ pub struct Summary {
     /// `pack`: the leaders' judgements of their links against netem's; `null` for the others.
     pub link_judgement: Option<crate::connectivity::LinkJudgement>,
     pub failed_processes: Vec<String>,
+    /// What was done to the processes — the scenario's process faults and supervised restarts —
+    /// in order ([`crate::supervise::Event`]).
+    pub process_events: Vec<crate::supervise::Event>,
+    /// Per robot life that ended before the run did: how much of its own log the team still
+    /// holds at the end, and what was lost with it (what only it held).
+    pub lost_logs: Vec<LostLog>,
     /// Lockstep: whether nothing but the scenario decided the run. `false` in realtime mode, and
     /// when a wall-clock timeout decided something or a process failed; `nondeterministic` says
     /// what and where.
@@ -69,6 +75,21 @@ pub struct Summary {
     /// sha256 of the run's outputs ([`DIGESTED`] and `grids/`): two runs with the same digest
     /// wrote the same tables and grids, byte for byte.
     pub run_digest: String,
+}
+
+/// One ended life of a robot in `summary.json`'s `lost_logs`: its own log as it last reported
+/// it, and the most of it any node alive at the end holds (the team holds prefixes of a log, so
+/// what is beyond the longest one is lost). Bytes are the ops' compact encoding (polygon
+/// exchange; `null` for the other modes).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LostLog {
+    pub robot: RobotId,
+    pub life: u16,
+    pub ops_written: u32,
+    pub ops_held: u32,
+    pub ops_lost: u32,
+    pub bytes_written: Option<u64>,
+    pub bytes_lost: Option<u64>,
 }
 
 /// `awareness` in `summary.json`: the team-awareness metrics of de Hoog, Cameron and Visser
@@ -308,14 +329,19 @@ impl LinkLog {
         up
     }
 
-    /// Bytes that crossed any link, both ways, up to the last report.
+    /// Bytes that crossed any link, both ways, up to the last report. A restarted netem counts
+    /// from zero again: a pair's total that falls starts a new count, added to the old one.
     pub fn wire_total(&self) -> u64 {
-        let mut totals: BTreeMap<(u16, u16), u64> = BTreeMap::new();
+        // Per pair: the totals of netem's earlier lives, and the current one's.
+        let mut totals: BTreeMap<(u16, u16), (u64, u64)> = BTreeMap::new();
         for (_, l) in &self.rows {
-            let t = totals.entry((l.a, l.b)).or_default();
-            *t = (*t).max(l.bytes_total);
+            let (done, now) = totals.entry((l.a, l.b)).or_default();
+            if l.bytes_total < *now {
+                *done += *now;
+            }
+            *now = l.bytes_total;
         }
-        totals.values().sum()
+        totals.values().map(|(done, now)| done + now).sum()
     }
 
     /// How long links took to reconnect after coming back up (see [`Reconnects`]).

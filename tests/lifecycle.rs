@@ -10,7 +10,7 @@ use crate::support::{descendants, kill, running, stderr, summary, Launcher, Temp
 /// Starts a run in realtime mode (200 ms per step), so that it lasts long enough to be
 /// interfered with: about 60 steps, some 12 s, where the kills below land after 2–3 s even on
 /// a loaded machine (at 50 ms per step the run could end before them).
-fn start(dir: &TempDir, robots: u32) -> Launcher {
+fn start(dir: &TempDir, robots: u32, sets: &[&str]) -> Launcher {
     let mut cmd = Command::new(SWARM);
     cmd.args(["run", "--quiet", "--out"])
         .arg(dir.path().join("run"));
@@ -22,7 +22,10 @@ fn start(dir: &TempDir, robots: u32) -> Launcher {
         "max_steps=1500".into(),
         "clock.mode=realtime".into(),
         "clock.speedup=5".into(),
-    ] {
+    ]
+    .into_iter()
+    .chain(sets.iter().map(|s| s.to_string()))
+    {
         cmd.arg("--set").arg(s);
     }
     Launcher::spawn(cmd)
@@ -59,10 +62,11 @@ fn wait_gone(pids: &[u32]) {
     }
 }
 
+/// Without supervision (`supervise.restart = []`) a robot killed from outside stays dead.
 #[test]
 fn a_robot_killed_mid_run_is_reported_and_nothing_is_left() {
     let dir = TempDir::new("kill-robot");
-    let l = start(&dir, 3);
+    let l = start(&dir, 3, &["supervise.restart=[]"]);
     let kids = wait_for_children(&l, 4);
     // Let the run get going, then kill one robot-agent process (not the world-server).
     std::thread::sleep(Duration::from_secs(3));
@@ -99,7 +103,7 @@ fn a_robot_killed_mid_run_is_reported_and_nothing_is_left() {
 #[test]
 fn killing_the_launcher_takes_every_child_with_it() {
     let dir = TempDir::new("kill-launcher");
-    let l = start(&dir, 2);
+    let l = start(&dir, 2, &[]);
     let kids = wait_for_children(&l, 3);
     kill(l.pid, 9);
     wait_gone(&kids);
@@ -108,7 +112,7 @@ fn killing_the_launcher_takes_every_child_with_it() {
 #[test]
 fn a_normal_run_leaves_no_process_behind() {
     let dir = TempDir::new("normal");
-    let l = start(&dir, 2);
+    let l = start(&dir, 2, &[]);
     let kids = wait_for_children(&l, 3);
     let out = l.wait_output(Duration::from_secs(300));
     assert!(out.status.code().is_some(), "launcher exited normally");
@@ -120,7 +124,7 @@ fn a_normal_run_leaves_no_process_behind() {
 #[test]
 fn killing_the_world_server_is_the_reported_cause() {
     let dir = TempDir::new("kill-world");
-    let l = start(&dir, 2);
+    let l = start(&dir, 2, &[]);
     // World-server, netem and 2 robots.
     let kids = wait_for_children(&l, 4);
     std::thread::sleep(Duration::from_secs(2));
@@ -154,4 +158,74 @@ fn killing_the_world_server_is_the_reported_cause() {
         "{s}"
     );
     wait_gone(&kids);
+}
+
+/// The pid of the running child of `launcher` whose command line contains `what`.
+fn child_running(launcher: u32, what: &str) -> Option<u32> {
+    descendants(launcher).into_iter().find(|&p| {
+        running(p)
+            && std::fs::read_to_string(format!("/proc/{p}/cmdline"))
+                .is_ok_and(|c| c.replace('\0', " ").contains(what))
+    })
+}
+
+/// Waits until a child matching `what` other than `not` runs.
+fn wait_for_new(launcher: u32, what: &str, not: u32) -> u32 {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        if let Some(p) = child_running(launcher, what).filter(|&p| p != not) {
+            return p;
+        }
+        assert!(Instant::now() < deadline, "{what} was not started again");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Supervision (the default `[supervise]`: robots and netem): a robot and netem killed with
+/// SIGKILL from outside the run are started again; the run completes with every robot, and
+/// every process of every life is gone after it.
+#[test]
+fn robots_and_netem_killed_from_outside_are_started_again_by_supervision() {
+    let dir = TempDir::new("supervise");
+    let l = start(&dir, 3, &[]);
+    let first = wait_for_children(&l, 5);
+    std::thread::sleep(Duration::from_secs(2));
+    let robot = child_running(l.pid, "robot-agent --id 1").expect("robot 1");
+    kill(robot, 9);
+    let robot2 = wait_for_new(l.pid, "robot-agent --id 1", robot);
+    std::thread::sleep(Duration::from_secs(1));
+    let netem = child_running(l.pid, "netem serve").expect("netem");
+    kill(netem, 9);
+    let netem2 = wait_for_new(l.pid, "netem serve", netem);
+    let mut all = first;
+    all.extend([robot2, netem2]);
+    let out = l.wait_output(Duration::from_secs(300));
+    let s = summary(&dir.path().join("run"));
+    assert_eq!(s["complete"], true, "{}\n{s}", stderr(&out));
+    assert_eq!(s["robots_alive_at_end"], 3, "{s}");
+    let events: Vec<(String, String, String)> = s["process_events"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+        .iter()
+        .map(|e| {
+            let f = |k: &str| e[k].as_str().unwrap_or_default().to_string();
+            (f("process"), f("event"), f("cause"))
+        })
+        .collect();
+    for p in ["robot-1", "netem"] {
+        assert!(
+            events
+                .iter()
+                .any(|e| e.0 == p && e.1 == "died" && e.2.contains("SIGKILL")),
+            "{p}: {events:?}"
+        );
+        assert!(
+            events
+                .iter()
+                .any(|e| e.0 == p && e.1 == "started" && e.2 == "supervised"),
+            "{p}: {events:?}"
+        );
+    }
+    wait_gone(&all);
 }

@@ -13,6 +13,7 @@ mod mapping;
 mod netem;
 mod pack;
 mod polygon;
+mod process_faults;
 mod roles;
 mod runs;
 mod sweep;

@@ -435,12 +435,13 @@ pub struct ScheduledFault {
     pub fault: Fault,
 }
 
-/// Reads the scenario's `[[faults]]` tables (`step`, `kind` and the kind's fields), naming the
-/// index of the first bad one.
+/// Reads the scenario's link faults among its `[[faults]]` tables (`step`, `kind` and the kind's
+/// fields; process faults are the launcher's and skipped), naming the index of the first bad one.
 pub fn parse_faults(tables: &[toml::Table]) -> Result<Vec<ScheduledFault>, (usize, String)> {
     tables
         .iter()
         .enumerate()
+        .filter(|(_, t)| !proto::scenario::is_process_fault(t))
         .map(|(i, t)| {
             toml::Value::Table(t.clone())
                 .try_into::<ScheduledFault>()
@@ -716,6 +717,17 @@ mod tests {
             }
         );
         assert_eq!(f[2].fault, Fault::Reset { pair: None });
+        // Process faults are the launcher's: skipped, and the indices still name the tables.
+        let mut with_kill = tables.clone();
+        with_kill.insert(
+            0,
+            "step = 5\nkind = \"kill\"\nprocess = \"robot-1\""
+                .parse()
+                .unwrap(),
+        );
+        assert_eq!(parse_faults(&with_kill).unwrap(), f);
+        with_kill[2].insert("kind".into(), toml::Value::String("explode".into()));
+        assert_eq!(parse_faults(&with_kill).unwrap_err().0, 2);
         match &f[1].fault {
             Fault::SetToxic {
                 pair: Some((1, 2)),

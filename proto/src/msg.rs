@@ -12,7 +12,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 8;
+pub const PROTOCOL_VERSION: u16 = 9;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -148,6 +148,37 @@ pub struct Telemetry {
     /// `pack`: what the robot, leading its group, judged of the links of the configuration it
     /// chose (checked by the launcher against netem's links of that step).
     pub judged: Option<Judged>,
+    /// Which life of the robot this is: 0 for the process the run started, one more for each
+    /// restart (its own log's owner is [`log_owner`]`(robot, life)`).
+    pub life: u16,
+    /// Polygon exchange: per owner whose log the robot holds (its own included), the encoded
+    /// bytes of the ops it holds (each op's compact encoding, chunk headers aside).
+    pub log_bytes: Vec<(RobotId, u64)>,
+}
+
+/// How many robot ids one life of the log owners spans: robot `r` in life `l` owns the log
+/// `r + l * LIFE_STRIDE` ([`log_owner`]). Life 0 owns the log numbered like the robot, so runs
+/// without restarts name owners exactly as robots.
+pub const LIFE_STRIDE: u16 = 1024;
+
+/// The most lives a robot can have (its restarts + 1) so that every owner fits in a [`RobotId`].
+pub const MAX_LIVES: u16 = u16::MAX / LIFE_STRIDE + 1;
+
+/// The owner of the log robot `robot` writes in its life `life` (0: the process the run
+/// started). A restarted robot never appends to the log of an earlier life: its peers may hold
+/// different prefixes of it, and indices it reused would clash with theirs. The earlier log
+/// stays an owner like any other, relayed to everyone — the restarted robot included.
+/// `None` if the robot id or the life is out of range.
+pub fn log_owner(robot: RobotId, life: u16) -> Option<RobotId> {
+    if robot >= LIFE_STRIDE {
+        return None;
+    }
+    life.checked_mul(LIFE_STRIDE)?.checked_add(robot)
+}
+
+/// The robot and the life of a log owner (inverse of [`log_owner`]).
+pub fn owner_life(owner: RobotId) -> (RobotId, u16) {
+    (owner % LIFE_STRIDE, owner / LIFE_STRIDE)
 }
 
 /// A leader's judgement of its group's links at `step` (`pack`): among the pairs of `group`,
@@ -870,6 +901,8 @@ mod tests {
                 group: vec![0, 2, 3],
                 up: vec![(0, 2), (2, 3)],
             }),
+            life: 1,
+            log_bytes: vec![(0, 480), (1026, 12)],
         });
         round_trip(Control::Stop);
         round_trip(LinkReport {
@@ -1077,5 +1110,19 @@ mod link_plan_tests {
         };
         assert_eq!((l.rate_from(1), l.delay_from(1)), (Some(10), 3));
         assert_eq!((l.rate_from(4), l.delay_from(4)), (Some(20), 0));
+    }
+
+    #[test]
+    fn log_owners_name_robot_and_life_and_life_zero_is_the_robot() {
+        assert_eq!(log_owner(3, 0), Some(3));
+        assert_eq!(log_owner(3, 2), Some(3 + 2 * LIFE_STRIDE));
+        assert_eq!(owner_life(3 + 2 * LIFE_STRIDE), (3, 2));
+        assert_eq!(log_owner(LIFE_STRIDE, 0), None);
+        assert_eq!(log_owner(LIFE_STRIDE - 1, MAX_LIVES - 1), Some(u16::MAX));
+        assert_eq!(log_owner(0, MAX_LIVES), None);
+        for owner in [0, 5, 1023, 1024, 4097, u16::MAX] {
+            let (r, l) = owner_life(owner);
+            assert_eq!(log_owner(r, l), Some(owner));
+        }
     }
 }

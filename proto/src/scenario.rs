@@ -28,9 +28,169 @@ pub struct Scenario {
     pub coordination: Coordination,
     pub base_station: BaseStation,
     pub netem: Netem,
-    /// Faults netem applies when the run reaches a step: `[[faults]]` tables with `step`, `kind`
-    /// and the kind's fields (see configs/default.toml). Parsed and checked by netem.
+    pub supervise: Supervise,
+    /// Faults applied when the run reaches a step: `[[faults]]` tables with `step`, `kind` and
+    /// the kind's fields (see configs/default.toml). Link faults are parsed and checked by
+    /// netem; process faults ([`PROCESS_FAULT_KINDS`]) by [`Scenario::process_faults`], carried
+    /// out by the launcher.
     pub faults: Vec<toml::Table>,
+}
+
+/// `[supervise]`: which processes the launcher restarts when they die unexpectedly (a crash, or
+/// a signal from outside the run), how soon and how often.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Supervise {
+    /// Kinds of process restarted: `robot`, `netem`, `base-station` (the world-server is the
+    /// simulation itself: its loss ends the run).
+    pub restart: Vec<ProcessKind>,
+    /// Steps of the world's clock between the death and the restart (0: at once).
+    pub delay_steps: u32,
+    /// Most restarts of one process in a run.
+    pub max_restarts: u16,
+}
+
+impl Default for Supervise {
+    fn default() -> Self {
+        Supervise {
+            restart: vec![ProcessKind::Robot, ProcessKind::Netem],
+            delay_steps: 1,
+            max_restarts: 3,
+        }
+    }
+}
+
+/// A kind of process of a run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ProcessKind {
+    Robot,
+    Netem,
+    BaseStation,
+    WorldServer,
+}
+
+/// One process of a run, named as its log file in `logs/` is: `robot-<id>`, `netem`,
+/// `world-server`, `base-station`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Process {
+    Robot(u16),
+    Netem,
+    BaseStation,
+    WorldServer,
+}
+
+impl Process {
+    pub fn kind(self) -> ProcessKind {
+        match self {
+            Process::Robot(_) => ProcessKind::Robot,
+            Process::Netem => ProcessKind::Netem,
+            Process::BaseStation => ProcessKind::BaseStation,
+            Process::WorldServer => ProcessKind::WorldServer,
+        }
+    }
+}
+
+impl std::fmt::Display for Process {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Process::Robot(i) => write!(f, "robot-{i}"),
+            Process::Netem => f.write_str("netem"),
+            Process::BaseStation => f.write_str("base-station"),
+            Process::WorldServer => f.write_str("world-server"),
+        }
+    }
+}
+
+impl std::str::FromStr for Process {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Process, String> {
+        match s {
+            "netem" => Ok(Process::Netem),
+            "base-station" => Ok(Process::BaseStation),
+            "world-server" => Ok(Process::WorldServer),
+            _ => s
+                .strip_prefix("robot-")
+                .and_then(|i| i.parse().ok())
+                .map(Process::Robot)
+                .ok_or_else(|| {
+                    format!("{s:?} is no process: robot-<id>, netem, base-station or world-server")
+                }),
+        }
+    }
+}
+
+impl Serialize for Process {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> Deserialize<'de> for Process {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Process, D::Error> {
+        String::deserialize(d)?
+            .parse()
+            .map_err(serde::de::Error::custom)
+    }
+}
+
+/// The `[[faults]]` kinds that act on processes (the launcher's); every other kind is a link
+/// fault (netem's).
+pub const PROCESS_FAULT_KINDS: [&str; 4] = ["kill", "restart", "freeze", "thaw"];
+
+/// What a process fault does.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ProcessAction {
+    /// SIGKILL; started again (same id, next life) after `restart_after` steps if given.
+    Kill {
+        process: Process,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        restart_after: Option<u32>,
+    },
+    /// SIGKILL and started again at once (same ports; a robot in its next life).
+    Restart { process: Process },
+    /// SIGSTOP: the process stays, silent (a robot misses its steps and is declared dead after
+    /// `clock.dead_after` of them).
+    Freeze { process: Process },
+    /// SIGCONT: a frozen process goes on (a robot declared dead meanwhile rejoins).
+    Thaw { process: Process },
+}
+
+impl ProcessAction {
+    pub fn process(&self) -> Process {
+        match self {
+            ProcessAction::Kill { process, .. }
+            | ProcessAction::Restart { process }
+            | ProcessAction::Freeze { process }
+            | ProcessAction::Thaw { process } => *process,
+        }
+    }
+
+    /// The kind's name in `[[faults]]`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            ProcessAction::Kill { .. } => "kill",
+            ProcessAction::Restart { .. } => "restart",
+            ProcessAction::Freeze { .. } => "freeze",
+            ProcessAction::Thaw { .. } => "thaw",
+        }
+    }
+}
+
+/// A process fault at a step.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ProcessFault {
+    pub step: u32,
+    #[serde(flatten)]
+    pub action: ProcessAction,
+}
+
+/// Whether a `[[faults]]` table is a process fault (else a link fault).
+pub fn is_process_fault(t: &toml::Table) -> bool {
+    t.get("kind")
+        .and_then(toml::Value::as_str)
+        .is_some_and(|k| PROCESS_FAULT_KINDS.contains(&k))
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -393,6 +553,7 @@ impl Default for Scenario {
             coordination: Coordination::default(),
             base_station: BaseStation::default(),
             netem: Netem::default(),
+            supervise: Supervise::default(),
             faults: Vec::new(),
         }
     }
@@ -665,6 +826,24 @@ impl Scenario {
             s.netem.connect_timeout_ms as f64,
             1.0,
         )?;
+        if s.supervise.restart.contains(&ProcessKind::WorldServer) {
+            return Err(invalid(
+                "supervise.restart",
+                "world-server",
+                "robot, netem or base-station: the world-server is the simulation, its loss ends the run",
+            ));
+        }
+        let most = crate::msg::MAX_LIVES - 1;
+        if s.supervise.max_restarts > most {
+            return Err(invalid(
+                "supervise.max_restarts",
+                s.supervise.max_restarts,
+                &format!(
+                    "must be at most {most} (a restarted robot's log is owned by its next life)"
+                ),
+            ));
+        }
+        s.process_faults()?;
         at_least(
             "exchange.hello_every_steps",
             f64::from(s.exchange.hello_every_steps),
@@ -859,6 +1038,58 @@ impl Scenario {
     /// Radio nodes: the robots, then the base station if there is one.
     pub fn nodes(&self) -> u16 {
         self.robots.count + u16::from(self.base_station.enabled)
+    }
+
+    /// The scenario's process faults (`[[faults]]` of the kinds in [`PROCESS_FAULT_KINDS`]) in
+    /// step order, checked against the run's processes; the error names the table.
+    pub fn process_faults(&self) -> Result<Vec<ProcessFault>, ScenarioError> {
+        let mut out = Vec::new();
+        for (i, t) in self.faults.iter().enumerate() {
+            if !is_process_fault(t) {
+                continue;
+            }
+            let key = format!("faults[{i}]");
+            let kind = t.get("kind").map_or_else(String::new, ToString::to_string);
+            let f: ProcessFault = toml::Value::Table(t.clone())
+                .try_into()
+                .map_err(|e: toml::de::Error| invalid(&key, &kind, &one_line(&e)))?;
+            let p = f.action.process();
+            let exists = match p {
+                Process::Robot(i) => i < self.robots.count,
+                Process::BaseStation => self.base_station.enabled,
+                Process::Netem | Process::WorldServer => true,
+            };
+            if !exists {
+                return Err(invalid(
+                    &key,
+                    p,
+                    &format!(
+                        "no such process in this run: robot-0..robot-{}, netem, world-server{}",
+                        self.robots.count - 1,
+                        if self.base_station.enabled {
+                            ", base-station"
+                        } else {
+                            ""
+                        }
+                    ),
+                ));
+            }
+            let refused = match (&f.action, p) {
+                (ProcessAction::Kill { restart_after: Some(_), .. } | ProcessAction::Restart { .. }, Process::WorldServer) => {
+                    Some("the world-server is the simulation: it can be killed (ending the run), not restarted")
+                }
+                (ProcessAction::Freeze { .. } | ProcessAction::Thaw { .. }, Process::Netem | Process::WorldServer) => {
+                    Some("only a robot or the base station can be frozen and thawed")
+                }
+                _ => None,
+            };
+            if let Some(why) = refused {
+                return Err(invalid(&key, f.action.name(), why));
+            }
+            out.push(f);
+        }
+        out.sort_by_key(|f| f.step);
+        Ok(out)
     }
 
     /// The base station's node id (`robots.count`), if there is one.

@@ -26,6 +26,8 @@ pub struct Agent {
     /// The base station (`[base_station]`, node `robots.count`): it neither senses nor moves;
     /// it exchanges maps like any node and runs its strategy's executive, if there is one.
     base: bool,
+    /// 0 for the process the run started; one more for each restart.
+    life: u16,
     world: WorldInfo,
     /// G_s: what this robot sensed itself, and the beam counts behind it.
     own: Grid,
@@ -62,6 +64,14 @@ struct ObstaclePenalty {
 
 impl Agent {
     pub fn new(id: RobotId, world: WorldInfo, s: &Scenario) -> Agent {
+        Agent::in_life(id, 0, world, s)
+    }
+
+    /// Robot `id` in its life `life` (0: the process the run started; one more for each
+    /// restart): it writes the log of owner [`proto::msg::log_owner`]`(id, life)` and holds its
+    /// earlier lives' logs like anyone else's, as its peers give them back.
+    pub fn in_life(id: RobotId, life: u16, world: WorldInfo, s: &Scenario) -> Agent {
+        let own_log = proto::msg::log_owner(id, life).unwrap_or(id);
         let empty = Grid::new(world.map.width, world.map.height, Occ::Unknown);
         let max_range_cells = world.laser.max_range_m / world.map.resolution_m;
         let base = s.base_id() == Some(id);
@@ -70,7 +80,8 @@ impl Agent {
             base,
             own_evidence: Evidence::new(&empty),
             own_changed: Vec::new(),
-            sharing: sharing::new(s, id, &world, radio::budget_per_step(s, &world)),
+            sharing: sharing::new(s, id, own_log, &world, radio::budget_per_step(s, &world)),
+            life,
             coordinator: coord::new(s, id, &world, max_range_cells),
             heard: Heard::default(),
             right_of_way: RightOfWay::new(id, s.robots.radius_m, world.map.resolution_m),
@@ -321,6 +332,8 @@ impl Agent {
             idle: self.idle,
             alone: self.coordinator.alone(),
             judged: self.coordinator.judged(),
+            life: self.life,
+            log_bytes: self.sharing.held_bytes(),
             neighbours: self.radio.neighbours().iter().copied().collect(),
             decode_errors: c.decode_errors,
             sent_by_type: c.sent_by_type.to_vec(),

@@ -37,6 +37,9 @@ pub struct ApproxExchange {
     logs: LogExchange<Op>,
     /// Per other owner: its approximation rebuilt from its log.
     replicas: BTreeMap<RobotId, Follower>,
+    /// Per owner: the encoded size of the ops we hold, measured as one chunk from the log's
+    /// start (the encoding is relative to the op before), and how many ops it covers.
+    sizes: BTreeMap<RobotId, (wire::Encoder, usize, u64)>,
 }
 
 /// Another owner's approximation as rebuilt here.
@@ -51,9 +54,15 @@ struct Follower {
 
 impl ApproxExchange {
     pub fn new(me: RobotId) -> ApproxExchange {
+        ApproxExchange::owning(me, me)
+    }
+
+    /// Node `me` writing the log of owner `own` (a restarted robot's next life).
+    pub fn owning(me: RobotId, own: RobotId) -> ApproxExchange {
         ApproxExchange {
-            logs: LogExchange::new(me),
+            logs: LogExchange::owning(me, own),
             replicas: BTreeMap::new(),
+            sizes: BTreeMap::new(),
         }
     }
 
@@ -61,11 +70,41 @@ impl ApproxExchange {
         self.logs.id()
     }
 
+    /// The owner of our own log.
+    pub fn own(&self) -> RobotId {
+        self.logs.own()
+    }
+
     /// Appends our own ops (one step's edit script and its save point) to our log.
     pub fn record_own(&mut self, ops: &[Op]) {
         for &op in ops {
             self.logs.record_own(op);
         }
+        self.measure(self.own());
+    }
+
+    /// Brings the measured size of `owner`'s log up to what we hold (from scratch if the log
+    /// was cut back).
+    fn measure(&mut self, owner: RobotId) {
+        let log = self.logs.log(owner);
+        let (enc, counted, bytes) = self
+            .sizes
+            .entry(owner)
+            .or_insert_with(|| (wire::Encoder::new(), 0, 0));
+        if *counted > log.len() {
+            *enc = wire::Encoder::new();
+            *counted = 0;
+            *bytes = 0;
+        }
+        for op in &log[*counted..] {
+            *bytes += enc.measure(op) as u64;
+        }
+        *counted = log.len();
+    }
+
+    /// Per owner whose log we hold (our own included): the encoded bytes of the ops we hold.
+    pub fn held_bytes(&self) -> Vec<(RobotId, u64)> {
+        self.sizes.iter().map(|(&o, &(_, _, b))| (o, b)).collect()
     }
 
     /// The chunks to send `peer` now, within `budget_bytes` as measured by `size_of` (the size
@@ -101,7 +140,9 @@ impl ApproxExchange {
             records,
         });
         if let DeltaOutcome::Appended { owner, .. } = outcome {
-            if let Some(have) = self.catch_up(owner) {
+            let cut = self.catch_up(owner);
+            self.measure(owner);
+            if let Some(have) = cut {
                 return Ok(DeltaOutcome::Gap {
                     owner,
                     have,
@@ -115,7 +156,7 @@ impl ApproxExchange {
     /// Applies the ops of `owner`'s log the replica has not seen. If one does not apply, the
     /// log is cut back to the last save point and its length returned (to be asked for again).
     fn catch_up(&mut self, owner: RobotId) -> Option<u32> {
-        if owner == self.id() {
+        if owner == self.own() {
             return None;
         }
         let log = self.logs.log(owner);
@@ -282,6 +323,44 @@ mod tests {
                 sent.push(c);
             }
         }
+    }
+
+    #[test]
+    fn a_restarted_robot_gets_its_earlier_life_back_and_writes_a_new_log() {
+        let (ops, states) = owner_log();
+        let (mut a, mut b) = (ApproxExchange::new(0), ApproxExchange::new(1));
+        a.record_own(&ops);
+        assert_eq!(a.held_bytes(), vec![(0, wire::encode(&ops).len() as u64)]);
+        transfer(&mut a, &mut b, 64);
+        // Robot 0 dies; its next life starts empty and owns a log of its own.
+        let second = proto::msg::log_owner(0, 1).expect("robot 0 has a second life");
+        let mut a2 = ApproxExchange::owning(0, second);
+        transfer(&mut b, &mut a2, 64);
+        let last = states.last().cloned().unwrap_or_default();
+        assert_eq!(
+            a2.approximation(0),
+            Some(&last),
+            "its first life, as a replica"
+        );
+        assert_eq!(a2.log(0), ops.as_slice());
+        assert!(a2.log(second).is_empty());
+        // Its new ops go to the new log, which b takes as another owner's.
+        a2.record_own(&ops[..3]);
+        transfer(&mut a2, &mut b, 64);
+        assert_eq!(b.log(second), &ops[..3]);
+        assert_eq!(b.log(0), ops.as_slice());
+        let held: BTreeMap<_, _> = b.held_bytes().into_iter().collect();
+        assert_eq!(held[&0], wire::encode(&ops).len() as u64);
+        assert_eq!(held[&second], wire::encode(&ops[..3]).len() as u64);
+        // Nobody can write into our own log: a chunk of it is ignored.
+        let forged = chunk(&LogDelta {
+            from: 1,
+            owner: second,
+            start: 3,
+            records: ops[3..5].to_vec(),
+        });
+        assert_eq!(a2.on_chunk(&forged), Ok(DeltaOutcome::Duplicate));
+        assert_eq!(a2.log(second), &ops[..3]);
     }
 
     #[test]

@@ -54,6 +54,11 @@ pub struct NodeArgs {
     /// is gone and exits.
     #[arg(long, default_value_t = IDLE_TIMEOUT_S, value_name = "SECONDS")]
     pub idle_timeout_s: f64,
+    /// Which life of the node this process is: 0 for the one the run started, one more for
+    /// each restart (the launcher's supervision and process faults). A node in a later life
+    /// writes a new log and takes its earlier lives' logs back from its peers.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub life: u16,
     /// Sim-plane zenoh options (--connect the world-server's router).
     #[command(flatten)]
     pub zenoh: ZenohArgs,
@@ -71,6 +76,7 @@ impl NodeArgs {
             radio_connect: Vec::new(),
             radio_config: None,
             idle_timeout_s: IDLE_TIMEOUT_S,
+            life: 0,
             zenoh,
         }
     }
@@ -88,6 +94,9 @@ impl NodeArgs {
             a.extend(["--radio-config".into(), f.to_string_lossy().into_owned()]);
         }
         a.extend(["--idle-timeout-s".into(), self.idle_timeout_s.to_string()]);
+        if self.life > 0 {
+            a.extend(["--life".into(), self.life.to_string()]);
+        }
         a.extend(self.zenoh.to_argv());
         a
     }
@@ -156,7 +165,22 @@ async fn run(role: Role, args: NodeArgs) -> anyhow::Result<End> {
         .map_err(zerr)
         .context("opening the radio plane")?;
     let idle = Duration::from_secs_f64(args.idle_timeout_s.max(0.1));
-    let end = run_robot(id, &scenario, sim.clone(), radio.clone(), world, idle).await?;
+    if proto::msg::log_owner(id, args.life).is_none() {
+        anyhow::bail!(
+            "--life {} is out of range: at most {}",
+            args.life,
+            proto::msg::MAX_LIVES - 1
+        );
+    }
+    let end = run_robot(
+        (id, args.life),
+        &scenario,
+        sim.clone(),
+        radio.clone(),
+        world,
+        idle,
+    )
+    .await?;
     close_quickly(radio).await;
     close_quickly(sim).await;
     Ok(end)
@@ -218,6 +242,7 @@ mod tests {
         args.node.radio_connect = vec!["tcp/127.0.0.1:7600".into(), "tcp/127.0.0.1:7601".into()];
         args.node.radio_config = Some(PathBuf::from("radio.json5"));
         args.node.idle_timeout_s = 0.25;
+        args.node.life = 2;
         let argv = std::iter::once("robot-agent".to_string()).chain(args.to_argv());
         assert_eq!(Args::parse_from(argv), args);
         let base = BaseArgs { node: args.node };

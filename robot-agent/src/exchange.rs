@@ -22,7 +22,12 @@ use proto::msg::{Hello, LogDelta, RobotId};
 /// The log exchange of one robot.
 #[derive(Clone, Debug)]
 pub struct LogExchange<R> {
+    /// Our node id: the sender of our deltas and handshakes.
     me: RobotId,
+    /// The owner of the log we append to: `me` in the robot's first life, then
+    /// [`proto::msg::log_owner`] of its life (a restarted robot holds its earlier lives' logs
+    /// like anyone else's).
+    own: RobotId,
     /// Per owner, the prefix of its log we hold (our own log is complete).
     logs: BTreeMap<RobotId, Vec<R>>,
     /// S[peer][owner]: how far we believe `peer` knows `owner`'s log. A peer has a row only after
@@ -48,13 +53,24 @@ pub enum DeltaOutcome {
 }
 
 impl<R: Clone> LogExchange<R> {
-    /// An exchange for robot `me`, holding nothing yet.
+    /// An exchange for robot `me` in its first life, holding nothing yet.
     pub fn new(me: RobotId) -> LogExchange<R> {
+        LogExchange::owning(me, me)
+    }
+
+    /// An exchange for node `me` appending to the log of owner `own`, holding nothing yet.
+    pub fn owning(me: RobotId, own: RobotId) -> LogExchange<R> {
         LogExchange {
             me,
-            logs: BTreeMap::from([(me, Vec::new())]),
+            own,
+            logs: BTreeMap::from([(own, Vec::new())]),
             sent: BTreeMap::new(),
         }
+    }
+
+    /// The owner of our own log.
+    pub fn own(&self) -> RobotId {
+        self.own
     }
 
     /// Our own robot id.
@@ -64,7 +80,7 @@ impl<R: Clone> LogExchange<R> {
 
     /// Appends a record to our own log.
     pub fn record_own(&mut self, rec: R) {
-        self.logs.entry(self.me).or_default().push(rec);
+        self.logs.entry(self.own).or_default().push(rec);
     }
 
     /// The deltas to send `peer` now, within `budget_bytes` as measured by `size_of` (the size of
@@ -94,8 +110,8 @@ impl<R: Clone> LogExchange<R> {
                 (lag > 0).then_some((lag, owner, known))
             })
             .collect();
-        let me = self.me;
-        order.sort_by_key(|&(lag, owner, _)| (std::cmp::Reverse(lag), owner != me, owner));
+        let (me, own) = (self.me, self.own);
+        order.sort_by_key(|&(lag, owner, _)| (std::cmp::Reverse(lag), owner != own, owner));
 
         let mut out = Vec::new();
         let mut used = 0usize;
@@ -130,10 +146,8 @@ impl<R: Clone> LogExchange<R> {
     /// contiguously, and raises S[d.from][d.owner] to the delta's end (the sender holds what it
     /// sent) if we have had the sender's handshake.
     ///
-    /// Our own log is treated like any other: a peer can hold more of it than we do only if we
-    /// restarted, and taking those records back restores the indices everyone else already uses.
-    /// (A restarted robot that records before hearing from its peers reuses indices; telling
-    /// incarnations apart is beyond this baseline.)
+    /// Records of our own log are never taken from anyone (only we write it; a restarted robot
+    /// writes a new owner's log and takes its earlier lives' back like any other owner's).
     pub fn on_delta(&mut self, d: &LogDelta<R>) -> DeltaOutcome {
         let end = d.start.saturating_add(len_u32(&d.records));
         if d.from != self.me {
@@ -141,6 +155,9 @@ impl<R: Clone> LogExchange<R> {
                 let known = row.entry(d.owner).or_insert(0);
                 *known = end.max(*known);
             }
+        }
+        if d.owner == self.own {
+            return DeltaOutcome::Duplicate;
         }
         let log = self.logs.entry(d.owner).or_default();
         let have = len_u32(log);
@@ -174,7 +191,7 @@ impl<R: Clone> LogExchange<R> {
     pub fn take_delta(&mut self, d: &LogDelta<R>) -> (DeltaOutcome, &[R]) {
         let outcome = self.on_delta(d);
         let new = match &outcome {
-            DeltaOutcome::Appended { owner, new } if *owner != self.me => self
+            DeltaOutcome::Appended { owner, new } if *owner != self.own => self
                 .log(*owner)
                 .get(new.start as usize..new.end as usize)
                 .unwrap_or_default(),
@@ -186,7 +203,7 @@ impl<R: Clone> LogExchange<R> {
     /// Drops `owner`'s records from index `len` on (records found to be corrupt); our next
     /// handshake asks for them again. Our own log is never cut.
     pub fn truncate(&mut self, owner: RobotId, len: u32) {
-        if owner != self.me {
+        if owner != self.own {
             if let Some(log) = self.logs.get_mut(&owner) {
                 log.truncate(len as usize);
             }

@@ -199,16 +199,16 @@ async fn wait_for_netem(sim: &Session, wait: Duration) -> Result<(), ZenohError>
     }
 }
 
-/// Runs one robot until the launcher stops it or the world falls silent.
+/// Runs robot `id` in its life `life` until the launcher stops it or the world falls silent.
 pub async fn run_robot(
-    id: RobotId,
+    (id, life): (RobotId, u16),
     s: &Scenario,
     sim: Session,
     radio: Session,
     world: WorldInfo,
     idle_timeout: Duration,
 ) -> Result<End, ZenohError> {
-    let agent = Agent::new(id, world, s);
+    let agent = Agent::in_life(id, life, world, s);
     let subs = Subs::declare(id, &sim, &radio).await?;
     let _radio_token = radio
         .liveliness()

@@ -386,7 +386,7 @@ mod tests {
     fn every_byte_sent_is_counted_once_by_package_type() {
         let (s, world) = world();
         let mut radio = Radio::new(0, &s, &world);
-        let mut sharing = crate::sharing::new(&s, 0, &world, None);
+        let mut sharing = crate::sharing::new(&s, 0, 0, &world, None);
         let mut out = radio.link_up(1, sharing.as_mut(), 0, None);
         out.extend(radio.step(0, Some(Cell::new(3, 4)), &[], sharing.as_mut()));
         let sent: usize = out.iter().map(|o| o.bytes.len()).sum();

@@ -172,11 +172,22 @@ pub trait Sharing: Send {
     fn approx_error_avg(&self) -> Option<f64> {
         None
     }
+
+    /// Polygon mode: per owner whose log we hold, the encoded bytes of its ops we hold.
+    fn held_bytes(&self) -> Vec<(RobotId, u64)> {
+        Vec::new()
+    }
 }
 
 /// Robot `me`'s sharing in scenario `s`'s exchange mode, in `world`, with a link budget of
 /// `budget` bytes per step (`None`: unlimited).
-pub fn new(s: &Scenario, me: RobotId, world: &WorldInfo, budget: Option<f64>) -> Box<dyn Sharing> {
+pub fn new(
+    s: &Scenario,
+    me: RobotId,
+    own: RobotId,
+    world: &WorldInfo,
+    budget: Option<f64>,
+) -> Box<dyn Sharing> {
     let empty = Grid::new(world.map.width, world.map.height, Occ::Unknown);
     match s.exchange.mode {
         ExchangeMode::Polygon => {
@@ -193,17 +204,17 @@ pub fn new(s: &Scenario, me: RobotId, world: &WorldInfo, budget: Option<f64>) ->
             let splitting =
                 SplittingFrequency::new(&s.bandwidth, u32::from(world.robots), budget, p);
             Box::new(Polygon {
-                exchange: ApproxExchange::new(me),
+                exchange: ApproxExchange::owning(me, own),
                 mapper: Box::new(Mapper::new(splitting.current())),
                 splitting,
             })
         }
         ExchangeMode::GridSnapshots => Box::new(GridSnapshots {
-            exchange: GridPatchExchange::new(me),
+            exchange: GridPatchExchange::owning(me, own),
             others: empty,
         }),
         ExchangeMode::RawScans => Box::new(RawScans {
-            exchange: RawScanExchange::new(me),
+            exchange: RawScanExchange::owning(me, own),
             evidence: Evidence::new(&empty),
             others: empty,
         }),
@@ -346,6 +357,10 @@ impl Sharing for Polygon {
 
     fn views(&self) -> Vec<proto::msg::View> {
         self.exchange.views()
+    }
+
+    fn held_bytes(&self) -> Vec<(RobotId, u64)> {
+        self.exchange.held_bytes()
     }
 
     fn approx_error_avg(&self) -> Option<f64> {

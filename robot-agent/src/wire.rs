@@ -147,6 +147,14 @@ impl Encoder {
     pub fn finish(self) -> Vec<u8> {
         self.out
     }
+
+    /// Takes `op` into the running context without keeping its bytes; returns how many it took
+    /// (a running measure of a log's encoded size).
+    pub fn measure(&mut self, op: &Op) -> usize {
+        let n = self.push(op);
+        self.out.clear();
+        n
+    }
 }
 
 /// Encodes a chunk.

@@ -8,8 +8,8 @@ use anyhow::Context;
 use proto::exit::ExitReason;
 use proto::grid::Grid;
 use proto::keys;
-use proto::msg::{decode, encode, Control, LinkReport, Status};
-use proto::scenario::ClockMode;
+use proto::msg::{decode, encode, log_owner, Control, LinkReport, RobotId, Status, Telemetry};
+use proto::scenario::{ClockMode, Process};
 use zenoh::qos::CongestionControl;
 
 use super::follow::Record;
@@ -26,7 +26,7 @@ use crate::progress::Progress;
 use crate::render::{robot_colour, Picture};
 use crate::rundir::{
     bytes_by_type, coverage_steps, link_totals_wire, traffic_shares, write_links, write_metrics,
-    write_pgm, write_saves_and_views, write_traffic, AwarenessSummary, CommLevel, Summary,
+    write_pgm, write_saves_and_views, write_traffic, AwarenessSummary, CommLevel, LostLog, Summary,
     SCHEMA_VERSION,
 };
 
@@ -36,6 +36,10 @@ pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) {
     let Started {
         mut children, sim, ..
     } = run;
+    // A frozen process could not hear the stop.
+    for p in rec.sup.frozen().collect::<Vec<_>>() {
+        children.signal(&p.to_string(), libc::SIGCONT);
+    }
     let _ = sim
         .session
         .put(keys::CONTROL, encode(&Control::Stop))
@@ -124,10 +128,13 @@ pub fn summary(
         base: None,
         missed: Vec::new(),
     });
+    // Every robot's last report, and what its earlier lives (if it was restarted) had sent.
+    let earlier = earlier_lives(rec);
     let per_robot_types: Vec<Vec<u64>> = eval
         .last
         .values()
         .map(|(_, t)| t.sent_by_type.clone())
+        .chain(earlier.iter().map(|l| l.sent_by_type.clone()))
         .collect();
     let by_type = bytes_by_type(&per_robot_types);
     let (backlog_max_bytes, backlog_mean_bytes) = backlogs(eval);
@@ -145,14 +152,18 @@ pub fn summary(
         reachable_cells: eval.reachable_cells(),
         // With step markers, up to the run's last step (what crossed while the processes
         // stopped depends on timing). Else netem's final counters when it wrote them (they
-        // include that too), or the last per-step reports.
-        bytes_wire_total: Some(if plan.scenario.clock.marked() {
-            rec.links.wire_total()
-        } else {
-            link_totals_wire(&plan.dir.join("link_totals.csv"))
-                .unwrap_or_else(|| rec.links.wire_total())
-        }),
-        bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum(),
+        // include that too), or the last per-step reports. A restarted netem wrote only its
+        // own life's counters: then the reports, which span every life.
+        bytes_wire_total: Some(
+            if plan.scenario.clock.marked() || rec.sup.life(Process::Netem) > 0 {
+                rec.links.wire_total()
+            } else {
+                link_totals_wire(&plan.dir.join("link_totals.csv"))
+                    .unwrap_or_else(|| rec.links.wire_total())
+            },
+        ),
+        bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum::<u64>()
+            + earlier.iter().map(|l| l.bytes_sent).sum::<u64>(),
         traffic_shares_pct: traffic_shares(&by_type),
         bytes_by_type: by_type,
         splits_per_step_final: eval
@@ -186,6 +197,8 @@ pub fn summary(
             .max()
             .and_then(|reported| check_judgements(&eval.judged, up, reported)),
         failed_processes: rec.failed.clone(),
+        process_events: rec.sup.events.clone(),
+        lost_logs: lost_logs(rec, &last),
         deterministic: false,
         nondeterministic: nondeterministic(plan, rec),
         run_digest: String::new(),
@@ -233,7 +246,75 @@ fn nondeterministic(plan: &Plan, rec: &Record) -> Vec<String> {
     for f in &rec.failed {
         why.push(format!("a process failed: {f}"));
     }
+    for e in &rec.sup.events {
+        why.push(format!(
+            "step {}: {} {} ({}): process faults and restarts act on the wall clock",
+            e.step, e.process, e.event, e.cause
+        ));
+    }
     why
+}
+
+/// The lives of robots that are not their robot's last report (they ended in a restart).
+fn earlier_lives(rec: &Record) -> Vec<&super::follow::Life> {
+    rec.lives
+        .iter()
+        .filter(|((robot, life), _)| {
+            rec.eval
+                .last
+                .get(robot)
+                .is_some_and(|(_, t)| t.life != *life)
+        })
+        .map(|(_, l)| l)
+        .collect()
+}
+
+/// Per robot life that ended before the run (a restart followed, or the robot is dead at the
+/// end): its own log against the most of it a node alive at the end holds.
+fn lost_logs(rec: &Record, last: &Status) -> Vec<LostLog> {
+    let alive = |id: RobotId| {
+        last.robots
+            .iter()
+            .chain(&last.base)
+            .any(|r| r.id == id && r.alive)
+    };
+    // The final reports of the nodes alive at the end.
+    let holders: Vec<&Telemetry> = rec
+        .eval
+        .last
+        .iter()
+        .filter(|(id, _)| alive(**id))
+        .map(|(_, (_, t))| t)
+        .collect();
+    let mut out = Vec::new();
+    for (&(robot, life), l) in &rec.lives {
+        let current = holders.iter().any(|t| t.robot == robot && t.life == life);
+        let Some(owner) = log_owner(robot, life).filter(|_| !current) else {
+            continue;
+        };
+        let holder = holders
+            .iter()
+            .filter_map(|t| {
+                let ops = t.logs.iter().find(|h| h.0 == owner)?.1;
+                let bytes = t.log_bytes.iter().find(|h| h.0 == owner).map(|h| h.1);
+                Some((ops, bytes))
+            })
+            .max_by_key(|h| h.0);
+        let (ops_held, bytes_held) = holder.unwrap_or((0, Some(0)));
+        out.push(LostLog {
+            robot,
+            life,
+            ops_written: l.own_ops,
+            ops_held,
+            ops_lost: l.own_ops.saturating_sub(ops_held),
+            bytes_written: l.own_bytes,
+            bytes_lost: l
+                .own_bytes
+                .zip(bytes_held.or(Some(0)))
+                .map(|(w, h)| w.saturating_sub(h)),
+        });
+    }
+    out
 }
 
 /// The largest backlog over the run and its mean over robot-steps that had neighbours.

@@ -9,13 +9,19 @@ use proto::msg::{decode, LinkReport, Status, Step, Telemetry};
 use serde::de::DeserializeOwned;
 use zenoh::sample::Sample;
 
+use std::collections::BTreeMap;
+
+use proto::msg::{log_owner, RobotId};
+use proto::scenario::Process;
+
 use super::prepare::Plan;
-use super::spawn::{last_log_line, Started};
+use super::spawn::{last_log_line, respawn, Started};
 use super::steps::StepOrder;
 use crate::children::{describe, Children};
 use crate::evaluate::Evaluator;
 use crate::progress::Progress;
 use crate::rundir::LinkLog;
+use crate::supervise::{Action, Supervisor};
 
 /// Steps every robot must be idle in a row before the run ends with `no-frontiers` (data still
 /// in flight on the radio may give an idle robot new frontiers).
@@ -44,12 +50,29 @@ pub struct Record {
     /// The last step's reports all arrived before the launcher stopped the run (or there was no
     /// last step to wait for).
     pub settled_in_time: bool,
+    /// Process faults and restarts.
+    pub sup: Supervisor,
+    /// Per robot life (robot, life): what it last reported of itself.
+    pub lives: BTreeMap<(RobotId, u16), Life>,
+}
+
+/// What one life of a robot reported last of itself.
+#[derive(Clone, Debug, Default)]
+pub struct Life {
+    /// Its own log: ops, and encoded bytes if the exchange measures them.
+    pub own_ops: u32,
+    pub own_bytes: Option<u64>,
+    /// Radio payload it sent, in total and per traffic class.
+    pub bytes_sent: u64,
+    pub sent_by_type: Vec<u64>,
 }
 
 impl Record {
     /// `lockstep`: telemetry is taken a whole step at a time ([`StepOrder`]); else as it comes.
-    pub fn new(eval: Evaluator, lockstep: bool) -> Record {
+    pub fn new(eval: Evaluator, lockstep: bool, sup: Supervisor) -> Record {
         Record {
+            sup,
+            lives: BTreeMap::new(),
             eval,
             links: LinkLog::default(),
             failed: Vec::new(),
@@ -118,6 +141,17 @@ impl Record {
     }
 
     fn on_telemetry(&mut self, t: Telemetry) {
+        if let Some(own) = log_owner(t.robot, t.life) {
+            let life = self.lives.entry((t.robot, t.life)).or_default();
+            let ops = t.logs.iter().find(|l| l.0 == own).map_or(0, |l| l.1);
+            life.own_ops = life.own_ops.max(ops);
+            let bytes = t.log_bytes.iter().find(|l| l.0 == own).map(|l| l.1);
+            life.own_bytes = life.own_bytes.max(bytes);
+            if t.bytes_sent >= life.bytes_sent {
+                life.bytes_sent = t.bytes_sent;
+                life.sent_by_type.clone_from(&t.sent_by_type);
+            }
+        }
         if !self.lockstep {
             // Realtime: reports are taken as they come (the run follows the wall clock anyway).
             if self.end.is_none() {
@@ -199,8 +233,9 @@ impl Record {
         }
     }
 
-    /// Records the children that exited since the last look; the run ends when the
-    /// world-server or netem is among them.
+    /// Records the children that exited since the last look (none the launcher killed itself):
+    /// a supervised one is started again later ([`Supervisor::died`]); the run ends when the
+    /// world-server, or netem without a restart to come, is among them.
     ///
     /// netem follows the world-server's sim plane and exits when it is gone, so when both are
     /// seen gone the world-server's exit is the cause. A child seen gone may have exited because
@@ -213,17 +248,81 @@ impl Record {
         progress: &mut Progress,
     ) -> Option<ExitReason> {
         let mut exits = children.newly_exited();
-        if exits.iter().any(|(name, _, _)| needed(name).is_some()) {
+        if exits.iter().any(|(name, _, _)| needed(name)) {
             exits.extend(children.newly_exited());
         }
+        // The world-server first: netem's exit after it is no cause of its own.
+        exits.sort_by_key(|(name, _, _)| !matches!(name.parse(), Ok(Process::WorldServer)));
+        let mut end = None;
         for (name, pid, status) in &exits {
             self.exited(name, *pid, *status, plan, progress);
+            let Ok(process) = name.parse::<Process>() else {
+                continue;
+            };
+            if end.is_some() {
+                continue;
+            }
+            end = self.sup.died(process, &describe(*status));
+            if self.sup.restarting(process) {
+                progress.event(&format!(
+                    "swarm run: {name} will be started again (supervise)"
+                ));
+            }
         }
-        exits
-            .iter()
-            .filter_map(|(name, _, _)| needed(name))
-            .min_by_key(|&(rank, _)| rank)
-            .map(|(_, r)| r)
+        end
+    }
+
+    /// Carries out the supervisor's actions of the step; the end of the run if one of them
+    /// killed the world-server.
+    async fn act(
+        &mut self,
+        actions: Vec<Action>,
+        children: &mut Children,
+        plan: &Plan,
+        progress: &mut Progress,
+    ) -> Option<ExitReason> {
+        let step = self.statuses.last().map_or(0, |s| s.step);
+        for a in actions {
+            let (p, what) = match a {
+                Action::Kill(p) => {
+                    children.kill(&p.to_string()).await;
+                    (p, "killed".to_string())
+                }
+                Action::Start(p, life) => match respawn(plan, children, p, life) {
+                    Ok(pid) => (p, format!("started again (life {life}, pid {pid})")),
+                    Err(e) => (p, format!("could not be started again: {e:#}")),
+                },
+                Action::Freeze(p) => {
+                    let sent = children.signal(&p.to_string(), libc::SIGSTOP);
+                    (
+                        p,
+                        if sent {
+                            "frozen"
+                        } else {
+                            "not frozen (not running)"
+                        }
+                        .to_string(),
+                    )
+                }
+                Action::Thaw(p) => {
+                    let sent = children.signal(&p.to_string(), libc::SIGCONT);
+                    (
+                        p,
+                        if sent {
+                            "thawed"
+                        } else {
+                            "not thawed (not running)"
+                        }
+                        .to_string(),
+                    )
+                }
+            };
+            progress.event(&format!("swarm run: step {step}: {p} {what}"));
+            if a == Action::Kill(Process::WorldServer) {
+                return Some(ExitReason::WorldServerExited);
+            }
+        }
+        None
     }
 
     /// Once the last step is known, processes end by themselves (the world-server at the step
@@ -253,14 +352,9 @@ impl Record {
     }
 }
 
-/// The end of the run a process's exit means, for the processes the run cannot go on without;
-/// ordered by precedence (the smallest is the cause).
-fn needed(process: &str) -> Option<(u8, ExitReason)> {
-    match process {
-        "world-server" => Some((0, ExitReason::WorldServerExited)),
-        "netem" => Some((1, ExitReason::NetemExited)),
-        _ => None,
-    }
+/// Whether the run cannot go on without the process (unless it is restarted).
+fn needed(process: &str) -> bool {
+    matches!(process.parse(), Ok(Process::WorldServer | Process::Netem))
 }
 
 /// A sim-plane message: `Err` when the subscription has closed, `Ok(None)` when it did not
@@ -292,7 +386,18 @@ pub async fn follow(
         let end = tokio::select! {
             s = sim.statuses.recv_async() => match message::<Status, _>(s, "status") {
                 Err(()) => Some(CLOSED),
-                Ok(st) => st.and_then(|st| rec.on_status(st, plan, progress)),
+                Ok(None) => None,
+                Ok(Some(st)) => {
+                    let step = st.step;
+                    match rec.on_status(st, plan, progress) {
+                        Some(end) => Some(end),
+                        None if rec.end.is_none() => {
+                            let actions = rec.sup.on_step(step);
+                            rec.act(actions, &mut run.children, plan, progress).await
+                        }
+                        None => None,
+                    }
+                }
             },
             t = sim.telemetry.recv_async() => match message::<Telemetry, _>(t, "telemetry") {
                 Err(()) => Some(CLOSED),

@@ -18,6 +18,7 @@ use std::time::Instant;
 use crate::evaluate::Evaluator;
 use crate::progress::Progress;
 use crate::rundir::{run_digest, write_summary, Summary};
+use crate::supervise::Supervisor;
 
 /// Flags of `swarm run`.
 #[derive(clap::Args, Debug, Clone, PartialEq)]
@@ -89,7 +90,11 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         );
     }
     let lockstep = plan.scenario.clock.mode == proto::scenario::ClockMode::Lockstep;
-    let mut rec = follow::Record::new(eval, lockstep);
+    let sup = Supervisor::new(
+        plan.scenario.supervise.clone(),
+        plan.scenario.process_faults()?,
+    );
+    let mut rec = follow::Record::new(eval, lockstep, sup);
     let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
     finish::stop(run, &mut rec, &mut progress).await;

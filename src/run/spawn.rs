@@ -12,6 +12,7 @@ use proto::grid::Grid;
 use proto::keys;
 use proto::msg::{RobotId, TruthMap};
 use proto::node::{zerr, ZenohArgs};
+use proto::scenario::Process;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
@@ -61,25 +62,17 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
     // Radio plane: every robot pair {i, j} runs through netem's proxy for the pair: robot i
     // connects to the proxy, netem forwards to robot j's radio listener. No robot is given
     // another robot's radio endpoint.
-    children.spawn("netem", &exe, &netem_argv(plan), &plan.log("netem"))?;
+    respawn(plan, &mut children, Process::Netem, 0)?;
     std::fs::write(
         plan.dir.join("netem.addr"),
         format!("{}\n", plan.ports.http_addr()),
     )
     .context("writing netem.addr")?;
     for i in 0..plan.robots() {
-        let name = format!("robot-{i}");
-        children.spawn(&name, &exe, &robot_argv(plan, i), &plan.log(&name))?;
+        respawn(plan, &mut children, Process::Robot(i), 0)?;
     }
-    if let Some(b) = plan.scenario.base_id() {
-        let args = robot_agent::cli::BaseArgs {
-            node: node_args(plan, b),
-        };
-        let argv: Vec<String> = ["base-station".to_string()]
-            .into_iter()
-            .chain(args.to_argv())
-            .collect();
-        children.spawn("base-station", &exe, &argv, &plan.log("base-station"))?;
+    if plan.scenario.base_id().is_some() {
+        respawn(plan, &mut children, Process::BaseStation, 0)?;
     }
     Ok(Started {
         children,
@@ -88,6 +81,38 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
         truth_grid,
         reachable,
     })
+}
+
+/// Starts `process` of the run in its life `life` (0: at the start; a restart: the next one),
+/// with the flags, ports and log of its first life. The world-server is started only once, by
+/// [`start`].
+pub fn respawn(
+    plan: &Plan,
+    children: &mut Children,
+    process: Process,
+    life: u16,
+) -> anyhow::Result<u32> {
+    let exe = std::env::current_exe().context("locating the swarm binary")?;
+    let argv = match process {
+        Process::Netem => netem_argv(plan),
+        Process::Robot(i) => robot_argv(plan, i, life),
+        Process::BaseStation => {
+            let b = plan
+                .scenario
+                .base_id()
+                .context("the scenario has no base station")?;
+            let mut node = node_args(plan, b);
+            node.life = life;
+            let args = robot_agent::cli::BaseArgs { node };
+            ["base-station".to_string()]
+                .into_iter()
+                .chain(args.to_argv())
+                .collect()
+        }
+        Process::WorldServer => bail!("the world-server is started once, with the run"),
+    };
+    let name = process.to_string();
+    children.spawn(&name, &exe, &argv, &plan.log(&name))
 }
 
 async fn subscribe(session: Session) -> anyhow::Result<Sim> {
@@ -154,11 +179,10 @@ fn node_args(plan: &Plan, i: RobotId) -> robot_agent::cli::NodeArgs {
     args
 }
 
-fn robot_argv(plan: &Plan, i: RobotId) -> Vec<String> {
-    let args = robot_agent::cli::Args {
-        id: i,
-        node: node_args(plan, i),
-    };
+fn robot_argv(plan: &Plan, i: RobotId, life: u16) -> Vec<String> {
+    let mut node = node_args(plan, i);
+    node.life = life;
+    let args = robot_agent::cli::Args { id: i, node };
     ["robot-agent".to_string()]
         .into_iter()
         .chain(args.to_argv())

@@ -5,6 +5,8 @@
 //! robots answered (lockstep) or the step timed out (`step_timeout_ms`; realtime: the step
 //! period); apply them; publish [`proto::msg::Status`] for t+1. A robot whose sim-plane
 //! liveliness token vanishes is dead at once; one that misses `dead_after` steps in a row too.
+//! A dead robot that shows life again — its token appears (a restarted process) or it sends a
+//! command (a thawed one) — is alive again from the next step, where it stood.
 //! Everything received is validated; bad input is counted and logged, never fatal.
 
 use std::collections::{HashMap, HashSet};
@@ -187,18 +189,31 @@ pub async fn serve(
                         Ok(cmd) if keys::robot_of(&key) != Some(cmd.robot) => bad.record(&key, "robot id does not match the key"),
                         Ok(cmd) if usize::from(cmd.robot) >= n => bad.record(&key, "unknown robot id"),
                         Ok(cmd) if cmd.step == step => { got.insert(cmd.robot, cmd); }
-                        Ok(cmd) if cmd.step < step => tracing::debug!("late command of robot {} for step {}", cmd.robot, cmd.step),
+                        Ok(cmd) if cmd.step < step => {
+                            // A robot declared dead that still commands (it was frozen, or
+                            // too slow) is back: alive from the next step.
+                            if world.rejoin(cmd.robot) {
+                                tracing::warn!("robot {} commanded step {} while dead: it rejoins at step {}", cmd.robot, cmd.step, step + 1);
+                            } else {
+                                tracing::debug!("late command of robot {} for step {}", cmd.robot, cmd.step);
+                            }
+                        }
                         Ok(cmd) => bad.record(&key, format!("command for future step {}", cmd.step)),
                         Err(e) => bad.record(&key, e),
                     }
                 }
                 sample = live.recv_async() => {
                     let Ok(sample) = sample else { stop = true; break };
-                    if sample.kind() == SampleKind::Delete {
-                        if let Some(id) = keys::robot_of(sample.key_expr().as_str()) {
+                    match (keys::robot_of(sample.key_expr().as_str()), sample.kind()) {
+                        (Some(id), SampleKind::Delete) => {
                             tracing::warn!("robot {id} left the sim plane at step {step}: declared dead");
                             world.kill(id);
                         }
+                        // A restarted process: alive again from the next step.
+                        (Some(id), SampleKind::Put) if world.rejoin(id) => {
+                            tracing::warn!("robot {id} joined the sim plane again at step {step}: it rejoins at step {}", step + 1);
+                        }
+                        _ => {}
                     }
                 }
                 c = ctl.recv_async() => {

@@ -69,6 +69,9 @@ pub struct World {
     speed_m_per_s: f64,
     rng: ChaCha8Rng,
     collisions_total: u64,
+    /// Dead nodes that showed life again (a restarted process's token, a thawed one's
+    /// command): alive again from the next step.
+    rejoining: std::collections::BTreeSet<RobotId>,
 }
 
 impl World {
@@ -150,6 +153,7 @@ impl World {
             speed_m_per_s: s.robots.speed_m_per_s,
             rng: ChaCha8Rng::seed_from_u64(s.seed ^ 0x5eed_1a5e),
             collisions_total: 0,
+            rejoining: Default::default(),
         })
     }
 
@@ -244,6 +248,7 @@ impl World {
             }
             self.bodies[i].last_move = outcome;
         }
+        self.revive();
     }
 
     fn try_move(&mut self, i: usize, to: (f64, f64)) -> MoveOutcome {
@@ -272,6 +277,29 @@ impl World {
                 MoveOutcome::Moved
             }
             Err(outcome) => outcome,
+        }
+    }
+
+    /// A dead robot (or base station) showed life again: it is alive from the next step on —
+    /// where it stood when it died — and is sent scans again. Returns whether this made it
+    /// rejoin (it was dead and not rejoining yet).
+    pub fn rejoin(&mut self, id: RobotId) -> bool {
+        let dead = self.bodies.get(usize::from(id)).is_some_and(|b| !b.alive)
+            || self.base.as_ref().is_some_and(|b| b.id == id && !b.alive);
+        dead && self.rejoining.insert(id)
+    }
+
+    /// Brings the rejoining nodes back to life (at the end of a step, before its status).
+    fn revive(&mut self) {
+        for id in std::mem::take(&mut self.rejoining) {
+            if let Some(b) = self.bodies.get_mut(usize::from(id)) {
+                b.alive = true;
+                b.missed = 0;
+                b.last_move = MoveOutcome::Stayed;
+            }
+            if let Some(b) = self.base.as_mut().filter(|b| b.id == id) {
+                b.alive = true;
+            }
         }
     }
 
@@ -322,5 +350,53 @@ impl World {
             }),
             missed: Vec::new(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn world() -> World {
+        let mut s = Scenario::default();
+        s.world.map = "office".into();
+        s.world.width_m = 20.0;
+        s.world.height_m = 15.0;
+        s.robots.count = 2;
+        s.clock.dead_after = 2;
+        World::build(&s, None).expect("a generated world")
+    }
+
+    #[test]
+    fn a_robot_declared_dead_rejoins_at_the_next_step_where_it_stood() {
+        let mut w = world();
+        let before = w.bodies[1].pose;
+        let only_0 = HashMap::from([(
+            0,
+            Cmd {
+                step: 0,
+                robot: 0,
+                waypoint: None,
+            },
+        )]);
+        w.apply(0, &only_0);
+        assert!(w.bodies[1].alive, "one miss");
+        w.apply(1, &only_0);
+        assert!(!w.bodies[1].alive, "dead after dead_after misses");
+        assert_eq!(w.awaited().collect::<Vec<_>>(), vec![0]);
+        assert!(!w.rejoin(0), "a live robot does not rejoin");
+        assert!(w.rejoin(1));
+        assert!(!w.rejoin(1), "once");
+        assert!(!w.bodies[1].alive, "not within the step it showed life in");
+        w.apply(2, &only_0);
+        assert!(w.bodies[1].alive);
+        assert_eq!(w.bodies[1].missed, 0);
+        assert_eq!(w.bodies[1].pose, before);
+        assert_eq!(w.awaited().collect::<Vec<_>>(), vec![0, 1]);
+        w.kill(1);
+        assert!(!w.bodies[1].alive);
+        assert!(w.rejoin(1));
+        w.apply(3, &only_0);
+        assert!(w.status(4).robots[1].alive);
     }
 }

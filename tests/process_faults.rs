@@ -1,0 +1,237 @@
+//! Process faults scheduled in the scenario (`[[faults]]` of kind `kill`, `restart`, `freeze`,
+//! `thaw`), each in a real run of five robots on intel_lab: a robot killed and started again
+//! rejoins in its next life and gets its first life's log back from its peers; netem restarted
+//! mid-run; a robot frozen, declared dead, thawed and back; the world-server killed.
+
+use std::collections::HashMap;
+use std::time::Duration;
+
+use crate::support::{csv, num, stderr, summary, swarm_run, TempDir};
+
+/// A 5-robot intel_lab run (the embedded default scenario) with `faults` appended.
+fn run_with(
+    name: &str,
+    faults: &str,
+    sets: &[&str],
+) -> (TempDir, std::process::Output, std::path::PathBuf) {
+    let dir = TempDir::new(name);
+    let scenario = dir.path().join("faults.toml");
+    std::fs::write(&scenario, format!("[robots]\ncount = 5\n{faults}")).expect("write scenario");
+    let (out, run) = swarm_run(&dir, scenario.to_str(), sets, Duration::from_secs(300));
+    (dir, out, run)
+}
+
+fn events(s: &serde_json::Value) -> Vec<(u64, String, String)> {
+    s["process_events"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+        .iter()
+        .map(|e| {
+            (
+                e["step"].as_u64().unwrap_or(u64::MAX),
+                e["process"].as_str().unwrap_or_default().to_string(),
+                e["event"].as_str().unwrap_or_default().to_string(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn a_robot_killed_and_started_again_rejoins_with_its_first_life_held_by_the_team() {
+    let (_dir, out, run) = run_with(
+        "kill-robot",
+        "[[faults]]\nstep = 30\nkind = \"kill\"\nprocess = \"robot-2\"\nrestart_after = 3\n",
+        &[],
+    );
+    let s = summary(&run);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
+    assert_eq!(s["complete"], true, "{s}");
+    assert_eq!(s["robots_alive_at_end"], 5, "{s}");
+    assert_eq!(
+        events(&s),
+        vec![
+            (30, "robot-2".into(), "killed".into()),
+            (33, "robot-2".into(), "started".into())
+        ]
+    );
+    // Its first life's log (owner 2) against what the team holds at the end.
+    let lost = &s["lost_logs"][0];
+    assert_eq!(
+        (lost["robot"].as_u64(), lost["life"].as_u64()),
+        (Some(2), Some(0)),
+        "{s}"
+    );
+    let written = lost["ops_written"].as_u64().unwrap_or(0);
+    let held = lost["ops_held"].as_u64().unwrap_or(0);
+    assert!(written > 0, "{s}");
+    assert_eq!(lost["ops_lost"].as_u64(), Some(written - held), "{s}");
+    // The restarted robot took its first life back from its peers, and writes its second
+    // life's log (owner 2 + 1024), which the others hold too.
+    let logs = &s["logs_held"];
+    assert_eq!(
+        logs["2"]["2"].as_u64(),
+        Some(held),
+        "robot 2 holds its first life: {s}"
+    );
+    for r in ["0", "1", "3", "4"] {
+        assert!(
+            logs[r]["1026"].as_u64().unwrap_or(0) > 0,
+            "robot {r} lacks robot 2's second life: {s}"
+        );
+    }
+    // Robot 2 has no telemetry while it is dead, and has it again once it rejoined.
+    let metrics = csv(&run.join("metrics.csv"));
+    let steps_of_2: Vec<u64> = metrics
+        .iter()
+        .filter(|r| num(r, "robot") == 2.0)
+        .map(|r| num(r, "step") as u64)
+        .collect();
+    assert!(!steps_of_2.contains(&32), "robot 2 reported while dead");
+    assert!(
+        steps_of_2.iter().any(|&t| t > 40),
+        "robot 2 never came back"
+    );
+}
+
+#[test]
+fn netem_restarted_mid_run_brings_every_link_back_and_the_run_completes() {
+    let (_dir, out, run) = run_with(
+        "restart-netem",
+        "[[faults]]\nstep = 30\nkind = \"restart\"\nprocess = \"netem\"\n",
+        &[],
+    );
+    let s = summary(&run);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
+    assert_eq!(s["complete"], true, "{s}");
+    assert_eq!(s["failed_processes"], serde_json::json!([]), "{s}");
+    assert_eq!(
+        events(&s),
+        vec![
+            (30, "netem".into(), "killed".into()),
+            (30, "netem".into(), "started".into())
+        ]
+    );
+    // Within 2 steps of the new netem's first step, links are up and connected again.
+    let links = csv(&run.join("links.csv"));
+    let connected = |step: u64| {
+        links
+            .iter()
+            .filter(|l| num(l, "step") as u64 == step && num(l, "connected") == 1.0)
+            .count()
+    };
+    assert!(connected(28) > 0, "links before the restart");
+    let back = (31..=40).find(|&t| connected(t) > 0);
+    assert!(back.is_some_and(|t| t <= 33), "links back at {back:?}");
+    // The wire total spans both of netem's lives.
+    let before: f64 = links
+        .iter()
+        .filter(|l| num(l, "step") as u64 == 28)
+        .map(|l| num(l, "bytes_total"))
+        .sum();
+    assert!(
+        s["bytes_wire_total"].as_f64().unwrap_or(0.0) > before,
+        "{s}"
+    );
+}
+
+#[test]
+fn a_frozen_robot_is_declared_dead_and_rejoins_when_thawed() {
+    let (_dir, out, run) = run_with(
+        "freeze",
+        "[clock]\nstep_timeout_ms = 500\n\
+         [[faults]]\nstep = 30\nkind = \"freeze\"\nprocess = \"robot-1\"\n\
+         [[faults]]\nstep = 50\nkind = \"thaw\"\nprocess = \"robot-1\"\n",
+        &[],
+    );
+    let s = summary(&run);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
+    assert_eq!(s["complete"], true, "{s}");
+    assert_eq!(s["robots_alive_at_end"], 5, "{s}");
+    // Dead after clock.dead_after (5) missed steps: off the air and without telemetry until
+    // the thaw; back after it.
+    let links = csv(&run.join("links.csv"));
+    let up_of_1 = |step: u64| -> usize {
+        links
+            .iter()
+            .filter(|l| num(l, "step") as u64 == step && (num(l, "a") == 1.0 || num(l, "b") == 1.0))
+            .filter(|l| num(l, "up") == 1.0)
+            .count()
+    };
+    assert!(up_of_1(28) > 0, "robot 1 had links before");
+    for t in 36..50 {
+        assert_eq!(up_of_1(t), 0, "robot 1 on the air at {t} while frozen");
+    }
+    assert!((51..=56).any(|t| up_of_1(t) > 0), "robot 1 back on the air");
+    let metrics: Vec<HashMap<String, String>> = csv(&run.join("metrics.csv"));
+    let reported = |t: u64| {
+        metrics
+            .iter()
+            .any(|r| num(r, "robot") == 1.0 && num(r, "step") as u64 == t)
+    };
+    assert!(!reported(40), "a frozen robot reported");
+    assert!((51..=60).any(reported), "the thawed robot never reported");
+}
+
+#[test]
+fn the_world_server_killed_ends_the_run_with_its_reason_and_every_file_written() {
+    let (_dir, out, run) = run_with(
+        "kill-world",
+        "[[faults]]\nstep = 30\nkind = \"kill\"\nprocess = \"world-server\"\n",
+        &[],
+    );
+    let s = summary(&run);
+    assert_eq!(out.status.code(), Some(2), "{}\n{s}", stderr(&out));
+    assert_eq!(s["exit_reason"], "world-server-exited", "{s}");
+    for f in [
+        "metrics.csv",
+        "links.csv",
+        "link_totals.csv",
+        "traffic_by_type.csv",
+        "truth.png",
+        "robot_0.png",
+        "scenario.toml",
+    ] {
+        assert!(run.join(f).is_file(), "{f} missing");
+    }
+    assert!(
+        csv(&run.join("metrics.csv"))
+            .iter()
+            .any(|r| num(r, "step") >= 25.0),
+        "metrics up to the kill"
+    );
+}
+
+#[test]
+fn process_faults_naming_no_process_of_the_run_are_refused_in_one_line() {
+    for (faults, needle) in [
+        (
+            "[[faults]]\nstep = 3\nkind = \"kill\"\nprocess = \"robot-9\"\n",
+            "no such process",
+        ),
+        (
+            "[[faults]]\nstep = 3\nkind = \"restart\"\nprocess = \"world-server\"\n",
+            "not restarted",
+        ),
+        (
+            "[[faults]]\nstep = 3\nkind = \"freeze\"\nprocess = \"netem\"\n",
+            "frozen",
+        ),
+        (
+            "[[faults]]\nstep = 3\nkind = \"kill\"\nprocess = \"robot\"\n",
+            "robot-<id>",
+        ),
+        (
+            "[supervise]\nrestart = [\"world-server\"]\n",
+            "supervise.restart",
+        ),
+    ] {
+        let (_dir, out, _) = run_with("bad-fault", faults, &[]);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{faults}: {err}");
+        assert!(
+            err.contains(needle) && err.trim().lines().count() == 1,
+            "{faults}: {err}"
+        );
+    }
+}
