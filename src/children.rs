@@ -18,6 +18,22 @@ pub struct Proc {
     pub pid: u32,
     child: Child,
     pub exited: Option<ExitStatus>,
+    /// The largest resident set seen while it ran (sampled, [`Children::sample_memory`]), kB.
+    pub peak_rss_kb: u64,
+}
+
+/// A row of `processes.csv`: one process of the run, in one life.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ProcessRow {
+    /// As its log file is named: `robot-2`, `netem`, `world-server`, `base-station`.
+    pub process: String,
+    /// 0 for the first process of that name, one more for each restart.
+    pub life: u16,
+    pub pid: u32,
+    /// How it ended ("exit code 0", "signal 9 (SIGKILL)").
+    pub exit: String,
+    /// Its largest resident set seen (sampled every 200 ms while the run went on), kB.
+    pub peak_rss_kb: u64,
 }
 
 #[derive(Default)]
@@ -100,6 +116,7 @@ impl Children {
             pid,
             child,
             exited: None,
+            peak_rss_kb: 0,
         });
         Ok(pid)
     }
@@ -154,6 +171,36 @@ impl Children {
         true
     }
 
+    /// Samples the resident set of every running child (`VmRSS` in `/proc/<pid>/status`),
+    /// keeping each one's peak.
+    pub fn sample_memory(&mut self) {
+        for p in self.procs.iter_mut().filter(|p| p.exited.is_none()) {
+            if let Some(kb) = rss_kb(p.pid) {
+                p.peak_rss_kb = p.peak_rss_kb.max(kb);
+            }
+        }
+    }
+
+    /// Every process started, in order, with its life, exit and peak memory (`processes.csv`).
+    pub fn table(&self) -> Vec<ProcessRow> {
+        let mut lives: std::collections::HashMap<&str, u16> = std::collections::HashMap::new();
+        self.procs
+            .iter()
+            .map(|p| {
+                let life = lives.entry(&p.name).or_default();
+                let row = ProcessRow {
+                    process: p.name.clone(),
+                    life: *life,
+                    pid: p.pid,
+                    exit: p.exited.map_or_else(|| "running".into(), describe),
+                    peak_rss_kb: p.peak_rss_kb,
+                };
+                *life += 1;
+                row
+            })
+            .collect()
+    }
+
     pub fn pids(&self) -> Vec<u32> {
         self.procs.iter().map(|p| p.pid).collect()
     }
@@ -180,6 +227,16 @@ impl Children {
         }
         killed
     }
+}
+
+/// The resident set of process `pid` in kB, from `/proc/<pid>/status`.
+pub fn rss_kb(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
 }
 
 /// A human description of an exit status ("exit code 1", "signal 9 (SIGKILL)").

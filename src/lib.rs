@@ -6,6 +6,8 @@
 /// Team awareness (de Hoog et al. 2010, Fig. 5): team coverage, shared knowledge, contact with
 /// the base station.
 pub mod awareness;
+/// `swarm chaos`: random process and link faults, one run, a checker.
+pub mod chaos;
 /// Child processes: spawn, watch, reap.
 pub mod children;
 /// Who can talk over a step's links: the communication level (Rooker and Birk 2005) and the

@@ -26,6 +26,12 @@ enum Command {
     /// Run an experiment: every combination of its grid of scenario overrides × seeds, a few
     /// runs at a time; resumable (finished runs are skipped); writes runs.csv and results.csv.
     Sweep(swarm::sweep::SweepArgs),
+    /// A chaos campaign: a random schedule of process faults (robots killed, restarted, frozen;
+    /// netem restarted) and link faults (cuts, partitions, latency, bandwidth, resets) drawn
+    /// from --seed, one run under it, then a checker — the exploration completes, no op another
+    /// robot held is lost, no panic, no orphan process, memory bounded. Writes chaos.json; exit
+    /// code 0 if every check passed, 2 if one failed, 1 on error.
+    Chaos(swarm::chaos::ChaosArgs),
     /// Run a world-server process (what `swarm run` starts; use it to spread a run over machines).
     WorldServer(world_server::cli::Args),
     /// Run one robot-agent process (what `swarm run` starts, once per robot).
@@ -52,6 +58,20 @@ fn main() -> ExitCode {
             }
             Err(e) => {
                 eprintln!("swarm sweep: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+        Command::Chaos(args) => match swarm::chaos::chaos(&args) {
+            Ok((report, dir)) => {
+                println!("{}", swarm::chaos::summary_line(&report, &dir));
+                if report.pass {
+                    ExitCode::SUCCESS
+                } else {
+                    ExitCode::from(2)
+                }
+            }
+            Err(e) => {
+                eprintln!("swarm chaos: {e:#}");
                 ExitCode::FAILURE
             }
         },

@@ -67,6 +67,14 @@ pub struct Summary {
     /// Per robot life that ended before the run did: how much of its own log the team still
     /// holds at the end, and what was lost with it (what only it held).
     pub lost_logs: Vec<LostLog>,
+    /// {owner: ops}: the most of each owner's log a node other than its writer reported holding
+    /// at any step (what the team had; a checker compares it with `logs_held` at the end).
+    pub logs_held_by_others: BTreeMap<String, u32>,
+    /// {node: {owner: ops}}: like `logs_held`, the most each node (in its last life) held of
+    /// each owner's log at any step; a node that holds less at the end forgot something.
+    pub logs_held_max: BTreeMap<String, BTreeMap<String, u32>>,
+    /// The nodes (robots, then the base station) alive at the end.
+    pub nodes_alive_at_end: Vec<RobotId>,
     /// Lockstep: whether nothing but the scenario decided the run. `false` in realtime mode, and
     /// when a wall-clock timeout decided something or a process failed; `nondeterministic` says
     /// what and where.

@@ -6,6 +6,7 @@ mod support;
 
 mod bids;
 mod bypass;
+mod chaos;
 mod cli;
 mod determinism;
 mod lifecycle;

@@ -28,6 +28,8 @@ pub struct Agent {
     base: bool,
     /// 0 for the process the run started; one more for each restart.
     life: u16,
+    /// Recovery deliberately broken ([`crate::exchange::BROKEN_RECOVERY_ENV`]).
+    broken_recovery: bool,
     world: WorldInfo,
     /// G_s: what this robot sensed itself, and the beam counts behind it.
     own: Grid,
@@ -82,6 +84,8 @@ impl Agent {
             own_changed: Vec::new(),
             sharing: sharing::new(s, id, own_log, &world, radio::budget_per_step(s, &world)),
             life,
+            broken_recovery: std::env::var(crate::exchange::BROKEN_RECOVERY_ENV)
+                .is_ok_and(|v| v == "forget-earlier-lives"),
             coordinator: coord::new(s, id, &world, max_range_cells),
             heard: Heard::default(),
             right_of_way: RightOfWay::new(id, s.robots.radius_m, world.map.resolution_m),
@@ -293,7 +297,11 @@ impl Agent {
             Msg::Coord(m) => self.coordinator.on_message(self.id, &m),
             Msg::Share(share) => {
                 let w = &self.world;
-                match self.sharing.on_share(&share, &w.map, &w.laser) {
+                let taken = self.sharing.on_share(&share, &w.map, &w.laser);
+                if self.broken_recovery {
+                    self.forget_earlier_lives();
+                }
+                match taken {
                     Ok(true) => {
                         let hello = Msg::Hello(self.sharing.knowledge());
                         return self.radio.send_one(share.from(), &hello);
@@ -309,6 +317,27 @@ impl Agent {
             Msg::Mark(_) => {}
         }
         Vec::new()
+    }
+
+    /// The deliberately broken recovery ([`crate::exchange::BROKEN_RECOVERY_ENV`]): drops the
+    /// logs of every robot's lives before the latest one this node has heard of.
+    fn forget_earlier_lives(&mut self) {
+        let owners: Vec<RobotId> = self
+            .sharing
+            .knowledge()
+            .knowledge
+            .iter()
+            .map(|k| k.0)
+            .collect();
+        for &o in &owners {
+            let (robot, life) = proto::msg::owner_life(o);
+            let superseded = owners.iter().any(|&p| {
+                proto::msg::owner_life(p).0 == robot && proto::msg::owner_life(p).1 > life
+            });
+            if superseded {
+                self.sharing.handshake_mut().forget(o);
+            }
+        }
     }
 
     /// e_avg of the own approximation so far (polygon mode).

@@ -240,6 +240,14 @@ impl Handshake for ApproxExchange {
         self.logs.link_down(peer);
     }
 
+    fn forget(&mut self, owner: RobotId) {
+        if owner != self.own() {
+            self.logs.forget(owner);
+            self.replicas.remove(&owner);
+            self.sizes.remove(&owner);
+        }
+    }
+
     fn lag(&self, peer: RobotId) -> Option<u64> {
         self.logs.lag(peer)
     }

@@ -249,7 +249,16 @@ pub trait Handshake {
     fn link_down(&mut self, peer: RobotId);
     /// How many records we hold that `peer` lacks; `None` before its handshake.
     fn lag(&self, peer: RobotId) -> Option<u64>;
+    /// Drops everything we hold of `owner`'s log (never our own). Only the deliberately broken
+    /// recovery that tests `swarm chaos`'s checker calls it (`BROKEN_RECOVERY_ENV`).
+    fn forget(&mut self, owner: RobotId);
 }
+
+/// The environment variable that breaks recovery on purpose, to show that `swarm chaos`'s
+/// checker notices: set to `forget-earlier-lives`, a node that hears of a robot's later life
+/// drops what it holds of that robot's earlier lives (what a careless "newest incarnation
+/// wins" rule would do).
+pub const BROKEN_RECOVERY_ENV: &str = "SWARM_CHAOS_BROKEN_RECOVERY";
 
 impl<R: Clone> Handshake for LogExchange<R> {
     /// The handshake: how many records of each owner's log we hold.
@@ -295,6 +304,12 @@ impl<R: Clone> Handshake for LogExchange<R> {
     /// the peer's handshake.
     fn lag(&self, peer: RobotId) -> Option<u64> {
         self.backlog(peer, |_, recs| recs.len() as u64)
+    }
+
+    fn forget(&mut self, owner: RobotId) {
+        if owner != self.own {
+            self.logs.remove(&owner);
+        }
     }
 }
 

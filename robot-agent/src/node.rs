@@ -68,8 +68,15 @@ async fn put_sim(sim: &Session, key: String, bytes: Vec<u8>) -> Result<(), Zenoh
         .map_err(zerr)
 }
 
+/// How long a robot waits for the world-server's token to come back once it vanished: a
+/// session to the router that dropped (this process was frozen past its lease) reconnects and
+/// sees the token again; a world-server that is gone does not come back.
+const WORLD_GRACE: Duration = Duration::from_secs(3);
+
 /// The subscriptions of a robot on its two planes.
 struct Subs {
+    /// Since when the world-server's token has been gone (`None`: it is there).
+    world_lost: std::cell::Cell<Option<tokio::time::Instant>>,
     scans: Subscriber<FifoChannelHandler<Sample>>,
     plans: Subscriber<FifoChannelHandler<Sample>>,
     ctl: Subscriber<FifoChannelHandler<Sample>>,
@@ -113,6 +120,7 @@ fn decoded<T: serde::de::DeserializeOwned, E>(
 impl Subs {
     async fn declare(id: RobotId, sim: &Session, radio: &Session) -> Result<Subs, ZenohError> {
         Ok(Subs {
+            world_lost: std::cell::Cell::new(None),
             scans: sim.declare_subscriber(keys::scan(id)).await.map_err(zerr)?,
             plans: sim
                 .declare_subscriber(keys::NETEM_PLAN)
@@ -142,6 +150,7 @@ impl Subs {
 
     /// The next event; `idle` without any scan: the world fell silent.
     async fn next(&self, idle: Duration) -> Event {
+        let world_lost = self.world_lost.get();
         tokio::select! {
             sample = self.scans.recv_async() => decoded(sample, "scan", Event::Scan),
             sample = self.plans.recv_async() => decoded(sample, "link plan", Event::Plan),
@@ -163,12 +172,21 @@ impl Subs {
                     Ok(Err(e)) => { tracing::warn!("bad control message: {e}"); Event::Nothing }
                 }
             }
-            w = self.world_alive.recv_async() => {
-                if w.map_or(true, |w| w.kind() == SampleKind::Delete) {
-                    Event::End(End::WorldGone)
-                } else {
+            w = self.world_alive.recv_async() => match w {
+                Err(_) => Event::End(End::WorldGone),
+                Ok(w) if w.kind() == SampleKind::Delete => {
+                    if world_lost.is_none() {
+                        self.world_lost.set(Some(tokio::time::Instant::now() + WORLD_GRACE));
+                    }
                     Event::Nothing
                 }
+                Ok(_) => {
+                    self.world_lost.set(None);
+                    Event::Nothing
+                }
+            },
+            () = tokio::time::sleep_until(world_lost.unwrap_or_else(tokio::time::Instant::now)), if world_lost.is_some() => {
+                Event::End(End::WorldGone)
             }
             _ = tokio::time::sleep(idle) => Event::End(End::WorldSilent),
         }

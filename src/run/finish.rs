@@ -20,6 +20,7 @@ use std::collections::BTreeMap;
 use proto::msg::Step;
 
 use crate::awareness::{mean_of_step_means, steps_since_base, UpLinks};
+use crate::children::ProcessRow;
 use crate::connectivity::{check_judgements, comm_level_pct};
 use crate::evaluate::{Evaluator, MetricsRow};
 use crate::progress::Progress;
@@ -32,7 +33,8 @@ use crate::rundir::{
 
 /// Tells everyone to stop, waits for every child (killing what does not stop), and collects the
 /// link reports that arrived meanwhile.
-pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) {
+/// Returns every process the run started (`processes.csv`).
+pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) -> Vec<ProcessRow> {
     let Started {
         mut children, sim, ..
     } = run;
@@ -45,6 +47,7 @@ pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) {
         .put(keys::CONTROL, encode(&Control::Stop))
         .congestion_control(CongestionControl::Block)
         .await;
+    children.sample_memory();
     let killed = children.shutdown(Duration::from_secs(5)).await;
     // Link reports that arrived while the processes were stopping.
     while let Ok(Some(r)) = sim.link_reports.try_recv() {
@@ -58,6 +61,7 @@ pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) {
         ));
     }
     proto::node::close_quickly(sim.session).await;
+    children.table()
 }
 
 /// Sets every robot row's steps since its last contact with the base station (de Hoog et al.
@@ -198,6 +202,31 @@ pub fn summary(
             .and_then(|reported| check_judgements(&eval.judged, up, reported)),
         failed_processes: rec.failed.clone(),
         process_events: rec.sup.events.clone(),
+        logs_held_by_others: rec
+            .held_by_others
+            .iter()
+            .map(|(o, (n, _))| (o.to_string(), *n))
+            .collect(),
+        logs_held_max: eval
+            .last
+            .iter()
+            .map(|(r, (_, t))| {
+                let most = rec.held_max.get(&(*r, t.life));
+                let most = most
+                    .into_iter()
+                    .flatten()
+                    .map(|(o, n)| (o.to_string(), *n))
+                    .collect();
+                (r.to_string(), most)
+            })
+            .collect(),
+        nodes_alive_at_end: last
+            .robots
+            .iter()
+            .chain(&last.base)
+            .filter(|r| r.alive)
+            .map(|r| r.id)
+            .collect(),
         lost_logs: lost_logs(rec, &last),
         deterministic: false,
         nondeterministic: nondeterministic(plan, rec),
@@ -301,15 +330,18 @@ fn lost_logs(rec: &Record, last: &Status) -> Vec<LostLog> {
             })
             .max_by_key(|h| h.0);
         let (ops_held, bytes_held) = holder.unwrap_or((0, Some(0)));
+        // Its last report may predate ops it sent before it died: others may hold more.
+        let others = rec.held_by_others.get(&owner).copied().unwrap_or_default();
+        let ops_written = l.own_ops.max(others.0);
+        let bytes_written = l.own_bytes.max(others.1);
         out.push(LostLog {
             robot,
             life,
-            ops_written: l.own_ops,
+            ops_written,
             ops_held,
-            ops_lost: l.own_ops.saturating_sub(ops_held),
-            bytes_written: l.own_bytes,
-            bytes_lost: l
-                .own_bytes
+            ops_lost: ops_written.saturating_sub(ops_held),
+            bytes_written,
+            bytes_lost: bytes_written
                 .zip(bytes_held.or(Some(0)))
                 .map(|(w, h)| w.saturating_sub(h)),
         });

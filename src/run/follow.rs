@@ -54,6 +54,13 @@ pub struct Record {
     pub sup: Supervisor,
     /// Per robot life (robot, life): what it last reported of itself.
     pub lives: BTreeMap<(RobotId, u16), Life>,
+    /// Per log owner: the most of its log any other node reported holding, at any step taken
+    /// (up to the run's last step).
+    /// With the encoded bytes of that prefix, where the exchange measures them.
+    pub held_by_others: BTreeMap<RobotId, (u32, Option<u64>)>,
+    /// Per node life (node, life), per owner: the most of the owner's log it reported holding
+    /// at any step taken.
+    pub held_max: BTreeMap<(RobotId, u16), BTreeMap<RobotId, u32>>,
 }
 
 /// What one life of a robot reported last of itself.
@@ -73,6 +80,8 @@ impl Record {
         Record {
             sup,
             lives: BTreeMap::new(),
+            held_by_others: BTreeMap::new(),
+            held_max: BTreeMap::new(),
             eval,
             links: LinkLog::default(),
             failed: Vec::new(),
@@ -179,6 +188,19 @@ impl Record {
     fn took(&mut self, step: Step, reports: Vec<Telemetry>) {
         let from = self.eval.rows.len();
         for t in reports {
+            // What others hold of each log, over the steps the run is scored on.
+            let own = log_owner(t.robot, t.life);
+            let held = self.held_max.entry((t.robot, t.life)).or_default();
+            for &(owner, n) in &t.logs {
+                let most = held.entry(owner).or_default();
+                *most = (*most).max(n);
+                if Some(owner) != own {
+                    let bytes = t.log_bytes.iter().find(|b| b.0 == owner).map(|b| b.1);
+                    let most = self.held_by_others.entry(owner).or_default();
+                    most.0 = most.0.max(n);
+                    most.1 = most.1.max(bytes);
+                }
+            }
             self.eval.add(t);
         }
         // Lockstep: the whole step is in, so every share compares grids of this step.
@@ -416,13 +438,16 @@ pub async fn follow(
             // Once the last step is known the processes may end by themselves (the world-server
             // does at the step limit): their exits are the run's end, not failures; a crash
             // still is one.
-            _ = tick.tick() => match rec.end {
-                None => rec.on_exits(&mut run.children, plan, progress),
-                Some(_) => {
-                    rec.on_crashes(&mut run.children, plan, progress);
-                    None
+            _ = tick.tick() => {
+                run.children.sample_memory();
+                match rec.end {
+                    None => rec.on_exits(&mut run.children, plan, progress),
+                    Some(_) => {
+                        rec.on_crashes(&mut run.children, plan, progress);
+                        None
+                    }
                 }
-            },
+            }
             _ = tokio::signal::ctrl_c() => {
                 progress.event("swarm run: interrupted, stopping every process");
                 Some(ExitReason::Interrupted)
