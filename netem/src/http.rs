@@ -406,6 +406,35 @@ fn proxy_json(l: &Link) -> ProxyJson {
     }
 }
 
+/// Everything the control API decodes from a connection's bytes, without acting on any of it:
+/// the requests (one after another, as on a kept-alive connection), each one's JSON body as a
+/// proxy update and as a toxic, the toxic validated and applied as a patch to a toxic. The
+/// fuzz target `netem_http` (`fuzz/`); never panics.
+pub fn decode_only(mut buf: &[u8]) {
+    let limits = Limits::default();
+    for _ in 0..MAX_REQUESTS {
+        let Ok(Parsed::Complete {
+            request: req,
+            consumed: used,
+        }) = parse(buf, &limits)
+        else {
+            return;
+        };
+        let _ = req.path();
+        let _ = req.keep_alive();
+        let _ = body_json::<ProxyUpdate>(&req);
+        if let Ok(wire) = body_json::<ToxicWire>(&req) {
+            if let Ok(t) = Toxic::try_from(wire.clone()) {
+                let _ = t.patched(wire);
+            }
+        }
+        if used == 0 || used > buf.len() {
+            return;
+        }
+        buf = &buf[used..];
+    }
+}
+
 fn body_json<T: serde::de::DeserializeOwned>(req: &Request) -> Result<T, Response> {
     let body: &[u8] = if req.body.iter().all(u8::is_ascii_whitespace) {
         b"{}"
