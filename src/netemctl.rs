@@ -16,9 +16,26 @@ pub struct ApiArgs {
     /// Address of netem's HTTP API, e.g. 127.0.0.1:8474.
     #[arg(long, value_name = "ADDR", conflicts_with = "run")]
     pub api: Option<String>,
-    /// A run directory of a running `swarm run` (its netem.addr names the API).
+    /// A run directory of a running `swarm run` (its netem.addr names the API; its netem.token,
+    /// if there is one, is sent as the bearer token).
     #[arg(long, value_name = "DIR")]
     pub run: Option<PathBuf>,
+    /// A file holding the API's bearer token (`netem.api_token = true`; default with --run: the
+    /// run directory's netem.token).
+    #[arg(long, value_name = "FILE")]
+    pub token_file: Option<PathBuf>,
+}
+
+/// The bearer token to send: `--token-file`, else the run directory's `netem.token` if any.
+fn api_token(a: &ApiArgs) -> anyhow::Result<Option<String>> {
+    let file = match (&a.token_file, &a.run) {
+        (Some(f), _) => f.clone(),
+        (None, Some(dir)) if dir.join("netem.token").is_file() => dir.join("netem.token"),
+        _ => return Ok(None),
+    };
+    let token = std::fs::read_to_string(&file)
+        .with_context(|| format!("reading {}", file.display()))?;
+    Ok(Some(token.trim().to_string()))
 }
 
 #[derive(Subcommand, Debug, Clone)]
@@ -132,6 +149,7 @@ fn api_addr(a: &ApiArgs) -> anyhow::Result<SocketAddr> {
 /// One HTTP/1.1 request; returns (status, body).
 pub fn http(
     addr: SocketAddr,
+    token: Option<&str>,
     method: &str,
     path: &str,
     body: &str,
@@ -139,7 +157,8 @@ pub fn http(
     let mut s = TcpStream::connect_timeout(&addr, Duration::from_secs(5))
         .with_context(|| format!("connecting to netem at {addr}"))?;
     s.set_read_timeout(Some(Duration::from_secs(10)))?;
-    write!(s, "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}", body.len())?;
+    let auth = token.map_or_else(String::new, |t| format!("Authorization: Bearer {t}\r\n"));
+    write!(s, "{method} {path} HTTP/1.1\r\nHost: {addr}\r\n{auth}Content-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}", body.len())?;
     let mut resp = String::new();
     s.take(16 << 20)
         .read_to_string(&mut resp)
@@ -154,7 +173,8 @@ pub fn http(
 }
 
 fn call(a: &ApiArgs, method: &str, path: &str, body: &str) -> anyhow::Result<String> {
-    let (status, text) = http(api_addr(a)?, method, path, body)?;
+    let token = api_token(a)?;
+    let (status, text) = http(api_addr(a)?, token.as_deref(), method, path, body)?;
     if !(200..300).contains(&status) {
         bail!(
             "netem answered {status} to {method} {path}: {}",

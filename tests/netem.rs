@@ -125,6 +125,64 @@ fn curl(args: &[&str]) -> (bool, String) {
     )
 }
 
+/// `netem.api_token = true`: the API answers 401 without the run's token, and with it as a
+/// bearer token (curl, and `swarm netem --run`, which reads netem.token) it works.
+#[test]
+fn netems_api_refuses_requests_without_the_runs_token() {
+    let dir = TempDir::new("token");
+    let run = dir.path().join("run");
+    let mut cmd = Command::new(SWARM);
+    cmd.args(["run", "--quiet", "--out"]).arg(&run);
+    for s in [
+        "robots.count=2",
+        "world.map=office",
+        "world.width_m=24",
+        "world.height_m=16",
+        "clock.mode=realtime",
+        "clock.speedup=5",
+        "max_steps=2000",
+        "netem.api_token=true",
+    ] {
+        cmd.arg("--set").arg(s);
+    }
+    let _l = Launcher::spawn(cmd);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let (addr, token) = loop {
+        let addr = std::fs::read_to_string(run.join("netem.addr"));
+        let token = std::fs::read_to_string(run.join("netem.token"));
+        if let (Ok(a), Ok(t)) = (addr, token) {
+            break (a.trim().to_string(), t.trim().to_string());
+        }
+        assert!(Instant::now() < deadline, "netem.addr and netem.token never appeared");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(run.join("netem.token")).map(|m| m.permissions().mode() & 0o777);
+    assert_eq!(mode.ok(), Some(0o600), "netem.token readable by others");
+    assert_eq!(token.len(), 32, "{token}");
+    let code = |extra: &[&str]| {
+        let url = format!("http://{addr}/proxies");
+        let mut args = vec!["-o", "/dev/null", "-w", "%{http_code}"];
+        args.extend(extra);
+        args.push(&url);
+        curl(&args).1
+    };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while code(&[]) == "000" {
+        assert!(Instant::now() < deadline, "netem's API never answered");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(code(&[]), "401");
+    assert_eq!(code(&["-H", "Authorization: Bearer 00000000000000000000000000000000"]), "401");
+    let header = format!("Authorization: Bearer {token}");
+    assert_eq!(code(&["-H", &header]), "200");
+    let ctl = |args: &[&str]| Command::new(SWARM).arg("netem").args(args).output().expect("swarm netem");
+    let with_run = ctl(&["list", "--run", &run.to_string_lossy()]);
+    assert!(with_run.status.success(), "{}", stderr(&with_run));
+    let without = ctl(&["list", "--api", &addr]);
+    assert!(!without.status.success() && stderr(&without).contains("401"), "{}", stderr(&without));
+}
+
 #[test]
 fn curl_cuts_and_restores_a_link_during_a_run() {
     let dir = TempDir::new("curl");

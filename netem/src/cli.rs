@@ -34,6 +34,11 @@ pub struct Args {
     /// Address of the toxiproxy-compatible HTTP control API (GET /proxies, /metrics, …).
     #[arg(long, value_name = "ADDR")]
     pub http: Option<SocketAddr>,
+    /// A file holding the bearer token the HTTP API requires (`Authorization: Bearer <token>`);
+    /// without it, the API needs none. `swarm run` passes the run's `netem.token` when
+    /// `netem.api_token = true`.
+    #[arg(long, value_name = "FILE")]
+    pub token_file: Option<PathBuf>,
     /// At exit, after every connection is closed, write each link's final counters and
     /// addresses to this CSV file (`swarm run` keeps it as `link_totals.csv`).
     #[arg(long, value_name = "FILE")]
@@ -50,6 +55,7 @@ impl Args {
             scenario: ScenarioArgs::file(scenario),
             pairs: Vec::new(),
             http: None,
+            token_file: None,
             totals_out: None,
             zenoh,
         }
@@ -63,6 +69,9 @@ impl Args {
         }
         if let Some(h) = self.http {
             a.extend(["--http".into(), h.to_string()]);
+        }
+        if let Some(f) = &self.token_file {
+            a.extend(["--token-file".into(), f.to_string_lossy().into_owned()]);
         }
         if let Some(f) = &self.totals_out {
             a.extend(["--totals-out".into(), f.to_string_lossy().into_owned()]);
@@ -192,7 +201,15 @@ async fn run(args: Args) -> anyhow::Result<()> {
     } else {
         None
     };
-    let cfg = NetemConfig::from_scenario(&scenario, args.pairs.clone(), truth, args.http)?;
+    let mut cfg = NetemConfig::from_scenario(&scenario, args.pairs.clone(), truth, args.http)?;
+    if let Some(f) = &args.token_file {
+        let token = std::fs::read_to_string(f)
+            .with_context(|| format!("reading the API token from {}", f.display()))?
+            .trim()
+            .to_string();
+        anyhow::ensure!(!token.is_empty(), "{} holds no token", f.display());
+        cfg.api_token = Some(token);
+    }
     let netem = start(cfg).await.context("starting the link proxies")?;
     let result = follow(&sim, &netem).await;
     let links = netem.shutdown().await;

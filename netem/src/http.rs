@@ -352,6 +352,7 @@ fn reason(status: u16) -> &'static str {
         201 => "Created",
         204 => "No Content",
         400 => "Bad Request",
+        401 => "Unauthorized",
         403 => "Forbidden",
         404 => "Not Found",
         405 => "Method Not Allowed",
@@ -435,6 +436,16 @@ pub fn decode_only(mut buf: &[u8]) {
     }
 }
 
+/// Whether an `Authorization` header carries `Bearer <token>`, compared in time independent of
+/// where the first difference is.
+pub fn bearer_matches(header: Option<&str>, token: &str) -> bool {
+    let Some(given) = header.and_then(|h| h.trim().strip_prefix("Bearer ")) else {
+        return false;
+    };
+    let (a, b) = (given.trim().as_bytes(), token.as_bytes());
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
 fn body_json<T: serde::de::DeserializeOwned>(req: &Request) -> Result<T, Response> {
     let body: &[u8] = if req.body.iter().all(u8::is_ascii_whitespace) {
         b"{}"
@@ -457,6 +468,11 @@ pub(crate) fn route(sh: &Shared, req: &Request) -> Response {
         .is_some_and(|ua| ua.starts_with("Mozilla/"))
     {
         return Response::error(403, "User agent not allowed");
+    }
+    if let Some(token) = &sh.api_token {
+        if !bearer_matches(req.header("authorization"), token) {
+            return Response::error(401, "this API needs \"Authorization: Bearer <token>\" (the run's netem.token)");
+        }
     }
     let segs: Vec<String> = req
         .path()
@@ -685,6 +701,26 @@ async fn connection(sh: &Shared, mut s: TcpStream, mut shutdown: watch::Receiver
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_the_exact_bearer_token_passes() {
+        let t = "0123456789abcdef0123456789abcdef";
+        assert!(bearer_matches(Some(&format!("Bearer {t}")), t));
+        assert!(bearer_matches(Some(&format!("  Bearer {t} ")), t));
+        for bad in [
+            None,
+            Some(""),
+            Some("Bearer"),
+            Some("Bearer "),
+            Some("bearer 0123456789abcdef0123456789abcdef"),
+            Some("Basic 0123456789abcdef0123456789abcdef"),
+            Some("Bearer 0123456789abcdef0123456789abcdee"),
+            Some("Bearer 0123456789abcdef0123456789abcdef0"),
+            Some("Bearer 0123456789abcdef"),
+        ] {
+            assert!(!bearer_matches(bad, t), "{bad:?}");
+        }
+    }
     use proptest::prelude::*;
 
     fn complete(bytes: &[u8]) -> (Request, usize) {

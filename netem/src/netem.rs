@@ -66,6 +66,8 @@ pub struct NetemConfig {
     pub faults: Vec<ScheduledFault>,
     /// Where to serve the toxiproxy-compatible HTTP API (`None`: no API).
     pub http: Option<SocketAddr>,
+    /// The bearer token every API request must carry (`None`: none needed).
+    pub api_token: Option<String>,
 }
 
 impl NetemConfig {
@@ -83,6 +85,7 @@ impl NetemConfig {
             truth: None,
             faults: Vec::new(),
             http: None,
+            api_token: None,
         }
     }
 
@@ -108,6 +111,7 @@ impl NetemConfig {
             truth,
             faults,
             http,
+            api_token: None,
         })
     }
 }
@@ -185,6 +189,8 @@ pub(crate) struct Shared {
     steps: Mutex<StepState>,
     toxic_ids: AtomicU64,
     shutdown: watch::Sender<bool>,
+    /// See [`NetemConfig::api_token`].
+    pub(crate) api_token: Option<String>,
 }
 
 struct StepState {
@@ -408,6 +414,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         }),
         toxic_ids: AtomicU64::new(1),
         shutdown,
+        api_token: cfg.api_token.clone(),
     });
     let due: Vec<Fault> = lock(&shared.steps).faults[..initial]
         .iter()

@@ -279,6 +279,8 @@ pub struct Radio {
 pub struct Netem {
     pub buffer_bytes: u32,
     pub connect_timeout_ms: u64,
+    /// Guard the HTTP API with a bearer token (`swarm run` makes one per run: `netem.token`).
+    pub api_token: bool,
 }
 
 impl Default for Netem {
@@ -286,6 +288,7 @@ impl Default for Netem {
         Netem {
             buffer_bytes: 64 * 1024,
             connect_timeout_ms: 2000,
+            api_token: false,
         }
     }
 }

@@ -62,6 +62,9 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
     // Radio plane: every robot pair {i, j} runs through netem's proxy for the pair: robot i
     // connects to the proxy, netem forwards to robot j's radio listener. No robot is given
     // another robot's radio endpoint.
+    if plan.scenario.netem.api_token {
+        write_token(&plan.dir.join("netem.token"))?;
+    }
     respawn(plan, &mut children, Process::Netem, 0)?;
     std::fs::write(
         plan.dir.join("netem.addr"),
@@ -153,6 +156,7 @@ fn netem_argv(plan: &Plan) -> Vec<String> {
     let mut args = netem::cli::Args::new(plan.scenario_file.clone(), sim_client(plan));
     args.http = Some(loopback(plan.ports.http));
     args.totals_out = Some(plan.dir.join("link_totals.csv"));
+    args.token_file = (plan.scenario.netem.api_token).then(|| plan.dir.join("netem.token"));
     args.pairs = (plan.ports.pairs.iter())
         .map(|&(a, b, port)| PairSpec {
             a,
@@ -187,6 +191,26 @@ fn robot_argv(plan: &Plan, i: RobotId, life: u16) -> Vec<String> {
         .into_iter()
         .chain(args.to_argv())
         .collect()
+}
+
+/// Writes a new bearer token for netem's API: 128 random bits from the kernel, in hex, readable
+/// by the owner only.
+fn write_token(path: &Path) -> anyhow::Result<()> {
+    use std::io::{Read, Write};
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut bytes = [0u8; 16];
+    std::fs::File::open("/dev/urandom")
+        .and_then(|mut f| f.read_exact(&mut bytes))
+        .context("reading /dev/urandom for netem's API token")?;
+    let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+    std::fs::OpenOptions::new()
+        .create(true)
+        .write(true)
+        .truncate(true)
+        .mode(0o600)
+        .open(path)
+        .and_then(|mut f| writeln!(f, "{hex}"))
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// The last non-empty line of a child's log (its error message, when it failed).
