@@ -33,8 +33,8 @@ fn api_token(a: &ApiArgs) -> anyhow::Result<Option<String>> {
         (None, Some(dir)) if dir.join("netem.token").is_file() => dir.join("netem.token"),
         _ => return Ok(None),
     };
-    let token = std::fs::read_to_string(&file)
-        .with_context(|| format!("reading {}", file.display()))?;
+    let token =
+        std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
     Ok(Some(token.trim().to_string()))
 }
 

@@ -153,7 +153,10 @@ fn netems_api_refuses_requests_without_the_runs_token() {
         if let (Ok(a), Ok(t)) = (addr, token) {
             break (a.trim().to_string(), t.trim().to_string());
         }
-        assert!(Instant::now() < deadline, "netem.addr and netem.token never appeared");
+        assert!(
+            Instant::now() < deadline,
+            "netem.addr and netem.token never appeared"
+        );
         std::thread::sleep(Duration::from_millis(100));
     };
     use std::os::unix::fs::PermissionsExt;
@@ -173,14 +176,30 @@ fn netems_api_refuses_requests_without_the_runs_token() {
         std::thread::sleep(Duration::from_millis(100));
     }
     assert_eq!(code(&[]), "401");
-    assert_eq!(code(&["-H", "Authorization: Bearer 00000000000000000000000000000000"]), "401");
+    assert_eq!(
+        code(&[
+            "-H",
+            "Authorization: Bearer 00000000000000000000000000000000"
+        ]),
+        "401"
+    );
     let header = format!("Authorization: Bearer {token}");
     assert_eq!(code(&["-H", &header]), "200");
-    let ctl = |args: &[&str]| Command::new(SWARM).arg("netem").args(args).output().expect("swarm netem");
+    let ctl = |args: &[&str]| {
+        Command::new(SWARM)
+            .arg("netem")
+            .args(args)
+            .output()
+            .expect("swarm netem")
+    };
     let with_run = ctl(&["list", "--run", &run.to_string_lossy()]);
     assert!(with_run.status.success(), "{}", stderr(&with_run));
     let without = ctl(&["list", "--api", &addr]);
-    assert!(!without.status.success() && stderr(&without).contains("401"), "{}", stderr(&without));
+    assert!(
+        !without.status.success() && stderr(&without).contains("401"),
+        "{}",
+        stderr(&without)
+    );
 }
 
 #[test]

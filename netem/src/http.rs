@@ -471,7 +471,10 @@ pub(crate) fn route(sh: &Shared, req: &Request) -> Response {
     }
     if let Some(token) = &sh.api_token {
         if !bearer_matches(req.header("authorization"), token) {
-            return Response::error(401, "this API needs \"Authorization: Bearer <token>\" (the run's netem.token)");
+            return Response::error(
+                401,
+                "this API needs \"Authorization: Bearer <token>\" (the run's netem.token)",
+            );
         }
     }
     let segs: Vec<String> = req
