@@ -75,12 +75,8 @@ pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
                     Err(e) => { tracing::warn!("bad status: {e}"); continue; }
                 };
                 // Opening this step closes the previous one: its links' state and bytes.
-                // The base station is a node like a robot (it only never moves). A node that
-                // missed the step before (frozen, hung or too slow) is off the air for this one:
-                // lockstep neighbours would otherwise wait for its markers step after step.
-                let poses: Vec<_> = st.robots.iter().chain(&st.base)
-                    .map(|r| (r.id, r.pose, r.alive && !st.missed.contains(&r.id)))
-                    .collect();
+                // The base station is a node like a robot (it only never moves).
+                let poses: Vec<_> = st.robots.iter().chain(&st.base).map(|r| (r.id, r.pose, r.alive)).collect();
                 let rows = netem.advance(st.step, &poses);
                 // The step's links first: lockstep robots wait for them before they act.
                 let plan = netem.plan();

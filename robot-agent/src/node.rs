@@ -372,6 +372,9 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         send_radio(p.radio, out, true).await;
         while !ls.marked(t, &linked) {
             if ls.newer_than(t) {
+                // The world went on without this step (a neighbour's marker never came: it is
+                // frozen or hung). The command, late, still tells the world this robot lives.
+                put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
                 continue 'steps;
             }
             if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {

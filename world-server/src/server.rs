@@ -195,6 +195,9 @@ pub async fn serve(
                             if world.rejoin(cmd.robot) {
                                 tracing::warn!("robot {} commanded step {} while dead: it rejoins at step {}", cmd.robot, cmd.step, step + 1);
                             } else {
+                                // Late, so not applied; but the robot lives (it waited for a
+                                // neighbour that did not answer): no miss towards dead_after.
+                                world.heard_late(cmd.robot);
                                 tracing::debug!("late command of robot {} for step {}", cmd.robot, cmd.step);
                             }
                         }

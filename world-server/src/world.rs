@@ -289,6 +289,15 @@ impl World {
         dead && self.rejoining.insert(id)
     }
 
+    /// A live robot's command came after its step ended: it is slow, not dead — its misses in a
+    /// row start again (a robot that waited in vain for a frozen neighbour's step marker sends
+    /// its command late; only the frozen one is declared dead).
+    pub fn heard_late(&mut self, id: RobotId) {
+        if let Some(b) = self.bodies.get_mut(usize::from(id)).filter(|b| b.alive) {
+            b.missed = 0;
+        }
+    }
+
     /// Brings the rejoining nodes back to life (at the end of a step, before its status).
     fn revive(&mut self) {
         for id in std::mem::take(&mut self.rejoining) {
@@ -393,10 +402,16 @@ mod tests {
         assert_eq!(w.bodies[1].missed, 0);
         assert_eq!(w.bodies[1].pose, before);
         assert_eq!(w.awaited().collect::<Vec<_>>(), vec![0, 1]);
+        // A late command keeps a robot from being declared dead; silence does not.
+        w.apply(3, &HashMap::new());
+        w.heard_late(1);
+        w.apply(4, &HashMap::new());
+        assert!(w.bodies[1].alive && w.bodies[1].missed == 1);
+        assert!(!w.bodies[0].alive, "robot 0 missed steps 3 and 4 in a row");
         w.kill(1);
         assert!(!w.bodies[1].alive);
         assert!(w.rejoin(1));
-        w.apply(3, &only_0);
-        assert!(w.status(4).robots[1].alive);
+        w.apply(5, &only_0);
+        assert!(w.status(6).robots[1].alive);
     }
 }
