@@ -202,8 +202,7 @@ pub fn summary(
             .and_then(|reported| check_judgements(&eval.judged, up, reported)),
         failed_processes: rec.failed.clone(),
         process_events: rec.sup.events.clone(),
-        logs_held_by_others: rec
-            .held_by_others
+        logs_held_by_others: held_by_others(rec)
             .iter()
             .map(|(o, (n, _))| (o.to_string(), *n))
             .collect(),
@@ -215,19 +214,13 @@ pub fn summary(
                 let most = most
                     .into_iter()
                     .flatten()
-                    .map(|(o, n)| (o.to_string(), *n))
+                    .map(|(o, (n, _))| (o.to_string(), *n))
                     .collect();
                 (r.to_string(), most)
             })
             .collect(),
-        nodes_alive_at_end: last
-            .robots
-            .iter()
-            .chain(&last.base)
-            .filter(|r| r.alive)
-            .map(|r| r.id)
-            .collect(),
-        lost_logs: lost_logs(rec, &last),
+        nodes_alive_at_end: alive_at_end(&last),
+        lost_logs: lost_logs(rec, &alive_at_end(&last)),
         deterministic: false,
         nondeterministic: nondeterministic(plan, rec),
         run_digest: String::new(),
@@ -298,29 +291,50 @@ fn earlier_lives(rec: &Record) -> Vec<&super::follow::Life> {
         .collect()
 }
 
+/// The nodes (robots, then the base station) alive in `last`.
+fn alive_at_end(last: &Status) -> Vec<RobotId> {
+    last.robots
+        .iter()
+        .chain(&last.base)
+        .filter(|r| r.alive)
+        .map(|r| r.id)
+        .collect()
+}
+
+/// Per owner: the most of its log a node other than its writer (in that life) held at any
+/// step taken, (ops, encoded bytes).
+fn held_by_others(rec: &Record) -> super::follow::Held {
+    let mut out = super::follow::Held::new();
+    for (&(node, life), held) in &rec.held_max {
+        let own = log_owner(node, life);
+        for (&owner, &(n, bytes)) in held.iter().filter(|(&o, _)| Some(o) != own) {
+            let most = out.entry(owner).or_default();
+            most.0 = most.0.max(n);
+            most.1 = most.1.max(bytes);
+        }
+    }
+    out
+}
+
 /// Per robot life that ended before the run (a restart followed, or the robot is dead at the
 /// end): its own log against the most of it a node alive at the end holds.
-fn lost_logs(rec: &Record, last: &Status) -> Vec<LostLog> {
-    let alive = |id: RobotId| {
-        last.robots
-            .iter()
-            .chain(&last.base)
-            .any(|r| r.id == id && r.alive)
-    };
+fn lost_logs(rec: &Record, alive: &[RobotId]) -> Vec<LostLog> {
     // The final reports of the nodes alive at the end.
     let holders: Vec<&Telemetry> = rec
         .eval
         .last
         .iter()
-        .filter(|(id, _)| alive(**id))
+        .filter(|(id, _)| alive.contains(id))
         .map(|(_, (_, t))| t)
         .collect();
+    let others_held = held_by_others(rec);
     let mut out = Vec::new();
-    for (&(robot, life), l) in &rec.lives {
+    for (&(robot, life), held) in &rec.held_max {
         let current = holders.iter().any(|t| t.robot == robot && t.life == life);
         let Some(owner) = log_owner(robot, life).filter(|_| !current) else {
             continue;
         };
+        let (own_ops, own_bytes) = held.get(&owner).copied().unwrap_or_default();
         let holder = holders
             .iter()
             .filter_map(|t| {
@@ -331,9 +345,9 @@ fn lost_logs(rec: &Record, last: &Status) -> Vec<LostLog> {
             .max_by_key(|h| h.0);
         let (ops_held, bytes_held) = holder.unwrap_or((0, Some(0)));
         // Its last report may predate ops it sent before it died: others may hold more.
-        let others = rec.held_by_others.get(&owner).copied().unwrap_or_default();
-        let ops_written = l.own_ops.max(others.0);
-        let bytes_written = l.own_bytes.max(others.1);
+        let others = others_held.get(&owner).copied().unwrap_or_default();
+        let ops_written = own_ops.max(others.0);
+        let bytes_written = own_bytes.max(others.1);
         out.push(LostLog {
             robot,
             life,

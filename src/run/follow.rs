@@ -11,7 +11,7 @@ use zenoh::sample::Sample;
 
 use std::collections::BTreeMap;
 
-use proto::msg::{log_owner, RobotId};
+use proto::msg::RobotId;
 use proto::scenario::Process;
 
 use super::prepare::Plan;
@@ -54,21 +54,18 @@ pub struct Record {
     pub sup: Supervisor,
     /// Per robot life (robot, life): what it last reported of itself.
     pub lives: BTreeMap<(RobotId, u16), Life>,
-    /// Per log owner: the most of its log any other node reported holding, at any step taken
-    /// (up to the run's last step).
-    /// With the encoded bytes of that prefix, where the exchange measures them.
-    pub held_by_others: BTreeMap<RobotId, (u32, Option<u64>)>,
-    /// Per node life (node, life), per owner: the most of the owner's log it reported holding
-    /// at any step taken.
-    pub held_max: BTreeMap<(RobotId, u16), BTreeMap<RobotId, u32>>,
+    /// Per node life (node, life), per owner (its own log included): the most of the owner's
+    /// log it reported holding at any step taken (up to the run's last step), in ops and —
+    /// where the exchange measures them — encoded bytes.
+    pub held_max: BTreeMap<(RobotId, u16), Held>,
 }
 
-/// What one life of a robot reported last of itself.
+/// Per log owner: (ops, encoded bytes if measured) of its log.
+pub type Held = BTreeMap<RobotId, (u32, Option<u64>)>;
+
+/// What one life of a robot reported last of what it sent.
 #[derive(Clone, Debug, Default)]
 pub struct Life {
-    /// Its own log: ops, and encoded bytes if the exchange measures them.
-    pub own_ops: u32,
-    pub own_bytes: Option<u64>,
     /// Radio payload it sent, in total and per traffic class.
     pub bytes_sent: u64,
     pub sent_by_type: Vec<u64>,
@@ -80,7 +77,6 @@ impl Record {
         Record {
             sup,
             lives: BTreeMap::new(),
-            held_by_others: BTreeMap::new(),
             held_max: BTreeMap::new(),
             eval,
             links: LinkLog::default(),
@@ -150,16 +146,10 @@ impl Record {
     }
 
     fn on_telemetry(&mut self, t: Telemetry) {
-        if let Some(own) = log_owner(t.robot, t.life) {
-            let life = self.lives.entry((t.robot, t.life)).or_default();
-            let ops = t.logs.iter().find(|l| l.0 == own).map_or(0, |l| l.1);
-            life.own_ops = life.own_ops.max(ops);
-            let bytes = t.log_bytes.iter().find(|l| l.0 == own).map(|l| l.1);
-            life.own_bytes = life.own_bytes.max(bytes);
-            if t.bytes_sent >= life.bytes_sent {
-                life.bytes_sent = t.bytes_sent;
-                life.sent_by_type.clone_from(&t.sent_by_type);
-            }
+        let life = self.lives.entry((t.robot, t.life)).or_default();
+        if t.bytes_sent >= life.bytes_sent {
+            life.bytes_sent = t.bytes_sent;
+            life.sent_by_type.clone_from(&t.sent_by_type);
         }
         if !self.lockstep {
             // Realtime: reports are taken as they come (the run follows the wall clock anyway).
@@ -188,18 +178,13 @@ impl Record {
     fn took(&mut self, step: Step, reports: Vec<Telemetry>) {
         let from = self.eval.rows.len();
         for t in reports {
-            // What others hold of each log, over the steps the run is scored on.
-            let own = log_owner(t.robot, t.life);
+            // What each node holds of each log, over the steps the run is scored on.
             let held = self.held_max.entry((t.robot, t.life)).or_default();
             for &(owner, n) in &t.logs {
+                let bytes = t.log_bytes.iter().find(|b| b.0 == owner).map(|b| b.1);
                 let most = held.entry(owner).or_default();
-                *most = (*most).max(n);
-                if Some(owner) != own {
-                    let bytes = t.log_bytes.iter().find(|b| b.0 == owner).map(|b| b.1);
-                    let most = self.held_by_others.entry(owner).or_default();
-                    most.0 = most.0.max(n);
-                    most.1 = most.1.max(bytes);
-                }
+                most.0 = most.0.max(n);
+                most.1 = most.1.max(bytes);
             }
             self.eval.add(t);
         }
