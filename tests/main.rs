@@ -8,6 +8,7 @@ mod bids;
 mod bypass;
 mod chaos;
 mod cli;
+mod confine;
 mod determinism;
 mod lifecycle;
 mod mapping;

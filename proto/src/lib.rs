@@ -8,6 +8,7 @@
 
 #[cfg(feature = "budget")]
 pub mod budget;
+pub mod confine;
 pub mod exit;
 pub mod geom;
 pub mod grid;

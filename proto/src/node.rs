@@ -11,6 +11,8 @@ use std::path::{Path, PathBuf};
 
 use zenoh::Config;
 
+use crate::confine::{access_control, Credentials, Principal};
+
 /// The scenario flags shared by every process (flattened into each binary's clap `Args`).
 #[derive(clap::Args, Clone, Debug, Default, PartialEq)]
 pub struct ScenarioArgs {
@@ -59,6 +61,14 @@ pub struct ZenohArgs {
     /// Extra zenoh configuration as KEY:VALUE with a JSON5 value, e.g. --cfg 'transport/link/tx/batch_size:1024'.
     #[arg(long = "cfg", value_name = "KEY:VALUE")]
     pub cfg: Vec<String>,
+    /// Clients: log in to the sim plane's router with the `user:password` line of FILE (swarm
+    /// run writes one per process to the run's secrets/).
+    #[arg(long = "credentials", value_name = "FILE")]
+    pub credentials: Option<PathBuf>,
+    /// world-server: confine the sim plane — only the users of FILE (`user:password` lines) may
+    /// join, each allowed only its own keys (see the `confine` module).
+    #[arg(long = "users", value_name = "FILE")]
+    pub users: Option<PathBuf>,
 }
 
 /// The default sim-plane endpoint when none is given.
@@ -73,13 +83,28 @@ impl ZenohArgs {
         }
     }
 
-    /// The world-server's router config.
-    pub fn router(&self) -> Result<Config, ZargsError> {
-        sim_router(
+    /// The world-server's router config; with `--users`, confined to `principals` (each may
+    /// use only its own keys, [`crate::confine::grants`]).
+    pub fn router(&self, principals: &[Principal]) -> Result<Config, ZargsError> {
+        let mut c = sim_router(
             &Self::or_default(&self.listen),
             self.config.as_deref(),
             &self.cfg,
-        )
+        )?;
+        if let Some(users) = &self.users {
+            // zenoh reads the file when the session opens; read it here too for a clear error.
+            std::fs::read_to_string(users).map_err(|e| ZargsError::File {
+                path: users.clone(),
+                reason: e.to_string(),
+            })?;
+            set(
+                &mut c,
+                "transport/auth/usrpwd/dictionary_file",
+                &format!("{:?}", users.to_string_lossy()),
+            )?;
+            set(&mut c, "access_control", &access_control(principals))?;
+        }
+        Ok(c)
     }
 
     /// The flags that parse back into these arguments (for a process that starts another).
@@ -97,17 +122,42 @@ impl ZenohArgs {
         for c in &self.cfg {
             a.extend(["--cfg".into(), c.clone()]);
         }
+        if let Some(f) = &self.credentials {
+            a.extend(["--credentials".into(), f.to_string_lossy().into_owned()]);
+        }
+        if let Some(f) = &self.users {
+            a.extend(["--users".into(), f.to_string_lossy().into_owned()]);
+        }
         a
     }
 
     /// A client config that waits up to `wait_ms` for the router.
     pub fn client(&self, wait_ms: u64) -> Result<Config, ZargsError> {
-        sim_client(
+        let mut c = sim_client(
             &Self::or_default(&self.connect),
             self.config.as_deref(),
             &self.cfg,
             wait_ms,
-        )
+        )?;
+        if let Some(path) = &self.credentials {
+            let file = |reason: String| ZargsError::File {
+                path: path.clone(),
+                reason,
+            };
+            let text = std::fs::read_to_string(path).map_err(|e| file(e.to_string()))?;
+            let login = Credentials::parse(&text).map_err(file)?;
+            set(
+                &mut c,
+                "transport/auth/usrpwd/user",
+                &format!("{:?}", login.user),
+            )?;
+            set(
+                &mut c,
+                "transport/auth/usrpwd/password",
+                &format!("{:?}", login.password),
+            )?;
+        }
+        Ok(c)
     }
 }
 
@@ -332,10 +382,20 @@ pub fn radio_zid(id: crate::msg::RobotId) -> String {
 }
 
 /// zenoh access control (JSON5) for robot `me` of `team`: towards peer `j`, puts and deletes
-/// on `radio/k/**` for every `k ≠ j` are denied; everything else is allowed.
+/// on `radio/k/**` for every `k ≠ j` are denied; from any peer, puts and deletes on
+/// `radio/k/**` for every `k ≠ me` are dropped on arrival (the radio takes only what is
+/// addressed to its robot); everything else is allowed.
 fn addressed_only(me: crate::msg::RobotId, team: u16) -> String {
     let peers = (0..team).filter(|&j| j != me);
-    let mut rules = Vec::new();
+    let not_mine: Vec<String> = (0..team)
+        .filter(|&k| k != me)
+        .map(|k| format!("\"radio/{k}/**\""))
+        .collect();
+    let mut rules = vec![format!(
+        "{{id:\"not_for_me\",messages:[\"put\",\"delete\"],flows:[\"ingress\"],\
+         permission:\"deny\",key_exprs:[{}]}}",
+        not_mine.join(",")
+    )];
     let mut subjects = Vec::new();
     let mut policies = Vec::new();
     for j in peers {
@@ -350,7 +410,7 @@ fn addressed_only(me: crate::msg::RobotId, team: u16) -> String {
         ));
         subjects.push(format!("{{id:\"peer_{j}\",zids:[\"{}\"]}}", radio_zid(j)));
         policies.push(format!(
-            "{{rules:[\"not_to_{j}\"],subjects:[\"peer_{j}\"]}}"
+            "{{rules:[\"not_to_{j}\",\"not_for_me\"],subjects:[\"peer_{j}\"]}}"
         ));
     }
     format!(
@@ -394,6 +454,57 @@ mod tests {
     }
 
     #[test]
+    fn confinement_adds_the_dictionary_the_rules_and_each_clients_login() {
+        let d = std::env::temp_dir().join(format!("confine-cfg-{}", std::process::id()));
+        std::fs::create_dir_all(&d).expect("temp dir");
+        let (users, cred, bad) = (d.join("users"), d.join("robot-0"), d.join("bad"));
+        std::fs::write(&users, "robot-0:pw0\nnetem:pw1\n").expect("users");
+        std::fs::write(&cred, "robot-0:pw0\n").expect("login");
+        std::fs::write(&bad, "robot-0\n").expect("bad login");
+        let e = vec!["tcp/127.0.0.1:7447".to_string()];
+        let team = crate::confine::Principal::of_run(1, None);
+        let router = ZenohArgs {
+            listen: e.clone(),
+            users: Some(users.clone()),
+            ..ZenohArgs::default()
+        };
+        let c = router.router(&team).expect("router config");
+        assert_eq!(
+            c.get_json("access_control/enabled").ok().as_deref(),
+            Some("true")
+        );
+        let open = ZenohArgs {
+            listen: e.clone(),
+            ..ZenohArgs::default()
+        };
+        let c = open.router(&team).expect("router config");
+        assert_eq!(
+            c.get_json("access_control/enabled").ok().as_deref(),
+            Some("false")
+        );
+        let client = |credentials: &Path| {
+            ZenohArgs {
+                connect: e.clone(),
+                credentials: Some(credentials.to_path_buf()),
+                ..ZenohArgs::default()
+            }
+            .client(0)
+        };
+        let c = client(&cred).expect("client config");
+        assert_eq!(
+            c.get_json("transport/auth/usrpwd/user").ok().as_deref(),
+            Some("\"robot-0\"")
+        );
+        for missing in [bad, d.join("none")] {
+            let err = client(&missing).err().map(|e| e.to_string());
+            assert!(err
+                .unwrap_or_default()
+                .contains(&*missing.to_string_lossy()));
+        }
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
     fn zenoh_flags_round_trip_through_to_argv() {
         use clap::Parser;
         #[derive(clap::Parser, Debug, PartialEq)]
@@ -406,6 +517,8 @@ mod tests {
             listen: vec!["tcp/127.0.0.1:3".into()],
             config: Some(PathBuf::from("/etc/z.json5")),
             cfg: vec!["transport/link/tx/batch_size:1024".into()],
+            credentials: Some(PathBuf::from("/run/x/secrets/robot-1")),
+            users: Some(PathBuf::from("/run/x/secrets/users")),
         };
         for z in [z, ZenohArgs::default()] {
             let argv = std::iter::once("x".to_string()).chain(z.to_argv());

@@ -9,6 +9,7 @@
 mod finish;
 mod follow;
 mod prepare;
+mod secrets;
 mod spawn;
 mod steps;
 

@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use netem::PairSpec;
+use proto::confine::Principal;
 use proto::grid::Grid;
 use proto::keys;
 use proto::msg::{RobotId, TruthMap};
@@ -19,6 +20,7 @@ use zenoh::sample::Sample;
 use zenoh::Session;
 
 use super::prepare::Plan;
+use super::secrets;
 use crate::children::{describe, Children};
 use crate::ports::endpoint;
 
@@ -45,6 +47,12 @@ pub struct Started {
 /// Starts every process of the run.
 pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
     let exe = std::env::current_exe().context("locating the swarm binary")?;
+    secrets::write_logins(plan)?;
+    std::fs::write(
+        plan.dir.join("sim.endpoint"),
+        format!("{}\n", plan.ports.sim_endpoint()),
+    )
+    .context("writing sim.endpoint")?;
     let mut children = Children::default();
     children.spawn(
         "world-server",
@@ -52,7 +60,12 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
         &world_server_argv(plan),
         &plan.log("world-server"),
     )?;
-    let session = join_sim(&sim_client(plan), &mut children, &plan.dir).await?;
+    let session = join_sim(
+        &sim_client(plan, Principal::Launcher),
+        &mut children,
+        &plan.dir,
+    )
+    .await?;
     let truth = fetch_truth(&session, &mut children, &plan.dir).await?;
     let truth_grid = Grid::from_rle(&truth.grid_rle).context("truth grid")?;
     let reachable = Grid::from_rle(&truth.reachable_rle).context("reachable grid")?;
@@ -63,7 +76,7 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
     // connects to the proxy, netem forwards to robot j's radio listener. No robot is given
     // another robot's radio endpoint.
     if plan.scenario.netem.api_token {
-        write_token(&plan.dir.join("netem.token"))?;
+        secrets::write_token(&plan.dir.join("netem.token"))?;
     }
     respawn(plan, &mut children, Process::Netem, 0)?;
     std::fs::write(
@@ -131,10 +144,11 @@ async fn subscribe(session: Session) -> anyhow::Result<Sim> {
     })
 }
 
-/// A client of the run's sim plane.
-fn sim_client(plan: &Plan) -> ZenohArgs {
+/// A client of the run's sim plane, logged in as `who`.
+fn sim_client(plan: &Plan, who: Principal) -> ZenohArgs {
     ZenohArgs {
         connect: vec![plan.ports.sim_endpoint()],
+        credentials: Some(secrets::credentials(plan, who)),
         ..ZenohArgs::default()
     }
 }
@@ -142,6 +156,7 @@ fn sim_client(plan: &Plan) -> ZenohArgs {
 fn world_server_argv(plan: &Plan) -> Vec<String> {
     let router = ZenohArgs {
         listen: vec![plan.ports.sim_endpoint()],
+        users: Some(secrets::users(plan)),
         ..ZenohArgs::default()
     };
     let args = world_server::cli::Args::new(plan.scenario_file.clone(), router);
@@ -153,7 +168,10 @@ fn world_server_argv(plan: &Plan) -> Vec<String> {
 
 fn netem_argv(plan: &Plan) -> Vec<String> {
     let loopback = |port| SocketAddr::from((Ipv4Addr::LOCALHOST, port));
-    let mut args = netem::cli::Args::new(plan.scenario_file.clone(), sim_client(plan));
+    let mut args = netem::cli::Args::new(
+        plan.scenario_file.clone(),
+        sim_client(plan, Principal::Netem),
+    );
     args.http = Some(loopback(plan.ports.http));
     args.totals_out = Some(plan.dir.join("link_totals.csv"));
     args.token_file = (plan.scenario.netem.api_token).then(|| plan.dir.join("netem.token"));
@@ -174,7 +192,10 @@ fn netem_argv(plan: &Plan) -> Vec<String> {
 /// Node `i`'s flags: it listens on its radio port and connects to netem's proxy of every pair
 /// in which it has the lower id.
 fn node_args(plan: &Plan, i: RobotId) -> robot_agent::cli::NodeArgs {
-    let mut args = robot_agent::cli::NodeArgs::new(plan.scenario_file.clone(), sim_client(plan));
+    let mut args = robot_agent::cli::NodeArgs::new(
+        plan.scenario_file.clone(),
+        sim_client(plan, secrets::node(plan, i)),
+    );
     args.radio_listen = vec![endpoint(plan.ports.radio[usize::from(i)])];
     args.radio_connect = (plan.ports.pairs.iter())
         .filter(|&&(a, _, _)| a == i)
@@ -191,26 +212,6 @@ fn robot_argv(plan: &Plan, i: RobotId, life: u16) -> Vec<String> {
         .into_iter()
         .chain(args.to_argv())
         .collect()
-}
-
-/// Writes a new bearer token for netem's API: 128 random bits from the kernel, in hex, readable
-/// by the owner only.
-fn write_token(path: &Path) -> anyhow::Result<()> {
-    use std::io::{Read, Write};
-    use std::os::unix::fs::OpenOptionsExt;
-    let mut bytes = [0u8; 16];
-    std::fs::File::open("/dev/urandom")
-        .and_then(|mut f| f.read_exact(&mut bytes))
-        .context("reading /dev/urandom for netem's API token")?;
-    let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
-    std::fs::OpenOptions::new()
-        .create(true)
-        .write(true)
-        .truncate(true)
-        .mode(0o600)
-        .open(path)
-        .and_then(|mut f| writeln!(f, "{hex}"))
-        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// The last non-empty line of a child's log (its error message, when it failed).

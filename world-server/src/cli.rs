@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::Parser;
+use proto::confine::Principal;
 use proto::node::{close_quickly, init_logging, zerr, ScenarioArgs, ZenohArgs};
 use proto::scenario::Scenario;
 
@@ -62,7 +63,8 @@ pub fn build_world(args: &Args) -> anyhow::Result<(Scenario, World)> {
 
 async fn run(args: Args) -> anyhow::Result<End> {
     let (scenario, world) = build_world(&args)?;
-    let session = zenoh::open(args.zenoh.router()?)
+    let principals = Principal::of_run(scenario.robots.count, scenario.base_id());
+    let session = zenoh::open(args.zenoh.router(&principals)?)
         .await
         .map_err(zerr)
         .context("opening the sim-plane router")?;
