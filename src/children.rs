@@ -36,9 +36,26 @@ pub struct ProcessRow {
     pub peak_rss_kb: u64,
 }
 
+/// A row of `memory.csv`: a process's resident set when the run reached a step (every
+/// [`MEMORY_EVERY_STEPS`] steps).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct MemoryRow {
+    pub step: u32,
+    pub process: String,
+    pub life: u16,
+    pub rss_kb: u64,
+}
+
+/// How often (in steps) `memory.csv` gets a row per running process.
+pub const MEMORY_EVERY_STEPS: u32 = 100;
+
 #[derive(Default)]
 pub struct Children {
     procs: Vec<Proc>,
+    /// `memory.csv` so far.
+    memory: Vec<MemoryRow>,
+    /// The last step a row of `memory` was taken at.
+    memory_step: Option<u32>,
 }
 
 /// What a child runs between fork and exec: asks the kernel to SIGKILL it when the spawning
@@ -172,13 +189,41 @@ impl Children {
     }
 
     /// Samples the resident set of every running child (`VmRSS` in `/proc/<pid>/status`),
-    /// keeping each one's peak.
-    pub fn sample_memory(&mut self) {
-        for p in self.procs.iter_mut().filter(|p| p.exited.is_none()) {
+    /// keeping each one's peak; the run being at `step`, every [`MEMORY_EVERY_STEPS`] steps
+    /// also a row of `memory.csv` per process.
+    pub fn sample_memory(&mut self, step: Option<u32>) {
+        let row_due = step.filter(|&s| {
+            self.memory_step
+                .is_none_or(|m| s / MEMORY_EVERY_STEPS > m / MEMORY_EVERY_STEPS)
+        });
+        let mut lives: std::collections::HashMap<&str, u16> = std::collections::HashMap::new();
+        for p in self.procs.iter_mut() {
+            let life = lives.entry(&p.name).or_default();
+            let this_life = *life;
+            *life += 1;
+            if p.exited.is_some() {
+                continue;
+            }
             if let Some(kb) = rss_kb(p.pid) {
                 p.peak_rss_kb = p.peak_rss_kb.max(kb);
+                if let Some(step) = row_due {
+                    self.memory.push(MemoryRow {
+                        step,
+                        process: p.name.clone(),
+                        life: this_life,
+                        rss_kb: kb,
+                    });
+                }
             }
         }
+        if row_due.is_some() {
+            self.memory_step = row_due;
+        }
+    }
+
+    /// `memory.csv`: each process's resident set every [`MEMORY_EVERY_STEPS`] steps.
+    pub fn memory(&self) -> &[MemoryRow] {
+        &self.memory
     }
 
     /// Every process started, in order, with its life, exit and peak memory (`processes.csv`).

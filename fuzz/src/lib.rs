@@ -351,7 +351,7 @@ mod tests {
         write("sim_plane", "cmd", &encode(&Cmd { step: 3, robot: 1, waypoint: Some((2.0, 2.5)) }));
         write("sim_plane", "control", &encode(&Control::Stop));
         write("sim_plane", "world-info", &encode(&world(3)));
-        let link = PlannedLink { a: 0, b: 1, rate: [Some(1000), None], delay: [1, 0], held: false };
+        let link = PlannedLink { a: 0, b: 1, rate: [Some(1000), None], delay: [1, 0], held: false, credit: [Some(8000), None] };
         write("sim_plane", "link-plan", &encode(&LinkPlan { step: 5, links: vec![link] }));
         let g = Grid::new(8, 6, proto::grid::Occ::Free);
         write(

@@ -128,6 +128,38 @@ pub struct Link {
     /// Accepted connections that reached the target (robot b's radio listener).
     established_total: AtomicU64,
     refused_total: AtomicU64,
+    /// Per direction, what the link's budget can still carry (lockstep with markers).
+    credit: Mutex<[Option<Credit>; 2]>,
+}
+
+/// A direction's budget as netem reckons it from the bytes it carried, step by step: a token
+/// bucket of the direction's rate and burst that refills one step's worth when a step opens
+/// and loses the bytes counted in the step that ended. It is what the bandwidth shaping can
+/// let through in the step (the shaping takes its grants in quanta as chunks come, which
+/// depends on timing; the bytes of a step do not), so robots pace against it
+/// ([`PlannedLink::credit`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Credit {
+    pub rate: u64,
+    pub burst: u64,
+    pub level: f64,
+}
+
+impl Credit {
+    /// The credit when a step opens: `prev` (a full bucket if none) less the `bytes` carried in
+    /// the step that ended, plus one step of `step_seconds` at `rate`, at most `burst`. A
+    /// direction whose rate or burst changed keeps what it had, within the new burst.
+    pub fn open(
+        prev: Option<Credit>,
+        rate: u64,
+        burst: u64,
+        bytes: u64,
+        step_seconds: f64,
+    ) -> Credit {
+        let before = prev.map_or(burst as f64, |c| c.level);
+        let level = (before - bytes as f64 + rate as f64 * step_seconds).clamp(0.0, burst as f64);
+        Credit { rate, burst, level }
+    }
 }
 
 /// A copy of a link's state and counters.
@@ -177,6 +209,7 @@ impl Link {
             connects_total: AtomicU64::new(0),
             established_total: AtomicU64::new(0),
             refused_total: AtomicU64::new(0),
+            credit: Mutex::new([None, None]),
         })
     }
 
@@ -433,6 +466,27 @@ impl Link {
         s
     }
 
+    /// A step opens: each direction's [`Credit`] loses the `bytes` it carried in the step that
+    /// ended and gains the new step's refill at its rate as the step's plan announces it (none
+    /// if unlimited).
+    pub fn open_credit(&self, bytes: [u64; 2], step_seconds: f64) {
+        let toxics = self.toxics();
+        let mut credit = lock(&self.credit);
+        for d in Dir::BOTH {
+            let shape = faults::planned(&self.params.base[d.index()], &toxics, d);
+            let budget = shape
+                .budgets
+                .iter()
+                .filter(|b| !b.is_shared())
+                .min_by_key(|b| b.rate_bytes_per_s());
+            let i = d.index();
+            credit[i] = budget.map(|b| {
+                let (rate, burst) = (b.rate_bytes_per_s(), b.burst_bytes());
+                Credit::open(credit[i], rate, burst, bytes[i], step_seconds)
+            });
+        }
+    }
+
     /// The link as a step's plan announces it (steps of `step_ns`), if it is up: per direction
     /// its own rate (a shared medium aside) and its latency with the jitter at the most,
     /// rounded up to whole steps; held if either direction is stalled. Every toxic counts,
@@ -460,6 +514,7 @@ impl Link {
             rate: [rate(&shapes[0]), rate(&shapes[1])],
             delay: [delay(&shapes[0]), delay(&shapes[1])],
             held: shapes.iter().any(|s| s.stalled),
+            credit: lock(&self.credit).map(|c| c.map(|c| c.level.floor() as u32)),
         })
     }
 }
@@ -610,6 +665,26 @@ pub(crate) mod tests {
     use super::*;
     use crate::shaping::Budget;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    #[test]
+    fn a_credit_refills_a_step_at_a_time_loses_what_was_carried_and_stays_in_its_burst() {
+        let c = Credit::open(None, 65, 780, 0, 1.0);
+        assert_eq!(c.level, 780.0);
+        // 68 bytes a step on a 65 B/s link: 3 bytes a step less.
+        let mut c = c;
+        for _ in 0..10 {
+            c = Credit::open(Some(c), 65, 780, 68, 1.0);
+        }
+        assert_eq!(c.level, 750.0);
+        // Never below nothing, never above the burst.
+        let c = Credit::open(Some(c), 65, 780, 10_000, 1.0);
+        assert_eq!(c.level, 0.0);
+        let c = Credit::open(Some(c), 65, 780, 0, 100.0);
+        assert_eq!(c.level, 780.0);
+        // A new rate keeps what there was, within the new burst.
+        let c = Credit::open(Some(c), 10, 120, 0, 1.0);
+        assert_eq!((c.rate, c.burst, c.level), (10, 120, 120.0));
+    }
 
     /// A target server that echoes nothing and records what it receives; returns its address and
     /// a channel of accepted streams.

@@ -656,6 +656,7 @@ impl Netem {
             .zip(&before)
             .map(|(l, snap)| {
                 let bytes = Dir::BOTH.map(|d| l.counters(d).take_step());
+                l.open_credit(bytes, self.shared.step_seconds);
                 // Counters and queues as they are now; the link's state as it was in the step.
                 let was = telemetry_row(ending, snap, [0, 0]);
                 LinkTelemetry {

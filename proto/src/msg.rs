@@ -12,7 +12,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 9;
+pub const PROTOCOL_VERSION: u16 = 10;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -323,6 +323,12 @@ pub struct PlannedLink {
     pub delay: [u32; 2],
     /// Stalled (a blackhole): the session stays, nothing is sent either way.
     pub held: bool,
+    /// Each direction's credit, `[a → b, b → a]`: the bytes netem's budget can still let
+    /// through in the step (as netem reckons it from the bytes it carried, see netem's
+    /// `Credit`), zenoh's framing included; `None`: unlimited. A robot's pacing estimates the
+    /// framing; the credit keeps what it offers within what the link will carry, so that its
+    /// step marker is never held back behind its data.
+    pub credit: [Option<u32>; 2],
 }
 
 impl LinkPlan {
@@ -383,6 +389,11 @@ impl PlannedLink {
     /// The delay of the direction from `from`.
     pub fn delay_from(&self, from: RobotId) -> u32 {
         self.delay[self.dir(from)]
+    }
+
+    /// The credit of the direction from `from`.
+    pub fn credit_from(&self, from: RobotId) -> Option<u32> {
+        self.credit[self.dir(from)]
     }
 }
 
@@ -843,6 +854,7 @@ mod tests {
                     rate: [Some(1000), None],
                     delay: [2, 0],
                     held: false,
+                    credit: [Some(11_000), None],
                 },
                 PlannedLink {
                     a: 1,
@@ -850,6 +862,7 @@ mod tests {
                     rate: [None, None],
                     delay: [0, 0],
                     held: true,
+                    credit: [None, None],
                 },
             ],
         });
@@ -1107,8 +1120,10 @@ mod link_plan_tests {
             rate: [Some(10), Some(20)],
             delay: [3, 0],
             held: false,
+            credit: [Some(100), Some(7)],
         };
         assert_eq!((l.rate_from(1), l.delay_from(1)), (Some(10), 3));
+        assert_eq!((l.credit_from(1), l.credit_from(4)), (Some(100), Some(7)));
         assert_eq!((l.rate_from(4), l.delay_from(4)), (Some(20), 0));
     }
 

@@ -236,6 +236,12 @@ impl Agent {
         self.radio.set_rate(peer, rate);
     }
 
+    /// Lockstep: what netem can carry to `peer` in this step (the plan's credit; `None`:
+    /// unlimited).
+    pub fn set_credit(&mut self, peer: RobotId, credit: Option<u32>) {
+        self.radio.set_credit(peer, credit);
+    }
+
     /// Lockstep: the step's neighbours are exactly `linked` (netem's plan). Links that went
     /// down are forgotten; new ones are greeted. Returns the greetings and the peers dropped.
     pub fn set_neighbours(&mut self, linked: &[RobotId]) -> (Vec<Outgoing>, Vec<RobotId>) {

@@ -288,6 +288,7 @@ mod tests {
                 rate: [None, None],
                 delay: [0, delay],
                 held,
+                credit: [None, None],
             }],
         };
         // Sent in step 0 over a delay of 2: acted on in step 2.

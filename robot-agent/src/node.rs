@@ -332,7 +332,9 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         };
         let linked = plan.neighbours(p.id);
         for &peer in &linked {
-            agent.set_rate(peer, plan.link(p.id, peer).and_then(|l| l.rate_from(p.id)));
+            let link = plan.link(p.id, peer);
+            agent.set_rate(peer, link.and_then(|l| l.rate_from(p.id)));
+            agent.set_credit(peer, link.and_then(|l| l.credit_from(p.id)));
         }
         let (greetings, gone) = agent.set_neighbours(&linked);
         // A held link keeps its session; a link that is down lost it.

@@ -12,7 +12,7 @@
 //!   package type, and handed to [`crate::node`] as an [`Outgoing`] (key and bytes). Incoming
 //!   bytes come back with their key's kind ([`Radio::receive`]), are counted and decoded here.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, HashMap};
 
 use proto::geom::LaserSpec;
 use proto::grid::Cell;
@@ -172,6 +172,28 @@ pub struct Radio {
     overhead: usize,
     /// An undecodable payload was logged already.
     logged_bad: bool,
+    /// Lockstep: per neighbour, what netem's budget can carry in this step (the plan's credit).
+    credit: HashMap<RobotId, u32>,
+    /// Radio nodes of the run (robots and the base station): the most owners a step's shares
+    /// can carry logs of.
+    nodes: usize,
+}
+
+/// Of a link's credit, what a robot leaves for its step marker (a marker with zenoh's framing
+/// and a margin for the framing it does not foresee).
+pub const MARK_RESERVE_BYTES: u32 = 48;
+
+/// zenoh's framing of one message of `len` payload bytes at the most, as the credit reckons it:
+/// [`WIRE_OVERHEAD_BYTES`] and a margin (sequence numbers grow), and one more frame header for
+/// every batch a large message is fragmented over (measured: a 600-byte scan costs 29 bytes of
+/// framing over two fragments, a 5-byte marker 19).
+fn framing_at_most(len: usize) -> usize {
+    WIRE_OVERHEAD_BYTES + 8 + 16 * (len / (proto::node::RADIO_BATCH_BYTES as usize - 32))
+}
+
+/// Of `room` bytes on the wire, the payload `messages` messages may carry at the most.
+fn payload_within(room: usize, messages: usize) -> usize {
+    room.saturating_sub(messages * framing_at_most(0) + framing_at_most(room) - framing_at_most(0))
 }
 
 impl Radio {
@@ -194,6 +216,8 @@ impl Radio {
                 0
             },
             logged_bad: false,
+            credit: HashMap::new(),
+            nodes: usize::from(s.robots.count) + usize::from(s.base_id().is_some()),
         }
     }
 
@@ -281,7 +305,18 @@ impl Radio {
         }
     }
 
+    /// Lockstep: in this step netem can carry `credit` bytes to `peer` (the plan; `None`:
+    /// unlimited). What the robot offers beyond its messages outside the budget stays within it,
+    /// less room for the step marker.
+    pub fn set_credit(&mut self, peer: RobotId, credit: Option<u32>) {
+        match credit {
+            Some(c) => self.credit.insert(peer, c),
+            None => self.credit.remove(&peer),
+        };
+    }
+
     pub fn link_down(&mut self, peer: RobotId, sharing: &mut dyn Sharing) {
+        self.credit.remove(&peer);
         self.pacer.forget(peer);
         if self.neighbours.remove(&peer) {
             sharing.link_down(peer);
@@ -320,11 +355,21 @@ impl Radio {
                 continue;
             }
             let budget = self.pacer.available(peer);
+            // netem's credit, on the wire: what is left after the marker and the messages
+            // outside the budget, with their framing at the most.
+            let mut room = self
+                .credit
+                .get(&peer)
+                .map(|&c| (c.saturating_sub(MARK_RESERVE_BYTES)) as usize);
             let mut spent = 0usize;
             for p in mine.into_iter().chain(&targ).chain(&hello) {
                 spent += self.send(peer, p, &mut out);
+                room =
+                    room.map(|r| r.saturating_sub(p.bytes.len() + framing_at_most(p.bytes.len())));
             }
-            for share in sharing.outgoing(peer, budget.saturating_sub(spent)) {
+            // Shares: one message per log owner (a run's nodes, restarted lives aside).
+            let shares_room = room.map_or(usize::MAX, |r| payload_within(r, self.nodes));
+            for share in sharing.outgoing(peer, budget.saturating_sub(spent).min(shares_room)) {
                 spent += self.send(peer, &Msg::Share(share).pack(), &mut out);
             }
             self.pacer.spend(peer, spent);
@@ -401,6 +446,87 @@ mod tests {
         assert!(targ > 0);
         assert_eq!(c.sent_by_type[Traffic::Targ as usize], targ as u64);
         assert!(out.iter().all(|o| o.to == 1));
+    }
+
+    /// A real sharing that records the budget it is offered and always has something pending.
+    use proto::grid::Grid;
+    use proto::msg::Scan;
+
+    struct Recording {
+        inner: Box<dyn Sharing>,
+        budgets: Vec<usize>,
+    }
+
+    impl Sharing for Recording {
+        fn after_scan(&mut self, scan: &Scan, laser: &LaserSpec, own: &Grid, changed: &[Cell]) {
+            self.inner.after_scan(scan, laser, own, changed)
+        }
+        fn handshake(&self) -> &dyn crate::exchange::Handshake {
+            self.inner.handshake()
+        }
+        fn handshake_mut(&mut self) -> &mut dyn crate::exchange::Handshake {
+            self.inner.handshake_mut()
+        }
+        fn outgoing(&mut self, _peer: RobotId, budget: usize) -> Vec<Share> {
+            self.budgets.push(budget);
+            Vec::new()
+        }
+        fn on_share(
+            &mut self,
+            s: &Share,
+            map: &MapInfo,
+            laser: &LaserSpec,
+        ) -> Result<bool, String> {
+            self.inner.on_share(s, map, laser)
+        }
+        fn planning_grid(&self, own: &Grid) -> Grid {
+            self.inner.planning_grid(own)
+        }
+        fn backlog_bytes(&self, _peer: RobotId) -> Option<u64> {
+            Some(1_000_000)
+        }
+        fn has_pending(&self, _peer: RobotId) -> bool {
+            true
+        }
+    }
+
+    #[test]
+    fn framing_is_reckoned_per_message_and_per_fragment() {
+        assert_eq!(framing_at_most(5), WIRE_OVERHEAD_BYTES + 8);
+        // The measured 29 bytes of a two-fragment scan are covered.
+        assert!(framing_at_most(604) >= 29);
+        assert_eq!(payload_within(100, 1), 100 - framing_at_most(0));
+        assert!(payload_within(1000, 2) + 2 * framing_at_most(0) + 32 <= 1000);
+        assert_eq!(payload_within(10, 1), 0);
+    }
+
+    #[test]
+    fn a_links_credit_caps_what_is_offered_and_leaves_room_for_the_marker() {
+        let (mut s, world) = world();
+        s.radio.bandwidth_bytes_per_s = 1000;
+        let mut radio = Radio::new(0, &s, &world);
+        let mut sharing = Recording {
+            inner: crate::sharing::new(&s, 0, 0, &world, None),
+            budgets: Vec::new(),
+        };
+        radio.link_up(1, &mut sharing, 0, None);
+        radio.step(1, None, &[], &mut sharing);
+        let own = sharing.budgets.pop().expect("offered");
+        assert!(own > 200, "the pacer's own budget: {own}");
+        radio.set_credit(1, Some(150));
+        radio.step(2, None, &[], &mut sharing);
+        let capped = sharing.budgets.pop().expect("offered");
+        assert!(
+            capped <= payload_within(150 - MARK_RESERVE_BYTES as usize, 2),
+            "{capped}"
+        );
+        assert!(capped < 150 - MARK_RESERVE_BYTES as usize - 2 * WIRE_OVERHEAD_BYTES);
+        radio.set_credit(1, Some(10));
+        radio.step(3, None, &[], &mut sharing);
+        assert_eq!(sharing.budgets.pop(), Some(0));
+        radio.set_credit(1, None);
+        radio.step(4, None, &[], &mut sharing);
+        assert!(sharing.budgets.pop().is_some_and(|b| b > 150));
     }
 
     #[test]

@@ -20,7 +20,7 @@ use std::collections::BTreeMap;
 use proto::msg::Step;
 
 use crate::awareness::{mean_of_step_means, steps_since_base, UpLinks};
-use crate::children::ProcessRow;
+use crate::children::{MemoryRow, ProcessRow};
 use crate::connectivity::{check_judgements, comm_level_pct};
 use crate::evaluate::{Evaluator, MetricsRow};
 use crate::progress::Progress;
@@ -33,8 +33,13 @@ use crate::rundir::{
 
 /// Tells everyone to stop, waits for every child (killing what does not stop), and collects the
 /// link reports that arrived meanwhile.
-/// Returns every process the run started (`processes.csv`).
-pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) -> Vec<ProcessRow> {
+/// Returns every process the run started (`processes.csv`) and their memory over the run
+/// (`memory.csv`).
+pub async fn stop(
+    run: Started,
+    rec: &mut Record,
+    progress: &mut Progress,
+) -> (Vec<ProcessRow>, Vec<MemoryRow>) {
     let Started {
         mut children, sim, ..
     } = run;
@@ -47,7 +52,7 @@ pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) -> Ve
         .put(keys::CONTROL, encode(&Control::Stop))
         .congestion_control(CongestionControl::Block)
         .await;
-    children.sample_memory();
+    children.sample_memory(None);
     let killed = children.shutdown(Duration::from_secs(5)).await;
     // Link reports that arrived while the processes were stopping.
     while let Ok(Some(r)) = sim.link_reports.try_recv() {
@@ -61,7 +66,7 @@ pub async fn stop(run: Started, rec: &mut Record, progress: &mut Progress) -> Ve
         ));
     }
     proto::node::close_quickly(sim.session).await;
-    children.table()
+    (children.table(), children.memory().to_vec())
 }
 
 /// Sets every robot row's steps since its last contact with the base station (de Hoog et al.

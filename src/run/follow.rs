@@ -424,7 +424,7 @@ pub async fn follow(
             // does at the step limit): their exits are the run's end, not failures; a crash
             // still is one.
             _ = tick.tick() => {
-                run.children.sample_memory();
+                run.children.sample_memory(rec.statuses.last().map(|s| s.step));
                 match rec.end {
                     None => rec.on_exits(&mut run.children, plan, progress),
                     Some(_) => {

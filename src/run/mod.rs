@@ -98,7 +98,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let mut rec = follow::Record::new(eval, lockstep, sup);
     let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
-    let processes = finish::stop(run, &mut rec, &mut progress).await;
+    let (processes, memory) = finish::stop(run, &mut rec, &mut progress).await;
     rec.truncate();
     let up = rec.links.up_by_step();
     finish::score_contact(&plan, &mut rec, &up);
@@ -106,6 +106,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let mut summary = finish::summary(&plan, &rec, &up, exit_reason, started);
     finish::write_tables(&plan.dir, &rec)?;
     crate::rundir::write_rows(&plan.dir.join("processes.csv"), processes)?;
+    crate::rundir::write_rows(&plan.dir.join("memory.csv"), memory)?;
     finish::write_pictures(&plan.dir, (&truth, info), &rec, &mut progress)?;
     summary.run_digest = run_digest(&plan.dir)?;
     summary.deterministic = summary.nondeterministic.is_empty();
