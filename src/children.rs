@@ -15,6 +15,8 @@ use tokio::process::{Child, Command};
 
 pub struct Proc {
     pub name: String,
+    /// 0 for the first process of its name, one more for each restart.
+    pub life: u16,
     pub pid: u32,
     child: Child,
     pub exited: Option<ExitStatus>,
@@ -128,8 +130,10 @@ impl Children {
             .spawn()
             .with_context(|| format!("starting {name} ({})", exe.display()))?;
         let pid = child.id().unwrap_or(0);
+        let life = self.procs.iter().filter(|p| p.name == name).count();
         self.procs.push(Proc {
             name: name.to_string(),
+            life: u16::try_from(life).unwrap_or(u16::MAX),
             pid,
             child,
             exited: None,
@@ -196,21 +200,14 @@ impl Children {
             self.memory_step
                 .is_none_or(|m| s / MEMORY_EVERY_STEPS > m / MEMORY_EVERY_STEPS)
         });
-        let mut lives: std::collections::HashMap<&str, u16> = std::collections::HashMap::new();
-        for p in self.procs.iter_mut() {
-            let life = lives.entry(&p.name).or_default();
-            let this_life = *life;
-            *life += 1;
-            if p.exited.is_some() {
-                continue;
-            }
+        for p in self.procs.iter_mut().filter(|p| p.exited.is_none()) {
             if let Some(kb) = rss_kb(p.pid) {
                 p.peak_rss_kb = p.peak_rss_kb.max(kb);
                 if let Some(step) = row_due {
                     self.memory.push(MemoryRow {
                         step,
                         process: p.name.clone(),
-                        life: this_life,
+                        life: p.life,
                         rss_kb: kb,
                     });
                 }
@@ -228,20 +225,14 @@ impl Children {
 
     /// Every process started, in order, with its life, exit and peak memory (`processes.csv`).
     pub fn table(&self) -> Vec<ProcessRow> {
-        let mut lives: std::collections::HashMap<&str, u16> = std::collections::HashMap::new();
         self.procs
             .iter()
-            .map(|p| {
-                let life = lives.entry(&p.name).or_default();
-                let row = ProcessRow {
-                    process: p.name.clone(),
-                    life: *life,
-                    pid: p.pid,
-                    exit: p.exited.map_or_else(|| "running".into(), describe),
-                    peak_rss_kb: p.peak_rss_kb,
-                };
-                *life += 1;
-                row
+            .map(|p| ProcessRow {
+                process: p.name.clone(),
+                life: p.life,
+                pid: p.pid,
+                exit: p.exited.map_or_else(|| "running".into(), describe),
+                peak_rss_kb: p.peak_rss_kb,
             })
             .collect()
     }

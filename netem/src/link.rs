@@ -140,8 +140,6 @@ pub struct Link {
 /// ([`PlannedLink::credit`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Credit {
-    pub rate: u64,
-    pub burst: u64,
     pub level: f64,
 }
 
@@ -158,7 +156,7 @@ impl Credit {
     ) -> Credit {
         let before = prev.map_or(burst as f64, |c| c.level);
         let level = (before - bytes as f64 + rate as f64 * step_seconds).clamp(0.0, burst as f64);
-        Credit { rate, burst, level }
+        Credit { level }
     }
 }
 
@@ -683,7 +681,7 @@ pub(crate) mod tests {
         assert_eq!(c.level, 780.0);
         // A new rate keeps what there was, within the new burst.
         let c = Credit::open(Some(c), 10, 120, 0, 1.0);
-        assert_eq!((c.rate, c.burst, c.level), (10, 120, 120.0));
+        assert_eq!(c.level, 120.0);
     }
 
     /// A target server that echoes nothing and records what it receives; returns its address and

@@ -184,16 +184,20 @@ pub struct Radio {
 pub const MARK_RESERVE_BYTES: u32 = 48;
 
 /// zenoh's framing of one message of `len` payload bytes at the most, as the credit reckons it:
-/// [`WIRE_OVERHEAD_BYTES`] and a margin (sequence numbers grow), and one more frame header for
-/// every batch a large message is fragmented over (measured: a 600-byte scan costs 29 bytes of
-/// framing over two fragments, a 5-byte marker 19).
+/// [`WIRE_OVERHEAD_BYTES`] and a margin (sequence numbers grow), plus [`fragments_framing`]
+/// (measured: a 600-byte scan costs 29 bytes of framing over two fragments, a 5-byte marker 19).
 fn framing_at_most(len: usize) -> usize {
-    WIRE_OVERHEAD_BYTES + 8 + 16 * (len / (proto::node::RADIO_BATCH_BYTES as usize - 32))
+    WIRE_OVERHEAD_BYTES + 8 + fragments_framing(len)
+}
+
+/// One more frame header for every further batch a message of `len` bytes is fragmented over.
+fn fragments_framing(len: usize) -> usize {
+    16 * (len / (proto::node::RADIO_BATCH_BYTES as usize - 32))
 }
 
 /// Of `room` bytes on the wire, the payload `messages` messages may carry at the most.
 fn payload_within(room: usize, messages: usize) -> usize {
-    room.saturating_sub(messages * framing_at_most(0) + framing_at_most(room) - framing_at_most(0))
+    room.saturating_sub(messages * framing_at_most(0) + fragments_framing(room))
 }
 
 impl Radio {
@@ -448,10 +452,10 @@ mod tests {
         assert!(out.iter().all(|o| o.to == 1));
     }
 
-    /// A real sharing that records the budget it is offered and always has something pending.
     use proto::grid::Grid;
     use proto::msg::Scan;
 
+    /// A real sharing that records the budget it is offered and always has something pending.
     struct Recording {
         inner: Box<dyn Sharing>,
         budgets: Vec<usize>,
