@@ -1,6 +1,7 @@
 //! `swarm netem …`: the netem process itself (`serve`) and runtime control of a running swarm's
 //! links through netem's toxiproxy-compatible HTTP API — the same API `curl` and toxiproxy's
-//! clients speak (a pair is the proxy `r{i}-r{j}`, a fault is a toxic).
+//! clients speak (a pair is the proxy `r{i}-r{j}`, a fault is a toxic) — and of its processes
+//! (`kill`, `restart`, `freeze`, `thaw`: netem hands them on to the launcher).
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
@@ -9,6 +10,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
+use proto::scenario::Process;
 
 /// Where the API is: `--api ADDR`, or the `netem.addr` file of a run directory.
 #[derive(Args, Debug, Clone)]
@@ -77,6 +79,35 @@ pub enum NetemCommand {
     },
     /// Restore every link and remove every toxic (toxiproxy's POST /reset).
     Reset(ApiArgs),
+    /// Kill a process of the run (SIGKILL) at its next step: robot-<id>, base-station, netem or
+    /// world-server (which ends the run). Recorded in summary.json's process_events (cause api).
+    Kill {
+        #[command(flatten)]
+        api: ApiArgs,
+        process: Process,
+        /// Start it again (same id and ports, its next life) this many steps later.
+        #[arg(long, value_name = "STEPS")]
+        restart_after: Option<u32>,
+    },
+    /// Kill a robot, the base station or netem and start it again at once (its next life).
+    Restart {
+        #[command(flatten)]
+        api: ApiArgs,
+        process: Process,
+    },
+    /// Freeze a robot or the base station (SIGSTOP): silent, declared dead after clock.dead_after
+    /// missed steps.
+    Freeze {
+        #[command(flatten)]
+        api: ApiArgs,
+        process: Process,
+    },
+    /// Thaw a frozen robot or base station (SIGCONT): it goes on, and rejoins if declared dead.
+    Thaw {
+        #[command(flatten)]
+        api: ApiArgs,
+        process: Process,
+    },
 }
 
 /// The toxics `swarm netem set` knows (toxiproxy's names).
@@ -184,6 +215,15 @@ fn call(a: &ApiArgs, method: &str, path: &str, body: &str) -> anyhow::Result<Str
     Ok(text)
 }
 
+fn process_fault(a: &ApiArgs, process: Process, kind: &str) -> anyhow::Result<String> {
+    call(
+        a,
+        "POST",
+        &format!("/processes/{process}"),
+        &format!("{{\"kind\":\"{kind}\"}}"),
+    )
+}
+
 fn link(a: u16, b: u16) -> String {
     format!("r{}-r{}", a.min(b), a.max(b))
 }
@@ -219,6 +259,20 @@ pub fn control(cmd: &NetemCommand) -> anyhow::Result<()> {
             "",
         )?,
         NetemCommand::Reset(api) => call(api, "POST", "/reset", "")?,
+        NetemCommand::Kill {
+            api,
+            process,
+            restart_after,
+        } => {
+            let body = match restart_after {
+                Some(k) => format!("{{\"kind\":\"kill\",\"restart_after\":{k}}}"),
+                None => "{\"kind\":\"kill\"}".to_string(),
+            };
+            call(api, "POST", &format!("/processes/{process}"), &body)?
+        }
+        NetemCommand::Restart { api, process } => process_fault(api, *process, "restart")?,
+        NetemCommand::Freeze { api, process } => process_fault(api, *process, "freeze")?,
+        NetemCommand::Thaw { api, process } => process_fault(api, *process, "thaw")?,
     };
     match serde_json::from_str::<serde_json::Value>(&out) {
         Ok(v) => println!("{}", serde_json::to_string_pretty(&v).unwrap_or(out)),

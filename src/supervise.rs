@@ -1,9 +1,11 @@
 //! Supervision and process faults: what the launcher does to the run's processes, and when.
 //!
-//! Two sources of actions, both on the world's clock (the step of the latest status):
+//! Three sources of actions, all on the world's clock (the step of the latest status):
 //!
 //! * the scenario's process faults (`[[faults]]` of kind `kill`, `restart`, `freeze`, `thaw`;
 //!   [`proto::scenario::ProcessFault`]), carried out when the run reaches their step;
+//! * the same faults asked for at runtime through netem's API (`POST /processes/<name>`, which
+//!   netem hands on over the sim plane), carried out at the next step;
 //! * supervision (`[supervise]`): a process of a supervised kind that dies unexpectedly — a
 //!   crash, or a signal from outside the run — is started again `delay_steps` later, at most
 //!   `max_restarts` times.
@@ -46,7 +48,8 @@ pub struct Event {
     pub process: Process,
     /// `killed`, `started`, `frozen`, `thawed`, `died` (unexpectedly), `not-restarted`.
     pub event: &'static str,
-    /// Why: `fault` (the scenario's `[[faults]]`), `supervised`, or how it died.
+    /// Why: `fault` (the scenario's `[[faults]]`), `api` (netem's API), `supervised`, or how
+    /// it died.
     pub cause: String,
     /// The process's life after the event (a robot's life names the log it writes).
     pub life: u16,
@@ -68,6 +71,8 @@ pub struct Supervisor {
     frozen: BTreeSet<Process>,
     /// Processes that are not running (killed or died) and not yet started again.
     down: BTreeSet<Process>,
+    /// Faults asked for at runtime ([`Supervisor::ask`]), for the next step.
+    asked: Vec<ProcessAction>,
     step: Step,
     pub events: Vec<Event>,
 }
@@ -83,6 +88,7 @@ impl Supervisor {
             restarts: BTreeMap::new(),
             frozen: BTreeSet::new(),
             down: BTreeSet::new(),
+            asked: Vec::new(),
             step: 0,
             events: Vec::new(),
         }
@@ -156,42 +162,62 @@ impl Supervisor {
             .cloned()
         {
             self.next += 1;
-            let p = f.action.process();
-            match f.action {
-                ProcessAction::Kill { restart_after, .. } => {
-                    if !self.down.insert(p) {
-                        self.event(p, "not-killed", "fault: it was not running");
-                        continue;
-                    }
-                    self.frozen.remove(&p);
-                    self.event(p, "killed", "fault");
+            self.apply(step, f.action, "fault", &mut out);
+        }
+        for action in std::mem::take(&mut self.asked) {
+            self.apply(step, action, "api", &mut out);
+        }
+        out
+    }
+
+    /// A process fault asked for at runtime (netem's API): carried out at the next step, after
+    /// the scenario's faults of that step.
+    pub fn ask(&mut self, action: ProcessAction) {
+        self.asked.push(action);
+    }
+
+    /// Carries out a process fault at `step` (`cause`: `fault` or `api`).
+    fn apply(
+        &mut self,
+        step: Step,
+        action: ProcessAction,
+        cause: &'static str,
+        out: &mut Vec<Action>,
+    ) {
+        let p = action.process();
+        match action {
+            ProcessAction::Kill { restart_after, .. } => {
+                if !self.down.insert(p) {
+                    self.event(p, "not-killed", format!("{cause}: it was not running"));
+                    return;
+                }
+                self.frozen.remove(&p);
+                self.event(p, "killed", cause);
+                out.push(Action::Kill(p));
+                if let Some(k) = restart_after {
+                    self.due.push((step.saturating_add(k), p, cause));
+                }
+            }
+            ProcessAction::Restart { .. } => {
+                if self.down.insert(p) {
+                    self.event(p, "killed", cause);
                     out.push(Action::Kill(p));
-                    if let Some(k) = restart_after {
-                        self.due.push((step.saturating_add(k), p, "fault"));
-                    }
                 }
-                ProcessAction::Restart { .. } => {
-                    if self.down.insert(p) {
-                        self.event(p, "killed", "fault");
-                        out.push(Action::Kill(p));
-                    }
-                    self.start(p, "fault", &mut out);
+                self.start(p, cause, out);
+            }
+            ProcessAction::Freeze { .. } => {
+                if !self.down.contains(&p) && self.frozen.insert(p) {
+                    self.event(p, "frozen", cause);
+                    out.push(Action::Freeze(p));
                 }
-                ProcessAction::Freeze { .. } => {
-                    if !self.down.contains(&p) && self.frozen.insert(p) {
-                        self.event(p, "frozen", "fault");
-                        out.push(Action::Freeze(p));
-                    }
-                }
-                ProcessAction::Thaw { .. } => {
-                    if self.frozen.remove(&p) {
-                        self.event(p, "thawed", "fault");
-                        out.push(Action::Thaw(p));
-                    }
+            }
+            ProcessAction::Thaw { .. } => {
+                if self.frozen.remove(&p) {
+                    self.event(p, "thawed", cause);
+                    out.push(Action::Thaw(p));
                 }
             }
         }
-        out
     }
 
     /// `process` died without the launcher killing it (`how`: its exit status). Returns the
@@ -329,6 +355,40 @@ mod tests {
         assert_eq!(
             s.died(Process::WorldServer, "signal 9"),
             Some(ExitReason::WorldServerExited)
+        );
+    }
+
+    #[test]
+    fn faults_asked_at_runtime_come_at_the_next_step_after_the_scheduled_ones() {
+        let (r1, r2) = (Process::Robot(1), Process::Robot(2));
+        let mut s = Supervisor::new(
+            Supervise::default(),
+            vec![fault(7, ProcessAction::Freeze { process: r1 })],
+        );
+        assert!(s.on_step(5).is_empty());
+        s.ask(ProcessAction::Kill {
+            process: r2,
+            restart_after: Some(2),
+        });
+        s.ask(ProcessAction::Thaw { process: r1 });
+        // Thawing a robot that is not frozen does nothing.
+        assert_eq!(s.on_step(6), vec![Action::Kill(r2)]);
+        s.ask(ProcessAction::Thaw { process: r1 });
+        assert_eq!(s.on_step(7), vec![Action::Freeze(r1), Action::Thaw(r1)]);
+        assert_eq!(s.on_step(8), vec![Action::Start(r2, 1)]);
+        let causes: Vec<_> = s
+            .events
+            .iter()
+            .map(|e| (e.step, e.process, e.event, e.cause.as_str()))
+            .collect();
+        assert_eq!(
+            causes,
+            vec![
+                (6, r2, "killed", "api"),
+                (7, r1, "frozen", "fault"),
+                (7, r1, "thawed", "api"),
+                (8, r2, "started", "api"),
+            ]
         );
     }
 

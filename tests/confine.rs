@@ -17,27 +17,9 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 use zenoh::Session;
 
-use crate::support::{kill, summary, Launcher, TempDir, SWARM};
+use crate::support::{kill, summary, wait_file, Launcher, TempDir, SWARM};
 
 type Sub = Subscriber<FifoChannelHandler<Sample>>;
-
-/// Waits up to `wait` for a file and returns its trimmed text.
-fn wait_file(path: &Path, wait: Duration) -> String {
-    let deadline = Instant::now() + wait;
-    loop {
-        if let Ok(t) = std::fs::read_to_string(path) {
-            if !t.trim().is_empty() {
-                return t.trim().to_string();
-            }
-        }
-        assert!(
-            Instant::now() < deadline,
-            "{} never appeared",
-            path.display()
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
 
 fn login(endpoint: &str, credentials: Option<&Path>) -> ZenohArgs {
     ZenohArgs {

@@ -1,12 +1,15 @@
 //! Process faults scheduled in the scenario (`[[faults]]` of kind `kill`, `restart`, `freeze`,
 //! `thaw`), each in a real run of five robots on intel_lab: a robot killed and started again
 //! rejoins in its next life and gets its first life's log back from its peers; netem restarted
-//! mid-run; a robot frozen, declared dead, thawed and back; the world-server killed.
+//! mid-run; a robot frozen, declared dead, thawed and back; the world-server killed. And the
+//! same faults asked for at runtime through netem's API (`swarm netem kill|freeze|thaw`).
 
 use std::collections::HashMap;
+use std::path::Path;
+use std::process::Command;
 use std::time::Duration;
 
-use crate::support::{csv, num, stderr, summary, swarm_run, TempDir};
+use crate::support::{csv, num, stderr, summary, swarm_run, wait_file, Launcher, TempDir, SWARM};
 
 /// A 5-robot intel_lab run (the embedded default scenario) with `faults` appended.
 fn run_with(
@@ -232,6 +235,92 @@ fn process_faults_naming_no_process_of_the_run_are_refused_in_one_line() {
         assert!(
             err.contains(needle) && err.trim().lines().count() == 1,
             "{faults}: {err}"
+        );
+    }
+}
+
+/// Events of `summary.json` as (step, process, event, cause).
+fn caused(s: &serde_json::Value) -> Vec<(u64, String, String, String)> {
+    let events = s["process_events"].as_array().cloned().unwrap_or_default();
+    events
+        .iter()
+        .map(|e| {
+            let text = |k: &str| e[k].as_str().unwrap_or_default().to_string();
+            let step = e["step"].as_u64().unwrap_or(u64::MAX);
+            (step, text("process"), text("event"), text("cause"))
+        })
+        .collect()
+}
+
+/// `swarm netem <args> --run DIR`: netem's API, with the run's token.
+fn netem_cli(run: &Path, args: &[&str]) -> std::process::Output {
+    Command::new(SWARM)
+        .arg("netem")
+        .args(args)
+        .arg("--run")
+        .arg(run)
+        .output()
+        .expect("swarm netem")
+}
+
+#[test]
+fn process_faults_asked_through_netems_api_are_carried_out_at_the_next_step() {
+    let dir = TempDir::new("api-faults");
+    let run = dir.path().join("run");
+    let mut cmd = Command::new(SWARM);
+    cmd.args(["run", "--quiet", "--out"]).arg(&run);
+    for s in [
+        "robots.count=5",
+        "clock.step_timeout_ms=500",
+        "netem.api_token=true",
+    ] {
+        cmd.arg("--set").arg(s);
+    }
+    let launcher = Launcher::spawn(cmd);
+    wait_file(&run.join("netem.addr"), Duration::from_secs(30));
+    wait_file(&run.join("netem.token"), Duration::from_secs(30));
+    // Asked for as soon as the API is up: the team may not have formed its first links yet
+    // (a robot frozen before its first session must not stall the others).
+    let kill = netem_cli(&run, &["kill", "robot-2", "--restart-after", "3"]);
+    assert!(kill.status.success(), "{}", stderr(&kill));
+    let freeze = netem_cli(&run, &["freeze", "robot-1"]);
+    assert!(freeze.status.success(), "{}", stderr(&freeze));
+    // Not a process of this run: refused by netem, nothing done.
+    let refused = netem_cli(&run, &["restart", "robot-7"]);
+    assert!(!refused.status.success());
+    assert!(stderr(&refused).contains("404"), "{}", stderr(&refused));
+    std::thread::sleep(Duration::from_secs(2));
+    let thaw = netem_cli(&run, &["thaw", "robot-1"]);
+    assert!(thaw.status.success(), "{}", stderr(&thaw));
+    let out = launcher.wait_output(Duration::from_secs(300));
+    let s = summary(&run);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
+    assert_eq!(s["complete"], true, "{s}");
+    assert_eq!(s["robots_alive_at_end"], 5, "{s}");
+    let ev = caused(&s);
+    let at = |p: &str, e: &str| {
+        ev.iter()
+            .find(|x| x.1 == p && x.2 == e)
+            .map(|x| (x.0, x.3.clone()))
+            .unwrap_or_else(|| panic!("no {e} of {p}: {ev:?}"))
+    };
+    let (killed, cause) = at("robot-2", "killed");
+    assert_eq!(cause, "api");
+    assert_eq!(at("robot-2", "started"), (killed + 3, "api".to_string()));
+    let (frozen, cause) = at("robot-1", "frozen");
+    assert_eq!(cause, "api");
+    let (thawed, cause) = at("robot-1", "thawed");
+    assert_eq!(cause, "api");
+    assert!(thawed > frozen, "{ev:?}");
+    assert_eq!(ev.len(), 4, "nothing else done: {ev:?}");
+    // Both are back: they report after their start and thaw.
+    let metrics = csv(&run.join("metrics.csv"));
+    for (robot, since) in [(2.0, killed + 3), (1.0, thawed)] {
+        assert!(
+            metrics
+                .iter()
+                .any(|r| num(r, "robot") == robot && num(r, "step") as u64 > since),
+            "robot {robot} never reported after step {since}"
         );
     }
 }

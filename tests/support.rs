@@ -100,6 +100,24 @@ impl Drop for Launcher {
     }
 }
 
+/// Waits up to `wait` for a file to hold something and returns its trimmed text.
+pub fn wait_file(path: &Path, wait: Duration) -> String {
+    let deadline = Instant::now() + wait;
+    loop {
+        if let Ok(t) = std::fs::read_to_string(path) {
+            if !t.trim().is_empty() {
+                return t.trim().to_string();
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{} never appeared",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
 pub fn kill(pid: u32, sig: i32) {
     let _ = Command::new("kill")
         .arg(format!("-{sig}"))

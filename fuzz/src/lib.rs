@@ -3,10 +3,11 @@
 //! no panic, no hang, no unbounded allocation — which is what the fuzzer checks:
 //!
 //! * [`sim_plane`] — every sim-plane message (status, scan, command, telemetry, link plan,
-//!   control, world info, truth, link report) and the run-length grids inside them; a decoded
-//!   scan is handed to a robot, which integrates it and plans;
+//!   control, world info, truth, link report, process order) and the run-length grids inside
+//!   them; a decoded scan is handed to a robot, which integrates it and plans;
 //! * [`radio`] — every radio payload kind as a robot receives it, taken into a robot of one of
-//!   the strategies and exchange modes, which then integrates a scan and plans;
+//!   the strategies and exchange modes, which then (as the input chooses) integrates a scan and
+//!   plans;
 //! * [`op_chunk`] — the compact op encoding (thesis Table 6.1) and applying the ops to a replica;
 //! * [`scenario`] — scenario TOML, `--set` overrides, link and process faults;
 //! * [`map_yaml`] and [`map_image`] — ROS map_server YAML and PGM/PNG images;
@@ -23,16 +24,17 @@ use std::path::Path;
 use proto::geom::{LaserSpec, MapInfo, Pose};
 use proto::grid::Grid;
 use proto::msg::{
-    decode, Cmd, Control, LinkPlan, LinkReport, MoveOutcome, Scan, Status, Telemetry, TruthMap,
-    WorldInfo,
+    decode, Cmd, Control, LinkPlan, LinkReport, MoveOutcome, ProcessOrder, Scan, Status,
+    Telemetry, TruthMap, WorldInfo,
 };
 use proto::scenario::{ExchangeMode, Scenario, Strategy};
 use robot_agent::agent::Agent;
 
-/// A small world for a robot to act in: 60 × 60 cells of 0.1 m, a 36-beam laser.
+/// A small world for a robot to act in: 40 × 40 cells of 0.1 m, a 36-beam laser (small, so a
+/// long fuzzing run gets through its ten million inputs in hours, not days).
 fn world(robots: u16) -> WorldInfo {
     WorldInfo {
-        map: MapInfo::at_origin(60, 60, 0.1),
+        map: MapInfo::at_origin(40, 40, 0.1),
         laser: LaserSpec {
             beams: 36,
             fov_rad: std::f64::consts::TAU,
@@ -50,8 +52,8 @@ fn plain_scan(step: u32) -> Scan {
     Scan {
         step,
         pose: Pose {
-            x: 3.0,
-            y: 3.0,
+            x: 2.0,
+            y: 2.0,
             theta: 0.0,
         },
         ranges: vec![1.5; 36],
@@ -101,6 +103,11 @@ pub fn sim_plane(data: &[u8]) {
         let _ = Grid::from_rle(&t.reachable_rle);
     }
     let _ = decode::<LinkReport>(data);
+    if let Ok(o) = decode::<ProcessOrder>(data) {
+        let mut s = Scenario::default();
+        s.robots.count = 3;
+        let _ = s.check_process_action(&o.into());
+    }
     let _ = Grid::from_rle(data);
 }
 
@@ -124,21 +131,26 @@ const MODES: [ExchangeMode; 3] = [
     ExchangeMode::GridSnapshots,
 ];
 
-/// Radio payloads: the first byte picks the kind, the second the strategy and exchange mode;
-/// the rest is the payload, received by a new robot; what decodes is taken, and the robot then
-/// integrates a scan, plans and sends on what it was told.
+/// Radio payloads: the first byte picks the kind, the second the strategy (bits 0–2), the
+/// exchange mode (bits 3–4) and whether the robot acts on what it took (bit 7); the rest is the
+/// payload, received by a new robot. What decodes is taken; with bit 7 set the robot then
+/// integrates a scan, plans and sends on what it was told. (A step costs about ten times the
+/// taking, so the fuzzer decides per input how deep to go, and the long run still gets through
+/// its ten million inputs.)
 pub fn radio(data: &[u8]) {
     let [k, c, payload @ ..] = data else {
         return;
     };
     let kind = RADIO_KINDS[usize::from(*k) % RADIO_KINDS.len()];
-    let strategy = STRATEGIES[usize::from(*c) % STRATEGIES.len()];
-    let mode = MODES[usize::from(*c / 8) % MODES.len()];
+    let strategy = STRATEGIES[usize::from(*c & 7) % STRATEGIES.len()];
+    let mode = MODES[usize::from((*c >> 3) & 3) % MODES.len()];
     let mut a = agent(strategy, mode);
     if let Some(m) = a.receive(kind, payload) {
         let _ = a.take(m);
-        let _ = a.on_scan(&plain_scan(1));
-        let _ = a.radio_step();
+        if *c & 0x80 != 0 {
+            let _ = a.on_scan(&plain_scan(1));
+            let _ = a.radio_step();
+        }
     }
 }
 
@@ -318,7 +330,8 @@ mod tests {
                                 ops_chunks += 1;
                             }
                         }
-                        let select = u8::try_from(si + 8 * mi).unwrap_or(0);
+                        // Every seed has the robot act on what it took (bit 7).
+                        let select = 0x80 | u8::try_from(si + 8 * mi).unwrap_or(0);
                         if o.bytes.len() < 4000 && seen.insert((kind.clone(), si, mi)) {
                             let mut input = vec![k as u8, select];
                             input.extend(&o.bytes);
@@ -350,6 +363,11 @@ mod tests {
         write("sim_plane", "scan", &encode(&plain_scan(3)));
         write("sim_plane", "cmd", &encode(&Cmd { step: 3, robot: 1, waypoint: Some((2.0, 2.5)) }));
         write("sim_plane", "control", &encode(&Control::Stop));
+        let order = ProcessOrder {
+            process: proto::scenario::Process::Robot(1),
+            order: proto::msg::Order::Kill { restart_after: Some(3) },
+        };
+        write("sim_plane", "process-order", &encode(&order));
         write("sim_plane", "world-info", &encode(&world(3)));
         let link = PlannedLink { a: 0, b: 1, rate: [Some(1000), None], delay: [1, 0], held: false, credit: [Some(8000), None] };
         write("sim_plane", "link-plan", &encode(&LinkPlan { step: 5, links: vec![link] }));

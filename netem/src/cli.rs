@@ -211,7 +211,8 @@ async fn run(args: Args) -> anyhow::Result<()> {
         cfg.api_token = Some(token);
     }
     let netem = start(cfg).await.context("starting the link proxies")?;
-    let result = follow(&sim, &netem).await;
+    let orders = netem.process_orders(&scenario);
+    let result = follow(&sim, &netem, orders).await;
     let links = netem.shutdown().await;
     close_quickly(sim).await;
     if let Some(path) = &args.totals_out {

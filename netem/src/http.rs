@@ -7,7 +7,8 @@
 //! false = cut, true = restore), `GET|POST /proxies/{name}/toxics`,
 //! `GET|POST|PATCH|DELETE /proxies/{name}/toxics/{toxic}`, `POST /reset`, `GET /version`, and
 //! ours: `GET /metrics` (Prometheus text) and `GET /links` (the telemetry rows as JSON, without
-//! resetting the per-step counters). Proxies
+//! resetting the per-step counters), and `POST /processes/{name}` (a process fault — kill,
+//! restart, freeze, thaw — handed on to the launcher; see [`process_fault`]). Proxies
 //! are fixed by the scenario: creating or deleting one is `405`. Like toxiproxy, requests from
 //! browsers (`User-Agent: Mozilla/…`) are refused, so that a web page cannot drive the API.
 //!
@@ -18,10 +19,12 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use proto::msg::ProcessOrder;
+use proto::scenario::{Process, ProcessAction};
 use serde::Serialize;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{watch, Semaphore};
+use tokio::sync::{mpsc, watch, Semaphore};
 use tokio::task::JoinHandle;
 
 use crate::faults::{Fault, Toxic, ToxicWire};
@@ -350,6 +353,7 @@ fn reason(status: u16) -> &'static str {
     match status {
         200 => "OK",
         201 => "Created",
+        202 => "Accepted",
         204 => "No Content",
         400 => "Bad Request",
         401 => "Unauthorized",
@@ -361,6 +365,7 @@ fn reason(status: u16) -> &'static str {
         414 => "URI Too Long",
         431 => "Request Header Fields Too Large",
         501 => "Not Implemented",
+        503 => "Service Unavailable",
         505 => "HTTP Version Not Supported",
         _ => "Internal Server Error",
     }
@@ -587,10 +592,55 @@ pub(crate) fn route(sh: &Shared, req: &Request) -> Response {
             body: crate::metrics::render(&sh.snapshots(), sh.step(), sh.now()).into_bytes(),
         },
         ("GET", ["links"]) => Response::json(200, &sh.rows()),
-        (_, ["proxies" | "reset" | "version" | "metrics" | "links" | "populate", ..]) => {
-            Response::error(405, &format!("method {m} not allowed here"))
-        }
+        ("POST", ["processes", name]) => process_fault(sh, name, req),
+        (
+            _,
+            ["proxies" | "reset" | "version" | "metrics" | "links" | "populate" | "processes", ..],
+        ) => Response::error(405, &format!("method {m} not allowed here")),
         _ => Response::error(404, "not found"),
+    }
+}
+
+/// `POST /processes/<name>` with `{"kind": "kill" | "restart" | "freeze" | "thaw"}` (and
+/// `"restart_after": k` for a kill): a process fault, checked against the run's scenario and
+/// handed on to the launcher, which carries it out at its next step (`202`: accepted, not yet
+/// done — `summary.json`'s `process_events` says when it was, with cause `api`).
+fn process_fault(sh: &Shared, name: &str, req: &Request) -> Response {
+    let desk = crate::netem::lock(&sh.process_desk);
+    let Some(desk) = desk.as_ref() else {
+        return Response::error(
+            501,
+            "this netem is not following a run: nobody to carry out process faults",
+        );
+    };
+    let process: Process = match name.parse() {
+        Ok(p) if desk.scenario.has_process(p) => p,
+        _ => return Response::error(404, &format!("no process {name:?} in this run")),
+    };
+    let mut body: serde_json::Map<String, serde_json::Value> = match body_json(req) {
+        Ok(b) => b,
+        Err(r) => return r,
+    };
+    if body.contains_key("process") {
+        return Response::error(400, "bad request body: the process is named by the path");
+    }
+    body.insert(
+        "process".into(),
+        serde_json::Value::String(process.to_string()),
+    );
+    let action: ProcessAction = match serde_json::from_value(serde_json::Value::Object(body)) {
+        Ok(a) => a,
+        Err(e) => return Response::error(400, &format!("bad request body: {e}")),
+    };
+    if let Err((value, why)) = desk.scenario.check_process_action(&action) {
+        return Response::error(400, &format!("{value}: {why}"));
+    }
+    match desk.orders.try_send(ProcessOrder::from(&action)) {
+        Ok(()) => Response::json(202, &action),
+        Err(mpsc::error::TrySendError::Full(_)) => {
+            Response::error(503, "too many process faults waiting for the next step")
+        }
+        Err(mpsc::error::TrySendError::Closed(_)) => Response::error(503, "the run is ending"),
     }
 }
 
@@ -872,7 +922,7 @@ mod tests {
     }
 
     mod api {
-        use crate::netem::{start, Netem, NetemConfig, PairSpec};
+        use crate::netem::{start, Netem, NetemConfig, PairSpec, PROCESS_ORDERS_QUEUED};
         use proto::scenario::{Medium, Radio, RadioModel};
         use std::net::SocketAddr;
         use std::time::Duration;
@@ -931,6 +981,85 @@ mod tests {
 
         fn json(s: &str) -> serde_json::Value {
             serde_json::from_str(s).unwrap_or_else(|e| panic!("{e}: {s}"))
+        }
+
+        #[tokio::test]
+        async fn process_faults_are_checked_and_handed_on_for_the_launcher() {
+            use proto::msg::{Order, ProcessOrder};
+            use proto::scenario::Process;
+            let n = netem().await;
+            let kill = r#"{"kind":"kill","restart_after":3}"#;
+            // Nobody follows a run yet: nobody to carry it out.
+            assert_eq!(
+                call(&n, "POST", "/processes/robot-1", kill, "").await.0,
+                501
+            );
+            let mut s = proto::scenario::Scenario::default();
+            s.robots.count = 3;
+            let mut orders = n.process_orders(&s);
+            let (st, body) = call(&n, "POST", "/processes/robot-1", kill, "").await;
+            assert_eq!(st, 202, "{body}");
+            assert_eq!(
+                json(&body),
+                serde_json::json!({"kind": "kill", "process": "robot-1", "restart_after": 3})
+            );
+            let (st, _) = call(&n, "POST", "/processes/netem", r#"{"kind":"restart"}"#, "").await;
+            assert_eq!(st, 202);
+            assert_eq!(
+                orders.try_recv().ok(),
+                Some(ProcessOrder {
+                    process: Process::Robot(1),
+                    order: Order::Kill {
+                        restart_after: Some(3)
+                    }
+                })
+            );
+            assert_eq!(
+                orders.try_recv().ok().map(|o| o.order),
+                Some(Order::Restart)
+            );
+            // Refused, and nothing handed on: a process not in the run, a name that is none,
+            // an action that does not suit the process, a bad body, a wrong method.
+            for (path, body, status) in [
+                ("/processes/robot-3", kill, 404),
+                ("/processes/base-station", kill, 404),
+                ("/processes/robot", kill, 404),
+                ("/processes/world-server", r#"{"kind":"restart"}"#, 400),
+                ("/processes/netem", r#"{"kind":"freeze"}"#, 400),
+                ("/processes/robot-0", r#"{"kind":"explode"}"#, 400),
+                (
+                    "/processes/robot-0",
+                    r#"{"kind":"kill","process":"robot-2"}"#,
+                    400,
+                ),
+                ("/processes/robot-0", "{not json", 400),
+                ("/processes/robot-0", "", 400),
+            ] {
+                let (st, text) = call(&n, "POST", path, body, "").await;
+                assert_eq!(st, status, "{path} {body}: {text}");
+                assert!(json(&text)["error"].is_string(), "{text}");
+            }
+            assert_eq!(call(&n, "GET", "/processes/robot-0", "", "").await.0, 405);
+            assert!(orders.try_recv().is_err(), "a refused fault was handed on");
+            // The world-server can be killed (the run ends), not restarted.
+            let (st, _) = call(
+                &n,
+                "POST",
+                "/processes/world-server",
+                r#"{"kind":"kill"}"#,
+                "",
+            )
+            .await;
+            assert_eq!(st, 202);
+            // A full queue refuses more; a closed one too.
+            for _ in 1..PROCESS_ORDERS_QUEUED {
+                call(&n, "POST", "/processes/robot-0", r#"{"kind":"freeze"}"#, "").await;
+            }
+            let (st, _) = call(&n, "POST", "/processes/robot-0", r#"{"kind":"thaw"}"#, "").await;
+            assert_eq!(st, 503);
+            drop(orders);
+            let (st, _) = call(&n, "POST", "/processes/robot-0", r#"{"kind":"thaw"}"#, "").await;
+            assert_eq!(st, 503);
         }
 
         #[tokio::test]

@@ -16,13 +16,13 @@ use std::time::Duration;
 
 use proto::geom::{MapInfo, Pose};
 use proto::grid::Grid;
-use proto::msg::{LinkPlan, RobotId, Step};
+use proto::msg::{LinkPlan, ProcessOrder, RobotId, Step};
 use proto::scenario::{
     ClockMode, Medium, Netem as ScenarioNetem, Radio as ScenarioRadio, RadioModel,
 };
 use serde::Serialize;
 use tokio::net::TcpListener;
-use tokio::sync::watch;
+use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use crate::accounting::Dir;
@@ -191,7 +191,18 @@ pub(crate) struct Shared {
     shutdown: watch::Sender<bool>,
     /// See [`NetemConfig::api_token`].
     pub(crate) api_token: Option<String>,
+    /// Where the API's process faults go, once [`Netem::process_orders`] was called.
+    pub(crate) process_desk: Mutex<Option<ProcessDesk>>,
 }
+
+/// The API's process faults: checked against the run's scenario, queued for the sim plane.
+pub(crate) struct ProcessDesk {
+    pub(crate) scenario: proto::scenario::Scenario,
+    pub(crate) orders: mpsc::Sender<ProcessOrder>,
+}
+
+/// Process faults the API holds for the sim plane at most (more are refused with 503).
+pub(crate) const PROCESS_ORDERS_QUEUED: usize = 64;
 
 struct StepState {
     step: Option<Step>,
@@ -201,7 +212,7 @@ struct StepState {
     next: usize,
 }
 
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
@@ -415,6 +426,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         toxic_ids: AtomicU64::new(1),
         shutdown,
         api_token: cfg.api_token.clone(),
+        process_desk: Mutex::new(None),
     });
     let due: Vec<Fault> = lock(&shared.steps).faults[..initial]
         .iter()
@@ -632,6 +644,22 @@ impl Shared {
 }
 
 impl Netem {
+    /// The process faults the HTTP API is asked for from now on (`POST /processes/<name>`),
+    /// each checked against `scenario` (its process is one of the run's, the action suits it),
+    /// for the caller to forward to the launcher. Before this is called the API answers `501`:
+    /// there is nobody to carry them out.
+    pub fn process_orders(
+        &self,
+        scenario: &proto::scenario::Scenario,
+    ) -> mpsc::Receiver<ProcessOrder> {
+        let (orders, rx) = mpsc::channel(PROCESS_ORDERS_QUEUED);
+        *lock(&self.shared.process_desk) = Some(ProcessDesk {
+            scenario: scenario.clone(),
+            orders,
+        });
+        rx
+    }
+
     /// Advances the simulated clock to `step × step_seconds` (lockstep), applies the scheduled
     /// faults up to this step, and re-evaluates every link from the poses. Robots missing from
     /// `poses` keep their last pose and liveness.

@@ -1,14 +1,18 @@
 //! netem on the sim plane: follows the world-server's per-step status (robot poses) to drive the
 //! simulated clock and every link's radio verdict, and publishes a [`LinkReport`] per step for
-//! the launcher's `links.csv`. Thin adapter over [`crate::netem::Netem`]; no link logic here.
+//! the launcher's `links.csv`; hands the process faults its API is asked for on to the launcher.
+//! Thin adapter over [`crate::netem::Netem`]; no link logic here.
 
 use std::time::Duration;
 
 use proto::grid::Grid;
 use proto::keys;
-use proto::msg::{decode, encode, Control, LinkReport, LinkState, Status, Step, TruthMap};
+use proto::msg::{
+    decode, encode, Control, LinkReport, LinkState, ProcessOrder, Status, Step, TruthMap,
+};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::{RadioModel, Scenario};
+use tokio::sync::mpsc;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::SampleKind;
 use zenoh::Session;
@@ -44,8 +48,13 @@ fn state(t: &LinkTelemetry) -> LinkState {
     }
 }
 
-/// Follows the run until the world-server or the launcher ends it.
-pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
+/// Follows the run until the world-server or the launcher ends it; hands the process faults
+/// the API was asked for (`orders`) on to the launcher.
+pub async fn follow(
+    sim: &Session,
+    netem: &Netem,
+    mut orders: mpsc::Receiver<ProcessOrder>,
+) -> Result<(), ZenohError> {
     let statuses = sim.declare_subscriber(keys::STATUS).await.map_err(zerr)?;
     let ctl = sim.declare_subscriber(keys::CONTROL).await.map_err(zerr)?;
     let world = sim
@@ -86,6 +95,10 @@ pub async fn follow(sim: &Session, netem: &Netem) -> Result<(), ZenohError> {
                     sim.put(keys::NETEM_LINKS, encode(&report)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
                 }
                 last = Some(st.step);
+            }
+            Some(o) = orders.recv() => {
+                tracing::info!(process = %o.process, order = ?o.order, "process fault asked for through the API");
+                sim.put(keys::PROCESS_ORDERS, encode(&o)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
             }
             c = ctl.recv_async() => {
                 if matches!(c.map(|c| decode::<Control>(&c.payload().to_bytes())), Ok(Ok(Control::Stop)) | Err(_)) {

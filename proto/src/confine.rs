@@ -1,7 +1,8 @@
 //! Confinement of the sim plane: every process joins the world-server's router under its own
 //! name and password, and the router lets it publish, subscribe, declare and ask only on its own
 //! keys (robot `i`: its command, telemetry, scan and liveliness token; netem: the link plan and
-//! reports; the launcher: control; an observer: read-only). Everything else is denied.
+//! reports, and the process faults its API is asked for; the launcher: control; an observer:
+//! read-only). Everything else is denied.
 //!
 //! This module is the table of who may do what ([`grants`]) and its rendering as zenoh's
 //! `access_control` configuration ([`access_control`]); `node` applies it (the router reads the
@@ -116,7 +117,11 @@ pub fn grants(p: Principal) -> Vec<Grant> {
             ]);
         }
         Principal::Netem => g.extend([
-            grant(Ingress, PUT, &[keys::NETEM_PLAN, keys::NETEM_LINKS]),
+            grant(
+                Ingress,
+                PUT,
+                &[keys::NETEM_PLAN, keys::NETEM_LINKS, keys::PROCESS_ORDERS],
+            ),
             grant(Ingress, SUBSCRIBE, &[keys::STATUS, keys::CONTROL]),
             grant(Ingress, TOKEN, &[keys::NETEM_ALIVE]),
             grant(Ingress, WATCH, &[keys::WORLD_ALIVE]),
@@ -130,13 +135,23 @@ pub fn grants(p: Principal) -> Vec<Grant> {
             grant(
                 Ingress,
                 SUBSCRIBE,
-                &[keys::STATUS, keys::TELEMETRY_ALL, keys::NETEM_LINKS],
+                &[
+                    keys::STATUS,
+                    keys::TELEMETRY_ALL,
+                    keys::NETEM_LINKS,
+                    keys::PROCESS_ORDERS,
+                ],
             ),
             grant(Ingress, QUERY, &[keys::WORLD_TRUTH, keys::WORLD_INFO]),
             grant(
                 Egress,
                 PUT,
-                &[keys::STATUS, keys::TELEMETRY_ALL, keys::NETEM_LINKS],
+                &[
+                    keys::STATUS,
+                    keys::TELEMETRY_ALL,
+                    keys::NETEM_LINKS,
+                    keys::PROCESS_ORDERS,
+                ],
             ),
             grant(Egress, REPLY, &[keys::WORLD_TRUTH, keys::WORLD_INFO]),
         ]),

@@ -25,6 +25,9 @@ pub const TELEMETRY_ALL: &str = "sim/telemetry/*";
 pub const CMD_ALL: &str = "sim/robot/*/cmd";
 /// Control messages from the launcher.
 pub const CONTROL: &str = "sim/ctl/run";
+/// Process faults asked for at runtime through netem's API, which netem forwards to the
+/// launcher ([`crate::msg::ProcessOrder`]).
+pub const PROCESS_ORDERS: &str = "sim/ctl/process";
 /// The world-server's liveliness token: when it vanishes, the run is over for everybody.
 pub const WORLD_ALIVE: &str = "sim/world/alive";
 /// Liveliness tokens of robots on the sim plane (the world-server waits for all of them).

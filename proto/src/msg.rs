@@ -438,6 +438,57 @@ pub enum Control {
     Stop,
 }
 
+/// netem → launcher on [`crate::keys::PROCESS_ORDERS`]: a process fault asked for at runtime
+/// through netem's API (`POST /processes/<name>`), carried out by the launcher at its next step
+/// like a scheduled one ([`crate::scenario::ProcessAction`], whose TOML form does not fit the
+/// wire: this is the same action, externally tagged).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ProcessOrder {
+    pub process: crate::scenario::Process,
+    pub order: Order,
+}
+
+/// What a [`ProcessOrder`] does; see [`crate::scenario::ProcessAction`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Order {
+    Kill { restart_after: Option<u32> },
+    Restart,
+    Freeze,
+    Thaw,
+}
+
+impl From<&crate::scenario::ProcessAction> for ProcessOrder {
+    fn from(a: &crate::scenario::ProcessAction) -> ProcessOrder {
+        use crate::scenario::ProcessAction as A;
+        let order = match *a {
+            A::Kill { restart_after, .. } => Order::Kill { restart_after },
+            A::Restart { .. } => Order::Restart,
+            A::Freeze { .. } => Order::Freeze,
+            A::Thaw { .. } => Order::Thaw,
+        };
+        ProcessOrder {
+            process: a.process(),
+            order,
+        }
+    }
+}
+
+impl From<ProcessOrder> for crate::scenario::ProcessAction {
+    fn from(o: ProcessOrder) -> crate::scenario::ProcessAction {
+        use crate::scenario::ProcessAction as A;
+        let process = o.process;
+        match o.order {
+            Order::Kill { restart_after } => A::Kill {
+                process,
+                restart_after,
+            },
+            Order::Restart => A::Restart { process },
+            Order::Freeze => A::Freeze { process },
+            Order::Thaw => A::Thaw { process },
+        }
+    }
+}
+
 /// Radio: the knowledge vector {owner → number of log entries held} (thesis `conn`).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Hello {
@@ -840,6 +891,30 @@ mod tests {
             robot: 1,
             waypoint: None,
         });
+        use crate::scenario::{Process, ProcessAction};
+        for action in [
+            ProcessAction::Kill {
+                process: Process::Robot(2),
+                restart_after: Some(3),
+            },
+            ProcessAction::Kill {
+                process: Process::WorldServer,
+                restart_after: None,
+            },
+            ProcessAction::Restart {
+                process: Process::Netem,
+            },
+            ProcessAction::Freeze {
+                process: Process::BaseStation,
+            },
+            ProcessAction::Thaw {
+                process: Process::Robot(0),
+            },
+        ] {
+            let order = ProcessOrder::from(&action);
+            round_trip(order.clone());
+            assert_eq!(ProcessAction::from(order), action);
+        }
         round_trip(Mark {
             from: 3,
             step: 7,

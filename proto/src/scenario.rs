@@ -1056,43 +1056,64 @@ impl Scenario {
             let f: ProcessFault = toml::Value::Table(t.clone())
                 .try_into()
                 .map_err(|e: toml::de::Error| invalid(&key, &kind, &one_line(&e)))?;
-            let p = f.action.process();
-            let exists = match p {
-                Process::Robot(i) => i < self.robots.count,
-                Process::BaseStation => self.base_station.enabled,
-                Process::Netem | Process::WorldServer => true,
-            };
-            if !exists {
-                return Err(invalid(
-                    &key,
-                    p,
-                    &format!(
-                        "no such process in this run: robot-0..robot-{}, netem, world-server{}",
-                        self.robots.count - 1,
-                        if self.base_station.enabled {
-                            ", base-station"
-                        } else {
-                            ""
-                        }
-                    ),
-                ));
-            }
-            let refused = match (&f.action, p) {
-                (ProcessAction::Kill { restart_after: Some(_), .. } | ProcessAction::Restart { .. }, Process::WorldServer) => {
-                    Some("the world-server is the simulation: it can be killed (ending the run), not restarted")
-                }
-                (ProcessAction::Freeze { .. } | ProcessAction::Thaw { .. }, Process::Netem | Process::WorldServer) => {
-                    Some("only a robot or the base station can be frozen and thawed")
-                }
-                _ => None,
-            };
-            if let Some(why) = refused {
-                return Err(invalid(&key, f.action.name(), why));
+            if let Err((value, why)) = self.check_process_action(&f.action) {
+                return Err(invalid(&key, value, &why));
             }
             out.push(f);
         }
         out.sort_by_key(|f| f.step);
         Ok(out)
+    }
+
+    /// Whether `p` is one of the run's processes.
+    pub fn has_process(&self, p: Process) -> bool {
+        match p {
+            Process::Robot(i) => i < self.robots.count,
+            Process::BaseStation => self.base_station.enabled,
+            Process::Netem | Process::WorldServer => true,
+        }
+    }
+
+    /// Whether `action` can be done in this run: its process is one of the run's, and the
+    /// action suits it (the world-server can be killed, not restarted; only a robot or the base
+    /// station can be frozen). The error is (the value at fault, why).
+    pub fn check_process_action(&self, action: &ProcessAction) -> Result<(), (String, String)> {
+        let p = action.process();
+        if !self.has_process(p) {
+            return Err((
+                p.to_string(),
+                format!(
+                    "no such process in this run: robot-0..robot-{}, netem, world-server{}",
+                    self.robots.count.saturating_sub(1),
+                    if self.base_station.enabled {
+                        ", base-station"
+                    } else {
+                        ""
+                    }
+                ),
+            ));
+        }
+        let refused = match (action, p) {
+            (
+                ProcessAction::Kill {
+                    restart_after: Some(_),
+                    ..
+                }
+                | ProcessAction::Restart { .. },
+                Process::WorldServer,
+            ) => Some(
+                "the world-server is the simulation: it can be killed (ending the run), not restarted",
+            ),
+            (
+                ProcessAction::Freeze { .. } | ProcessAction::Thaw { .. },
+                Process::Netem | Process::WorldServer,
+            ) => Some("only a robot or the base station can be frozen and thawed"),
+            _ => None,
+        };
+        match refused {
+            Some(why) => Err((action.name().to_string(), why.to_string())),
+            None => Ok(()),
+        }
     }
 
     /// The base station's node id (`robots.count`), if there is one.

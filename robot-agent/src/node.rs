@@ -8,7 +8,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
 use proto::keys;
-use proto::msg::{decode, encode, Control, LinkPlan, RobotId, Scan, WorldInfo};
+use proto::msg::{decode, encode, Cmd, Control, LinkPlan, RobotId, Scan, WorldInfo};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
 use zenoh::handlers::FifoChannelHandler;
@@ -350,6 +350,16 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                 break;
             }
             if ls.newer_than(t) {
+                // The world went on while a link's session did not form (the peer was frozen
+                // or hung before its first session came up). A late command, moving nowhere,
+                // tells the world this robot lives (else the whole team would miss its steps
+                // with the one that hangs, and be declared dead with it).
+                let late = Cmd {
+                    step: t,
+                    robot: p.id,
+                    waypoint: None,
+                };
+                put_sim(p.sim, keys::cmd(p.id), encode(&late)).await?;
                 continue 'steps;
             }
             // zenoh tells no event when a session forms: look again soon.

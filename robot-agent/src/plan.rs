@@ -319,9 +319,14 @@ pub fn give_way(
     let way: Vec<Cell> = match their_target.and_then(|t| path_to(&costs(g, other), t)) {
         Some(path) => path,
         None => {
-            let (dx, dy) = (f64::from(me.x - other.x), f64::from(me.y - other.y));
+            let dx = f64::from(me.x) - f64::from(other.x);
+            let dy = f64::from(me.y) - f64::from(other.y);
             let len = dx.hypot(dy).max(1.0);
-            let steps = ((len + GIVE_WAY_LINE_CELLS) * 2.0).ceil() as i32;
+            // Half-cell steps; no line on the grid is longer than its width plus its height, so
+            // the cap changes nothing there and keeps a robot reported far off the map (a bad
+            // scan) from walking a line of billions of cells.
+            let most = f64::from(g.width()) + f64::from(g.height()) + GIVE_WAY_LINE_CELLS;
+            let steps = ((len + GIVE_WAY_LINE_CELLS).min(most) * 2.0).ceil() as i32;
             (0..=steps)
                 .map(|k| {
                     let t = f64::from(k) * 0.5 / len;
@@ -689,6 +694,17 @@ mod tests {
              ##.#############
              ................",
         );
+    }
+
+    #[test]
+    fn giving_way_to_a_robot_reported_far_off_the_map_walks_no_endless_line() {
+        // A bad scan (outside data) can put the other robot billions of cells away: the line
+        // of its way stays within what the grid can hold (found by the sim_plane fuzz target,
+        // which ran out of memory here).
+        let (g, me, _) = parse("......S...");
+        for other in [Cell::new(5, -1_000_000_000), Cell::new(i32::MIN, i32::MAX)] {
+            let _ = give_way(&g, me, other, None, 2.0);
+        }
     }
 
     fn arb_grid() -> impl Strategy<Value = Grid> {

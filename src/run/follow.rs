@@ -5,14 +5,14 @@
 use std::time::{Duration, Instant};
 
 use proto::exit::ExitReason;
-use proto::msg::{decode, LinkReport, Status, Step, Telemetry};
+use proto::msg::{decode, LinkReport, ProcessOrder, Status, Step, Telemetry};
 use serde::de::DeserializeOwned;
 use zenoh::sample::Sample;
 
 use std::collections::BTreeMap;
 
 use proto::msg::RobotId;
-use proto::scenario::Process;
+use proto::scenario::{Process, ProcessAction};
 
 use super::prepare::Plan;
 use super::spawn::{last_log_line, respawn, Started};
@@ -279,6 +279,30 @@ impl Record {
         end
     }
 
+    /// A process fault asked for through netem's API: carried out at the next step (netem
+    /// checked it against the scenario; so does the launcher, the one that acts on it).
+    fn asked(&mut self, action: ProcessAction, plan: &Plan, progress: &mut Progress) {
+        let p = action.process();
+        if let Err((value, why)) = plan.scenario.check_process_action(&action) {
+            progress.event(&format!(
+                "swarm run: ignored a process fault from netem's API: {value}: {why}"
+            ));
+            return;
+        }
+        if self.end.is_some() {
+            progress.event(&format!(
+                "swarm run: the run is ending: not doing {} {p} (netem's API)",
+                action.name()
+            ));
+            return;
+        }
+        progress.event(&format!(
+            "swarm run: {} {p} asked for through netem's API (at the next step)",
+            action.name()
+        ));
+        self.sup.ask(action);
+    }
+
     /// Carries out the supervisor's actions of the step; the end of the run if one of them
     /// killed the world-server.
     async fn act(
@@ -410,6 +434,15 @@ pub async fn follow(
                 Err(()) => Some(CLOSED),
                 Ok(t) => {
                     if let Some(t) = t { rec.on_telemetry(t) }
+                    None
+                }
+            },
+            o = sim.process_orders.recv_async() => match message::<ProcessOrder, _>(o, "process fault") {
+                Err(()) => Some(CLOSED),
+                Ok(o) => {
+                    if let Some(o) = o {
+                        rec.asked(o.into(), plan, progress);
+                    }
                     None
                 }
             },

@@ -33,6 +33,8 @@ pub struct Sim {
     pub statuses: Sub,
     pub telemetry: Sub,
     pub link_reports: Sub,
+    /// Process faults asked for through netem's API.
+    pub process_orders: Sub,
 }
 
 /// A run whose processes are all started.
@@ -140,6 +142,7 @@ async fn subscribe(session: Session) -> anyhow::Result<Sim> {
         statuses: sub(keys::STATUS).await?,
         telemetry: sub(keys::TELEMETRY_ALL).await?,
         link_reports: sub(keys::NETEM_LINKS).await?,
+        process_orders: sub(keys::PROCESS_ORDERS).await?,
         session,
     })
 }
