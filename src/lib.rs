@@ -17,14 +17,18 @@ pub mod connectivity;
 pub mod curve;
 /// Coverage and exploration time from telemetry.
 pub mod evaluate;
+/// Where the processes of a run go: the hosts file (`swarm run --hosts`) and its placement.
+pub mod hosts;
 /// `swarm netem`: the netem process and runtime link control over its HTTP API.
 pub mod netemctl;
 /// Charts (SVG and PNG) of a sweep's results.
 pub mod plot;
-/// Free loopback ports.
+/// Free ports (loopback, or a host's address).
 pub mod ports;
 /// Progress lines on stderr (`swarm run`, `swarm sweep`).
 pub mod progress;
+/// Starting processes on a host (ssh, a command prefix) and `swarm host-info`.
+pub mod remote;
 /// PNG pictures of grids and trajectories.
 pub mod render;
 /// `swarm replay`: one robot, no network, the mapping pipeline measured.

@@ -45,6 +45,9 @@ enum Command {
     /// running swarm through its HTTP API (--run RUN_DIR or --api ADDR).
     #[command(subcommand)]
     Netem(swarm::netemctl::NetemCommand),
+    /// What a host of `swarm run --hosts` answers before the run: its protocol version and
+    /// free ports on one of its addresses, as one JSON line.
+    HostInfo(swarm::remote::HostInfoArgs),
 }
 
 fn main() -> ExitCode {
@@ -79,6 +82,16 @@ fn main() -> ExitCode {
         Command::RobotAgent(args) => robot_agent::cli::main(args),
         Command::BaseStation(args) => robot_agent::cli::base_main(args),
         Command::Netem(swarm::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),
+        Command::HostInfo(args) => match swarm::remote::host_info(&args) {
+            Ok(info) => {
+                println!("{}", serde_json::to_string(&info).unwrap_or_default());
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("swarm host-info: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
         Command::Netem(cmd) => match swarm::netemctl::control(&cmd) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {

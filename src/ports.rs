@@ -1,5 +1,5 @@
-//! Free loopback ports for the processes of a run, so that several runs (and tests) can go on
-//! side by side.
+//! Free ports for the processes of a run (on loopback, or on a host's address), so that several
+//! runs (and tests) can go on side by side.
 //!
 //! Ports are chosen *below* the kernel's ephemeral range (`ip_local_port_range`): the kernel
 //! hands ephemeral ports to every outgoing connection (every zenoh client, for one), so a port
@@ -8,7 +8,7 @@
 //! checked by binding it, the listeners are held until all `n` are found (so they are distinct),
 //! and the search starts at a random offset so concurrent launchers rarely meet.
 
-use std::net::TcpListener;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener};
 
 /// Lowest port we use.
 const LOW: u16 = 10_000;
@@ -33,6 +33,11 @@ fn jitter() -> u64 {
 
 /// `n` distinct free TCP ports on 127.0.0.1.
 pub fn free_ports(n: usize) -> std::io::Result<Vec<u16>> {
+    free_ports_on(IpAddr::V4(Ipv4Addr::LOCALHOST), n)
+}
+
+/// `n` distinct free TCP ports on `ip` (an address of this host).
+pub fn free_ports_on(ip: IpAddr, n: usize) -> std::io::Result<Vec<u16>> {
     let high = ephemeral_start().max(LOW + 1024);
     let span = u64::from(high - LOW);
     let start = jitter() % span;
@@ -42,14 +47,14 @@ pub fn free_ports(n: usize) -> std::io::Result<Vec<u16>> {
             break;
         }
         let port = LOW + ((start + k) % span) as u16;
-        if let Ok(l) = TcpListener::bind(("127.0.0.1", port)) {
+        if let Ok(l) = TcpListener::bind((ip, port)) {
             held.push(l);
         }
     }
     if held.len() < n {
         return Err(std::io::Error::new(
             std::io::ErrorKind::AddrInUse,
-            format!("only {} free ports below {high}", held.len()),
+            format!("only {} free ports below {high} on {ip}", held.len()),
         ));
     }
     held.iter()
@@ -57,8 +62,9 @@ pub fn free_ports(n: usize) -> std::io::Result<Vec<u16>> {
         .collect()
 }
 
-pub fn endpoint(port: u16) -> String {
-    format!("tcp/127.0.0.1:{port}")
+/// The zenoh endpoint of a TCP address.
+pub fn endpoint(addr: SocketAddr) -> String {
+    format!("tcp/{addr}")
 }
 
 #[cfg(test)]

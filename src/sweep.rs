@@ -421,6 +421,7 @@ impl Plan {
             out: Some(dir.clone()),
             set,
             quiet: true,
+            hosts: None,
         };
         let mut cmd = Command::new(exe);
         cmd.arg("run").args(args.to_argv());

@@ -10,6 +10,7 @@ mod chaos;
 mod cli;
 mod confine;
 mod determinism;
+mod hosts;
 mod lifecycle;
 mod mapping;
 mod netem;

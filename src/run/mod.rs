@@ -35,6 +35,10 @@ pub struct RunArgs {
     /// Print only the final summary, no progress.
     #[arg(long, short)]
     pub quiet: bool,
+    /// Spread the run over hosts: a hosts file saying where each process runs and how it is
+    /// started there (ssh, or a command prefix); see README "Running across machines".
+    #[arg(long, value_name = "FILE")]
+    pub hosts: Option<PathBuf>,
 }
 
 impl RunArgs {
@@ -49,6 +53,9 @@ impl RunArgs {
         }
         if self.quiet {
             a.push("--quiet".into());
+        }
+        if let Some(h) = &self.hosts {
+            a.extend(["--hosts".into(), h.to_string_lossy().into_owned()]);
         }
         // Last, after `--`: a scenario path that starts with `-` is not taken for a flag.
         if let Some(s) = &self.scenario {
@@ -135,12 +142,14 @@ mod tests {
             out: Some(PathBuf::from("sweeps/x/runs/a=1-seed2")),
             set: vec!["robots.count=3".into(), "seed=2".into()],
             quiet: true,
+            hosts: Some(PathBuf::from("lab/hosts.toml")),
         };
         let bare = RunArgs {
             scenario: None,
             out: None,
             set: Vec::new(),
             quiet: false,
+            hosts: None,
         };
         for args in [full, bare] {
             let argv = ["run".to_string()].into_iter().chain(args.to_argv());

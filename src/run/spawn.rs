@@ -1,8 +1,7 @@
 //! Starting the processes of a run: the world-server (the sim plane's router) first, then —
 //! once the launcher has joined the sim plane, fetched the truth and subscribed to what it
-//! follows — netem and every robot-agent.
+//! follows — netem and every robot-agent; each on its host (`--hosts`), or here.
 
-use std::net::{Ipv4Addr, SocketAddr};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -56,11 +55,12 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
     )
     .context("writing sim.endpoint")?;
     let mut children = Children::default();
-    children.spawn(
-        "world-server",
+    spawn_on_host(
+        plan,
+        &mut children,
+        Process::WorldServer,
         &exe,
         &world_server_argv(plan),
-        &plan.log("world-server"),
     )?;
     let session = join_sim(
         &sim_client(plan, Principal::Launcher),
@@ -77,7 +77,7 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
     // Radio plane: every robot pair {i, j} runs through netem's proxy for the pair: robot i
     // connects to the proxy, netem forwards to robot j's radio listener. No robot is given
     // another robot's radio endpoint.
-    if plan.scenario.netem.api_token {
+    if plan.api_token() {
         secrets::write_token(&plan.dir.join("netem.token"))?;
     }
     respawn(plan, &mut children, Process::Netem, 0)?;
@@ -129,8 +129,25 @@ pub fn respawn(
         }
         Process::WorldServer => bail!("the world-server is started once, with the run"),
     };
+    spawn_on_host(plan, children, process, &exe, &argv)
+}
+
+/// Starts `swarm argv…` as `process` on its host (here, without a hosts file).
+fn spawn_on_host(
+    plan: &Plan,
+    children: &mut Children,
+    process: Process,
+    exe: &Path,
+    argv: &[String],
+) -> anyhow::Result<u32> {
     let name = process.to_string();
-    children.spawn(&name, &exe, &argv, &plan.log(&name))
+    match plan.host(process) {
+        None => children.spawn(&name, exe, argv, &plan.log(&name)),
+        Some(host) => {
+            let (program, args) = crate::remote::command(host, exe, argv);
+            children.spawn(&name, Path::new(&program), &args, &plan.log(&name))
+        }
+    }
 }
 
 async fn subscribe(session: Session) -> anyhow::Result<Sim> {
@@ -170,20 +187,19 @@ fn world_server_argv(plan: &Plan) -> Vec<String> {
 }
 
 fn netem_argv(plan: &Plan) -> Vec<String> {
-    let loopback = |port| SocketAddr::from((Ipv4Addr::LOCALHOST, port));
     let mut args = netem::cli::Args::new(
         plan.scenario_file.clone(),
         sim_client(plan, Principal::Netem),
     );
-    args.http = Some(loopback(plan.ports.http));
+    args.http = Some(plan.ports.http);
     args.totals_out = Some(plan.dir.join("link_totals.csv"));
-    args.token_file = (plan.scenario.netem.api_token).then(|| plan.dir.join("netem.token"));
+    args.token_file = plan.api_token().then(|| plan.dir.join("netem.token"));
     args.pairs = (plan.ports.pairs.iter())
-        .map(|&(a, b, port)| PairSpec {
+        .map(|&(a, b, listen)| PairSpec {
             a,
             b,
-            listen: loopback(port),
-            target: loopback(plan.ports.radio[usize::from(b)]),
+            listen,
+            target: plan.ports.radio[usize::from(b)],
         })
         .collect();
     ["netem".to_string(), "serve".to_string()]
@@ -202,7 +218,7 @@ fn node_args(plan: &Plan, i: RobotId) -> robot_agent::cli::NodeArgs {
     args.radio_listen = vec![endpoint(plan.ports.radio[usize::from(i)])];
     args.radio_connect = (plan.ports.pairs.iter())
         .filter(|&&(a, _, _)| a == i)
-        .map(|&(_, _, port)| endpoint(port))
+        .map(|&(_, _, addr)| endpoint(addr))
         .collect();
     args
 }
