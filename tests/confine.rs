@@ -17,7 +17,7 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 use zenoh::Session;
 
-use crate::support::{kill, summary, wait_file, Launcher, TempDir, SWARM};
+use crate::support::{kill, run_args, summary, wait_file, Launcher, TempDir, SWARM};
 
 type Sub = Subscriber<FifoChannelHandler<Sample>>;
 
@@ -66,15 +66,13 @@ async fn a_rogue_with_robot_1s_login_cannot_see_or_move_robot_3_nor_stop_the_run
     let dir = TempDir::new("confine");
     let run = dir.path().join("run");
     let mut cmd = Command::new(SWARM);
-    cmd.args(["run", "--quiet", "--out"]).arg(&run);
     // Robots that crawl: the run lasts until the test ends it.
-    for s in [
+    let sets = [
         "robots.count=4",
         "robots.speed_m_per_s=0.01",
         "max_steps=1000000",
-    ] {
-        cmd.arg("--set").arg(s);
-    }
+    ];
+    run_args(&mut cmd, &run, &sets);
     let mut launcher = Launcher::spawn(cmd);
     let endpoint = wait_file(&run.join("sim.endpoint"), Duration::from_secs(30));
     let secrets = run.join("secrets");

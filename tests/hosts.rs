@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use crate::support::{stderr, summary, Launcher, TempDir, SWARM};
+use crate::support::{run_args, stderr, summary, Launcher, TempDir, SWARM};
 
 /// Namespaces made by one test: `<tag>-h0` … (the hosts) and `<tag>-sw` (their switch).
 struct Lab {
@@ -152,28 +152,20 @@ fn a_run_over_four_namespaces_completes_and_equals_the_same_run_on_one_host() {
     let sets = ["robots.count=8"];
     let spread = dir.path().join("spread");
     let mut cmd = lab.exec(0, SWARM);
-    cmd.args(["run", "--quiet", "--hosts"])
-        .arg(&hosts)
-        .arg("--out")
-        .arg(&spread);
-    for s in sets {
-        cmd.args(["--set", s]);
-    }
+    run_args(&mut cmd, &spread, &sets);
+    cmd.arg("--hosts").arg(&hosts);
     let out = Launcher::spawn(cmd).wait_output(Duration::from_secs(600));
     let s = summary(&spread);
     assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
     assert_eq!(s["complete"], true, "{s}");
     assert_eq!(s["robots_alive_at_end"], 8, "{s}");
-    // Every process ran where the hosts file put it: each address is in what it was given.
+    // The sim plane's router listened on h0's address, not loopback.
     let endpoint = std::fs::read_to_string(spread.join("sim.endpoint")).unwrap_or_default();
     assert!(endpoint.contains(&address(0)), "{endpoint}");
     // The same scenario on one host (loopback), in the first namespace.
     let single = dir.path().join("single");
     let mut cmd = lab.exec(0, SWARM);
-    cmd.args(["run", "--quiet", "--out"]).arg(&single);
-    for s in sets {
-        cmd.args(["--set", s]);
-    }
+    run_args(&mut cmd, &single, &sets);
     let out = Launcher::spawn(cmd).wait_output(Duration::from_secs(600));
     let one = summary(&single);
     assert_eq!(out.status.code(), Some(0), "{}\n{one}", stderr(&out));

@@ -9,7 +9,9 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use crate::support::{csv, num, stderr, summary, swarm_run, wait_file, Launcher, TempDir, SWARM};
+use crate::support::{
+    csv, num, run_args, stderr, summary, swarm_run, wait_file, Launcher, TempDir, SWARM,
+};
 
 /// A 5-robot intel_lab run (the embedded default scenario) with `faults` appended.
 fn run_with(
@@ -268,14 +270,12 @@ fn process_faults_asked_through_netems_api_are_carried_out_at_the_next_step() {
     let dir = TempDir::new("api-faults");
     let run = dir.path().join("run");
     let mut cmd = Command::new(SWARM);
-    cmd.args(["run", "--quiet", "--out"]).arg(&run);
-    for s in [
+    let sets = [
         "robots.count=5",
         "clock.step_timeout_ms=500",
         "netem.api_token=true",
-    ] {
-        cmd.arg("--set").arg(s);
-    }
+    ];
+    run_args(&mut cmd, &run, &sets);
     let launcher = Launcher::spawn(cmd);
     wait_file(&run.join("netem.addr"), Duration::from_secs(30));
     wait_file(&run.join("netem.token"), Duration::from_secs(30));

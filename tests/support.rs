@@ -32,6 +32,14 @@ impl Drop for TempDir {
     }
 }
 
+/// Adds `run --quiet --out OUT --set …` to a command that runs `swarm`.
+pub fn run_args(cmd: &mut Command, out: &Path, sets: &[&str]) {
+    cmd.args(["run", "--quiet", "--out"]).arg(out);
+    for s in sets {
+        cmd.arg("--set").arg(s);
+    }
+}
+
 /// `swarm run` into `dir/run` with overrides, waiting at most `limit`.
 pub fn swarm_run(
     dir: &TempDir,
@@ -41,12 +49,9 @@ pub fn swarm_run(
 ) -> (Output, PathBuf) {
     let out = dir.path().join("run");
     let mut cmd = Command::new(SWARM);
-    cmd.arg("run").arg("--quiet").arg("--out").arg(&out);
+    run_args(&mut cmd, &out, sets);
     if let Some(s) = scenario {
         cmd.arg(s);
-    }
-    for s in sets {
-        cmd.arg("--set").arg(s);
     }
     let child = Launcher::spawn(cmd);
     (child.wait_output(limit), out)
