@@ -215,12 +215,22 @@ fn call(a: &ApiArgs, method: &str, path: &str, body: &str) -> anyhow::Result<Str
     Ok(text)
 }
 
-fn process_fault(a: &ApiArgs, process: Process, kind: &str) -> anyhow::Result<String> {
+/// `POST /processes/<process>` with `{"kind": kind[, "restart_after": k]}`.
+fn process_fault(
+    a: &ApiArgs,
+    process: Process,
+    kind: &str,
+    restart_after: Option<u32>,
+) -> anyhow::Result<String> {
+    let mut body = serde_json::json!({ "kind": kind });
+    if let Some(k) = restart_after {
+        body["restart_after"] = k.into();
+    }
     call(
         a,
         "POST",
         &format!("/processes/{process}"),
-        &format!("{{\"kind\":\"{kind}\"}}"),
+        &body.to_string(),
     )
 }
 
@@ -263,16 +273,10 @@ pub fn control(cmd: &NetemCommand) -> anyhow::Result<()> {
             api,
             process,
             restart_after,
-        } => {
-            let body = match restart_after {
-                Some(k) => format!("{{\"kind\":\"kill\",\"restart_after\":{k}}}"),
-                None => "{\"kind\":\"kill\"}".to_string(),
-            };
-            call(api, "POST", &format!("/processes/{process}"), &body)?
-        }
-        NetemCommand::Restart { api, process } => process_fault(api, *process, "restart")?,
-        NetemCommand::Freeze { api, process } => process_fault(api, *process, "freeze")?,
-        NetemCommand::Thaw { api, process } => process_fault(api, *process, "thaw")?,
+        } => process_fault(api, *process, "kill", *restart_after)?,
+        NetemCommand::Restart { api, process } => process_fault(api, *process, "restart", None)?,
+        NetemCommand::Freeze { api, process } => process_fault(api, *process, "freeze", None)?,
+        NetemCommand::Thaw { api, process } => process_fault(api, *process, "thaw", None)?,
     };
     match serde_json::from_str::<serde_json::Value>(&out) {
         Ok(v) => println!("{}", serde_json::to_string_pretty(&v).unwrap_or(out)),
