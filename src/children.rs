@@ -6,6 +6,7 @@
 //! early return, and `PR_SET_PDEATHSIG = SIGKILL` set in each child, so that even a launcher
 //! killed with SIGKILL takes its children with it.
 
+use std::io::Write;
 use std::path::Path;
 use std::process::{ExitStatus, Stdio};
 use std::time::Duration;
@@ -22,6 +23,10 @@ pub struct Proc {
     pub exited: Option<ExitStatus>,
     /// The largest resident set seen while it ran (sampled, [`Children::sample_memory`]), kB.
     pub peak_rss_kb: u64,
+    /// For a process on another host (`swarm on-host` through ssh): its leash, the pipe to
+    /// its stdin that signals go down ([`crate::remote::leash_word`]). `pid` is then the local
+    /// ssh client's, and the process's memory is not sampled.
+    leash: Option<std::io::PipeWriter>,
 }
 
 /// A row of `processes.csv`: one process of the run, in one life.
@@ -34,7 +39,8 @@ pub struct ProcessRow {
     pub pid: u32,
     /// How it ended ("exit code 0", "signal 9 (SIGKILL)").
     pub exit: String,
-    /// Its largest resident set seen (sampled every 200 ms while the run went on), kB.
+    /// Its largest resident set seen (sampled every 200 ms while the run went on), kB; 0 for
+    /// a process on an ssh host (not sampled; `pid` is then the local ssh client's).
     pub peak_rss_kb: u64,
 }
 
@@ -50,6 +56,10 @@ pub struct MemoryRow {
 
 /// How often (in steps) `memory.csv` gets a row per running process.
 pub const MEMORY_EVERY_STEPS: u32 = 100;
+
+/// How long a process on another host may take to end after its leash said `kill`, before
+/// its ssh client is killed instead (which ends it too, as its stdin closes).
+const LEASH_WAIT: Duration = Duration::from_secs(10);
 
 #[derive(Default)]
 pub struct Children {
@@ -112,6 +122,30 @@ impl Children {
         args: &[String],
         log: &Path,
     ) -> anyhow::Result<u32> {
+        self.spawn_with(name, exe, args, log, false)
+    }
+
+    /// [`Self::spawn`] for a process on a leash (`swarm on-host` through ssh): its stdin is a
+    /// pipe that [`Self::signal`] and [`Self::kill`] write to, and that closes when the
+    /// launcher goes.
+    pub fn spawn_leashed(
+        &mut self,
+        name: &str,
+        exe: &Path,
+        args: &[String],
+        log: &Path,
+    ) -> anyhow::Result<u32> {
+        self.spawn_with(name, exe, args, log, true)
+    }
+
+    fn spawn_with(
+        &mut self,
+        name: &str,
+        exe: &Path,
+        args: &[String],
+        log: &Path,
+        leashed: bool,
+    ) -> anyhow::Result<u32> {
         // Appended: a restarted process keeps its earlier lives' output in the same log.
         let out = std::fs::OpenOptions::new()
             .create(true)
@@ -119,9 +153,15 @@ impl Children {
             .open(log)
             .with_context(|| format!("opening {}", log.display()))?;
         let err = out.try_clone()?;
+        let (stdin, leash) = if leashed {
+            let (reader, writer) = std::io::pipe().context("making a leash pipe")?;
+            (Stdio::from(reader), Some(writer))
+        } else {
+            (Stdio::null(), None)
+        };
         let mut cmd = Command::new(exe);
         cmd.args(args)
-            .stdin(Stdio::null())
+            .stdin(stdin)
             .stdout(out)
             .stderr(err)
             .kill_on_drop(true);
@@ -138,6 +178,7 @@ impl Children {
             child,
             exited: None,
             peak_rss_kb: 0,
+            leash,
         });
         Ok(pid)
     }
@@ -170,6 +211,10 @@ impl Children {
         let Some(p) = self.running(name) else {
             return false;
         };
+        if let Some(leash) = &mut p.leash {
+            return crate::remote::leash_word(signal)
+                .is_some_and(|w| leash.write_all(format!("{w}\n").as_bytes()).is_ok());
+        }
         let Ok(pid) = libc::pid_t::try_from(p.pid) else {
             return false;
         };
@@ -185,6 +230,14 @@ impl Children {
         let Some(p) = self.running(name) else {
             return false;
         };
+        if let Some(leash) = &mut p.leash {
+            // The process itself is killed on its host; its ssh client then ends by itself.
+            let _ = leash.write_all(b"kill\n");
+            if let Ok(Ok(status)) = tokio::time::timeout(LEASH_WAIT, p.child.wait()).await {
+                p.exited = Some(status);
+                return true;
+            }
+        }
         let _ = p.child.start_kill();
         if let Ok(status) = p.child.wait().await {
             p.exited = Some(status);
@@ -200,7 +253,10 @@ impl Children {
             self.memory_step
                 .is_none_or(|m| s / MEMORY_EVERY_STEPS > m / MEMORY_EVERY_STEPS)
         });
-        for p in self.procs.iter_mut().filter(|p| p.exited.is_none()) {
+        for p in self.procs.iter_mut() {
+            if p.exited.is_some() || p.leash.is_some() {
+                continue;
+            }
             if let Some(kb) = rss_kb(p.pid) {
                 p.peak_rss_kb = p.peak_rss_kb.max(kb);
                 if let Some(step) = row_due {

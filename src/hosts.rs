@@ -26,11 +26,15 @@
 //! robots = { lab1 = [0, 1], lab2 = "rest" }   # default: round-robin over every host
 //! ```
 //!
+//! Over ssh only robots and the base station are started: the world-server and netem run on
+//! the launcher's host or a command-prefix host (the world-server reads the map file, netem
+//! writes `link_totals.csv`, and neither is carried over ssh).
+//!
 //! This module reads the file and decides the placement; it starts nothing.
 //!
 //! **Invariant:** every process of the run is placed on exactly one host of the file, and a
-//! placement that names a host the file lacks, or a robot twice, or leaves a robot out, is
-//! refused before anything starts.
+//! placement that names a host the file lacks, or a robot twice, or leaves a robot out, or the
+//! world-server or netem on an ssh host, is refused before anything starts.
 
 use std::collections::BTreeMap;
 use std::net::IpAddr;
@@ -340,6 +344,17 @@ impl Hosts {
                 }
             }
         }
+        for p in [Process::WorldServer, Process::Netem] {
+            let h = &on[&p];
+            if matches!(self.hosts[h].start, Start::Ssh { .. }) {
+                return Err(bad(format!(
+                    "placement: {p} on {h}, an ssh host: over ssh only robots and the base \
+                     station are started (the world-server reads the map file and netem writes \
+                     link_totals.csv on its host); place {p} on the launcher's host or a \
+                     command-prefix host"
+                )));
+            }
+        }
         Ok(Placement {
             on,
             hosts: self.hosts.clone(),
@@ -499,5 +514,18 @@ mod tests {
         );
         let err = placed(&two, &scenario(2, false)).err().unwrap_or_default();
         assert!(err.contains("\"rest\" on both h0 and h1"), "{err}");
+        let ssh =
+            "[hosts.a]\naddress = \"10.0.0.1\"\nssh = \"u@a\"\n[hosts.b]\naddress = \"10.0.0.2\"\n";
+        for (placement, needle) in [
+            ("", "world-server on a, an ssh host"),
+            (
+                "world-server = \"b\"\nnetem = \"a\"",
+                "netem on a, an ssh host",
+            ),
+        ] {
+            let text = format!("{ssh}[placement]\n{placement}\n");
+            let err = placed(&text, &scenario(2, false)).err().unwrap_or_default();
+            assert!(err.contains(needle), "{placement}: {err}");
+        }
     }
 }

@@ -48,6 +48,14 @@ enum Command {
     /// What a host of `swarm run --hosts` answers before the run: its protocol version and
     /// free ports on one of its addresses, as one JSON line.
     HostInfo(swarm::remote::HostInfoArgs),
+    /// What the launcher runs on an ssh host before a run: writes the run's files that the
+    /// host's processes read (sent as JSON on stdin) into its copy of the run directory.
+    #[command(hide = true)]
+    HostFiles(swarm::remote::HostFilesArgs),
+    /// What the launcher runs on an ssh host for each process: runs it, signals it as stdin
+    /// says (stop, cont, term, kill), and kills it when stdin ends.
+    #[command(hide = true)]
+    OnHost(swarm::remote::OnHostArgs),
 }
 
 fn main() -> ExitCode {
@@ -89,6 +97,20 @@ fn main() -> ExitCode {
             }
             Err(e) => {
                 eprintln!("swarm host-info: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+        Command::HostFiles(args) => match swarm::remote::host_files(&args, std::io::stdin()) {
+            Ok(_) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("swarm host-files: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+        Command::OnHost(args) => match swarm::remote::on_host(&args) {
+            Ok(code) => ExitCode::from(u8::try_from(code).unwrap_or(1)),
+            Err(e) => {
+                eprintln!("swarm on-host: {e:#}");
                 ExitCode::FAILURE
             }
         },

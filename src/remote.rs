@@ -2,9 +2,19 @@
 //! of a process on its host, and `swarm host-info`, which a host answers before the run — its
 //! protocol version (every process of a run must speak the launcher's) and free ports on its
 //! address (a launcher cannot see which ports are free on another machine).
+//!
+//! Over ssh, two more hidden subcommands do the remote side: `swarm host-files --dir D` writes
+//! the files a host's processes read (the scenario, their logins), sent as JSON on its stdin;
+//! `swarm on-host -- ARGV…` runs one process of the run and keeps it on a leash — it reads
+//! `stop`, `cont`, `term`, `kill` lines on its stdin (the launcher's freeze, thaw and kill reach
+//! the process itself, not the local ssh client), and SIGKILLs the process when its stdin ends:
+//! a launcher that dies, or a connection that drops, leaves nothing running on the host.
+//!
+//! **Invariant:** a process started over ssh lives only as long as its ssh connection.
 
+use std::io::{BufRead, Write};
 use std::net::IpAddr;
-use std::path::Path;
+use std::path::{Component, Path, PathBuf};
 use std::process::Stdio;
 use std::time::Duration;
 
@@ -77,6 +87,49 @@ pub fn command(host: &Host, exe: &Path, argv: &[String]) -> (String, Vec<String>
     }
 }
 
+/// The command that runs process `argv…` of the run whose directory is `local_dir` on `host`:
+/// (program, arguments, whether it is on a leash — `swarm on-host`, see the module). On an ssh
+/// host every path under `local_dir` becomes the same path under the host's copy of the run
+/// directory ([`remote_dir`]).
+pub fn process_command(
+    host: &Host,
+    exe: &Path,
+    argv: &[String],
+    local_dir: &Path,
+) -> (String, Vec<String>, bool) {
+    match &host.start {
+        Start::Ssh { .. } => {
+            let there = remote_dir(host, local_dir);
+            let relocated = argv.iter().map(|w| relocate(w, local_dir, &there));
+            let wrapped: Vec<String> = ["on-host".to_string(), "--".to_string()]
+                .into_iter()
+                .chain(relocated)
+                .collect();
+            let (program, args) = command(host, exe, &wrapped);
+            (program, args, true)
+        }
+        _ => {
+            let (program, args) = command(host, exe, argv);
+            (program, args, false)
+        }
+    }
+}
+
+/// Where an ssh host keeps its copy of the run directory `local_dir`: its `dir`, then the run
+/// directory's name.
+pub fn remote_dir(host: &Host, local_dir: &Path) -> PathBuf {
+    host.dir
+        .join(local_dir.file_name().unwrap_or(std::ffi::OsStr::new("run")))
+}
+
+/// `word` with a leading `from` (a whole path prefix) replaced by `to`.
+fn relocate(word: &str, from: &Path, to: &Path) -> String {
+    match Path::new(word).strip_prefix(from) {
+        Ok(rest) if !from.as_os_str().is_empty() => to.join(rest).to_string_lossy().into_owned(),
+        _ => word.to_string(),
+    }
+}
+
 /// One word for a POSIX shell, quoted where it needs it.
 fn quote(word: &str) -> String {
     let plain = !word.is_empty()
@@ -101,39 +154,15 @@ pub fn ask(host: &Host, exe: &Path, n: usize, wait: Duration) -> anyhow::Result<
         n.to_string(),
     ];
     let (program, args) = command(host, exe, &argv);
-    let mut child = std::process::Command::new(&program)
+    let child = std::process::Command::new(&program)
         .args(&args)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .with_context(|| format!("host {}: starting {program}", host.name))?;
-    let deadline = std::time::Instant::now() + wait;
-    let status = loop {
-        if let Some(status) = child.try_wait()? {
-            break status;
-        }
-        if std::time::Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            bail!(
-                "host {}: no answer to `swarm host-info` within {wait:?} ({program} {})",
-                host.name,
-                args.join(" ")
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let out = child.wait_with_output()?;
+    let out = bounded(child, host, "`swarm host-info`", wait)?;
     let stdout = String::from_utf8_lossy(&out.stdout);
-    if !status.success() {
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        bail!(
-            "host {}: `swarm host-info` failed ({status}): {}",
-            host.name,
-            stderr.trim().lines().last().unwrap_or("no message")
-        );
-    }
     let info: HostInfo = serde_json::from_str(stdout.trim()).with_context(|| {
         format!(
             "host {}: `swarm host-info` answered {:?}: is its swarm this version?",
@@ -158,6 +187,231 @@ pub fn ask(host: &Host, exe: &Path, n: usize, wait: Duration) -> anyhow::Result<
         );
     }
     Ok(info)
+}
+
+/// Waits up to `wait` for `child` (`what`, on `host`) and returns its output; an error if it
+/// did not finish in time (it is killed) or failed (with its last line on stderr).
+fn bounded(
+    mut child: std::process::Child,
+    host: &Host,
+    what: &str,
+    wait: Duration,
+) -> anyhow::Result<std::process::Output> {
+    let deadline = std::time::Instant::now() + wait;
+    let status = loop {
+        if let Some(status) = child.try_wait()? {
+            break status;
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            bail!("host {}: no answer to {what} within {wait:?}", host.name);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let out = child.wait_with_output()?;
+    if !status.success() {
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        bail!(
+            "host {}: {what} failed ({status}): {}",
+            host.name,
+            stderr.trim().lines().last().unwrap_or("no message")
+        );
+    }
+    Ok(out)
+}
+
+/// A file of the run that a host's processes read, as `swarm host-files` receives it.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SentFile {
+    /// Relative to the run directory, without `..`.
+    pub path: String,
+    pub text: String,
+}
+
+/// Flags of `swarm host-files` (what the launcher runs on an ssh host before and after a run).
+#[derive(clap::Args, Debug, Clone)]
+pub struct HostFilesArgs {
+    /// This host's copy of the run directory.
+    #[arg(long, value_name = "DIR")]
+    pub dir: PathBuf,
+    /// Remove that directory instead of writing files into it (after the run).
+    #[arg(long)]
+    pub remove: bool,
+}
+
+/// The most `swarm host-files` reads from its stdin.
+const MOST_SENT_BYTES: u64 = 16 << 20;
+
+/// `swarm host-files`: writes the JSON list of [`SentFile`]s on `input` under `--dir`, each
+/// readable by the owner only (they include logins); or removes `--dir`. Returns how many
+/// files it wrote.
+pub fn host_files(args: &HostFilesArgs, input: impl std::io::Read) -> anyhow::Result<usize> {
+    use std::io::Read;
+    use std::os::unix::fs::{DirBuilderExt, OpenOptionsExt};
+    if args.remove {
+        return match std::fs::remove_dir_all(&args.dir) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                Err(e).with_context(|| format!("removing {}", args.dir.display()))
+            }
+            _ => Ok(0),
+        };
+    }
+    let mut text = String::new();
+    input
+        .take(MOST_SENT_BYTES)
+        .read_to_string(&mut text)
+        .context("reading the files on stdin")?;
+    let files: Vec<SentFile> =
+        serde_json::from_str(&text).context("the files on stdin are not a JSON list")?;
+    for f in &files {
+        let rel = Path::new(&f.path);
+        let plain =
+            !f.path.is_empty() && rel.components().all(|c| matches!(c, Component::Normal(_)));
+        if !plain {
+            bail!(
+                "{:?}: a file must be a plain path inside the run directory",
+                f.path
+            );
+        }
+        let path = args.dir.join(rel);
+        if let Some(parent) = path.parent() {
+            std::fs::DirBuilder::new()
+                .recursive(true)
+                .mode(0o700)
+                .create(parent)
+                .with_context(|| format!("creating {}", parent.display()))?;
+        }
+        std::fs::OpenOptions::new()
+            .create(true)
+            .write(true)
+            .truncate(true)
+            .mode(0o600)
+            .open(&path)
+            .and_then(|mut out| out.write_all(f.text.as_bytes()))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(files.len())
+}
+
+/// Copies `files` of the run directory `local_dir` to `host`'s copy of it ([`remote_dir`]).
+pub fn send_files(
+    host: &Host,
+    exe: &Path,
+    local_dir: &Path,
+    files: &[SentFile],
+    wait: Duration,
+) -> anyhow::Result<()> {
+    let there = remote_dir(host, local_dir);
+    let argv = [
+        "host-files".to_string(),
+        "--dir".to_string(),
+        there.to_string_lossy().into_owned(),
+    ];
+    let (program, args) = command(host, exe, &argv);
+    let mut child = std::process::Command::new(&program)
+        .args(&args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .with_context(|| format!("host {}: starting {program}", host.name))?;
+    let json = serde_json::to_vec(files)?;
+    if let Some(mut stdin) = child.stdin.take() {
+        // A failed write shows as the remote side's failure below.
+        let _ = stdin.write_all(&json);
+    }
+    bounded(child, host, "`swarm host-files`", wait)?;
+    Ok(())
+}
+
+/// Removes `host`'s copy of the run directory `local_dir` (its logins with it).
+pub fn remove_files(
+    host: &Host,
+    exe: &Path,
+    local_dir: &Path,
+    wait: Duration,
+) -> anyhow::Result<()> {
+    let there = remote_dir(host, local_dir);
+    let argv = [
+        "host-files".to_string(),
+        "--remove".to_string(),
+        "--dir".to_string(),
+        there.to_string_lossy().into_owned(),
+    ];
+    let (program, args) = command(host, exe, &argv);
+    let child = std::process::Command::new(&program)
+        .args(&args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .with_context(|| format!("host {}: starting {program}", host.name))?;
+    bounded(child, host, "`swarm host-files --remove`", wait)?;
+    Ok(())
+}
+
+/// The word on a leashed process's stdin that makes `swarm on-host` send it `signal`.
+pub fn leash_word(signal: libc::c_int) -> Option<&'static str> {
+    LEASH.iter().find(|(_, s)| *s == signal).map(|(w, _)| *w)
+}
+
+const LEASH: [(&str, libc::c_int); 4] = [
+    ("stop", libc::SIGSTOP),
+    ("cont", libc::SIGCONT),
+    ("term", libc::SIGTERM),
+    ("kill", libc::SIGKILL),
+];
+
+/// Flags of `swarm on-host`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct OnHostArgs {
+    /// The process to run: `robot-agent` or `base-station`, and its flags.
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true, required = true)]
+    pub argv: Vec<String>,
+}
+
+/// The processes `swarm on-host` runs.
+const LEASHED: [&str; 2] = ["robot-agent", "base-station"];
+
+/// `swarm on-host`: runs the process on a leash (see the module); returns its exit code
+/// (128 + the signal that ended it, as a shell says).
+pub fn on_host(args: &OnHostArgs) -> anyhow::Result<i32> {
+    use std::os::unix::process::ExitStatusExt;
+    let what = args.argv.first().map(String::as_str).unwrap_or_default();
+    if !LEASHED.contains(&what) {
+        bail!("on-host runs {}, not {what:?}", LEASHED.join(" or "));
+    }
+    let exe = std::env::current_exe().context("locating the swarm binary")?;
+    let mut cmd = std::process::Command::new(exe);
+    cmd.args(&args.argv).stdin(Stdio::null());
+    crate::children::die_with_parent_std(&mut cmd);
+    let mut child = cmd.spawn().with_context(|| format!("starting {what}"))?;
+    let pid = libc::pid_t::try_from(child.id()).context("pid out of range")?;
+    std::thread::spawn(move || {
+        let send = |signal| {
+            // SAFETY: kill(2) on our own child, which the main thread reaps only after it ended;
+            // then this process exits at once.
+            #[allow(unsafe_code)]
+            unsafe {
+                libc::kill(pid, signal);
+            }
+        };
+        for line in std::io::stdin().lock().lines() {
+            let Ok(line) = line else { break };
+            match LEASH.iter().find(|(w, _)| *w == line.trim()) {
+                Some(&(_, signal)) => send(signal),
+                None => eprintln!("swarm on-host: ignored {line:?} on stdin"),
+            }
+        }
+        // Stdin ended: the launcher is gone, or its connection to this host.
+        send(libc::SIGCONT);
+        send(libc::SIGKILL);
+    });
+    let status = child.wait().context("waiting for the process")?;
+    Ok(status
+        .code()
+        .unwrap_or_else(|| 128 + status.signal().unwrap_or(0)))
 }
 
 #[cfg(test)]
@@ -221,6 +475,109 @@ mod tests {
                 r"/opt/swarm robot-agent --id 3 'it'\''s a dir/with space'"
             ]
         );
+    }
+
+    #[test]
+    fn a_process_over_ssh_goes_on_a_leash_and_reads_the_hosts_copy_of_the_run() {
+        let exe = Path::new("/build/swarm");
+        let ssh = host(Start::Ssh {
+            target: "robot@10.0.0.2".into(),
+            options: Vec::new(),
+            swarm: "swarm".into(),
+        });
+        let local = Path::new("runs/17-intel_lab-8r");
+        let argv = vec![
+            "robot-agent".to_string(),
+            "--scenario".into(),
+            "runs/17-intel_lab-8r/scenario.toml".into(),
+            "--credentials".into(),
+            "runs/17-intel_lab-8r/secrets/robot-3".into(),
+            "runs/17-intel_lab-8r-other/x".into(),
+        ];
+        let (p, a, leashed) = process_command(&ssh, exe, &argv, local);
+        assert!(leashed);
+        assert_eq!(p, "ssh");
+        assert_eq!(
+            a.last().map(String::as_str),
+            Some(
+                "swarm on-host -- robot-agent --scenario /tmp/swarm-runs/17-intel_lab-8r/scenario.toml \
+                 --credentials /tmp/swarm-runs/17-intel_lab-8r/secrets/robot-3 \
+                 runs/17-intel_lab-8r-other/x"
+            )
+        );
+        let prefix = host(Start::Prefix {
+            command: vec!["ip".into(), "netns".into(), "exec".into(), "h1".into()],
+            swarm: None,
+        });
+        let (_, a, leashed) = process_command(&prefix, exe, &argv, local);
+        assert!(!leashed);
+        assert_eq!(&a[4..], &argv[..], "same file system: paths unchanged");
+    }
+
+    #[test]
+    fn host_files_writes_private_files_inside_its_directory_only() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("swarm-host-files-{}", std::process::id()));
+        let args = HostFilesArgs {
+            dir: dir.join("run"),
+            remove: false,
+        };
+        let files = vec![
+            SentFile {
+                path: "scenario.toml".into(),
+                text: "seed = 1\n".into(),
+            },
+            SentFile {
+                path: "secrets/robot-3".into(),
+                text: "robot-3:abc\n".into(),
+            },
+        ];
+        let json = serde_json::to_vec(&files).unwrap_or_default();
+        assert_eq!(host_files(&args, &json[..]).ok(), Some(2));
+        let login = args.dir.join("secrets/robot-3");
+        assert_eq!(
+            std::fs::read_to_string(&login).ok().as_deref(),
+            Some("robot-3:abc\n")
+        );
+        let mode = std::fs::metadata(&login).map(|m| m.permissions().mode() & 0o777);
+        assert_eq!(mode.ok(), Some(0o600));
+        for path in ["../escape", "/etc/passwd", "", "a/../../b", "./x"] {
+            let bad = serde_json::to_vec(&[SentFile {
+                path: path.into(),
+                text: String::new(),
+            }])
+            .unwrap_or_default();
+            let err = host_files(&args, &bad[..]).err().map(|e| format!("{e:#}"));
+            assert!(err.is_some_and(|e| e.contains("plain path")), "{path:?}");
+        }
+        for junk in [&b"not json"[..], b"{\"path\": 1}", b""] {
+            assert!(host_files(&args, junk).is_err());
+        }
+        assert!(!dir.join("escape").exists());
+        let remove = HostFilesArgs {
+            dir: args.dir.clone(),
+            remove: true,
+        };
+        assert_eq!(host_files(&remove, &b""[..]).ok(), Some(0));
+        assert!(!args.dir.exists());
+        assert_eq!(host_files(&remove, &b""[..]).ok(), Some(0), "already gone");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn every_signal_the_launcher_sends_has_a_leash_word() {
+        for signal in [libc::SIGSTOP, libc::SIGCONT, libc::SIGTERM, libc::SIGKILL] {
+            let word = leash_word(signal);
+            assert!(word.is_some(), "{signal}");
+            assert_eq!(
+                LEASH
+                    .iter()
+                    .find(|(w, _)| Some(*w) == word)
+                    .map(|(_, s)| *s),
+                Some(signal)
+            );
+        }
+        assert_eq!(leash_word(libc::SIGUSR1), None);
     }
 
     #[test]

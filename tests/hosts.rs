@@ -1,14 +1,17 @@
 //! A run spread over hosts (`swarm run --hosts`), with Linux network namespaces as the hosts:
 //! the test makes them itself (one veth each onto a bridge in a namespace of its own, addresses
 //! it chooses, no default route), runs every process of the run inside them — the launcher
-//! included — and deletes them when it ends, also on failure. Nothing in the root namespace
-//! sends to their addresses. Where namespaces cannot be made (not root), the tests say so and
-//! pass without running — unless `SWARM_REQUIRE_NETNS` is set (CI sets it).
+//! included — and deletes them when it ends, also on failure. One host is reached over real
+//! ssh: an `sshd` the test starts inside that namespace, with a key made for the test. Nothing
+//! in the root namespace sends to their addresses. Where namespaces cannot be made (not root)
+//! or there is no sshd, the tests say so and pass without running — unless
+//! `SWARM_REQUIRE_NETNS` is set (CI sets it).
 
-use std::path::Path;
-use std::process::{Command, Stdio};
-use std::time::Duration;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
 
+use crate::capture::{compare, dropped, link_totals, segments, Capture};
 use crate::support::{run_args, stderr, summary, Launcher, TempDir, SWARM};
 
 /// Namespaces made by one test: `<tag>-h0` … (the hosts) and `<tag>-sw` (their switch).
@@ -106,30 +109,168 @@ impl Drop for Lab {
     }
 }
 
-/// The lab, or `None` after saying why the test cannot run here.
-fn lab(name: &str, hosts: usize) -> Option<Lab> {
-    match Lab::new(name, hosts) {
-        Ok(l) => Some(l),
+/// `Some(value)` or, where the machine cannot, `None` after saying why the test cannot run here
+/// (a failure when `SWARM_REQUIRE_NETNS` is set).
+fn or_skip<T>(what: &str, made: Result<T, String>) -> Option<T> {
+    match made {
+        Ok(v) => Some(v),
         Err(e) if std::env::var_os("SWARM_REQUIRE_NETNS").is_some() => {
-            panic!("cannot make network namespaces, and SWARM_REQUIRE_NETNS is set: {e}")
+            panic!("cannot make {what}, and SWARM_REQUIRE_NETNS is set: {e}")
         }
         Err(e) => {
-            eprintln!("SKIPPED: cannot make network namespaces on this machine ({e}); run as root");
+            eprintln!("SKIPPED: cannot make {what} on this machine ({e}); run as root");
             None
         }
     }
 }
 
+/// The lab, or `None` after saying why the test cannot run here.
+fn lab(name: &str, hosts: usize) -> Option<Lab> {
+    or_skip("network namespaces", Lab::new(name, hosts))
+}
+
+/// An `sshd` inside one host of a lab, with a host key and a client key made for it; killed on
+/// drop (and with the lab's namespace).
+struct Sshd {
+    child: Option<Child>,
+    /// The ssh options that log in with the test's key, trusting this sshd's host key.
+    options: Vec<String>,
+    /// `user@address`.
+    target: String,
+}
+
+impl Sshd {
+    fn start(lab: &Lab, k: usize, dir: &Path) -> Result<Sshd, String> {
+        let sshd = "/usr/sbin/sshd";
+        if !Path::new(sshd).is_file() {
+            return Err(format!("no {sshd} (apt-get install openssh-server)"));
+        }
+        let keygen = |name: &str| -> Result<PathBuf, String> {
+            let key = dir.join(name);
+            let st = Command::new("ssh-keygen")
+                .args(["-q", "-t", "ed25519", "-N", "", "-f"])
+                .arg(&key)
+                .stdin(Stdio::null())
+                .status()
+                .map_err(|e| format!("ssh-keygen: {e}"))?;
+            st.success()
+                .then_some(key)
+                .ok_or("ssh-keygen failed".into())
+        };
+        let (host_key, client_key) = (keygen("host_key")?, keygen("client_key")?);
+        let public = std::fs::read_to_string(client_key.with_extension("pub"))
+            .map_err(|e| format!("client key: {e}"))?;
+        let authorized = dir.join("authorized_keys");
+        std::fs::write(&authorized, public).map_err(|e| e.to_string())?;
+        let known = dir.join("known_hosts");
+        let host_public = std::fs::read_to_string(host_key.with_extension("pub"))
+            .map_err(|e| format!("host key: {e}"))?;
+        std::fs::write(&known, format!("{} {host_public}", address(k)))
+            .map_err(|e| e.to_string())?;
+        let user = String::from_utf8_lossy(
+            &Command::new("id")
+                .arg("-un")
+                .output()
+                .map_err(|e| format!("id -un: {e}"))?
+                .stdout,
+        )
+        .trim()
+        .to_string();
+        let config = dir.join("sshd_config");
+        std::fs::write(
+            &config,
+            format!(
+                "ListenAddress {addr}:22\nHostKey {hk}\nAuthorizedKeysFile {ak}\nPidFile {dir}/sshd.pid\n\
+                 StrictModes no\nUsePAM no\nPasswordAuthentication no\nKbdInteractiveAuthentication no\n\
+                 PermitRootLogin prohibit-password\nAllowUsers {user}\nLogLevel ERROR\n",
+                addr = address(k),
+                hk = host_key.display(),
+                ak = authorized.display(),
+                dir = dir.display(),
+            ),
+        )
+        .map_err(|e| e.to_string())?;
+        // sshd wants its privilege separation directory.
+        let _ = std::fs::create_dir_all("/run/sshd");
+        let child = lab
+            .exec(k, sshd)
+            .args(["-D", "-e", "-f"])
+            .arg(&config)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .map_err(|e| format!("starting sshd: {e}"))?;
+        let options = vec![
+            "-i".to_string(),
+            client_key.display().to_string(),
+            "-o".into(),
+            format!("UserKnownHostsFile={}", known.display()),
+            "-o".into(),
+            "StrictHostKeyChecking=yes".into(),
+            "-o".into(),
+            "LogLevel=ERROR".into(),
+        ];
+        let sshd = Sshd {
+            child: Some(child),
+            options,
+            target: format!("{user}@{}", address(k)),
+        };
+        // Up once a login from host 0 works.
+        let deadline = Instant::now() + Duration::from_secs(15);
+        loop {
+            let out = lab
+                .exec(0, "ssh")
+                .args(["-o", "BatchMode=yes"])
+                .args(&sshd.options)
+                .args([&sshd.target, "--", "true"])
+                .stdin(Stdio::null())
+                .output()
+                .map_err(|e| format!("ssh: {e}"))?;
+            if out.status.success() {
+                return Ok(sshd);
+            }
+            if Instant::now() > deadline {
+                return Err(format!(
+                    "no ssh login to {} within 15 s: {}",
+                    sshd.target,
+                    String::from_utf8_lossy(&out.stderr).trim()
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+}
+
+impl Drop for Sshd {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
 /// A hosts file: host `h0` is where the launcher runs (local to it), `h1…` are reached with
-/// `ip netns exec`; the world-server and netem on `h0`, robots as `robots` says.
-fn hosts_file(lab: &Lab, path: &Path, robots: &str) {
+/// `ip netns exec`, but host `ssh.0` over ssh with `ssh.1`'s login; the world-server and netem
+/// on `h0`, robots as `robots` says.
+fn hosts_file(lab: &Lab, path: &Path, robots: &str, ssh: Option<(usize, &Sshd, &Path)>) {
     let mut text = format!("[hosts.h0]\naddress = \"{}\"\n", address(0));
     for k in 1..lab.hosts {
-        text.push_str(&format!(
-            "[hosts.h{k}]\naddress = \"{}\"\ncommand = [\"ip\", \"netns\", \"exec\", \"{}\"]\n",
-            address(k),
-            lab.host(k)
-        ));
+        text.push_str(&format!("[hosts.h{k}]\naddress = \"{}\"\n", address(k)));
+        match ssh {
+            Some((s, sshd, dir)) if s == k => text.push_str(&format!(
+                "ssh = \"{}\"\nssh_options = {:?}\nswarm = {:?}\ndir = {:?}\n",
+                sshd.target,
+                sshd.options,
+                SWARM,
+                dir.display().to_string()
+            )),
+            _ => text.push_str(&format!(
+                "command = [\"ip\", \"netns\", \"exec\", \"{}\"]\n",
+                lab.host(k)
+            )),
+        }
     }
     text.push_str(&format!(
         "[placement]\nworld-server = \"h0\"\nnetem = \"h0\"\nrobots = {robots}\n"
@@ -138,16 +279,27 @@ fn hosts_file(lab: &Lab, path: &Path, robots: &str) {
 }
 
 #[test]
-fn a_run_over_four_namespaces_completes_and_equals_the_same_run_on_one_host() {
+fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run_on_one_host() {
     let Some(lab) = lab("four", 4) else {
         return;
     };
     let dir = TempDir::new("hosts-four");
+    let Some(sshd) = or_skip("an sshd in a namespace", Sshd::start(&lab, 3, dir.path())) else {
+        return;
+    };
+    let remote = dir.path().join("remote");
     let hosts = dir.path().join("hosts.toml");
     hosts_file(
         &lab,
         &hosts,
         "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }",
+        Some((3, &sshd, &remote)),
+    );
+    // Every radio byte crosses h0's port of the bridge: netem runs on h0, every robot elsewhere.
+    let pcap = dir.path().join("bridge.pcap");
+    let capture = or_skip(
+        "a capture on the lab's bridge",
+        Capture::start(&["ip", "netns", "exec", &lab.switch()], "p0", "tcp", &pcap),
     );
     let sets = ["robots.count=8"];
     let spread = dir.path().join("spread");
@@ -155,6 +307,7 @@ fn a_run_over_four_namespaces_completes_and_equals_the_same_run_on_one_host() {
     run_args(&mut cmd, &spread, &sets);
     cmd.arg("--hosts").arg(&hosts);
     let out = Launcher::spawn(cmd).wait_output(Duration::from_secs(600));
+    let said = capture.map(|c| c.stop(&pcap));
     let s = summary(&spread);
     assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
     assert_eq!(s["complete"], true, "{s}");
@@ -162,6 +315,45 @@ fn a_run_over_four_namespaces_completes_and_equals_the_same_run_on_one_host() {
     // The sim plane's router listened on h0's address, not loopback.
     let endpoint = std::fs::read_to_string(spread.join("sim.endpoint")).unwrap_or_default();
     assert!(endpoint.contains(&address(0)), "{endpoint}");
+    // The robots on h3 ran over ssh, on a leash (their memory is not sampled: the launcher's
+    // child is the ssh client) and ended well; the host's copy of the run (with their logins)
+    // is gone.
+    let rows: Vec<swarm::children::ProcessRow> =
+        swarm::rundir::read_rows(&spread.join("processes.csv")).expect("processes.csv");
+    for r in &rows {
+        let over_ssh = ["robot-2", "robot-5"].contains(&r.process.as_str());
+        assert_eq!(r.exit, "exit code 0", "{r:?}");
+        assert_eq!(r.peak_rss_kb == 0, over_ssh, "{r:?}");
+    }
+    let leftover: Vec<_> = std::fs::read_dir(&remote)
+        .map(|d| d.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    assert!(leftover.is_empty(), "left on the ssh host: {leftover:?}");
+    // Every pair's link crossed netem, and netem's counters equal the bridge's bytes.
+    let totals = link_totals(&spread.join("link_totals.csv"));
+    assert_eq!(totals.len(), 8 * 7 / 2);
+    if let Some(said) = said {
+        if let Some(n) = dropped(&said) {
+            assert_eq!(n, 0, "the capture lost packets: {said}");
+        }
+        let segs = segments(&std::fs::read(&pcap).expect("pcap written"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let c = compare(&totals, &segs);
+        assert!(
+            c.counted_total > 10_000,
+            "too little traffic:\n{}",
+            c.report
+        );
+        assert!(
+            c.ok,
+            "netem's counters and the bridge disagree:\n{}\ntcpdump said:\n{said}",
+            c.report
+        );
+        eprintln!(
+            "bridge: counted {}, captured {}",
+            c.counted_total, c.captured_total
+        );
+    }
     // The same scenario on one host (loopback), in the first namespace.
     let single = dir.path().join("single");
     let mut cmd = lab.exec(0, SWARM);
@@ -175,4 +367,131 @@ fn a_run_over_four_namespaces_completes_and_equals_the_same_run_on_one_host() {
         s["run_digest"], one["run_digest"],
         "the spread run differs from the run on one host"
     );
+    // Nothing of either run is left on any host (h3 runs only its sshd).
+    let sshd_pid = sshd.child.as_ref().map(Child::id);
+    for k in 0..lab.hosts {
+        let left: Vec<u32> = lab
+            .pids(k)
+            .into_iter()
+            .filter(|&p| Some(p) != sshd_pid)
+            .collect();
+        assert_eq!(left, Vec::<u32>::new(), "left on host {k}");
+    }
+}
+
+impl Lab {
+    /// The processes running in host `k`'s namespace.
+    fn pids(&self, k: usize) -> Vec<u32> {
+        Command::new("ip")
+            .args(["netns", "pids", &self.host(k)])
+            .output()
+            .map(|o| {
+                String::from_utf8_lossy(&o.stdout)
+                    .split_whitespace()
+                    .filter_map(|p| p.parse().ok())
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// SIGKILLs every process in host `k`'s namespace (the host drops); how many there were.
+    fn kill_host(&self, k: usize) -> usize {
+        let pids = self.pids(k);
+        for &pid in &pids {
+            crate::support::kill(pid, 9);
+        }
+        pids.len()
+    }
+}
+
+/// Waits until host `k` runs at least `n` processes.
+fn wait_for_processes(lab: &Lab, k: usize, n: usize) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while lab.pids(k).len() < n {
+        assert!(
+            Instant::now() < deadline,
+            "host {k} never ran {n} processes"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// A host's processes SIGKILLed mid-run, as a local kill: the robots of a command-prefix host
+/// (the host still up) are started again by supervision and rejoin; an ssh host that drops
+/// whole (its sshd with it) loses its robots for good — their restarts fail, the run goes on
+/// with the rest. Afterwards no process of the run is left on any host.
+#[test]
+fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_process() {
+    let Some(lab) = lab("drop", 4) else {
+        return;
+    };
+    let dir = TempDir::new("hosts-drop");
+    let Some(sshd) = or_skip("an sshd in a namespace", Sshd::start(&lab, 3, dir.path())) else {
+        return;
+    };
+    let remote = dir.path().join("remote");
+    let hosts = dir.path().join("hosts.toml");
+    hosts_file(
+        &lab,
+        &hosts,
+        "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }",
+        Some((3, &sshd, &remote)),
+    );
+    let run = dir.path().join("run");
+    let mut cmd = lab.exec(0, SWARM);
+    run_args(&mut cmd, &run, &["robots.count=8"]);
+    cmd.arg("--hosts").arg(&hosts);
+    let launcher = Launcher::spawn(cmd);
+    // h2 runs robots 1, 4, 7; h3 its sshd and, for robots 2 and 5, a session, `swarm on-host`
+    // and the robot each.
+    wait_for_processes(&lab, 2, 3);
+    wait_for_processes(&lab, 3, 5);
+    std::thread::sleep(Duration::from_secs(3));
+    assert_eq!(lab.kill_host(2), 3, "h2's robots");
+    std::thread::sleep(Duration::from_secs(2));
+    assert!(lab.kill_host(3) >= 5, "h3's sshd, sessions and robots");
+    drop(sshd);
+    let out = launcher.wait_output(Duration::from_secs(600));
+    let s = summary(&run);
+    assert!(
+        matches!(out.status.code(), Some(0 | 2)),
+        "{}\n{s}",
+        stderr(&out)
+    );
+    let events: Vec<(String, String, String)> = s["process_events"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+        .iter()
+        .map(|e| {
+            let f = |k: &str| e[k].as_str().unwrap_or_default().to_string();
+            (f("process"), f("event"), f("cause"))
+        })
+        .collect();
+    for i in [1, 4, 7] {
+        let p = format!("robot-{i}");
+        assert!(
+            events
+                .iter()
+                .any(|e| e.0 == p && e.1 == "died" && e.2.contains("SIGKILL")),
+            "{p}: {events:?}"
+        );
+        assert!(
+            events
+                .iter()
+                .any(|e| e.0 == p && e.1 == "started" && e.2 == "supervised"),
+            "{p}: {events:?}"
+        );
+    }
+    let alive: Vec<u64> = s["nodes_alive_at_end"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+        .iter()
+        .filter_map(serde_json::Value::as_u64)
+        .collect();
+    assert_eq!(alive, [0, 1, 3, 4, 6, 7], "{s}");
+    for k in 0..lab.hosts {
+        assert_eq!(lab.pids(k), Vec::<u32>::new(), "left on host {k}");
+    }
 }

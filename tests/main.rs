@@ -2,6 +2,7 @@
 //! the world-server and robot-agent processes it starts) talking zenoh over loopback TCP on free
 //! ports. Each test is bounded in time and kills everything it started, also when it fails.
 
+mod capture;
 mod support;
 
 mod bids;

@@ -106,6 +106,9 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
     let (processes, memory) = finish::stop(run, &mut rec, &mut progress).await;
+    for e in spawn::clean_hosts(&plan) {
+        progress.event(&format!("swarm run: {e}"));
+    }
     rec.truncate();
     let up = rec.links.up_by_step();
     finish::score_contact(&plan, &mut rec, &up);

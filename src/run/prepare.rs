@@ -157,16 +157,6 @@ pub fn prepare(args: &RunArgs) -> anyhow::Result<Plan> {
         Some(file) => Some(Hosts::load(file)?.place(&scenario)?),
         None => None,
     };
-    if let Some(h) = placement.as_ref().and_then(|p| {
-        p.used()
-            .find(|h| matches!(h.start, crate::hosts::Start::Ssh { .. }))
-    }) {
-        anyhow::bail!(
-            "host {}: starting processes over ssh is not finished yet (the run's files are not \
-             copied to the host); give it a command prefix, or start the launcher on it",
-            h.name
-        );
-    }
     let ports = Ports::pick(&scenario, placement.as_ref())?;
     Ok(Plan {
         scenario,

@@ -21,7 +21,9 @@ use zenoh::Session;
 use super::prepare::Plan;
 use super::secrets;
 use crate::children::{describe, Children};
+use crate::hosts::Start;
 use crate::ports::endpoint;
+use crate::remote;
 
 /// A sim-plane subscription of the launcher.
 pub type Sub = Subscriber<FifoChannelHandler<Sample>>;
@@ -80,6 +82,7 @@ pub async fn start(plan: &Plan) -> anyhow::Result<Started> {
     if plan.api_token() {
         secrets::write_token(&plan.dir.join("netem.token"))?;
     }
+    send_host_files(plan, &exe)?;
     respawn(plan, &mut children, Process::Netem, 0)?;
     std::fs::write(
         plan.dir.join("netem.addr"),
@@ -141,13 +144,78 @@ fn spawn_on_host(
     argv: &[String],
 ) -> anyhow::Result<u32> {
     let name = process.to_string();
+    let log = plan.log(&name);
     match plan.host(process) {
-        None => children.spawn(&name, exe, argv, &plan.log(&name)),
-        Some(host) => {
-            let (program, args) = crate::remote::command(host, exe, argv);
-            children.spawn(&name, Path::new(&program), &args, &plan.log(&name))
-        }
+        None => children.spawn(&name, exe, argv, &log),
+        Some(host) => match remote::process_command(host, exe, argv, &plan.dir) {
+            (program, args, true) => {
+                children.spawn_leashed(&name, Path::new(&program), &args, &log)
+            }
+            (program, args, false) => children.spawn(&name, Path::new(&program), &args, &log),
+        },
     }
+}
+
+/// How long an ssh host may take to take the run's files, or to remove them.
+const HOST_FILES_WAIT: Duration = Duration::from_secs(30);
+
+/// Copies to every ssh host what its processes read: `scenario.toml` and their own logins
+/// (only theirs).
+fn send_host_files(plan: &Plan, exe: &Path) -> anyhow::Result<()> {
+    let Some(placement) = &plan.placement else {
+        return Ok(());
+    };
+    let read = |path: &Path| -> anyhow::Result<remote::SentFile> {
+        let rel = path.strip_prefix(&plan.dir).unwrap_or(path);
+        Ok(remote::SentFile {
+            path: rel.to_string_lossy().into_owned(),
+            text: std::fs::read_to_string(path)
+                .with_context(|| format!("reading {}", path.display()))?,
+        })
+    };
+    for (_, procs) in placement.by_host() {
+        let Some(host) = procs.first().and_then(|&p| placement.host(p)) else {
+            continue;
+        };
+        if !matches!(host.start, Start::Ssh { .. }) {
+            continue;
+        }
+        let mut files = vec![read(&plan.scenario_file)?];
+        for &p in &procs {
+            let id = match p {
+                Process::Robot(i) => i,
+                Process::BaseStation => match plan.scenario.base_id() {
+                    Some(b) => b,
+                    None => continue,
+                },
+                Process::WorldServer | Process::Netem => continue,
+            };
+            files.push(read(&secrets::credentials(plan, secrets::node(plan, id)))?);
+        }
+        remote::send_files(host, exe, &plan.dir, &files, HOST_FILES_WAIT)
+            .context("copying the run's files over ssh")?;
+    }
+    Ok(())
+}
+
+/// Removes every ssh host's copy of the run directory (its logins with it); what fails is
+/// returned as messages, after trying every host.
+pub fn clean_hosts(plan: &Plan) -> Vec<String> {
+    let Some(placement) = &plan.placement else {
+        return Vec::new();
+    };
+    let Ok(exe) = std::env::current_exe() else {
+        return vec!["locating the swarm binary".into()];
+    };
+    placement
+        .used()
+        .filter(|h| matches!(h.start, Start::Ssh { .. }))
+        .filter_map(|h| {
+            remote::remove_files(h, &exe, &plan.dir, HOST_FILES_WAIT)
+                .err()
+                .map(|e| format!("{e:#}"))
+        })
+        .collect()
 }
 
 async fn subscribe(session: Session) -> anyhow::Result<Sim> {
