@@ -278,23 +278,47 @@ fn hosts_file(lab: &Lab, path: &Path, robots: &str, ssh: Option<(usize, &Sshd, &
     std::fs::write(path, text).expect("write hosts.toml");
 }
 
-#[test]
-fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run_on_one_host() {
-    let Some(lab) = lab("four", 4) else {
-        return;
-    };
-    let dir = TempDir::new("hosts-four");
-    let Some(sshd) = or_skip("an sshd in a namespace", Sshd::start(&lab, 3, dir.path())) else {
-        return;
-    };
+/// Four hosts, the last (h3) reached over ssh: `h0` runs the launcher, the world-server and
+/// netem; robots as `robots` places them.
+struct SshLab {
+    sshd: Sshd,
+    lab: Lab,
+    /// Where h3 keeps its copy of a run.
+    remote: PathBuf,
+    hosts: PathBuf,
+    dir: TempDir,
+}
+
+/// The [`SshLab`], or `None` after saying why the test cannot run here.
+fn ssh_lab(name: &str, robots: &str) -> Option<SshLab> {
+    let lab = lab(name, 4)?;
+    let dir = TempDir::new(&format!("hosts-{name}"));
+    let sshd = or_skip("an sshd in a namespace", Sshd::start(&lab, 3, dir.path()))?;
     let remote = dir.path().join("remote");
     let hosts = dir.path().join("hosts.toml");
-    hosts_file(
-        &lab,
-        &hosts,
-        "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }",
-        Some((3, &sshd, &remote)),
-    );
+    hosts_file(&lab, &hosts, robots, Some((3, &sshd, &remote)));
+    Some(SshLab {
+        sshd,
+        lab,
+        remote,
+        hosts,
+        dir,
+    })
+}
+
+#[test]
+fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run_on_one_host() {
+    // Bound in this order, dropped in the reverse: sshd, the namespaces, then the files.
+    let Some(SshLab {
+        dir,
+        hosts,
+        remote,
+        lab,
+        sshd,
+    }) = ssh_lab("four", "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }")
+    else {
+        return;
+    };
     // Every radio byte crosses h0's port of the bridge: netem runs on h0, every robot elsewhere.
     let pcap = dir.path().join("bridge.pcap");
     let capture = or_skip(
@@ -426,21 +450,17 @@ fn wait_for_processes(lab: &Lab, k: usize, n: usize) {
 /// with the rest. Afterwards no process of the run is left on any host.
 #[test]
 fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_process() {
-    let Some(lab) = lab("drop", 4) else {
+    // Bound in this order, dropped in the reverse: sshd, the namespaces, then the files.
+    let Some(SshLab {
+        dir,
+        hosts,
+        remote: _,
+        lab,
+        sshd,
+    }) = ssh_lab("drop", "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }")
+    else {
         return;
     };
-    let dir = TempDir::new("hosts-drop");
-    let Some(sshd) = or_skip("an sshd in a namespace", Sshd::start(&lab, 3, dir.path())) else {
-        return;
-    };
-    let remote = dir.path().join("remote");
-    let hosts = dir.path().join("hosts.toml");
-    hosts_file(
-        &lab,
-        &hosts,
-        "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }",
-        Some((3, &sshd, &remote)),
-    );
     let run = dir.path().join("run");
     let mut cmd = lab.exec(0, SWARM);
     run_args(&mut cmd, &run, &["robots.count=8"]);
@@ -462,31 +482,7 @@ fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_proces
         "{}\n{s}",
         stderr(&out)
     );
-    let events: Vec<(String, String, String)> = s["process_events"]
-        .as_array()
-        .cloned()
-        .unwrap_or_default()
-        .iter()
-        .map(|e| {
-            let f = |k: &str| e[k].as_str().unwrap_or_default().to_string();
-            (f("process"), f("event"), f("cause"))
-        })
-        .collect();
-    for i in [1, 4, 7] {
-        let p = format!("robot-{i}");
-        assert!(
-            events
-                .iter()
-                .any(|e| e.0 == p && e.1 == "died" && e.2.contains("SIGKILL")),
-            "{p}: {events:?}"
-        );
-        assert!(
-            events
-                .iter()
-                .any(|e| e.0 == p && e.1 == "started" && e.2 == "supervised"),
-            "{p}: {events:?}"
-        );
-    }
+    crate::support::assert_killed_and_supervised(&s, &["robot-1", "robot-4", "robot-7"]);
     let alive: Vec<u64> = s["nodes_alive_at_end"]
         .as_array()
         .cloned()
@@ -505,20 +501,17 @@ fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_proces
 /// their ssh connections end (`swarm on-host`).
 #[test]
 fn a_launcher_killed_mid_run_leaves_no_process_on_any_host() {
-    let Some(lab) = lab("orphan", 4) else {
+    // Bound in this order, dropped in the reverse: sshd, the namespaces, then the files.
+    let Some(SshLab {
+        dir,
+        hosts,
+        remote: _,
+        lab,
+        sshd,
+    }) = ssh_lab("orphan", "{ h1 = [0, 3], h2 = [1, 4], h3 = \"rest\" }")
+    else {
         return;
     };
-    let dir = TempDir::new("hosts-orphan");
-    let Some(sshd) = or_skip("an sshd in a namespace", Sshd::start(&lab, 3, dir.path())) else {
-        return;
-    };
-    let hosts = dir.path().join("hosts.toml");
-    hosts_file(
-        &lab,
-        &hosts,
-        "{ h1 = [0, 3], h2 = [1, 4], h3 = \"rest\" }",
-        Some((3, &sshd, &dir.path().join("remote"))),
-    );
     let mut cmd = lab.exec(0, SWARM);
     run_args(&mut cmd, &dir.path().join("run"), &["robots.count=6"]);
     cmd.arg("--hosts").arg(&hosts);
@@ -682,21 +675,17 @@ fn the_kernels_tbf_shapes_a_link_as_netem_does() {
 #[test]
 #[ignore = "minutes long: a measurement (docs/results.md, X1)"]
 fn thirty_two_robots_over_four_namespaces_complete_as_on_one_host() {
-    let Some(lab) = lab("x32", 4) else {
+    // Bound in this order, dropped in the reverse: sshd, the namespaces, then the files.
+    let Some(SshLab {
+        dir,
+        hosts,
+        remote: _,
+        lab,
+        sshd: _sshd,
+    }) = ssh_lab("x32", "{ h1 = [0, 3, 6, 9, 12, 15, 18, 21, 24, 27, 30], h2 = [1, 4, 7, 10, 13, 16, 19, 22, 25, 28, 31], h3 = \"rest\" }")
+    else {
         return;
     };
-    let dir = TempDir::new("hosts-32");
-    let Some(sshd) = or_skip("an sshd in a namespace", Sshd::start(&lab, 3, dir.path())) else {
-        return;
-    };
-    let remote = dir.path().join("remote");
-    let hosts = dir.path().join("hosts.toml");
-    hosts_file(
-        &lab,
-        &hosts,
-        "{ h1 = [0, 3, 6, 9, 12, 15, 18, 21, 24, 27, 30], h2 = [1, 4, 7, 10, 13, 16, 19, 22, 25, 28, 31], h3 = \"rest\" }",
-        Some((3, &sshd, &remote)),
-    );
     // Two cores run 32 robots, netem and the world-server: a step may take seconds, and a robot
     // that misses the step time-out would make the run depend on the load.
     let sets = ["robots.count=32", "clock.step_timeout_ms=60000"];

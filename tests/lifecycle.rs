@@ -203,29 +203,6 @@ fn robots_and_netem_killed_from_outside_are_started_again_by_supervision() {
     let s = summary(&dir.path().join("run"));
     assert_eq!(s["complete"], true, "{}\n{s}", stderr(&out));
     assert_eq!(s["robots_alive_at_end"], 3, "{s}");
-    let events: Vec<(String, String, String)> = s["process_events"]
-        .as_array()
-        .cloned()
-        .unwrap_or_default()
-        .iter()
-        .map(|e| {
-            let f = |k: &str| e[k].as_str().unwrap_or_default().to_string();
-            (f("process"), f("event"), f("cause"))
-        })
-        .collect();
-    for p in ["robot-1", "netem"] {
-        assert!(
-            events
-                .iter()
-                .any(|e| e.0 == p && e.1 == "died" && e.2.contains("SIGKILL")),
-            "{p}: {events:?}"
-        );
-        assert!(
-            events
-                .iter()
-                .any(|e| e.0 == p && e.1 == "started" && e.2 == "supervised"),
-            "{p}: {events:?}"
-        );
-    }
+    crate::support::assert_killed_and_supervised(&s, &["robot-1", "netem"]);
     wait_gone(&all);
 }

@@ -179,6 +179,30 @@ pub fn running(pid: u32) -> bool {
     }
 }
 
+/// Asserts that `summary.json` records each of `processes` as killed by SIGKILL and started
+/// again by supervision.
+pub fn assert_killed_and_supervised(s: &serde_json::Value, processes: &[&str]) {
+    let events: Vec<(String, String, String)> = s["process_events"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+        .iter()
+        .map(|e| {
+            let f = |k: &str| e[k].as_str().unwrap_or_default().to_string();
+            (f("process"), f("event"), f("cause"))
+        })
+        .collect();
+    for &p in processes {
+        let seen = |event: &str, cause: &dyn Fn(&str) -> bool| {
+            events
+                .iter()
+                .any(|e| e.0 == p && e.1 == event && cause(&e.2))
+        };
+        assert!(seen("died", &|c| c.contains("SIGKILL")), "{p}: {events:?}");
+        assert!(seen("started", &|c| c == "supervised"), "{p}: {events:?}");
+    }
+}
+
 pub fn summary(run: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(run.join("summary.json")).expect("summary.json exists");
     serde_json::from_str(&text).expect("summary.json is JSON")
