@@ -675,20 +675,33 @@ impl Netem {
     /// its bytes are counted in it. Returns the ending step's rows (none before the first step).
     pub fn advance(&self, step: Step, poses: &[(RobotId, Pose, bool)]) -> Vec<LinkTelemetry> {
         let ending = self.shared.step();
-        let before: Vec<_> = self.shared.links.iter().map(|l| l.snapshot()).collect();
+        // The ending step's bytes are taken before any link changes: a link that comes up now
+        // lets its robots connect at once, and their first bytes belong to the new step (taken
+        // after, they would land in the ending step or the next as threads happen to run).
+        let before: Vec<_> = (self.shared.links.iter())
+            .map(|l| {
+                let bytes = Dir::BOTH.map(|d| l.counters(d).take_step());
+                (l.snapshot(), bytes)
+            })
+            .collect();
         self.update_links(step, poses);
         let rows = self
             .shared
             .links
             .iter()
             .zip(&before)
-            .map(|(l, snap)| {
-                let bytes = Dir::BOTH.map(|d| l.counters(d).take_step());
+            .map(|(l, (snap, bytes))| {
+                let bytes = *bytes;
                 l.open_credit(bytes, self.shared.step_seconds);
-                // Counters and queues as they are now; the link's state as it was in the step.
+                // Queues and connection counts as they are now (a link going down drops its
+                // queue now); the link's state and its byte totals as the step ended.
                 let was = telemetry_row(ending, snap, [0, 0]);
                 LinkTelemetry {
                     up: was.up,
+                    bytes_a_to_b_total: was.bytes_a_to_b_total,
+                    bytes_b_to_a_total: was.bytes_b_to_a_total,
+                    chunks_a_to_b_total: was.chunks_a_to_b_total,
+                    chunks_b_to_a_total: was.chunks_b_to_a_total,
                     // The connection as the step ended (a link going down resets it now);
                     // none on a link that was down (an attempt being refused is not one).
                     connections: if was.up { was.connections } else { 0 },

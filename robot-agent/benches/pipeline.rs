@@ -18,6 +18,7 @@ use robot_agent::contour::{ContourPixels, Contours};
 use robot_agent::delta::diff;
 use robot_agent::grid::Evidence;
 use robot_agent::merge::merge;
+use robot_agent::render::ExplorationView;
 use robot_agent::wire::encode;
 
 const SPLITS: f64 = 2.0;
@@ -74,6 +75,9 @@ struct State {
     own: Grid,
     evidence: Evidence,
     pixels: ContourPixels,
+    /// G_s's exploration view, kept up to date like the contour pixels (as the robot's mapper
+    /// keeps it).
+    view: ExplorationView,
     approximator: Approximator,
     previous: Approximation,
 }
@@ -83,6 +87,7 @@ fn explore(truth: &Grid, info: &MapInfo, path: &[Pose]) -> State {
     let mut s = State {
         evidence: Evidence::new(&own),
         pixels: ContourPixels::scan(&own),
+        view: ExplorationView::new(&own),
         own,
         approximator: Approximator::new(),
         previous: Approximation::default(),
@@ -90,9 +95,13 @@ fn explore(truth: &Grid, info: &MapInfo, path: &[Pose]) -> State {
     for &p in path {
         let ranges = world_server::laser::cast(truth, info, p, &laser(), None);
         let changed = s.evidence.integrate(&mut s.own, info, p, &ranges, &laser());
-        s.pixels.update(&s.own, changed);
+        s.pixels.update(&s.own, changed.iter().copied());
+        s.view.update(&s.own, changed);
         let contours = Contours::extract_at(&s.own, &s.pixels);
-        s.previous = s.approximator.step(&contours, &s.own, SPLITS).clone();
+        s.previous = s
+            .approximator
+            .step_in_view(&contours, s.view.grid(), SPLITS)
+            .clone();
     }
     s
 }
@@ -108,9 +117,13 @@ fn full_step(
 ) -> (usize, Grid) {
     let ranges = world_server::laser::cast(truth, info, p, &laser(), None);
     let changed = s.evidence.integrate(&mut s.own, info, p, &ranges, &laser());
-    s.pixels.update(&s.own, changed);
+    s.pixels.update(&s.own, changed.iter().copied());
+    s.view.update(&s.own, changed);
     let contours = Contours::extract_at(&s.own, &s.pixels);
-    let a = s.approximator.step(&contours, &s.own, SPLITS).clone();
+    let a = s
+        .approximator
+        .step_in_view(&contours, s.view.grid(), SPLITS)
+        .clone();
     let ops = diff(&s.previous, &a);
     let bytes = encode(&ops).len();
     (bytes, merge(&s.own, peers))
@@ -158,7 +171,15 @@ fn pipeline(c: &mut Criterion, map: &str, size: u32) {
             BatchSize::LargeInput,
         )
     });
+    group.bench_function("exploration_view_update", |b| {
+        b.iter_batched(
+            || me.view.clone(),
+            |mut v| v.update(&after.own, changed.iter().copied()),
+            BatchSize::LargeInput,
+        )
+    });
     after.pixels.update(&after.own, changed.iter().copied());
+    after.view.update(&after.own, changed.iter().copied());
     group.bench_function("contour", |b| {
         b.iter(|| Contours::extract_at(&after.own, &after.pixels))
     });
@@ -166,14 +187,17 @@ fn pipeline(c: &mut Criterion, map: &str, size: u32) {
     group.bench_function("approx_refine", |b| {
         b.iter_batched(
             || after.approximator.clone(),
-            |mut ax| ax.step(&contours, &after.own, SPLITS).vertex_count(),
+            |mut ax| {
+                ax.step_in_view(&contours, after.view.grid(), SPLITS)
+                    .vertex_count()
+            },
             BatchSize::LargeInput,
         )
     });
     let a = after
         .approximator
         .clone()
-        .step(&contours, &after.own, SPLITS)
+        .step_in_view(&contours, after.view.grid(), SPLITS)
         .clone();
     group.bench_function("delta", |b| b.iter(|| diff(&after.previous, &a)));
     let ops = diff(&after.previous, &a);

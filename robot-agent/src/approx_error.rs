@@ -15,8 +15,12 @@ use crate::render::{exploration_view, render};
 
 /// d_t: cells where `own` (G_s, in its exploration view) and the rendering of `a` differ.
 pub fn approx_error(own: &Grid, a: &Approximation) -> usize {
-    let rendered = render(a, own.width(), own.height());
-    let view = exploration_view(own);
+    approx_error_in_view(&exploration_view(own), a)
+}
+
+/// [`approx_error`] given G_s's exploration view (kept: [`crate::render::ExplorationView`]).
+pub fn approx_error_in_view(view: &Grid, a: &Approximation) -> usize {
+    let rendered = render(a, view.width(), view.height());
     view.cells()
         .iter()
         .zip(rendered.cells())

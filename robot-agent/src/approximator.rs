@@ -72,6 +72,16 @@ impl Approximator {
     /// splits that `splits_per_step` (fractional, accumulating; infinite = until exact) makes
     /// due this step. Credit left over only while an atomic group of splits waits for room.
     pub fn step(&mut self, p: &Contours, own: &Grid, splits_per_step: f64) -> &Approximation {
+        self.step_in_view(p, &exploration_view(own), splits_per_step)
+    }
+
+    /// [`Self::step`] given G_s's exploration view (kept: [`crate::render::ExplorationView`]).
+    pub fn step_in_view(
+        &mut self,
+        p: &Contours,
+        view: &Grid,
+        splits_per_step: f64,
+    ) -> &Approximation {
         let budget = if splits_per_step.is_finite() {
             self.credit += splits_per_step.max(0.0);
             self.credit.floor() as usize
@@ -79,8 +89,8 @@ impl Approximator {
             usize::MAX
         };
         let mut drafts = derive(&self.current, p, &mut self.next_id);
-        let view = self.monotone.then(|| exploration_view(own));
-        let done = refine(&mut drafts, p, view.as_ref(), budget);
+        let view = self.monotone.then_some(view);
+        let done = refine(&mut drafts, p, view, budget);
         self.last = done;
         self.credit = if done.waiting {
             self.credit - done.splits as f64

@@ -10,10 +10,11 @@ use proto::grid::{Cell, Grid, Occ};
 use proto::msg::Traffic;
 
 use crate::approx::Approximation;
-use crate::approx_error::approx_error;
+use crate::approx_error::approx_error_in_view;
 use crate::approximator::Approximator;
 use crate::contour::{ContourPixels, Contours};
 use crate::oplog::OpLog;
+use crate::render::ExplorationView;
 use crate::wire::Encoder;
 
 /// Counts and encoded bytes of every op appended so far, per package type (indexed by
@@ -57,6 +58,8 @@ pub struct Mapper {
     contours: Option<Contours>,
     /// The contour pixels of G_s, kept up to date from the changed cells.
     pixels: Option<ContourPixels>,
+    /// G_s's exploration view, kept up to date from the changed cells.
+    view: Option<ExplorationView>,
     log: OpLog,
     previous: Approximation,
     /// Douglas–Peucker splits per step (fractional values accumulate).
@@ -74,6 +77,7 @@ impl Mapper {
             approximator: Approximator::new(),
             contours: None,
             pixels: None,
+            view: None,
             log: OpLog::new(),
             previous: Approximation::default(),
             splits_per_step,
@@ -96,9 +100,16 @@ impl Mapper {
             None => self.pixels.insert(ContourPixels::scan(own)),
         };
         let p = Contours::extract_at(own, pixels);
+        let view = match self.view.as_mut() {
+            Some(v) => {
+                v.update(own, changed.iter().copied());
+                v
+            }
+            None => self.view.insert(ExplorationView::new(own)),
+        };
         let a = self
             .approximator
-            .step(&p, own, self.splits_per_step)
+            .step_in_view(&p, view.grid(), self.splits_per_step)
             .clone();
         let first = self.log.len();
         let ops = self.log.record(&self.previous, &a);
@@ -110,7 +121,7 @@ impl Mapper {
             self.stats.bytes[i] += b as u64;
         }
         let bytes = enc.finish().len();
-        let error_cells = approx_error(own, &a);
+        let error_cells = approx_error_in_view(view.grid(), &a);
         let known_cells = own.len() - own.count(Occ::Unknown);
         self.error_sum += error_cells as u64;
         self.known_sum += known_cells as u64;

@@ -165,21 +165,57 @@ pub fn render(a: &Approximation, width: u32, height: u32) -> Grid {
 /// (buried behind other non-free cells) read unknown. [`render`] of the unsimplified
 /// approximation equals exactly this (exploration equivalence, docs/design.md §4.1).
 pub fn exploration_view(g: &Grid) -> Grid {
-    let (w, h) = (g.width() as usize, g.height() as usize);
-    let cells = g.cells();
-    let free = |i: usize| cells[i] == Occ::Free;
     let mut out = g.clone();
     for (i, dst) in out.cells_mut().iter_mut().enumerate() {
-        let (x, y) = (i % w, i / w);
-        let exposed = (x > 0 && free(i - 1))
-            || (x + 1 < w && free(i + 1))
-            || (y > 0 && free(i - w))
-            || (y + 1 < h && free(i + w));
-        if !free(i) && !exposed {
-            *dst = Occ::Unknown;
-        }
+        *dst = viewed(g, g.cell_of(i));
     }
     out
+}
+
+/// [`exploration_view`] of a grid kept up to date as the grid changes: a cell's view depends
+/// only on the cell and its 4-neighbours, so a step that changed some cells re-reads those and
+/// their neighbours — work in proportion to what changed, not to the grid's area.
+///
+/// **Invariant:** after [`ExplorationView::update`] with every cell that changed, the view
+/// equals [`exploration_view`] of the grid.
+#[derive(Clone, Debug)]
+pub struct ExplorationView {
+    view: Grid,
+}
+
+impl ExplorationView {
+    pub fn new(g: &Grid) -> ExplorationView {
+        ExplorationView {
+            view: exploration_view(g),
+        }
+    }
+
+    /// `g` after the cells `changed` changed (and no others).
+    pub fn update(&mut self, g: &Grid, changed: impl IntoIterator<Item = Cell>) {
+        for c in changed {
+            for n in std::iter::once(c).chain(c.neighbours4()) {
+                if g.contains(n) {
+                    self.view.set(n, viewed(g, n));
+                }
+            }
+        }
+    }
+
+    /// The view.
+    pub fn grid(&self) -> &Grid {
+        &self.view
+    }
+}
+
+/// One cell of [`exploration_view`]`(g)`.
+fn viewed(g: &Grid, c: Cell) -> Occ {
+    let v = g.get(c);
+    let exposed = c.neighbours4().iter().any(|&n| g.get(n) == Occ::Free);
+    if v != Occ::Free && !exposed {
+        Occ::Unknown
+    } else {
+        v
+    }
 }
 
 #[cfg(test)]
@@ -229,6 +265,21 @@ mod tests {
         fn exploration_equivalence_on_real_maps(g in arb_map_window(48, 48)) {
             let got = render(&exact(&g), g.width(), g.height());
             prop_assert_eq!(got.to_ascii(), exploration_view(&g).to_ascii());
+        }
+
+        #[test]
+        fn the_kept_view_equals_the_view_from_scratch(
+            g in arb_grid(14),
+            edits in proptest::collection::vec(((0i32..14, 0i32..14), 0u8..3), 0..40)
+        ) {
+            let mut g = g;
+            let mut kept = ExplorationView::new(&g);
+            for ((x, y), v) in edits {
+                let c = Cell::new(x, y);
+                g.set(c, [Occ::Free, Occ::Occupied, Occ::Unknown][usize::from(v)]);
+                kept.update(&g, [c]);
+                prop_assert_eq!(kept.grid().to_ascii(), exploration_view(&g).to_ascii());
+            }
         }
 
         #[test]
