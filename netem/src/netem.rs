@@ -694,22 +694,30 @@ impl Netem {
                 let bytes = *bytes;
                 l.open_credit(bytes, self.shared.step_seconds);
                 // Queues and connection counts as they are now (a link going down drops its
-                // queue now); the link's state and its byte totals as the step ended.
+                // queue now; one coming up has none yet); the link's state and its byte totals
+                // as the step ended.
                 let was = telemetry_row(ending, snap, [0, 0]);
+                let now = telemetry_row(ending, &l.snapshot(), bytes);
+                // A link that was down held nothing as the step ended; if it comes up now, its
+                // robots connect at once, and their first bytes belong to the new step.
+                let queued = |q: u64| if was.up { q } else { 0 };
                 LinkTelemetry {
+                    queued_bytes: queued(now.queued_bytes),
+                    queued_a_to_b: queued(now.queued_a_to_b),
+                    queued_b_to_a: queued(now.queued_b_to_a),
                     up: was.up,
                     bytes_a_to_b_total: was.bytes_a_to_b_total,
                     bytes_b_to_a_total: was.bytes_b_to_a_total,
                     chunks_a_to_b_total: was.chunks_a_to_b_total,
                     chunks_b_to_a_total: was.chunks_b_to_a_total,
                     // The connection as the step ended (a link going down resets it now);
-                    // none on a link that was down (an attempt being refused is not one).
+                    // none on a link that was down (a connection held there is not one).
                     connections: if was.up { was.connections } else { 0 },
                     down_reason: was.down_reason,
                     distance_m: was.distance_m,
                     signal_dbm: was.signal_dbm,
                     walls: was.walls,
-                    ..telemetry_row(ending, &l.snapshot(), bytes)
+                    ..now
                 }
             })
             .collect();
