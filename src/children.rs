@@ -111,34 +111,13 @@ pub fn die_with_parent_std(cmd: &mut std::process::Command) {
 }
 
 impl Children {
-    /// Spawns `exe args…` with stdout and stderr appended to `log`.
+    /// Spawns `exe args…` with stdout and stderr appended to `log`. A `leashed` process
+    /// (`swarm on-host` through ssh) gets a pipe as stdin that [`Self::signal`] and
+    /// [`Self::kill`] write to, and that closes when the launcher goes; any other gets none.
     ///
     /// Must be called from the thread that lives as long as the launcher (the runtime's
     /// `block_on` thread): the kernel's parent-death signal follows the spawning thread.
     pub fn spawn(
-        &mut self,
-        name: &str,
-        exe: &Path,
-        args: &[String],
-        log: &Path,
-    ) -> anyhow::Result<u32> {
-        self.spawn_with(name, exe, args, log, false)
-    }
-
-    /// [`Self::spawn`] for a process on a leash (`swarm on-host` through ssh): its stdin is a
-    /// pipe that [`Self::signal`] and [`Self::kill`] write to, and that closes when the
-    /// launcher goes.
-    pub fn spawn_leashed(
-        &mut self,
-        name: &str,
-        exe: &Path,
-        args: &[String],
-        log: &Path,
-    ) -> anyhow::Result<u32> {
-        self.spawn_with(name, exe, args, log, true)
-    }
-
-    fn spawn_with(
         &mut self,
         name: &str,
         exe: &Path,

@@ -153,15 +153,7 @@ pub fn ask(host: &Host, exe: &Path, n: usize, wait: Duration) -> anyhow::Result<
         "--ports".to_string(),
         n.to_string(),
     ];
-    let (program, args) = command(host, exe, &argv);
-    let child = std::process::Command::new(&program)
-        .args(&args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .with_context(|| format!("host {}: starting {program}", host.name))?;
-    let out = bounded(child, host, "`swarm host-info`", wait)?;
+    let out = run_swarm(host, exe, &argv, None, "`swarm host-info`", wait)?;
     let stdout = String::from_utf8_lossy(&out.stdout);
     let info: HostInfo = serde_json::from_str(stdout.trim()).with_context(|| {
         format!(
@@ -187,6 +179,35 @@ pub fn ask(host: &Host, exe: &Path, n: usize, wait: Duration) -> anyhow::Result<
         );
     }
     Ok(info)
+}
+
+/// Runs `swarm argv…` on `host` (`what`, for messages), writes `input` to its stdin, and
+/// returns its output; bounded by `wait` ([`bounded`]).
+fn run_swarm(
+    host: &Host,
+    exe: &Path,
+    argv: &[String],
+    input: Option<&[u8]>,
+    what: &str,
+    wait: Duration,
+) -> anyhow::Result<std::process::Output> {
+    let (program, args) = command(host, exe, argv);
+    let mut child = std::process::Command::new(&program)
+        .args(&args)
+        .stdin(if input.is_some() {
+            Stdio::piped()
+        } else {
+            Stdio::null()
+        })
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .with_context(|| format!("host {}: starting {program}", host.name))?;
+    if let (Some(input), Some(mut stdin)) = (input, child.stdin.take()) {
+        // A failed write shows as the remote side's failure in `bounded`.
+        let _ = stdin.write_all(input);
+    }
+    bounded(child, host, what, wait)
 }
 
 /// Waits up to `wait` for `child` (`what`, on `host`) and returns its output; an error if it
@@ -308,20 +329,8 @@ pub fn send_files(
         "--dir".to_string(),
         there.to_string_lossy().into_owned(),
     ];
-    let (program, args) = command(host, exe, &argv);
-    let mut child = std::process::Command::new(&program)
-        .args(&args)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .with_context(|| format!("host {}: starting {program}", host.name))?;
     let json = serde_json::to_vec(files)?;
-    if let Some(mut stdin) = child.stdin.take() {
-        // A failed write shows as the remote side's failure below.
-        let _ = stdin.write_all(&json);
-    }
-    bounded(child, host, "`swarm host-files`", wait)?;
+    run_swarm(host, exe, &argv, Some(&json), "`swarm host-files`", wait)?;
     Ok(())
 }
 
@@ -339,15 +348,7 @@ pub fn remove_files(
         "--dir".to_string(),
         there.to_string_lossy().into_owned(),
     ];
-    let (program, args) = command(host, exe, &argv);
-    let child = std::process::Command::new(&program)
-        .args(&args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .with_context(|| format!("host {}: starting {program}", host.name))?;
-    bounded(child, host, "`swarm host-files --remove`", wait)?;
+    run_swarm(host, exe, &argv, None, "`swarm host-files --remove`", wait)?;
     Ok(())
 }
 

@@ -146,13 +146,11 @@ fn spawn_on_host(
     let name = process.to_string();
     let log = plan.log(&name);
     match plan.host(process) {
-        None => children.spawn(&name, exe, argv, &log),
-        Some(host) => match remote::process_command(host, exe, argv, &plan.dir) {
-            (program, args, true) => {
-                children.spawn_leashed(&name, Path::new(&program), &args, &log)
-            }
-            (program, args, false) => children.spawn(&name, Path::new(&program), &args, &log),
-        },
+        None => children.spawn(&name, exe, argv, &log, false),
+        Some(host) => {
+            let (program, args, leashed) = remote::process_command(host, exe, argv, &plan.dir);
+            children.spawn(&name, Path::new(&program), &args, &log, leashed)
+        }
     }
 }
 
