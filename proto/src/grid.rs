@@ -57,13 +57,115 @@ impl Cell {
     }
 }
 
+/// A rectangle of cells, from `min` to `max` inclusive (`min.x <= max.x`, `min.y <= max.y`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Rect {
+    pub min: Cell,
+    pub max: Cell,
+}
+
+impl Rect {
+    /// The rectangle of one cell.
+    pub const fn cell(c: Cell) -> Rect {
+        Rect { min: c, max: c }
+    }
+
+    /// The smallest rectangle holding both.
+    pub fn union(self, o: Rect) -> Rect {
+        Rect {
+            min: Cell::new(self.min.x.min(o.min.x), self.min.y.min(o.min.y)),
+            max: Cell::new(self.max.x.max(o.max.x), self.max.y.max(o.max.y)),
+        }
+    }
+
+    /// The smallest rectangle holding `self` and `c`.
+    pub fn including(self, c: Cell) -> Rect {
+        self.union(Rect::cell(c))
+    }
+
+    /// [`Rect::union`] of optional rectangles (`None`: no cell).
+    pub fn union_of(a: Option<Rect>, b: Option<Rect>) -> Option<Rect> {
+        match (a, b) {
+            (Some(a), Some(b)) => Some(a.union(b)),
+            (a, None) => a,
+            (None, b) => b,
+        }
+    }
+
+    /// The smallest rectangle holding every cell of `cells` (`None`: none).
+    pub fn around(cells: impl IntoIterator<Item = Cell>) -> Option<Rect> {
+        cells
+            .into_iter()
+            .fold(None, |r, c| Rect::union_of(r, Some(Rect::cell(c))))
+    }
+
+    /// `by` cells more on every side.
+    pub fn grown(self, by: i32) -> Rect {
+        Rect {
+            min: Cell::new(self.min.x - by, self.min.y - by),
+            max: Cell::new(self.max.x + by, self.max.y + by),
+        }
+    }
+
+    /// The part inside a `width × height` grid (`None`: nothing of it).
+    pub fn within(self, width: u32, height: u32) -> Option<Rect> {
+        let (w, h) = (i32::try_from(width).ok()?, i32::try_from(height).ok()?);
+        let r = Rect {
+            min: Cell::new(self.min.x.max(0), self.min.y.max(0)),
+            max: Cell::new(self.max.x.min(w - 1), self.max.y.min(h - 1)),
+        };
+        (r.min.x <= r.max.x && r.min.y <= r.max.y).then_some(r)
+    }
+
+    pub fn width(&self) -> u32 {
+        (self.max.x - self.min.x + 1) as u32
+    }
+
+    pub fn height(&self) -> u32 {
+        (self.max.y - self.min.y + 1) as u32
+    }
+
+    /// Cells in it.
+    pub fn area(&self) -> usize {
+        self.width() as usize * self.height() as usize
+    }
+
+    pub fn contains(&self, c: Cell) -> bool {
+        (self.min.x..=self.max.x).contains(&c.x) && (self.min.y..=self.max.y).contains(&c.y)
+    }
+
+    /// Its cells in row-major order (bottom row first), as the grid stores them.
+    pub fn cells(self) -> impl Iterator<Item = Cell> {
+        (self.min.y..=self.max.y)
+            .flat_map(move |y| (self.min.x..=self.max.x).map(move |x| Cell::new(x, y)))
+    }
+}
+
 /// A rectangular ternary grid, row-major from the bottom row.
-#[derive(Clone, Debug, PartialEq, Eq)]
+///
+/// It knows a rectangle outside which every cell is unknown ([`Grid::known_bounds`]), so that
+/// the work on a grid that is mostly unexplored — counting, encoding, searching it — costs in
+/// proportion to the explored part, not to the map's area.
+///
+/// **Invariant:** every cell that is not [`Occ::Unknown`] lies inside `known` (`None`: every
+/// cell is unknown). `known` may be larger than needed: it grows with what is set and does not
+/// shrink when a cell becomes unknown again.
+#[derive(Clone, Debug)]
 pub struct Grid {
     width: u32,
     height: u32,
     cells: Vec<Occ>,
+    known: Option<Rect>,
 }
+
+/// Grids are equal when their cells are (their known bounds may differ).
+impl PartialEq for Grid {
+    fn eq(&self, o: &Grid) -> bool {
+        self.width == o.width && self.height == o.height && self.cells == o.cells
+    }
+}
+
+impl Eq for Grid {}
 
 /// Largest grid we accept from the network or a file (cells). 64 Mi cells = a 8192² map.
 pub const MAX_CELLS: u64 = 64 * 1024 * 1024;
@@ -90,11 +192,30 @@ impl Grid {
     pub fn new(width: u32, height: u32, fill: Occ) -> Grid {
         let n = u64::from(width) * u64::from(height);
         assert!(n <= MAX_CELLS, "grid {width}x{height} exceeds MAX_CELLS");
-        Grid {
+        let mut g = Grid {
             width,
             height,
             cells: vec![fill; n as usize],
+            known: None,
+        };
+        if fill != Occ::Unknown {
+            g.known = g.whole();
         }
+        g
+    }
+
+    /// The rectangle of the whole grid (`None`: an empty grid).
+    pub fn whole(&self) -> Option<Rect> {
+        Rect {
+            min: Cell::new(0, 0),
+            max: Cell::new(self.width as i32 - 1, self.height as i32 - 1),
+        }
+        .within(self.width, self.height)
+    }
+
+    /// A rectangle outside which every cell is unknown (`None`: every cell is).
+    pub fn known_bounds(&self) -> Option<Rect> {
+        self.known
     }
 
     pub fn width(&self) -> u32 {
@@ -139,7 +260,19 @@ impl Grid {
     /// Sets `c` (ignored outside the grid).
     pub fn set(&mut self, c: Cell, v: Occ) {
         if let Some(i) = self.index(c) {
-            self.cells[i] = v;
+            self.set_index(i, v);
+        }
+    }
+
+    /// Sets the cell of row-major index `i`.
+    ///
+    /// # Panics
+    /// If `i` is not below [`Grid::len`].
+    pub fn set_index(&mut self, i: usize, v: Occ) {
+        self.cells[i] = v;
+        if v != Occ::Unknown {
+            let c = self.cell_of(i);
+            self.known = Rect::union_of(self.known, Some(Rect::cell(c)));
         }
     }
 
@@ -147,12 +280,38 @@ impl Grid {
         &self.cells
     }
 
+    /// Every cell, to write at will: the grid counts all of them as possibly known afterwards
+    /// (prefer [`Grid::set`] where few cells change).
     pub fn cells_mut(&mut self) -> &mut [Occ] {
+        self.known = self.whole();
         &mut self.cells
     }
 
+    /// The cells of row `y` from column `x0` to `x1` inclusive.
+    fn row(&self, y: i32, x0: i32, x1: i32) -> &[Occ] {
+        let w = self.width as usize;
+        let start = y as usize * w;
+        &self.cells[start + x0 as usize..=start + x1 as usize]
+    }
+
+    /// How many cells are `v` (in proportion to [`Grid::known_bounds`]' area).
     pub fn count(&self, v: Occ) -> usize {
-        self.cells.iter().filter(|&&c| c == v).count()
+        let Some(r) = self.known else {
+            return if v == Occ::Unknown { self.len() } else { 0 };
+        };
+        let inside: usize = (r.min.y..=r.max.y)
+            .map(|y| {
+                self.row(y, r.min.x, r.max.x)
+                    .iter()
+                    .filter(|&&c| c == v)
+                    .count()
+            })
+            .sum();
+        if v == Occ::Unknown {
+            inside + (self.len() - r.area())
+        } else {
+            inside
+        }
     }
 
     /// Parses an ASCII picture (`#` occupied, `.` free, `?` unknown), top line = top row.
@@ -198,22 +357,36 @@ impl Grid {
         s
     }
 
-    /// Run-length encoding: varint width, varint height, then runs of (varint length<<2 | value).
+    /// Run-length encoding: varint width, varint height, then maximal runs of
+    /// (varint length<<2 | value). Reads only the cells inside [`Grid::known_bounds`]: the rest
+    /// are unknown.
     pub fn to_rle(&self) -> Vec<u8> {
-        let mut out = Vec::new();
-        put_varint(&mut out, u64::from(self.width));
-        put_varint(&mut out, u64::from(self.height));
-        let mut i = 0;
-        while i < self.cells.len() {
-            let v = self.cells[i];
-            let mut j = i + 1;
-            while j < self.cells.len() && self.cells[j] == v {
-                j += 1;
+        let mut runs = Runs {
+            out: Vec::new(),
+            value: Occ::Unknown,
+            len: 0,
+        };
+        put_varint(&mut runs.out, u64::from(self.width));
+        put_varint(&mut runs.out, u64::from(self.height));
+        let w = u64::from(self.width);
+        match self.known {
+            None => runs.push(Occ::Unknown, self.cells.len() as u64),
+            Some(r) => {
+                runs.push(Occ::Unknown, r.min.y as u64 * w);
+                for y in r.min.y..=r.max.y {
+                    runs.push(Occ::Unknown, r.min.x as u64);
+                    for &v in self.row(y, r.min.x, r.max.x) {
+                        runs.push(v, 1);
+                    }
+                    runs.push(Occ::Unknown, w - 1 - r.max.x as u64);
+                }
+                runs.push(
+                    Occ::Unknown,
+                    (u64::from(self.height) - 1 - r.max.y as u64) * w,
+                );
             }
-            put_varint(&mut out, ((j - i) as u64) << 2 | v as u64);
-            i = j;
         }
-        out
+        runs.finish()
     }
 
     /// Decodes [`Grid::to_rle`]; total on arbitrary bytes.
@@ -232,6 +405,7 @@ impl Grid {
             return Err(RleError::TooLarge { width, height });
         }
         let mut cells = Vec::with_capacity(want as usize);
+        let mut known = None;
         while pos < bytes.len() {
             let run = get_varint(bytes, &mut pos)?;
             let v = Occ::from_u8((run & 3) as u8).ok_or(RleError::BadValue((run & 3) as u8))?;
@@ -239,6 +413,22 @@ impl Grid {
             let got = cells.len() as u64 + len;
             if got > want {
                 return Err(RleError::WrongLength { got, want });
+            }
+            if v != Occ::Unknown && len > 0 {
+                // The rows the run spans; all their columns if it spans more than one.
+                let w = u64::from(width);
+                let (first, last) = (cells.len() as u64, got - 1);
+                let (y0, y1) = ((first / w) as i32, (last / w) as i32);
+                let (x0, x1) = if y0 == y1 {
+                    ((first % w) as i32, (last % w) as i32)
+                } else {
+                    (0, width as i32 - 1)
+                };
+                let r = Rect {
+                    min: Cell::new(x0, y0),
+                    max: Cell::new(x1, y1),
+                };
+                known = Rect::union_of(known, Some(r));
             }
             cells.resize(got as usize, v);
         }
@@ -252,7 +442,36 @@ impl Grid {
             width,
             height,
             cells,
+            known,
         })
+    }
+}
+
+/// Maximal runs of equal cells as [`Grid::to_rle`] writes them.
+struct Runs {
+    out: Vec<u8>,
+    value: Occ,
+    len: u64,
+}
+
+impl Runs {
+    fn push(&mut self, v: Occ, n: u64) {
+        if n == 0 {
+            return;
+        }
+        if v != self.value && self.len > 0 {
+            put_varint(&mut self.out, self.len << 2 | self.value as u64);
+            self.len = 0;
+        }
+        self.value = v;
+        self.len += n;
+    }
+
+    fn finish(mut self) -> Vec<u8> {
+        if self.len > 0 {
+            put_varint(&mut self.out, self.len << 2 | self.value as u64);
+        }
+        self.out
     }
 }
 
@@ -321,10 +540,70 @@ mod tests {
         })
     }
 
+    /// What [`Grid::to_rle`] wrote before it knew its bounds: every cell read.
+    fn rle_of_every_cell(g: &Grid) -> Vec<u8> {
+        let mut out = Vec::new();
+        put_varint(&mut out, u64::from(g.width()));
+        put_varint(&mut out, u64::from(g.height()));
+        let cells = g.cells();
+        let mut i = 0;
+        while i < cells.len() {
+            let mut j = i + 1;
+            while j < cells.len() && cells[j] == cells[i] {
+                j += 1;
+            }
+            put_varint(&mut out, ((j - i) as u64) << 2 | cells[i] as u64);
+            i = j;
+        }
+        out
+    }
+
+    /// A grid of unknown cells with some set, one by one, as robots' grids are built.
+    fn arb_sparse_grid() -> impl Strategy<Value = Grid> {
+        (1u32..24, 1u32..24).prop_flat_map(|(w, h)| {
+            proptest::collection::vec((0..w as i32, 0..h as i32, 0u8..3), 0..40).prop_map(
+                move |sets| {
+                    let mut g = Grid::new(w, h, Occ::Unknown);
+                    for (x, y, v) in sets {
+                        g.set(Cell::new(x, y), Occ::from_u8(v).unwrap_or_default());
+                    }
+                    g
+                },
+            )
+        })
+    }
+
+    fn holds_every_known_cell(g: &Grid) -> bool {
+        (0..g.len()).all(|i| {
+            g.cells()[i] == Occ::Unknown
+                || g.known_bounds().is_some_and(|r| r.contains(g.cell_of(i)))
+        })
+    }
+
     proptest! {
         #[test]
         fn rle_round_trips(g in arb_grid()) {
             prop_assert_eq!(Grid::from_rle(&g.to_rle()), Ok(g));
+        }
+
+        /// The invariant of `known`, and what reads only inside it gives what reading every
+        /// cell gives: the same encoding, the same counts, and bounds kept through decoding.
+        #[test]
+        fn known_bounds_hold_every_known_cell(g in arb_sparse_grid()) {
+            prop_assert!(holds_every_known_cell(&g));
+            prop_assert_eq!(g.to_rle(), rle_of_every_cell(&g));
+            for v in [Occ::Unknown, Occ::Free, Occ::Occupied] {
+                prop_assert_eq!(g.count(v), g.cells().iter().filter(|&&c| c == v).count());
+            }
+            let back = Grid::from_rle(&g.to_rle()).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            prop_assert!(holds_every_known_cell(&back));
+            prop_assert_eq!(back.to_rle(), rle_of_every_cell(&g));
+        }
+
+        #[test]
+        fn every_cell_read_agrees_on_any_grid(g in arb_grid()) {
+            prop_assert!(holds_every_known_cell(&g));
+            prop_assert_eq!(g.to_rle(), rle_of_every_cell(&g));
         }
 
         #[test]

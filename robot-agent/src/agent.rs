@@ -139,9 +139,11 @@ impl Agent {
         self.sharing.planning_grid(&self.own)
     }
 
-    /// Builds this step's planning grid and counts its known cells (once per step).
+    /// Builds this step's planning grid over the last one and counts its known cells (once per
+    /// step).
     fn build_planning(&mut self) {
-        self.planning = self.planning_grid();
+        self.sharing
+            .planning_grid_into(&self.own, &mut self.planning);
         let g = &self.planning;
         self.known = g.len() - g.count(Occ::Unknown);
     }

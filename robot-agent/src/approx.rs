@@ -13,7 +13,7 @@
 
 use std::collections::BTreeMap;
 
-use proto::grid::Occ;
+use proto::grid::{Occ, Rect};
 
 use crate::contour::{Contour, Contours, Kind};
 use crate::qpoint::QPoint;
@@ -97,6 +97,13 @@ impl Approximation {
         self.objects.values().map(|o| o.vertices.len()).sum()
     }
 
+    /// A rectangle of cells outside which rendering it paints nothing (`None`: no object).
+    pub fn cell_bounds(&self) -> Option<Rect> {
+        self.objects
+            .values()
+            .fold(None, |r, o| Rect::union_of(r, o.cell_bounds()))
+    }
+
     /// The polygons of one kind.
     pub fn of_kind(&self, kind: Kind) -> impl Iterator<Item = &Polygon> {
         self.objects.values().filter(move |o| o.kind == kind)
@@ -104,6 +111,12 @@ impl Approximation {
 }
 
 impl Polygon {
+    /// A rectangle of cells holding every cell its edges cross and every cell whose centre it
+    /// holds: its vertices' cells and one more on every side (`None`: no vertex).
+    pub fn cell_bounds(&self) -> Option<Rect> {
+        Rect::around(self.vertices.iter().map(|v| v.p.cell())).map(|r| r.grown(1))
+    }
+
     pub fn points(&self) -> Vec<QPoint> {
         self.vertices.iter().map(|v| v.p).collect()
     }

@@ -8,10 +8,10 @@
 //! for the unsimplified approximation and counts exactly what simplification loses or invents.
 //! Both grids must share one frame.
 
-use proto::grid::Grid;
+use proto::grid::{Grid, Rect};
 
-use crate::approx::Approximation;
-use crate::render::{exploration_view, render};
+use crate::approx::{Approximation, Polygon};
+use crate::render::{exploration_view, render_window};
 
 /// d_t: cells where `own` (G_s, in its exploration view) and the rendering of `a` differ.
 pub fn approx_error(own: &Grid, a: &Approximation) -> usize {
@@ -19,12 +19,19 @@ pub fn approx_error(own: &Grid, a: &Approximation) -> usize {
 }
 
 /// [`approx_error`] given G_s's exploration view (kept: [`crate::render::ExplorationView`]).
+/// Compares only where either says something: the known part of the view and the cells the
+/// approximation paints.
 pub fn approx_error_in_view(view: &Grid, a: &Approximation) -> usize {
-    let rendered = render(a, view.width(), view.height());
-    view.cells()
-        .iter()
-        .zip(rendered.cells())
-        .filter(|(v, r)| v != r)
+    let Some(r) = Rect::union_of(view.known_bounds(), a.cell_bounds())
+        .and_then(|r| r.within(view.width(), view.height()))
+    else {
+        return 0;
+    };
+    let polys: Vec<&Polygon> = a.objects.values().collect();
+    let rendered = render_window(&polys, r.min, r.width(), r.height());
+    r.cells()
+        .zip(rendered)
+        .filter(|&(c, p)| view.get(c) != p)
         .count()
 }
 
@@ -57,6 +64,20 @@ mod tests {
         let g = Grid::from_ascii("......\n.####.\n.#....\n......");
         let p = Contours::extract(&g);
         assert!(approx_error(&g, &approximate(&p, &g, 0)) > 0);
+    }
+
+    proptest::proptest! {
+        /// Counted only where the view or the approximation says something, d_t is the count
+        /// over every cell.
+        #[test]
+        fn bounded_error_counts_every_cell(g in crate::testutil::arb_placed_grid(), splits in 0usize..8) {
+            let a = approximate(&Contours::extract(&g), &g, splits);
+            let view = exploration_view(&g);
+            let polys: Vec<&Polygon> = a.objects.values().collect();
+            let full = render_window(&polys, proto::grid::Cell::new(0, 0), g.width(), g.height());
+            let every = view.cells().iter().zip(&full).filter(|(v, r)| v != r).count();
+            proptest::prop_assert_eq!(approx_error_in_view(&view, &a), every);
+        }
     }
 
     #[test]

@@ -206,7 +206,7 @@ impl Evidence {
         for i in touched {
             let v = self.state(i);
             if g.cells()[i] != v {
-                g.cells_mut()[i] = v;
+                g.set_index(i, v);
                 changed.push(Cell::new((i % w) as i32, (i / w) as i32));
             }
         }

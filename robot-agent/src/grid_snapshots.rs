@@ -66,9 +66,8 @@ pub fn apply_patch(grid: &mut Grid, p: &GridPatch) -> Result<(), PatchError> {
         writes.push((i as usize, state));
         next = i + 1;
     }
-    let cells = grid.cells_mut();
     for (i, s) in writes {
-        cells[i] = s;
+        grid.set_index(i, s);
     }
     Ok(())
 }

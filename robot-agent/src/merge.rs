@@ -24,7 +24,7 @@
 //! approximation, so they live in [`crate::render`]; this module is Algorithm 9 itself: paint the
 //! other robots' approximations, then let G_s win.
 
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Grid, Occ, Rect};
 
 use crate::approx::{Approximation, Polygon};
 use crate::render::paint;
@@ -32,21 +32,41 @@ use crate::render::paint;
 /// Algorithm 9: the planning grid from `own` (G_s) and other robots' approximations, all in
 /// the frame of `own`.
 pub fn merge(own: &Grid, others: &[&Approximation]) -> Grid {
+    let mut out = Grid::new(own.width(), own.height(), Occ::Unknown);
+    merge_into(&mut out, own, others);
+    out
+}
+
+/// [`merge`] written over `out` (the last step's planning grid, of the same size), in
+/// proportion to the explored part of the map: only the cells that G_s knows, that some
+/// approximation paints, or that `out` knew are written — every other cell is and stays
+/// unknown.
+pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
+    let painted = others
+        .iter()
+        .fold(None, |r, a| Rect::union_of(r, a.cell_bounds()));
+    let region = [own.known_bounds(), out.known_bounds()]
+        .into_iter()
+        .fold(painted, Rect::union_of)
+        .and_then(|r| r.within(own.width(), own.height()));
+    let Some(r) = region else {
+        return;
+    };
     let polys: Vec<Vec<&Polygon>> = others
         .iter()
         .map(|a| a.objects.values().collect())
         .collect();
-    let plan = paint(&polys, Cell::new(0, 0), own.width(), own.height());
-    let mut out = Grid::new(own.width(), own.height(), Occ::Unknown);
-    for ((dst, &p), &s) in out.cells_mut().iter_mut().zip(&plan).zip(own.cells()) {
+    let plan = paint(&polys, r.min, r.width(), r.height());
+    for (c, p) in r.cells().zip(plan) {
+        let s = own.get(c);
         // (7) every known cell of G_s overwrites; (6) undefined reads unknown.
-        *dst = match (s, p) {
+        let v = match (s, p) {
             (Occ::Free | Occ::Occupied, _) => s,
             (_, Some(v)) => v,
             (_, None) => Occ::Unknown,
         };
+        out.set(c, v);
     }
-    out
 }
 
 #[cfg(test)]
@@ -56,6 +76,7 @@ mod tests {
     use crate::render::exploration_view;
     use crate::testutil::arb_grid;
     use proptest::prelude::*;
+    use proto::grid::Cell;
 
     fn exact(g: &Grid) -> Approximation {
         Approximation::exact(&Contours::extract(g))
@@ -145,8 +166,47 @@ mod tests {
         }
     }
 
+    /// [`merge`] as it was written before it knew the explored part: every cell painted.
+    fn merge_every_cell(own: &Grid, others: &[&Approximation]) -> Grid {
+        let polys: Vec<Vec<&Polygon>> = others
+            .iter()
+            .map(|a| a.objects.values().collect())
+            .collect();
+        let plan = paint(&polys, Cell::new(0, 0), own.width(), own.height());
+        let mut out = Grid::new(own.width(), own.height(), Occ::Unknown);
+        for (i, p) in plan.into_iter().enumerate() {
+            let s = own.cells()[i];
+            out.set_index(
+                i,
+                match (s, p) {
+                    (Occ::Free | Occ::Occupied, _) => s,
+                    (_, Some(v)) => v,
+                    (_, None) => Occ::Unknown,
+                },
+            );
+        }
+        out
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(128))]
+
+        /// Written over the last step's planning grid, only where something is known, the
+        /// merge is the merge of every cell.
+        #[test]
+        fn the_kept_planning_grid_equals_the_merge_of_every_cell(
+            (before, after) in (12u32..40, 12u32..40).prop_flat_map(|(w, h)| {
+                let g = move || (crate::testutil::arb_grid(12), 0i32..40, 0i32..40)
+                    .prop_map(move |(g, x, y)| crate::testutil::placed(&g, w, h, Cell::new(x % w as i32, y % h as i32)));
+                ((g(), g()), (g(), g(), g()))
+            })
+        ) {
+            let ((own0, peer0), (own1, peer1, peer2)) = (before, after);
+            let mut kept = merge(&own0, &[&exact(&peer0)]);
+            let (a, b) = (exact(&peer1), exact(&peer2));
+            merge_into(&mut kept, &own1, &[&a, &b]);
+            prop_assert_eq!(kept.to_ascii(), merge_every_cell(&own1, &[&a, &b]).to_ascii());
+        }
 
         #[test]
         fn merging_arbitrary_polygons_never_panics(

@@ -16,7 +16,7 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Cell, Grid, Occ, Rect};
 
 use crate::grid::supercover;
 
@@ -42,10 +42,14 @@ const MOVES: [(i32, i32); 8] = [
 /// The cost (in cells) of reaching every cell from one start cell, with the shortest-path tree.
 #[derive(Clone, Debug)]
 pub struct CostMap {
+    /// The window of the grid the search could reach (the explored part and the sources);
+    /// every cell beyond it is unreachable.
+    x0: i32,
+    y0: i32,
     width: u32,
     height: u32,
     start: Cell,
-    /// Cost per row-major cell index; `f64::INFINITY` when unreachable.
+    /// Cost per row-major cell index of the window; `f64::INFINITY` when unreachable.
     dist: Vec<f64>,
     /// Predecessor on a shortest path per cell index; [`NO_PRED`] for the start and unreachable
     /// cells.
@@ -67,14 +71,14 @@ impl CostMap {
     }
 
     fn index(&self, c: Cell) -> Option<usize> {
-        let inside =
-            c.x >= 0 && c.y >= 0 && (c.x as u32) < self.width && (c.y as u32) < self.height;
-        inside.then(|| c.y as usize * self.width as usize + c.x as usize)
+        let (x, y) = (c.x - self.x0, c.y - self.y0);
+        let inside = x >= 0 && y >= 0 && (x as u32) < self.width && (y as u32) < self.height;
+        inside.then(|| y as usize * self.width as usize + x as usize)
     }
 
     fn cell_of(&self, i: usize) -> Cell {
         let w = self.width as usize;
-        Cell::new((i % w) as i32, (i / w) as i32)
+        Cell::new(self.x0 + (i % w) as i32, self.y0 + (i / w) as i32)
     }
 }
 
@@ -186,13 +190,28 @@ pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
     dijkstra(g, start, sources, None)
 }
 
+/// The search runs over a window of the grid — its known part and the sources — and costs in
+/// proportion to that, not to the map: every free cell is inside the known part, and a path
+/// steps only onto free cells. Window indices are row-major like the grid's, so the order in
+/// which equal costs are settled is the grid's.
 fn dijkstra(g: &Grid, start: Cell, sources: &[Cell], penalty: Option<&[f32]>) -> CostMap {
+    let window = sources
+        .iter()
+        .filter(|&&c| g.contains(c))
+        .fold(g.known_bounds(), |r, &c| {
+            Rect::union_of(r, Some(Rect::cell(c)))
+        });
+    let (x0, y0, width, height) =
+        window.map_or((0, 0, 0, 0), |r| (r.min.x, r.min.y, r.width(), r.height()));
+    let cells = width as usize * height as usize;
     let mut map = CostMap {
-        width: g.width(),
-        height: g.height(),
+        x0,
+        y0,
+        width,
+        height,
         start,
-        dist: vec![f64::INFINITY; g.len()],
-        pred: vec![NO_PRED; g.len()],
+        dist: vec![f64::INFINITY; cells],
+        pred: vec![NO_PRED; cells],
     };
     let mut heap = BinaryHeap::new();
     for &c in sources {
@@ -212,7 +231,7 @@ fn dijkstra(g: &Grid, start: Cell, sources: &[Cell], penalty: Option<&[f32]>) ->
             // `moves` yields only free cells, which lie inside the grid.
             let Some(ni) = map.index(n) else { continue };
             let extra = penalty
-                .and_then(|p| p.get(ni))
+                .and_then(|p| p.get(g.index(n)?))
                 .map_or(0.0, |&p| f64::from(p));
             let next = cost + step * (1.0 + extra);
             if next < map.dist[ni] {
@@ -232,8 +251,10 @@ fn dijkstra(g: &Grid, start: Cell, sources: &[Cell], penalty: Option<&[f32]>) ->
 /// in row-major order (bottom row first). Cells beyond the grid's edge do not count as unknown:
 /// the map's extent is known, and nothing lies out there to explore.
 pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
-    (0..g.len())
-        .map(|i| g.cell_of(i))
+    // Free cells lie in the known part of the grid.
+    g.known_bounds()
+        .into_iter()
+        .flat_map(Rect::cells)
         .filter(|&c| g.get(c) == Occ::Free && costs.cost(c).is_some())
         .filter(|&c| {
             c.neighbours4()
@@ -741,6 +762,26 @@ mod tests {
     }
 
     proptest! {
+        /// Searched over the explored part of a bigger map only, costs, paths and frontiers
+        /// are those of the search over every cell — the robot may stand anywhere, even on an
+        /// unknown cell beside the explored part.
+        #[test]
+        fn the_search_over_the_explored_part_is_the_search_over_every_cell(
+            g in crate::testutil::arb_placed_grid(), sx in 0i32..40, sy in 0i32..40
+        ) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            let mut every = g.clone();
+            every.cells_mut();
+            prop_assert_eq!(every.known_bounds(), every.whole());
+            let (part, all) = (costs(&g, start), costs(&every, start));
+            for i in 0..g.len() {
+                let c = g.cell_of(i);
+                prop_assert_eq!(part.cost(c), all.cost(c));
+                prop_assert_eq!(path_to(&part, c), path_to(&all, c));
+            }
+            prop_assert_eq!(frontiers(&g, &part), frontiers(&every, &all));
+        }
+
         #[test]
         fn dijkstra_agrees_with_relaxation(g in arb_grid(), sx in 0i32..14, sy in 0i32..14) {
             let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);

@@ -483,8 +483,8 @@ mod tests {
         ) -> Result<bool, String> {
             self.inner.on_share(s, map, laser)
         }
-        fn planning_grid(&self, own: &Grid) -> Grid {
-            self.inner.planning_grid(own)
+        fn planning_grid_into(&self, own: &Grid, out: &mut Grid) {
+            self.inner.planning_grid_into(own, out)
         }
         fn backlog_bytes(&self, _peer: RobotId) -> Option<u64> {
             Some(1_000_000)

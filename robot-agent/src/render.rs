@@ -11,7 +11,7 @@
 //! [`crate::approx`] → `render` → [`crate::refine`] → [`crate::approximator`] →
 //! [`crate::merge`], [`crate::approx_error`].
 
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Cell, Grid, Occ, Rect};
 
 use crate::approx::{Approximation, Polygon};
 use crate::contour::Kind;
@@ -152,22 +152,34 @@ pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) 
 }
 
 /// The grid an approximation stands for on its own (`width × height`, the owner's frame):
-/// Algorithm 9 with an empty G_s.
+/// Algorithm 9 with an empty G_s. Paints only where its polygons lie.
 pub fn render(a: &Approximation, width: u32, height: u32) -> Grid {
-    let polys: Vec<&Polygon> = a.objects.values().collect();
     let mut g = Grid::new(width, height, Occ::Unknown);
-    g.cells_mut()
-        .copy_from_slice(&render_window(&polys, Cell::new(0, 0), width, height));
+    if let Some(r) = a.cell_bounds().and_then(|r| r.within(width, height)) {
+        render_into(&mut g, a, r);
+    }
     g
+}
+
+/// Writes [`render`]`(a, ..)` of the cells of `r` into `g`.
+fn render_into(g: &mut Grid, a: &Approximation, r: Rect) {
+    let polys: Vec<&Polygon> = a.objects.values().collect();
+    let cells = render_window(&polys, r.min, r.width(), r.height());
+    for (c, v) in r.cells().zip(cells) {
+        g.set(c, v);
+    }
 }
 
 /// G_s as any polygonal model can represent it: non-free cells with no free 4-neighbour
 /// (buried behind other non-free cells) read unknown. [`render`] of the unsimplified
-/// approximation equals exactly this (exploration equivalence, docs/design.md §4.1).
+/// approximation equals exactly this (exploration equivalence, docs/design.md §4.1). Reads only
+/// the known part of `g` (the rest reads unknown in the view too).
 pub fn exploration_view(g: &Grid) -> Grid {
-    let mut out = g.clone();
-    for (i, dst) in out.cells_mut().iter_mut().enumerate() {
-        *dst = viewed(g, g.cell_of(i));
+    let mut out = Grid::new(g.width(), g.height(), Occ::Unknown);
+    if let Some(r) = g.known_bounds() {
+        for c in r.cells() {
+            out.set(c, viewed(g, c));
+        }
     }
     out
 }
@@ -280,6 +292,18 @@ mod tests {
                 kept.update(&g, [c]);
                 prop_assert_eq!(kept.grid().to_ascii(), exploration_view(&g).to_ascii());
             }
+        }
+
+        /// The view and the rendering read only the explored part of a grid; they agree with
+        /// reading every cell.
+        #[test]
+        fn bounded_views_and_renders_agree_with_every_cell(g in crate::testutil::arb_placed_grid(), splits in 0usize..12) {
+            let every: Vec<Occ> = (0..g.len()).map(|i| viewed(&g, g.cell_of(i))).collect();
+            prop_assert_eq!(exploration_view(&g).cells().to_vec(), every);
+            let a = crate::approximator::approximate(&Contours::extract(&g), &g, splits);
+            let polys: Vec<&Polygon> = a.objects.values().collect();
+            let full = render_window(&polys, Cell::new(0, 0), g.width(), g.height());
+            prop_assert_eq!(render(&a, g.width(), g.height()).cells().to_vec(), full);
         }
 
         #[test]

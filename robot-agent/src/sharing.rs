@@ -16,7 +16,7 @@
 //! by [`new`]; what crosses the radio is a [`Share`].
 
 use proto::geom::{LaserSpec, MapInfo};
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Cell, Grid, Occ, Rect};
 use proto::msg::{
     decode, encode, DecodeError, Hello, OpChunk, PatchDelta, RobotId, Scan, ScanDelta, Traffic,
     WorldInfo,
@@ -28,7 +28,7 @@ use crate::exchange::{DeltaOutcome, Handshake, LogExchange};
 use crate::grid::Evidence;
 use crate::grid_snapshots::{apply_patch, patch_of, GridPatchExchange};
 use crate::mapper::Mapper;
-use crate::merge::merge;
+use crate::merge::merge_into;
 use crate::raw_scans::{scan_ranges, scan_record, RawScanExchange};
 use crate::splitting::{p_comm, SplittingFrequency};
 
@@ -138,7 +138,15 @@ pub trait Sharing: Send {
 
     /// The planning grid: G_s with what peers shared filling its unknown cells — never
     /// overriding a cell this robot sensed itself.
-    fn planning_grid(&self, own: &Grid) -> Grid;
+    fn planning_grid(&self, own: &Grid) -> Grid {
+        let mut out = Grid::new(own.width(), own.height(), Occ::Unknown);
+        self.planning_grid_into(own, &mut out);
+        out
+    }
+
+    /// [`Sharing::planning_grid`] written over `out`, the last one, in proportion to the
+    /// explored part of the map (what G_s, the peers' shares and `out` know).
+    fn planning_grid_into(&self, own: &Grid, out: &mut Grid);
 
     /// What waits for `peer`: encoded bytes of the log entries we hold that it lacks (`None`
     /// before its handshake).
@@ -221,15 +229,20 @@ pub fn new(
     }
 }
 
-/// G_s with the cells it does not know taken from `others`, what peers told this robot.
-fn overlay(others: &Grid, own: &Grid) -> Grid {
-    let mut g = others.clone();
-    for (p, &o) in g.cells_mut().iter_mut().zip(own.cells()) {
-        if o != Occ::Unknown {
-            *p = o;
-        }
+/// G_s with the cells it does not know taken from `others`, what peers told this robot,
+/// written over `out` (the last one) where any of the three knows something.
+fn overlay_into(others: &Grid, own: &Grid, out: &mut Grid) {
+    let region = [
+        others.known_bounds(),
+        own.known_bounds(),
+        out.known_bounds(),
+    ]
+    .into_iter()
+    .fold(None, Rect::union_of);
+    for c in region.into_iter().flat_map(Rect::cells) {
+        let o = own.get(c);
+        out.set(c, if o != Occ::Unknown { o } else { others.get(c) });
     }
-    g
 }
 
 /// Encoded bytes of the records we hold that `peer` lacks (`None` before its handshake).
@@ -282,8 +295,8 @@ impl Sharing for RawScans {
         Ok(matches!(outcome, DeltaOutcome::Gap { .. }))
     }
 
-    fn planning_grid(&self, own: &Grid) -> Grid {
-        overlay(&self.others, own)
+    fn planning_grid_into(&self, own: &Grid, out: &mut Grid) {
+        overlay_into(&self.others, own, out);
     }
 
     fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {
@@ -330,9 +343,9 @@ impl Sharing for Polygon {
         Ok(matches!(outcome, DeltaOutcome::Gap { .. }))
     }
 
-    fn planning_grid(&self, own: &Grid) -> Grid {
+    fn planning_grid_into(&self, own: &Grid, out: &mut Grid) {
         let peers: Vec<_> = self.exchange.approximations().map(|(_, a)| a).collect();
-        merge(own, &peers)
+        merge_into(out, own, &peers);
     }
 
     fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {
@@ -407,8 +420,8 @@ impl Sharing for GridSnapshots {
         Ok(matches!(outcome, DeltaOutcome::Gap { .. }))
     }
 
-    fn planning_grid(&self, own: &Grid) -> Grid {
-        overlay(&self.others, own)
+    fn planning_grid_into(&self, own: &Grid, out: &mut Grid) {
+        overlay_into(&self.others, own, out);
     }
 
     fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {

@@ -75,6 +75,26 @@ pub fn window(map: &Grid, w: u32, h: u32, ox: u32, oy: u32) -> Grid {
     g
 }
 
+/// `g` placed with its bottom-left cell at `at` in a `width × height` grid of unknown cells,
+/// cell by cell, so that the bigger grid knows its explored part is only `g`'s (cells of `g`
+/// beyond the bigger grid are left out).
+pub fn placed(g: &Grid, width: u32, height: u32, at: Cell) -> Grid {
+    let mut out = Grid::new(width, height, Occ::Unknown);
+    if let Some(r) = g.whole() {
+        for c in r.cells() {
+            out.set(Cell::new(c.x + at.x, c.y + at.y), g.get(c));
+        }
+    }
+    out
+}
+
+/// A random grid (up to 12 × 12) placed somewhere in a grid of up to 40 × 40 cells
+/// ([`placed`]): a small explored part of a bigger map.
+pub fn arb_placed_grid() -> impl Strategy<Value = Grid> {
+    (arb_grid(12), 12u32..40, 12u32..40, 0i32..40, 0i32..40)
+        .prop_map(|(g, w, h, x, y)| placed(&g, w, h, Cell::new(x % w as i32, y % h as i32)))
+}
+
 fn orient(a: QPoint, b: QPoint, c: QPoint) -> i64 {
     let (abx, aby) = (i64::from(b.x - a.x), i64::from(b.y - a.y));
     let (acx, acy) = (i64::from(c.x - a.x), i64::from(c.y - a.y));
