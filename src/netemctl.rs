@@ -46,7 +46,7 @@ pub enum NetemCommand {
     Serve(netem::cli::Args),
     /// List every link (proxy) with its state and toxics.
     List(ApiArgs),
-    /// Cut the link between robots A and B (reconnects refused until restored).
+    /// Cut the link between robots A and B (reconnects held until restored).
     Cut {
         #[command(flatten)]
         api: ApiArgs,

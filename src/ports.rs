@@ -5,10 +5,13 @@
 //! hands ephemeral ports to every outgoing connection (every zenoh client, for one), so a port
 //! taken from that range with bind-to-0 and released can be grabbed by an unrelated connection
 //! before the child process binds it. Below the range only explicit binds compete; each port is
-//! checked by binding it, the listeners are held until all `n` are found (so they are distinct),
-//! and the search starts at a random offset so concurrent launchers rarely meet.
+//! checked by binding it (and let go at once: a run of 128 robots needs over 8 000 ports, more than a
+//! process may usually hold open), the search walks the range from a random offset, so the
+//! ports are distinct and concurrent launchers rarely meet. The check binds without
+//! `SO_REUSEADDR`, so a port that any socket still holds — a connection netem accepted on it
+//! after closing its listener, or one in TIME_WAIT — counts as taken.
 
-use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener};
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 
 /// Lowest port we use.
 const LOW: u16 = 10_000;
@@ -41,25 +44,40 @@ pub fn free_ports_on(ip: IpAddr, n: usize) -> std::io::Result<Vec<u16>> {
     let high = ephemeral_start().max(LOW + 1024);
     let span = u64::from(high - LOW);
     let start = jitter() % span;
-    let mut held = Vec::with_capacity(n);
+    let mut found = Vec::with_capacity(n);
+    // Each port of the range is tried once, so the ports found are distinct.
     for k in 0..span {
-        if held.len() == n {
+        if found.len() == n {
             break;
         }
         let port = LOW + ((start + k) % span) as u16;
-        if let Ok(l) = TcpListener::bind((ip, port)) {
-            held.push(l);
+        match bind_alone(SocketAddr::new(ip, port)) {
+            Ok(()) => found.push(port),
+            // Out of descriptors is not a taken port: say so instead of searching on.
+            Err(e) if e.raw_os_error() == Some(libc::EMFILE) => return Err(e),
+            Err(_) => {}
         }
     }
-    if held.len() < n {
+    if found.len() < n {
         return Err(std::io::Error::new(
             std::io::ErrorKind::AddrInUse,
-            format!("only {} free ports below {high} on {ip}", held.len()),
+            format!(
+                "only {} free ports between {LOW} and {high} on {ip}, {n} wanted",
+                found.len()
+            ),
         ));
     }
-    held.iter()
-        .map(|l| l.local_addr().map(|a| a.port()))
-        .collect()
+    Ok(found)
+}
+
+/// Binds `addr` without `SO_REUSEADDR` (a socket is created and dropped).
+fn bind_alone(addr: SocketAddr) -> std::io::Result<()> {
+    let socket = if addr.is_ipv4() {
+        tokio::net::TcpSocket::new_v4()?
+    } else {
+        tokio::net::TcpSocket::new_v6()?
+    };
+    socket.bind(addr)
 }
 
 /// The zenoh endpoint of a TCP address.
@@ -70,6 +88,7 @@ pub fn endpoint(addr: SocketAddr) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::net::{TcpListener, TcpStream};
 
     #[test]
     fn ports_are_distinct_free_and_below_the_ephemeral_range() {
@@ -87,5 +106,18 @@ mod tests {
                 "port {p} is free again"
             );
         }
+    }
+
+    #[test]
+    fn a_port_a_connection_holds_is_taken_after_its_listener_closed() {
+        // As netem does with a link in use: accept, then close the listener.
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap_or_else(|e| panic!("{e}"));
+        let addr = listener.local_addr().unwrap_or_else(|e| panic!("{e}"));
+        let _client = TcpStream::connect(addr).unwrap_or_else(|e| panic!("{e}"));
+        let (_held, _) = listener.accept().unwrap_or_else(|e| panic!("{e}"));
+        drop(listener);
+        assert!(bind_alone(addr).is_err(), "{addr} is still netem's");
+        // A plain rebind (SO_REUSEADDR, as netem's own) still succeeds.
+        assert!(TcpListener::bind(addr).is_ok());
     }
 }

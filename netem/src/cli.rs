@@ -210,6 +210,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
         anyhow::ensure!(!token.is_empty(), "{} holds no token", f.display());
         cfg.api_token = Some(token);
     }
+    descriptors(cfg.pairs.len());
     let netem = start(cfg).await.context("starting the link proxies")?;
     let orders = netem.process_orders(&scenario);
     let result = follow(&sim, &netem, orders).await;
@@ -219,6 +220,20 @@ async fn run(args: Args) -> anyhow::Result<()> {
         write_totals(path, &links)?;
     }
     Ok(result?)
+}
+
+/// Raises the limit on open files as far as it goes, and warns if netem may still run out
+/// (links whose connections fail to open, then: every accept that fails is logged).
+fn descriptors(pairs: usize) {
+    let needed = crate::fds::needed(pairs);
+    match crate::fds::raise_limit() {
+        Ok(limit) if limit < needed => tracing::warn!(
+            "{pairs} links may need up to {needed} open files at once (two per pair), but \
+             netem may open only {limit}: raise the hard limit (ulimit -Hn)"
+        ),
+        Ok(limit) => tracing::info!(limit, needed, "open files"),
+        Err(e) => tracing::warn!("cannot raise the limit on open files: {e}"),
+    }
 }
 
 /// The whole process: one tokio runtime, logging, exit code.

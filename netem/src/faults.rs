@@ -310,7 +310,7 @@ impl Toxic {
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum Fault {
     /// Take a pair down administratively (toxiproxy: `enabled = false`): connections are reset
-    /// and reconnects refused until [`Fault::Restore`].
+    /// and reconnects held until [`Fault::Restore`].
     Cut {
         pair: Pair,
     },

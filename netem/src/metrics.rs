@@ -162,7 +162,7 @@ fn per_link() -> [PerLink; 8] {
         (
             (
                 "netem_link_refused",
-                "Connections refused (link down or full).",
+                "Connections refused (too many at once; a link that is down holds them).",
                 Counter,
             ),
             |l| Some(Value::Count(l.refused_total)),

@@ -988,7 +988,7 @@ mod tests {
     }
 
     #[tokio::test]
-    async fn disk_range_cuts_refuses_and_restores_a_link() {
+    async fn disk_range_cuts_holds_and_restores_a_link() {
         let mut r = robots(2).await;
         let cfg = NetemConfig::new(
             all_pairs(&r),
@@ -1021,20 +1021,34 @@ mod tests {
         assert_eq!(t[0].down_reason, Some("out_of_range"));
         assert!(ends_within(&mut a, Duration::from_secs(2)).await);
         assert!(ends_within(&mut b, Duration::from_secs(2)).await);
-        let mut refused = TcpStream::connect(n.listen_addr(0, 1).unwrap())
+        // A connection while the link is down is held: nothing reaches robot 1, nothing counts.
+        let gone = TcpStream::connect(n.listen_addr(0, 1).unwrap())
             .await
             .unwrap();
-        assert!(ends_within(&mut refused, Duration::from_secs(2)).await);
+        let mut a = TcpStream::connect(n.listen_addr(0, 1).unwrap())
+            .await
+            .unwrap();
+        a.write_all(b"hello ").await.unwrap();
+        drop(gone); // a robot that gives up waiting: dropped, never forwarded
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        assert!(r.accepted[1].try_recv().is_err(), "nothing forwarded");
+        assert_eq!(n.telemetry()[0].bytes_a_to_b, 0);
 
+        // In range again: what robot 0 sent meanwhile goes first, then the rest.
         n.on_step(2, &[(1, at(8.0, 0.0), true)]);
-        let (mut a, mut b) = connect(&n, &mut r, 0, 1).await;
+        let mut b = tokio::time::timeout(Duration::from_secs(2), r.accepted[1].recv())
+            .await
+            .expect("forwarded once up")
+            .unwrap();
         a.write_all(b"again").await.unwrap();
-        let mut buf = [0u8; 5];
+        let mut buf = [0u8; 11];
         tokio::time::timeout(Duration::from_secs(2), b.read_exact(&mut buf))
             .await
             .unwrap()
             .unwrap();
-        assert_eq!(&buf, b"again");
+        assert_eq!(&buf, b"hello again");
+        assert_eq!(n.telemetry()[0].bytes_a_to_b, 11);
+        assert!(r.accepted[1].try_recv().is_err(), "the dropped one never went");
         n.on_step(3, &[(1, at(8.0, 0.0), false)]);
         assert_eq!(n.telemetry()[0].down_reason, Some("dead"));
         n.shutdown().await;

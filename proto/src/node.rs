@@ -319,7 +319,11 @@ pub fn sim_client(
 /// nothing else (no multicast, no gossip: peers learn no endpoint they were not given).
 /// Reconnects quickly (10 ms, backing off to 20 ms) so a link that comes back into range is used
 /// again within two steps in lockstep (measured: `reconnect` in summary.json; 50/200 ms took up
-/// to 10 steps). A refused attempt costs a loopback connect that netem resets at once. Tuned for slow links (docs/design.md §1, "zenoh facts"): a batch is only counted when it has
+/// to 10 steps). An attempt on a link that is down is held by netem until the link comes up
+/// (then the session opens at once), so a robot does not retry a pair out of range; in lockstep
+/// its opening handshake may wait as long as the lease ([`LOCKSTEP_RADIO_LEASE_MS`]): one that
+/// gave up would be dropped by netem and tried again at a moment the wall clock decides. Tuned
+/// for slow links (docs/design.md §1, "zenoh facts"): a batch is only counted when it has
 /// fully arrived, so batches are kept small ([`RADIO_BATCH_BYTES`]) for keep-alives to get
 /// through a 1 kB/s link well within the lease; in realtime runs messages are published with
 /// `CongestionControl::Drop` by the robot. `lockstep`: no batching and an hour's lease
@@ -370,6 +374,11 @@ pub fn radio_peer(
     if lockstep {
         // A message's bytes on the wire must not depend on what else happened to be queued.
         set(&mut c, "transport/link/tx/queue/batching/enabled", "false")?;
+        set(
+            &mut c,
+            "transport/unicast/open_timeout",
+            &LOCKSTEP_RADIO_LEASE_MS.to_string(),
+        )?;
     }
     apply_cfg(&mut c, cfg)?;
     Ok(c)

@@ -134,6 +134,13 @@ impl<'de> Deserialize<'de> for Process {
     }
 }
 
+/// The largest team (`robots.count`). What bounds it is netem's one proxy port per pair of
+/// radio nodes: 200 robots and a base station are 20 100 pairs, and with every process's own
+/// port they fit between port 10 000 and Linux's default ephemeral range (32 768), where the
+/// launcher picks ports. What grows with the square of the team, and what bounds it, is in
+/// ARCHITECTURE.md ("Team size").
+pub const MAX_ROBOTS: u16 = 200;
+
 /// The `[[faults]]` kinds that act on processes (the launcher's); every other kind is a link
 /// fault (netem's).
 pub const PROCESS_FAULT_KINDS: [&str; 4] = ["kill", "restart", "freeze", "thaw"];
@@ -759,8 +766,12 @@ impl Scenario {
                 return Err(invalid(key, v, "must be in [5, 500] metres"));
             }
         }
-        if !(1..=64).contains(&s.robots.count) {
-            return Err(invalid("robots.count", s.robots.count, "must be in 1..=64"));
+        if !(1..=MAX_ROBOTS).contains(&s.robots.count) {
+            return Err(invalid(
+                "robots.count",
+                s.robots.count,
+                &format!("must be in 1..={MAX_ROBOTS}"),
+            ));
         }
         positive("robots.speed_m_per_s", s.robots.speed_m_per_s)?;
         positive("robots.radius_m", s.robots.radius_m)?;
@@ -1333,6 +1344,7 @@ mod tests {
             (err("", &["robots.count=abc"]), "robots.count"),
             (err("", &["robots.count=0"]), "robots.count"),
             (err("", &["robots.count=-2"]), "robots.count"),
+            (err("", &["robots.count=201"]), "1..=200"),
             (err("", &["done_pct=150"]), "done_pct"),
             (err("", &["nope.x=1"]), "nope"),
             (err("", &["clock.mode=\"sometimes\""]), "sometimes"),

@@ -272,8 +272,13 @@ struct Planes<'a> {
     peers: BTreeMap<ZenohId, RobotId>,
 }
 
-/// How often a robot waiting for a link's session looks at zenoh's list of sessions.
+/// How soon a robot waiting for a link's session looks at zenoh's list of sessions again: at
+/// first after 2 ms, then twice as long each time up to [`SESSION_POLL_MAX`]. Listing the
+/// sessions costs a robot its number of sessions; every 2 ms, 128 robots with 127 sessions each
+/// spent more than the two cores of the test machine on it and their sessions never formed.
 const SESSION_POLL: Duration = Duration::from_millis(2);
+/// The longest a waiting robot goes without looking (a session that forms is used within it).
+const SESSION_POLL_MAX: Duration = Duration::from_millis(64);
 
 impl Planes<'_> {
     /// The robots this one has a radio session with (not through another robot).
@@ -323,7 +328,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             if let Some(t) = ls.ready() {
                 break t;
             }
-            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
+            if let Some(end) = note(p.id, &mut ls, &mut agent, p.subs.next(p.idle).await) {
                 return Ok(end);
             }
         };
@@ -344,6 +349,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             .collect();
         ls.cut(&cut);
         // zenoh's list of sessions is asked for only while a link is not seen up.
+        let mut poll = SESSION_POLL;
         while !ls.linked(&linked) {
             ls.on_sessions(p.sessions().await);
             if ls.linked(&linked) {
@@ -363,11 +369,12 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                 continue 'steps;
             }
             // zenoh tells no event when a session forms: look again soon.
-            if let Ok(e) = tokio::time::timeout(SESSION_POLL, p.subs.next(p.idle)).await {
-                if let Some(end) = note(&mut ls, &mut agent, e) {
+            if let Ok(e) = tokio::time::timeout(poll, p.subs.next(p.idle)).await {
+                if let Some(end) = note(p.id, &mut ls, &mut agent, e) {
                     return Ok(end);
                 }
             }
+            poll = (poll * 2).min(SESSION_POLL_MAX);
         }
         let cmd = agent.on_scan(&scan);
         let mut out = std::mem::take(&mut answers);
@@ -389,7 +396,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                 put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
                 continue 'steps;
             }
-            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
+            if let Some(end) = note(p.id, &mut ls, &mut agent, p.subs.next(p.idle).await) {
                 return Ok(end);
             }
         }
@@ -408,10 +415,16 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
 
 /// Notes an event in the lockstep bookkeeping (a radio payload counted and decoded once, by
 /// the agent's radio); `Some` when it ends the robot.
-fn note(ls: &mut Lockstep, agent: &mut Agent, e: Event) -> Option<End> {
+fn note(me: RobotId, ls: &mut Lockstep, agent: &mut Agent, e: Event) -> Option<End> {
     match e {
         Event::Scan(s) => ls.on_scan(s),
-        Event::Plan(plan) => ls.on_plan(plan),
+        Event::Plan(mut plan) => {
+            // The plan lists every link of the team, n(n−1)/2 when all are in range; a robot
+            // only ever asks about its own, so it keeps those (its step's lookups then cost
+            // its neighbours, not the team squared).
+            plan.links.retain(|l| l.a == me || l.b == me);
+            ls.on_plan(plan);
+        }
         Event::Radio(kind, bytes) => {
             if let Some(m) = agent.receive(&kind, &bytes) {
                 ls.on_radio(m);

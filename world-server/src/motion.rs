@@ -8,11 +8,132 @@
 //! touches must be free, including both side cells where it passes exactly through a corner, so a
 //! robot never slips through a diagonal gap between two blocked cells (the same rule the laser
 //! uses, [`crate::laser`], and the reason free space is 4-connected in [`crate::reachable`]).
-//! Robots are points for the map and discs of `robot_radius_m` for each other.
+//! Robots are points for the map and discs of `robot_radius_m` for each other; the world-server
+//! looks for the robots a move ends near in a [`Crowd`] (buckets of the collision distance), so a
+//! step of n moves costs O(n), not O(n²) — what a move costs grows with its length and the
+//! robots around its end, never with the map or the team.
+
+use std::collections::HashMap;
 
 use proto::geom::{MapInfo, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{MoveOutcome, RobotId};
+
+/// The robots a move is checked against.
+pub trait Others {
+    /// The robot nearest to `p` among those closer than `distance_m`, and where it is; of
+    /// equally near ones, the first in id order.
+    fn nearest(&self, p: (f64, f64), distance_m: f64) -> Option<(RobotId, (f64, f64))>;
+}
+
+/// Every robot in the slice, in its order.
+impl Others for [(RobotId, (f64, f64))] {
+    fn nearest(&self, p: (f64, f64), distance_m: f64) -> Option<(RobotId, (f64, f64))> {
+        self.iter()
+            .map(|&(id, at)| (id, at, (at.0 - p.0).hypot(at.1 - p.1)))
+            .filter(|&(_, _, d)| d < distance_m)
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .map(|(id, at, _)| (id, at))
+    }
+}
+
+/// The live robots of a team by position: a robot's index is its id, and it sits in the bucket
+/// of side [`Crowd::bucket_m`] its position falls in, so the robots closer than that to a point
+/// are in the 3 × 3 buckets around it.
+#[derive(Clone, Debug)]
+pub struct Crowd {
+    bucket_m: f64,
+    at: Vec<Option<(f64, f64)>>,
+    buckets: HashMap<(i64, i64), Vec<RobotId>>,
+}
+
+impl Crowd {
+    /// The robots at `at` (by id; `None`: not an obstacle, e.g. dead), for collision checks of
+    /// up to `distance_m`.
+    pub fn new(distance_m: f64, at: Vec<Option<(f64, f64)>>) -> Crowd {
+        // A hair wider than the distance, so that rounding never puts two robots closer than it
+        // two buckets apart.
+        let bucket_m = if distance_m > 0.0 && distance_m.is_finite() {
+            distance_m * (1.0 + 1e-6)
+        } else {
+            1.0
+        };
+        let mut crowd = Crowd {
+            bucket_m,
+            at: vec![None; at.len()],
+            buckets: HashMap::new(),
+        };
+        for (id, p) in at.into_iter().enumerate() {
+            crowd.place(id, p);
+        }
+        crowd
+    }
+
+    fn bucket(&self, p: (f64, f64)) -> (i64, i64) {
+        // `as` saturates (and maps NaN to 0): any point has a bucket.
+        (
+            (p.0 / self.bucket_m).floor() as i64,
+            (p.1 / self.bucket_m).floor() as i64,
+        )
+    }
+
+    /// Robot `id` is now at `p` (`None`: no longer an obstacle).
+    pub fn place(&mut self, id: usize, p: Option<(f64, f64)>) {
+        let Some(slot) = self.at.get(id).copied() else {
+            return;
+        };
+        if let Some(old) = slot {
+            let key = self.bucket(old);
+            if let Some(ids) = self.buckets.get_mut(&key) {
+                ids.retain(|&r| usize::from(r) != id);
+                if ids.is_empty() {
+                    self.buckets.remove(&key);
+                }
+            }
+        }
+        self.at[id] = p;
+        if let (Some(p), Ok(rid)) = (p, RobotId::try_from(id)) {
+            let key = self.bucket(p);
+            self.buckets.entry(key).or_default().push(rid);
+        }
+    }
+
+    /// The crowd as robot `id` sees it: everyone but itself.
+    pub fn without(&self, id: RobotId) -> Without<'_> {
+        Without { crowd: self, id }
+    }
+}
+
+/// A [`Crowd`] less one robot (the one that moves).
+pub struct Without<'a> {
+    crowd: &'a Crowd,
+    id: RobotId,
+}
+
+impl Others for Without<'_> {
+    fn nearest(&self, p: (f64, f64), distance_m: f64) -> Option<(RobotId, (f64, f64))> {
+        let c = self.crowd;
+        if distance_m > c.bucket_m {
+            // Farther than the buckets reach: every robot, as a slice would be searched.
+            let all: Vec<_> = (c.at.iter().enumerate())
+                .filter_map(|(id, at)| Some((RobotId::try_from(id).ok()?, (*at)?)))
+                .filter(|&(id, _)| id != self.id)
+                .collect();
+            return all.nearest(p, distance_m);
+        }
+        let (bx, by) = c.bucket(p);
+        let mut near: Vec<(RobotId, (f64, f64))> = (-1..=1)
+            .flat_map(|dx| (-1..=1).map(move |dy| (bx.saturating_add(dx), by.saturating_add(dy))))
+            .filter_map(|key| c.buckets.get(&key))
+            .flatten()
+            .filter(|&&id| id != self.id)
+            .filter_map(|&id| Some((id, c.at.get(usize::from(id)).copied().flatten()?)))
+            .collect();
+        // In id order, as the whole team would be searched.
+        near.sort_unstable_by_key(|&(id, _)| id);
+        near.nearest(p, distance_m)
+    }
+}
 
 /// Checks a move of a robot at `from` toward `to` (metres), clipped to `max_step_m`.
 ///
@@ -30,6 +151,19 @@ pub fn validate_move(
     to: (f64, f64),
     max_step_m: f64,
     others: &[(RobotId, (f64, f64))],
+    robot_radius_m: f64,
+) -> Result<Pose, MoveOutcome> {
+    validate_move_among(grid, info, from, to, max_step_m, others, robot_radius_m)
+}
+
+/// [`validate_move`] against any [`Others`] (the world-server's [`Crowd`]).
+pub fn validate_move_among(
+    grid: &Grid,
+    info: &MapInfo,
+    from: Pose,
+    to: (f64, f64),
+    max_step_m: f64,
+    others: &(impl Others + ?Sized),
     robot_radius_m: f64,
 ) -> Result<Pose, MoveOutcome> {
     let finite = [from.x, from.y, to.0, to.1].iter().all(|v| v.is_finite());
@@ -57,12 +191,7 @@ pub fn validate_move(
     {
         return Err(MoveOutcome::Blocked);
     }
-    let nearest = others
-        .iter()
-        .map(|&(id, at)| (id, at, (at.0 - end.0).hypot(at.1 - end.1)))
-        .filter(|&(_, _, d)| d < 2.0 * robot_radius_m)
-        .min_by(|a, b| a.2.total_cmp(&b.2));
-    if let Some((with, (x, y), _)) = nearest {
+    if let Some((with, (x, y))) = others.nearest(end, 2.0 * robot_radius_m) {
         let mm = |v: f64| (v * 1000.0).round() as i32;
         return Err(MoveOutcome::Collision {
             with,
@@ -311,6 +440,37 @@ mod tests {
             // Every cell returned is within the segment's bounding box grown by one cell.
             let (lo_x, hi_x) = (ax.min(bx).floor() as i32 - 1, ax.max(bx).floor() as i32 + 1);
             prop_assert!(cells.iter().all(|c| (lo_x..=hi_x).contains(&c.x)));
+        }
+
+        /// The crowd finds the robot the whole team's slice finds, whoever moves, dies or
+        /// stands on a bucket's edge (positions on a 0.05 m lattice meet edges often).
+        #[test]
+        fn the_crowd_finds_what_the_whole_team_finds(
+            start in prop::collection::vec(prop::option::weighted(0.9, (0u8..80, 0u8..80)), 1..40),
+            moves in prop::collection::vec((0usize..40, prop::option::weighted(0.9, (0u8..80, 0u8..80))), 0..30),
+            probes in prop::collection::vec((0u8..80, 0u8..80, 0usize..40), 1..20),
+            radius in prop::sample::select(vec![0.1, 0.15, 0.2, 0.25]),
+        ) {
+            let m = |(x, y): (u8, u8)| (f64::from(x) * 0.05, f64::from(y) * 0.05);
+            let mut at: Vec<Option<(f64, f64)>> = start.iter().map(|p| p.map(m)).collect();
+            let mut crowd = Crowd::new(2.0 * radius, at.clone());
+            for (i, p) in moves {
+                let i = i % at.len();
+                at[i] = p.map(m);
+                crowd.place(i, at[i]);
+            }
+            for (x, y, me) in probes {
+                let me = (me % at.len()) as RobotId;
+                let team: Vec<(RobotId, (f64, f64))> = (at.iter().enumerate())
+                    .filter_map(|(id, p)| Some((id as RobotId, (*p)?)))
+                    .filter(|&(id, _)| id != me)
+                    .collect();
+                let p = m((x, y));
+                prop_assert_eq!(
+                    crowd.without(me).nearest(p, 2.0 * radius),
+                    team.nearest(p, 2.0 * radius)
+                );
+            }
         }
     }
 }

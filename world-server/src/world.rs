@@ -16,6 +16,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::generate::{generate, GenError, GenKind};
 use crate::map::{load_ros_map, resample, MapError};
+use crate::motion::Crowd;
 use crate::reachable::{reachable_free, spawn_cluster, SpawnError};
 
 /// Why a world could not be built.
@@ -221,6 +222,14 @@ impl World {
     /// happens, every other robot stays and learns why in its next scan. Live robots without a
     /// command count a miss; after `dead_after` misses in a row they are declared dead.
     pub fn apply(&mut self, step: Step, cmds: &HashMap<RobotId, Cmd>) {
+        // Where the live robots are, kept up to date move by move (a robot moved earlier in the
+        // step is an obstacle where it now stands).
+        let mut crowd = Crowd::new(
+            2.0 * self.radius_m,
+            (self.bodies.iter())
+                .map(|b| b.alive.then_some((b.pose.x, b.pose.y)))
+                .collect(),
+        );
         for i in 0..self.bodies.len() {
             if !self.bodies[i].alive {
                 continue;
@@ -231,14 +240,17 @@ impl World {
                     self.bodies[i].missed += 1;
                     if self.bodies[i].missed >= self.dead_after {
                         self.bodies[i].alive = false;
+                        crowd.place(i, None);
                     }
                     MoveOutcome::Missed
                 }
                 Some(cmd) if cmd.step != step => MoveOutcome::WrongStep,
-                Some(Cmd { waypoint: None, .. }) => MoveOutcome::Stayed,
+                Some(Cmd {
+                    waypoint: None, ..
+                }) => MoveOutcome::Stayed,
                 Some(Cmd {
                     waypoint: Some(to), ..
-                }) => self.try_move(i, *to),
+                }) => self.try_move(i, *to, &mut crowd),
             };
             if cmds.contains_key(&id) {
                 self.bodies[i].missed = 0;
@@ -251,29 +263,24 @@ impl World {
         self.revive();
     }
 
-    fn try_move(&mut self, i: usize, to: (f64, f64)) -> MoveOutcome {
+    fn try_move(&mut self, i: usize, to: (f64, f64), crowd: &mut Crowd) -> MoveOutcome {
         if !(to.0.is_finite() && to.1.is_finite()) {
             return MoveOutcome::OutOfMap;
         }
-        let others: Vec<(RobotId, (f64, f64))> = self
-            .bodies
-            .iter()
-            .filter(|b| b.alive && b.id != self.bodies[i].id)
-            .map(|b| (b.id, (b.pose.x, b.pose.y)))
-            .collect();
         let from = self.bodies[i].pose;
-        match crate::motion::validate_move(
+        match crate::motion::validate_move_among(
             &self.truth.grid,
             &self.truth.info,
             from,
             to,
             self.max_step_m,
-            &others,
+            &crowd.without(self.bodies[i].id),
             self.radius_m,
         ) {
             Ok(pose) => {
                 self.bodies[i].distance_m += (pose.x - from.x).hypot(pose.y - from.y);
                 self.bodies[i].pose = pose;
+                crowd.place(i, Some((pose.x, pose.y)));
                 MoveOutcome::Moved
             }
             Err(outcome) => outcome,
