@@ -54,7 +54,11 @@ mod tests {
     fn the_limit_rises_to_the_hard_limit_and_stays_there() {
         let first = raise_limit().unwrap_or_else(|e| panic!("{e}"));
         assert!(first >= 64, "a usable limit: {first}");
-        assert_eq!(raise_limit().ok(), Some(first), "raising again changes nothing");
+        assert_eq!(
+            raise_limit().ok(),
+            Some(first),
+            "raising again changes nothing"
+        );
     }
 
     #[test]

@@ -25,10 +25,10 @@ pub mod accounting;
 pub mod cli;
 /// The simulated clock (lockstep or realtime × speed-up) that all shaping runs on.
 pub mod clock;
-/// The file descriptors netem holds (two per pair) and raising the limit on them.
-pub mod fds;
 /// The fault vocabulary: cut, partition, reset, and toxiproxy's toxics; folding them into shapes.
 pub mod faults;
+/// The file descriptors netem holds (two per pair) and raising the limit on them.
+pub mod fds;
 /// The toxiproxy-compatible HTTP API and its small, total HTTP/1.1 request parser.
 pub mod http;
 /// One robot pair's proxy: accept loop, connections (held while the link is down), up/down

@@ -1048,7 +1048,10 @@ mod tests {
             .unwrap();
         assert_eq!(&buf, b"hello again");
         assert_eq!(n.telemetry()[0].bytes_a_to_b, 11);
-        assert!(r.accepted[1].try_recv().is_err(), "the dropped one never went");
+        assert!(
+            r.accepted[1].try_recv().is_err(),
+            "the dropped one never went"
+        );
         n.on_step(3, &[(1, at(8.0, 0.0), false)]);
         assert_eq!(n.telemetry()[0].down_reason, Some("dead"));
         n.shutdown().await;

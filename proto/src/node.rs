@@ -371,14 +371,26 @@ pub fn radio_peer(
     };
     set(&mut c, "transport/link/tx/lease", &lease.to_string())?;
     set(&mut c, "transport/link/tx/keep_alive", "4")?;
+    // Every peer may open its session at once (the whole team in range at the first step): a
+    // robot takes them all into its handshake queue rather than turning some away to retry.
+    set(
+        &mut c,
+        "transport/unicast/accept_pending",
+        &usize::from(team).max(100).to_string(),
+    )?;
     if lockstep {
         // A message's bytes on the wire must not depend on what else happened to be queued.
         set(&mut c, "transport/link/tx/queue/batching/enabled", "false")?;
-        set(
-            &mut c,
-            "transport/unicast/open_timeout",
-            &LOCKSTEP_RADIO_LEASE_MS.to_string(),
-        )?;
+        // Handshakes may be slow when a big team's sessions all form at once (8 000 at 128
+        // robots on two cores); one that failed would be tried again at a moment the wall
+        // clock decides.
+        for key in ["open_timeout", "accept_timeout"] {
+            set(
+                &mut c,
+                &format!("transport/unicast/{key}"),
+                &LOCKSTEP_RADIO_LEASE_MS.to_string(),
+            )?;
+        }
     }
     apply_cfg(&mut c, cfg)?;
     Ok(c)

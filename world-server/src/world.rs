@@ -245,9 +245,7 @@ impl World {
                     MoveOutcome::Missed
                 }
                 Some(cmd) if cmd.step != step => MoveOutcome::WrongStep,
-                Some(Cmd {
-                    waypoint: None, ..
-                }) => MoveOutcome::Stayed,
+                Some(Cmd { waypoint: None, .. }) => MoveOutcome::Stayed,
                 Some(Cmd {
                     waypoint: Some(to), ..
                 }) => self.try_move(i, *to, &mut crowd),
