@@ -21,27 +21,83 @@
 
 use std::collections::BTreeMap;
 
-use proto::grid::{Grid, Occ};
+use proto::grid::{Cell, KnownPart, Occ, Rect};
 use proto::msg::{RobotId, Step};
 
-/// The cells robot `grid` knows: reachable (`reachable[i]`) and free or occupied in its grid —
-/// the evaluator's notion of coverage. A grid of another size knows nothing beyond the overlap.
-pub fn known_cells(grid: &Grid, reachable: &[bool]) -> Vec<bool> {
-    let mut known: Vec<bool> = reachable
-        .iter()
-        .zip(grid.cells())
-        .map(|(&r, &seen)| r && seen != Occ::Unknown)
+/// The cells a robot knows (the evaluator's notion of coverage: reachable, and free or occupied
+/// in its planning grid), kept over the rectangle of its grid's known part — it knows none
+/// beyond — so that taking a robot's grid costs that part, not the map.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Known {
+    /// The grid's width (cells are numbered row-major over the whole grid).
+    width: u32,
+    rect: Option<Rect>,
+    /// Per cell of `rect`, row-major from its bottom row.
+    flags: Vec<bool>,
+    count: usize,
+}
+
+impl Known {
+    /// Whether cell `c` is known.
+    pub fn contains(&self, c: Cell) -> bool {
+        match self.rect {
+            Some(r) if r.contains(c) => {
+                self.flags[(c.y - r.min.y) as usize * r.width() as usize + (c.x - r.min.x) as usize]
+            }
+            _ => false,
+        }
+    }
+
+    /// How many cells are known.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    /// One flag per cell of a grid `width` cells wide, every cell (for tests and small teams).
+    pub fn from_flags(width: u32, flags: &[bool]) -> Known {
+        let height = flags.len().div_ceil(width.max(1) as usize) as i32;
+        let rect = (width > 0 && height > 0).then(|| Rect {
+            min: Cell::new(0, 0),
+            max: Cell::new(width as i32 - 1, height - 1),
+        });
+        let mut all = flags.to_vec();
+        all.resize(rect.map_or(0, |r| r.area()), false);
+        Known {
+            width,
+            rect,
+            count: all.iter().filter(|&&k| k).count(),
+            flags: all,
+        }
+    }
+}
+
+/// The cells robot `grid` knows: reachable (`reachable[i]`, row-major over the truth) and free or
+/// occupied in its grid. A grid of another size knows nothing beyond the overlap.
+pub fn known_cells(grid: &KnownPart, width: u32, reachable: &[bool]) -> Known {
+    let reachable_at = |c: Cell| {
+        c.x < width as i32
+            && reachable
+                .get(c.y as usize * width as usize + c.x as usize)
+                .copied()
+                .unwrap_or(false)
+    };
+    let flags: Vec<bool> = grid
+        .cells()
+        .map(|(c, seen)| seen != Occ::Unknown && reachable_at(c))
         .collect();
-    known.resize(reachable.len(), false);
-    known
+    Known {
+        width,
+        rect: grid.rect(),
+        count: flags.iter().filter(|&&k| k).count(),
+        flags,
+    }
 }
 
 /// What every robot of a team knows, kept up to date one robot's grid at a time.
 #[derive(Clone, Debug, Default)]
 pub struct SharedKnowledge {
-    /// Per robot of the team (ids `0..team`): the cells it knows (empty until its first grid)
-    /// and how many.
-    known: Vec<(Vec<bool>, usize)>,
+    /// Per robot of the team (ids `0..team`): the cells it knows (none until its first grid).
+    known: Vec<Known>,
     /// Per cell, how many robots know it.
     holders: Vec<u16>,
     /// Cells every robot knows: |K_1 ∩ … ∩ K_N|.
@@ -54,7 +110,7 @@ impl SharedKnowledge {
     /// A team of `team` robots (ids `0..team`) over `cells` cells, none known yet.
     pub fn new(team: u16, cells: usize) -> SharedKnowledge {
         SharedKnowledge {
-            known: vec![(Vec::new(), 0); usize::from(team)],
+            known: vec![Known::default(); usize::from(team)],
             holders: vec![0; cells],
             common: 0,
             anyone: 0,
@@ -65,20 +121,25 @@ impl SharedKnowledge {
         self.known.len()
     }
 
-    /// Robot `robot` now knows `known` (one flag per cell, as [`known_cells`] gives), instead of
-    /// what it knew. A robot outside the team (the base station) is ignored.
-    pub fn update(&mut self, robot: RobotId, mut known: Vec<bool>) {
+    /// Robot `robot` now knows `known` (as [`known_cells`] gives), instead of what it knew: one
+    /// pass over the cells either knows about. A robot outside the team (the base station) is
+    /// ignored; cells beyond `cells` (a grid of another size) are left out.
+    pub fn update(&mut self, robot: RobotId, known: Known) {
         let team = self.team();
-        let Some((before, _)) = self.known.get_mut(usize::from(robot)) else {
+        let Some(before) = self.known.get_mut(usize::from(robot)) else {
             return;
         };
-        known.resize(self.holders.len(), false);
         let before = std::mem::take(before);
-        for (i, (h, &now)) in self.holders.iter_mut().zip(&known).enumerate() {
-            let was = before.get(i).copied().unwrap_or(false);
+        let width = known.width.max(before.width) as usize;
+        let region = Rect::union_of(before.rect, known.rect);
+        for c in region.into_iter().flat_map(Rect::cells) {
+            let (was, now) = (before.contains(c), known.contains(c));
             if was == now {
                 continue;
             }
+            let Some(h) = self.holders.get_mut(c.y as usize * width + c.x as usize) else {
+                continue;
+            };
             let everyone_before = usize::from(*h) == team;
             if now {
                 *h += 1;
@@ -98,8 +159,7 @@ impl SharedKnowledge {
                 _ => {}
             }
         }
-        let count = known.iter().filter(|&&k| k).count();
-        self.known[usize::from(robot)] = (known, count);
+        self.known[usize::from(robot)] = known;
     }
 
     /// |K_1 ∪ … ∪ K_N|: the cells at least one robot of the team knows.
@@ -115,7 +175,7 @@ impl SharedKnowledge {
     /// |K_1 ∩ … ∩ K_N| / |K_robot| × 100: the share of what `robot` knows that every robot
     /// knows; 100 when it knows nothing (nothing of it is unshared). `None` outside the team.
     pub fn share_pct(&self, robot: RobotId) -> Option<f64> {
-        let &(_, count) = self.known.get(usize::from(robot))?;
+        let count = self.known.get(usize::from(robot))?.count;
         Some(if count == 0 {
             100.0
         } else {
@@ -125,9 +185,8 @@ impl SharedKnowledge {
 }
 
 impl SharedKnowledge {
-    /// The team of one step's known sets: robot i knows `known[i]`.
-    pub fn of(known: &[Vec<bool>]) -> SharedKnowledge {
-        let cells = known.iter().map(Vec::len).max().unwrap_or(0);
+    /// The team of one step's known sets over `cells` cells: robot i knows `known[i]`.
+    pub fn of(known: &[Known], cells: usize) -> SharedKnowledge {
         let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
         let mut s = SharedKnowledge::new(team, cells);
         for (r, k) in (0..team).zip(known) {
@@ -139,8 +198,8 @@ impl SharedKnowledge {
 
 /// Each robot's share of its known space that every robot knows (Fig. 5c), for one step's known
 /// sets (robot i knows `known[i]`).
-pub fn shared_pcts(known: &[Vec<bool>]) -> Vec<f64> {
-    let s = SharedKnowledge::of(known);
+pub fn shared_pcts(known: &[Known], cells: usize) -> Vec<f64> {
+    let s = SharedKnowledge::of(known, cells);
     let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
     (0..team).filter_map(|r| s.share_pct(r)).collect()
 }
@@ -206,74 +265,86 @@ pub fn mean_of_step_means(values: impl IntoIterator<Item = (Step, f64)>) -> Opti
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use proto::grid::Grid;
 
     /// Known sets of hand-drawn grids over an all-reachable 4×1 world.
-    fn known(pics: &[&str]) -> Vec<Vec<bool>> {
+    fn known(pics: &[&str]) -> Vec<Known> {
         pics.iter()
-            .map(|p| known_cells(&Grid::from_ascii(p), &[true; 4]))
+            .map(|p| known_cells(&KnownPart::of(&Grid::from_ascii(p)), 4, &[true; 4]))
             .collect()
+    }
+
+    fn flags(f: &[bool]) -> Known {
+        Known::from_flags(4, f)
     }
 
     #[test]
     fn disjoint_knowledge_is_not_shared() {
-        assert_eq!(shared_pcts(&known(&["..??", "??.#"])), [0.0, 0.0]);
+        assert_eq!(shared_pcts(&known(&["..??", "??.#"]), 4), [0.0, 0.0]);
     }
 
     #[test]
     fn overlapping_knowledge_is_shared_in_part() {
         // Robot 0 knows 3 cells, robot 1 knows 2, both know 1 (occupied counts as known).
-        assert_eq!(shared_pcts(&known(&["..#?", "??#."])), [100.0 / 3.0, 50.0]);
+        assert_eq!(
+            shared_pcts(&known(&["..#?", "??#."]), 4),
+            [100.0 / 3.0, 50.0]
+        );
     }
 
     #[test]
     fn identical_knowledge_is_all_shared() {
-        assert_eq!(shared_pcts(&known(&[".#.?", ".#.?"])), [100.0, 100.0]);
+        assert_eq!(shared_pcts(&known(&[".#.?", ".#.?"]), 4), [100.0, 100.0]);
     }
 
     #[test]
     fn a_robot_that_knows_nothing_has_nothing_unshared() {
-        assert_eq!(shared_pcts(&known(&["????", "...."])), [100.0, 0.0]);
+        assert_eq!(shared_pcts(&known(&["????", "...."]), 4), [100.0, 0.0]);
     }
 
     #[test]
     fn a_cell_is_in_the_union_once_and_leaves_it_with_its_last_holder() {
         let mut s = SharedKnowledge::new(3, 4);
-        s.update(0, vec![true, true, false, false]);
-        s.update(1, vec![true, false, true, false]);
+        s.update(0, flags(&[true, true, false, false]));
+        s.update(1, flags(&[true, false, true, false]));
         assert_eq!(s.known_by_anyone(), 3, "cell 0 counts once");
-        s.update(0, vec![false, false, false, false]);
+        s.update(0, flags(&[false, false, false, false]));
         assert_eq!(
             s.known_by_anyone(),
             2,
             "cell 0 still has robot 1, cell 1 had only robot 0"
         );
-        s.update(1, vec![false; 4]);
+        s.update(1, flags(&[false; 4]));
         assert_eq!(s.known_by_anyone(), 0);
-        s.update(3, vec![true; 4]);
+        s.update(3, flags(&[true; 4]));
         assert_eq!(s.known_by_anyone(), 0, "the base station is no member");
         assert!(s.is_member(2) && !s.is_member(3));
     }
 
     #[test]
     fn unreachable_cells_are_not_known() {
-        let k = known_cells(&Grid::from_ascii("..#."), &[true, false, true, false]);
-        assert_eq!(k, [true, false, true, false]);
+        let k = known_cells(
+            &KnownPart::of(&Grid::from_ascii("..#.")),
+            4,
+            &[true, false, true, false],
+        );
+        assert_eq!(k, flags(&[true, false, true, false]));
     }
 
     #[test]
     fn a_new_grid_replaces_what_a_robot_knew_and_the_base_station_is_no_member() {
         let mut s = SharedKnowledge::new(2, 4);
-        s.update(0, vec![true, true, false, false]);
-        s.update(1, vec![true, false, false, false]);
+        s.update(0, flags(&[true, true, false, false]));
+        s.update(1, flags(&[true, false, false, false]));
         assert_eq!(s.share_pct(0), Some(50.0));
-        s.update(1, vec![true, true, true, false]);
+        s.update(1, flags(&[true, true, true, false]));
         assert_eq!(
             (s.share_pct(0), s.share_pct(1)),
             (Some(100.0), Some(200.0 / 3.0))
         );
-        s.update(0, vec![false, false, false, true]);
+        s.update(0, flags(&[false, false, false, true]));
         assert_eq!(s.share_pct(0), Some(0.0));
-        s.update(2, vec![true; 4]);
+        s.update(2, flags(&[true; 4]));
         assert_eq!(s.share_pct(2), None);
     }
 
@@ -389,21 +460,53 @@ mod tests {
         fn shares_are_percentages_the_union_holds_every_set_and_all_agree_when_all_know_the_same(
             known in proptest::collection::vec(proptest::collection::vec(any::<bool>(), 12), 1..5),
         ) {
-            let pcts = shared_pcts(&known);
+            let ks: Vec<Known> = known.iter().map(|k| Known::from_flags(4, k)).collect();
+            let pcts = shared_pcts(&ks, 12);
             for &p in &pcts {
                 prop_assert!((0.0..=100.0).contains(&p), "{}", p);
             }
             prop_assert_eq!(pcts, naive(&known));
-            let union = SharedKnowledge::of(&known).known_by_anyone();
+            let union = SharedKnowledge::of(&ks, 12).known_by_anyone();
             prop_assert_eq!(union, naive_union(&known));
             for k in &known {
                 prop_assert!(union >= k.iter().filter(|&&x| x).count());
             }
-            let same = vec![known[0].clone(); known.len()];
-            let pcts = shared_pcts(&same);
+            let same = vec![ks[0].clone(); known.len()];
+            let pcts = shared_pcts(&same, 12);
             prop_assert!(pcts.iter().all(|&p| p == 100.0), "{:?}", pcts);
             let one = known[0].iter().filter(|&&x| x).count();
-            prop_assert_eq!(SharedKnowledge::of(&same).known_by_anyone(), one);
+            prop_assert_eq!(SharedKnowledge::of(&same, 12).known_by_anyone(), one);
+        }
+
+        /// Robots' grids taken over their known parts only keep the same counts as grids
+        /// taken cell by cell.
+        #[test]
+        fn known_parts_count_as_every_cell(
+            grids in proptest::collection::vec(
+                proptest::collection::vec((0i32..20, 0i32..15, 0u8..3), 0..30), 1..8),
+            reachable in proptest::collection::vec(any::<bool>(), 300),
+        ) {
+            let (w, h) = (20u32, 15u32);
+            let mut parts = SharedKnowledge::new(3, 300);
+            let mut every = SharedKnowledge::new(3, 300);
+            for (k, sets) in grids.iter().enumerate() {
+                let mut g = Grid::new(w, h, Occ::Unknown);
+                for &(x, y, v) in sets {
+                    g.set(Cell::new(x, y), [Occ::Unknown, Occ::Free, Occ::Occupied][usize::from(v)]);
+                }
+                let robot = (k % 3) as RobotId;
+                let part = known_cells(&KnownPart::of(&g), w, &reachable);
+                let flags: Vec<bool> = (0..g.len())
+                    .map(|i| reachable[i] && g.cells()[i] != Occ::Unknown)
+                    .collect();
+                prop_assert_eq!(part.count(), flags.iter().filter(|&&f| f).count());
+                parts.update(robot, part);
+                every.update(robot, Known::from_flags(w, &flags));
+                prop_assert_eq!(parts.known_by_anyone(), every.known_by_anyone());
+                for r in 0..3 {
+                    prop_assert_eq!(parts.share_pct(r), every.share_pct(r));
+                }
+            }
         }
 
         #[test]
@@ -414,9 +517,9 @@ mod tests {
         ) {
             let mut s = SharedKnowledge::new(3, 8);
             for (r, k) in (0..3).zip(&first) {
-                s.update(r, k.clone());
+                s.update(r, Known::from_flags(4, k));
             }
-            s.update(who, then.clone());
+            s.update(who, Known::from_flags(4, &then));
             let mut now = first.clone();
             now[usize::from(who)] = then;
             prop_assert_eq!((0..3).filter_map(|r| s.share_pct(r)).collect::<Vec<_>>(), naive(&now));

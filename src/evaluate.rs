@@ -11,7 +11,7 @@
 
 use std::collections::BTreeMap;
 
-use proto::grid::{Grid, Occ};
+use proto::grid::{Grid, KnownPart, Occ};
 use proto::msg::{Judged, RobotId, Step, Telemetry, View};
 
 use crate::awareness::{known_cells, SharedKnowledge};
@@ -69,8 +69,8 @@ pub struct Evaluator {
     pub exploration_step: Option<Step>,
     /// Best coverage so far, and the robot that has it.
     pub best: (f64, RobotId),
-    /// The last decoded grid and telemetry of every robot.
-    pub last: BTreeMap<RobotId, (Grid, Telemetry)>,
+    /// The last decoded grid (its known part) and telemetry of every robot.
+    pub last: BTreeMap<RobotId, (KnownPart, Telemetry)>,
     pub bad_telemetry: u64,
     /// Polygon exchange, for `saves.csv`: every save point a robot reported of its own log
     /// (step, robot, log length, digest of A_t).
@@ -140,17 +140,20 @@ impl Evaluator {
 
     /// Scores one telemetry message.
     pub fn add(&mut self, t: Telemetry) {
-        let grid = match Grid::from_rle(&t.grid_rle) {
+        // Decoded and scored over the grid's known part only: an unknown cell is neither
+        // covered nor correct.
+        let grid = match KnownPart::from_rle(&t.grid_rle) {
             Ok(g) if g.width() == self.truth.width() && g.height() == self.truth.height() => g,
             _ => {
                 self.bad_telemetry += 1;
                 return;
             }
         };
-        let known = known_cells(&grid, &self.reachable);
-        let covered = known.iter().filter(|&&k| k).count();
+        let known = known_cells(&grid, self.truth.width(), &self.reachable);
+        let covered = known.count();
         let mut correct = 0u32;
-        for (&truth, &seen) in self.truth.cells().iter().zip(grid.cells()) {
+        for (c, seen) in grid.cells() {
+            let truth = self.truth.get(c);
             let agrees = match seen {
                 Occ::Unknown => false,
                 Occ::Free => truth == Occ::Free,

@@ -391,6 +391,25 @@ impl Grid {
 
     /// Decodes [`Grid::to_rle`]; total on arbitrary bytes.
     pub fn from_rle(bytes: &[u8]) -> Result<Grid, RleError> {
+        KnownPart::from_rle(bytes).map(|p| p.to_grid())
+    }
+}
+
+/// The known part of a grid as its run-length encoding gives it, decoded in proportion to that
+/// part (and to the number of runs), not to the grid's area: the grid's size, the rectangle
+/// outside which every cell is unknown, and the cells inside it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct KnownPart {
+    width: u32,
+    height: u32,
+    rect: Option<Rect>,
+    /// The cells of `rect`, row-major from its bottom row.
+    cells: Vec<Occ>,
+}
+
+impl KnownPart {
+    /// Decodes [`Grid::to_rle`]; total on arbitrary bytes (the errors of [`Grid::from_rle`]).
+    pub fn from_rle(bytes: &[u8]) -> Result<KnownPart, RleError> {
         let mut pos = 0;
         let width = get_varint(bytes, &mut pos)?;
         let height = get_varint(bytes, &mut pos)?;
@@ -404,20 +423,23 @@ impl Grid {
         if want > MAX_CELLS {
             return Err(RleError::TooLarge { width, height });
         }
-        let mut cells = Vec::with_capacity(want as usize);
-        let mut known = None;
+        // First the runs that are not unknown, and the rectangle they span.
+        let mut runs: Vec<(u64, u64, Occ)> = Vec::new();
+        let mut rect = None;
+        let mut got = 0u64;
         while pos < bytes.len() {
             let run = get_varint(bytes, &mut pos)?;
             let v = Occ::from_u8((run & 3) as u8).ok_or(RleError::BadValue((run & 3) as u8))?;
             let len = run >> 2;
-            let got = cells.len() as u64 + len;
+            let first = got;
+            got = got.saturating_add(len);
             if got > want {
                 return Err(RleError::WrongLength { got, want });
             }
             if v != Occ::Unknown && len > 0 {
                 // The rows the run spans; all their columns if it spans more than one.
                 let w = u64::from(width);
-                let (first, last) = (cells.len() as u64, got - 1);
+                let last = got - 1;
                 let (y0, y1) = ((first / w) as i32, (last / w) as i32);
                 let (x0, x1) = if y0 == y1 {
                     ((first % w) as i32, (last % w) as i32)
@@ -428,22 +450,87 @@ impl Grid {
                     min: Cell::new(x0, y0),
                     max: Cell::new(x1, y1),
                 };
-                known = Rect::union_of(known, Some(r));
+                rect = Rect::union_of(rect, Some(r));
+                runs.push((first, len, v));
             }
-            cells.resize(got as usize, v);
         }
-        if cells.len() as u64 != want {
-            return Err(RleError::WrongLength {
-                got: cells.len() as u64,
-                want,
-            });
+        if got != want {
+            return Err(RleError::WrongLength { got, want });
         }
-        Ok(Grid {
+        // Then their cells, inside the rectangle.
+        let mut part = KnownPart {
             width,
             height,
+            rect,
+            cells: vec![Occ::Unknown; rect.map_or(0, |r| r.area())],
+        };
+        if let Some(r) = rect {
+            let (w, rw) = (u64::from(width), r.width() as usize);
+            for (first, len, v) in runs {
+                for i in first..first + len {
+                    let (x, y) = ((i % w) as i32, (i / w) as i32);
+                    let k = (y - r.min.y) as usize * rw + (x - r.min.x) as usize;
+                    part.cells[k] = v;
+                }
+            }
+        }
+        Ok(part)
+    }
+
+    /// The known part of `g` (a copy of the cells inside its known bounds).
+    pub fn of(g: &Grid) -> KnownPart {
+        let rect = g.known_bounds();
+        let cells = rect
+            .into_iter()
+            .flat_map(|r| (r.min.y..=r.max.y).flat_map(move |y| g.row(y, r.min.x, r.max.x)))
+            .copied()
+            .collect();
+        KnownPart {
+            width: g.width,
+            height: g.height,
+            rect,
             cells,
-            known,
-        })
+        }
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// The rectangle outside which every cell is unknown (`None`: every cell is).
+    pub fn rect(&self) -> Option<Rect> {
+        self.rect
+    }
+
+    /// The value at `c`; unknown outside the rectangle and outside the grid.
+    pub fn get(&self, c: Cell) -> Occ {
+        match self.rect {
+            Some(r) if r.contains(c) => {
+                self.cells[(c.y - r.min.y) as usize * r.width() as usize + (c.x - r.min.x) as usize]
+            }
+            _ => Occ::Unknown,
+        }
+    }
+
+    /// The cells of the rectangle with their values, row-major from its bottom row.
+    pub fn cells(&self) -> impl Iterator<Item = (Cell, Occ)> + '_ {
+        self.rect
+            .into_iter()
+            .flat_map(Rect::cells)
+            .zip(self.cells.iter().copied())
+    }
+
+    /// The whole grid.
+    pub fn to_grid(&self) -> Grid {
+        let mut g = Grid::new(self.width, self.height, Occ::Unknown);
+        for (c, v) in self.cells() {
+            g.set(c, v);
+        }
+        g
     }
 }
 
@@ -598,6 +685,20 @@ mod tests {
             let back = Grid::from_rle(&g.to_rle()).map_err(|e| TestCaseError::fail(e.to_string()))?;
             prop_assert!(holds_every_known_cell(&back));
             prop_assert_eq!(back.to_rle(), rle_of_every_cell(&g));
+        }
+
+        /// Decoded in proportion to its known part, a grid is the grid: the same cells, the
+        /// same rectangle as the grid's own bounds from the same runs.
+        #[test]
+        fn the_known_part_decoded_is_the_grids(g in prop_oneof![arb_grid(), arb_sparse_grid()]) {
+            let part = KnownPart::from_rle(&g.to_rle()).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            prop_assert_eq!(part.to_grid(), g.clone());
+            for i in 0..g.len() {
+                prop_assert_eq!(part.get(g.cell_of(i)), g.cells()[i]);
+            }
+            let back = Grid::from_rle(&g.to_rle()).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            prop_assert_eq!(part.rect(), back.known_bounds());
+            prop_assert_eq!(KnownPart::of(&back), part);
         }
 
         #[test]

@@ -437,7 +437,7 @@ pub fn write_pictures(
     }
     truth_pic.save(&dir.join("truth.png"))?;
     for (id, (grid, _)) in &rec.eval.last {
-        let mut pic = Picture::of_grid(grid, info);
+        let mut pic = Picture::of_grid(&grid.to_grid(), info);
         let i = usize::from(*id);
         if let Some(t) = trajectories.get(i) {
             pic.path(t, robot_colour(i));
@@ -450,7 +450,10 @@ pub fn write_pictures(
     let grids = dir.join("grids");
     std::fs::create_dir_all(&grids).context("creating grids/")?;
     for (id, (planning, t)) in &rec.eval.last {
-        write_pgm(&grids.join(format!("robot_{id}_planning.pgm")), planning)?;
+        write_pgm(
+            &grids.join(format!("robot_{id}_planning.pgm")),
+            &planning.to_grid(),
+        )?;
         match Grid::from_rle(&t.own_rle) {
             Ok(own) => write_pgm(&grids.join(format!("robot_{id}_own.pgm")), &own)?,
             Err(e) => progress.event(&format!(
