@@ -846,6 +846,18 @@ pub(crate) mod tests {
         watch::Sender<bool>,
     ) {
         let (target, accepted) = target().await;
+        let (link, stop_tx) = link_to(target, base, clock, buffer_bytes).await;
+        (link, accepted, stop_tx)
+    }
+
+    /// A link of robots 0 and 1, always in range, forwarding to `target`; serving until the
+    /// sender is dropped or sends true.
+    async fn link_to(
+        target: SocketAddr,
+        base: [BaseShape; 2],
+        clock: SimClock,
+        buffer_bytes: usize,
+    ) -> (Arc<Link>, watch::Sender<bool>) {
         let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let params = LinkParams {
             a: 0,
@@ -866,7 +878,7 @@ pub(crate) mod tests {
         let link = Link::new(params, listener.local_addr().unwrap(), clock, state);
         let (stop_tx, stop_rx) = watch::channel(false);
         link.serve(listener, stop_rx);
-        (link, accepted, stop_tx)
+        (link, stop_tx)
     }
 
     async fn connect(
@@ -933,31 +945,7 @@ pub(crate) mod tests {
         let port = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let target = port.local_addr().unwrap();
         drop(port);
-        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let params = LinkParams {
-            a: 0,
-            b: 1,
-            target,
-            base: Default::default(),
-            buffer_bytes: 4096,
-            connect_timeout: Duration::from_secs(2),
-            seed: 1,
-            markers: false,
-        };
-        let state = LinkState {
-            enabled: true,
-            alive: true,
-            radio: None,
-            always: true,
-        };
-        let link = Link::new(
-            params,
-            listener.local_addr().unwrap(),
-            SimClock::lockstep(),
-            state,
-        );
-        let (_stop, stop_rx) = watch::channel(false);
-        link.serve(listener, stop_rx);
+        let (link, _stop) = link_to(target, Default::default(), SimClock::lockstep(), 4096).await;
         let mut a = TcpStream::connect(link.listen).await.unwrap();
         a.write_all(b"hel").await.unwrap();
         tokio::time::sleep(Duration::from_millis(150)).await;
