@@ -48,6 +48,18 @@ impl Known {
         }
     }
 
+    /// The flags of row `y` over the columns of `over` (which holds `self.rect`), as a row of
+    /// `over.width()` flags; `None` when the row knows nothing (outside the rectangle).
+    fn row(&self, y: i32, over: Rect) -> Option<Vec<bool>> {
+        let r = self.rect.filter(|r| (r.min.y..=r.max.y).contains(&y))?;
+        let w = r.width() as usize;
+        let k = (y - r.min.y) as usize * w;
+        let mut row = vec![false; over.width() as usize];
+        let at = (r.min.x - over.min.x) as usize;
+        row[at..at + w].copy_from_slice(&self.flags[k..k + w]);
+        Some(row)
+    }
+
     /// How many cells are known.
     pub fn count(&self) -> usize {
         self.count
@@ -74,17 +86,22 @@ impl Known {
 /// The cells robot `grid` knows: reachable (`reachable[i]`, row-major over the truth) and free or
 /// occupied in its grid. A grid of another size knows nothing beyond the overlap.
 pub fn known_cells(grid: &KnownPart, width: u32, reachable: &[bool]) -> Known {
-    let reachable_at = |c: Cell| {
-        c.x < width as i32
-            && reachable
-                .get(c.y as usize * width as usize + c.x as usize)
-                .copied()
-                .unwrap_or(false)
-    };
-    let flags: Vec<bool> = grid
-        .cells()
-        .map(|(c, seen)| seen != Occ::Unknown && reachable_at(c))
-        .collect();
+    let mut flags = Vec::new();
+    if let Some(r) = grid.rect() {
+        flags.reserve(r.area());
+        for y in r.min.y..=r.max.y {
+            // The row of `reachable` under the rectangle's row (false beyond its end).
+            let start = (y as usize * width as usize + r.min.x as usize).min(reachable.len());
+            let end = (start + r.width() as usize).min(reachable.len());
+            let under = reachable[start..end]
+                .iter()
+                .chain(std::iter::repeat(&false));
+            let inside = (r.min.x..=r.max.x).map(|x| x < width as i32);
+            for ((&seen, &reach), inside) in grid.row(y).iter().zip(under).zip(inside) {
+                flags.push(seen != Occ::Unknown && reach && inside);
+            }
+        }
+    }
     Known {
         width,
         rect: grid.rect(),
@@ -132,34 +149,47 @@ impl SharedKnowledge {
         let before = std::mem::take(before);
         let width = known.width.max(before.width) as usize;
         let region = Rect::union_of(before.rect, known.rect);
-        for c in region.into_iter().flat_map(Rect::cells) {
-            let (was, now) = (before.contains(c), known.contains(c));
-            if was == now {
-                continue;
-            }
-            let Some(h) = self.holders.get_mut(c.y as usize * width + c.x as usize) else {
-                continue;
-            };
-            let everyone_before = usize::from(*h) == team;
-            if now {
-                *h += 1;
-            } else {
-                *h -= 1;
-            }
-            let everyone_now = usize::from(*h) == team;
-            match (everyone_before, everyone_now) {
-                (false, true) => self.common += 1,
-                (true, false) => self.common -= 1,
-                _ => {}
-            }
-            // A cell joins the union with its first holder and leaves it with its last.
-            match (now, *h) {
-                (true, 1) => self.anyone += 1,
-                (false, 0) => self.anyone -= 1,
-                _ => {}
+        if let Some(r) = region {
+            for y in r.min.y..=r.max.y {
+                let (was_row, now_row) = (before.row(y, r), known.row(y, r));
+                if was_row.is_none() && now_row.is_none() {
+                    continue;
+                }
+                for (k, x) in (r.min.x..=r.max.x).enumerate() {
+                    let was = was_row.as_ref().is_some_and(|f| f[k]);
+                    let now = now_row.as_ref().is_some_and(|f| f[k]);
+                    if was != now {
+                        self.changed(y as usize * width + x as usize, now, team);
+                    }
+                }
             }
         }
         self.known[usize::from(robot)] = known;
+    }
+
+    /// Cell `i` gained (`now`) or lost a holder.
+    fn changed(&mut self, i: usize, now: bool, team: usize) {
+        let Some(h) = self.holders.get_mut(i) else {
+            return;
+        };
+        let everyone_before = usize::from(*h) == team;
+        if now {
+            *h += 1;
+        } else {
+            *h -= 1;
+        }
+        let everyone_now = usize::from(*h) == team;
+        match (everyone_before, everyone_now) {
+            (false, true) => self.common += 1,
+            (true, false) => self.common -= 1,
+            _ => {}
+        }
+        // A cell joins the union with its first holder and leaves it with its last.
+        match (now, *h) {
+            (true, 1) => self.anyone += 1,
+            (false, 0) => self.anyone -= 1,
+            _ => {}
+        }
     }
 
     /// |K_1 ∪ … ∪ K_N|: the cells at least one robot of the team knows.

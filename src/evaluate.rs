@@ -152,14 +152,18 @@ impl Evaluator {
         let known = known_cells(&grid, self.truth.width(), &self.reachable);
         let covered = known.count();
         let mut correct = 0u32;
-        for (c, seen) in grid.cells() {
-            let truth = self.truth.get(c);
-            let agrees = match seen {
-                Occ::Unknown => false,
-                Occ::Free => truth == Occ::Free,
-                Occ::Occupied => truth != Occ::Free,
-            };
-            correct += u32::from(agrees);
+        if let Some(r) = grid.rect() {
+            for y in r.min.y..=r.max.y {
+                let truth = self.truth.row(y, r.min.x, r.max.x);
+                for (&seen, &truth) in grid.row(y).iter().zip(truth) {
+                    let agrees = match seen {
+                        Occ::Unknown => false,
+                        Occ::Free => truth == Occ::Free,
+                        Occ::Occupied => truth != Occ::Free,
+                    };
+                    correct += u32::from(agrees);
+                }
+            }
         }
         let pct = self.pct_of_reachable(covered);
         let is_base = self.base == Some(t.robot);

@@ -288,10 +288,28 @@ impl Grid {
     }
 
     /// The cells of row `y` from column `x0` to `x1` inclusive.
-    fn row(&self, y: i32, x0: i32, x1: i32) -> &[Occ] {
+    ///
+    /// # Panics
+    /// If they are not all inside the grid.
+    pub fn row(&self, y: i32, x0: i32, x1: i32) -> &[Occ] {
         let w = self.width as usize;
         let start = y as usize * w;
         &self.cells[start + x0 as usize..=start + x1 as usize]
+    }
+
+    /// [`Grid::row`] to write: the grid counts all of those cells as possibly known.
+    ///
+    /// # Panics
+    /// If they are not all inside the grid.
+    pub fn row_mut(&mut self, y: i32, x0: i32, x1: i32) -> &mut [Occ] {
+        let r = Rect {
+            min: Cell::new(x0, y),
+            max: Cell::new(x1, y),
+        };
+        self.known = Rect::union_of(self.known, Some(r));
+        let w = self.width as usize;
+        let start = y as usize * w;
+        &mut self.cells[start + x0 as usize..=start + x1 as usize]
     }
 
     /// How many cells are `v` (in proportion to [`Grid::known_bounds`]' area).
@@ -467,10 +485,14 @@ impl KnownPart {
         if let Some(r) = rect {
             let (w, rw) = (u64::from(width), r.width() as usize);
             for (first, len, v) in runs {
-                for i in first..first + len {
+                // Row by row: the run's cells of each row are one slice of the part.
+                let mut i = first;
+                while i < first + len {
                     let (x, y) = ((i % w) as i32, (i / w) as i32);
+                    let n = (first + len - i).min(w - x as u64) as usize;
                     let k = (y - r.min.y) as usize * rw + (x - r.min.x) as usize;
-                    part.cells[k] = v;
+                    part.cells[k..k + n].fill(v);
+                    i += n as u64;
                 }
             }
         }
@@ -516,6 +538,18 @@ impl KnownPart {
         }
     }
 
+    /// Row `y` of the rectangle, from its left column (empty outside it).
+    pub fn row(&self, y: i32) -> &[Occ] {
+        match self.rect {
+            Some(r) if (r.min.y..=r.max.y).contains(&y) => {
+                let w = r.width() as usize;
+                let k = (y - r.min.y) as usize * w;
+                &self.cells[k..k + w]
+            }
+            _ => &[],
+        }
+    }
+
     /// The cells of the rectangle with their values, row-major from its bottom row.
     pub fn cells(&self) -> impl Iterator<Item = (Cell, Occ)> + '_ {
         self.rect
@@ -527,8 +561,10 @@ impl KnownPart {
     /// The whole grid.
     pub fn to_grid(&self) -> Grid {
         let mut g = Grid::new(self.width, self.height, Occ::Unknown);
-        for (c, v) in self.cells() {
-            g.set(c, v);
+        if let Some(r) = self.rect {
+            for y in r.min.y..=r.max.y {
+                g.row_mut(y, r.min.x, r.max.x).copy_from_slice(self.row(y));
+            }
         }
         g
     }

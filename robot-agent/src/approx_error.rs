@@ -29,10 +29,13 @@ pub fn approx_error_in_view(view: &Grid, a: &Approximation) -> usize {
     };
     let polys: Vec<&Polygon> = a.objects.values().collect();
     let rendered = render_window(&polys, r.min, r.width(), r.height());
-    r.cells()
-        .zip(rendered)
-        .filter(|&(c, p)| view.get(c) != p)
-        .count()
+    (r.min.y..=r.max.y)
+        .zip(rendered.chunks(r.width() as usize))
+        .map(|(y, painted)| {
+            let seen = view.row(y, r.min.x, r.max.x);
+            seen.iter().zip(painted).filter(|(v, p)| v != p).count()
+        })
+        .sum()
 }
 
 /// e_avg (eq. 6.1) of the series `d` (one d_t per step) for `explored_cells` = g; 0 for an

@@ -57,15 +57,18 @@ pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
         .map(|a| a.objects.values().collect())
         .collect();
     let plan = paint(&polys, r.min, r.width(), r.height());
-    for (c, p) in r.cells().zip(plan) {
-        let s = own.get(c);
-        // (7) every known cell of G_s overwrites; (6) undefined reads unknown.
-        let v = match (s, p) {
-            (Occ::Free | Occ::Occupied, _) => s,
-            (_, Some(v)) => v,
-            (_, None) => Occ::Unknown,
-        };
-        out.set(c, v);
+    let w = r.width() as usize;
+    for (y, painted) in (r.min.y..=r.max.y).zip(plan.chunks(w)) {
+        let mine = own.row(y, r.min.x, r.max.x);
+        let row = out.row_mut(y, r.min.x, r.max.x);
+        for ((dst, &s), &p) in row.iter_mut().zip(mine).zip(painted) {
+            // (7) every known cell of G_s overwrites; (6) undefined reads unknown.
+            *dst = match (s, p) {
+                (Occ::Free | Occ::Occupied, _) => s,
+                (_, Some(v)) => v,
+                (_, None) => Occ::Unknown,
+            };
+        }
     }
 }
 

@@ -273,12 +273,19 @@ struct Planes<'a> {
 }
 
 /// How soon a robot waiting for a link's session looks at zenoh's list of sessions again: at
-/// first after 2 ms, then twice as long each time up to [`SESSION_POLL_MAX`]. Listing the
+/// first after 2 ms, then twice as long each time up to [`session_poll_max`]. Listing the
 /// sessions costs a robot its number of sessions; every 2 ms, 128 robots with 127 sessions each
 /// spent more than the two cores of the test machine on it and their sessions never formed.
 const SESSION_POLL: Duration = Duration::from_millis(2);
-/// The longest a waiting robot goes without looking (a session that forms is used within it).
-const SESSION_POLL_MAX: Duration = Duration::from_millis(64);
+
+/// The longest a robot of a team of `team` goes without looking (a session that forms is used
+/// within it): 2 ms for every 4 robots, at most 64 ms — a small team takes a new link at once
+/// (64 ms cost the default run's 4-robot team about 15 % of its wall time), a big one spends
+/// less on listing sessions.
+fn session_poll_max(team: usize) -> Duration {
+    let fours = u32::try_from(team.div_ceil(4).max(1)).unwrap_or(u32::MAX);
+    (SESSION_POLL * fours).min(Duration::from_millis(64))
+}
 
 impl Planes<'_> {
     /// The robots this one has a radio session with (not through another robot).
@@ -350,6 +357,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         ls.cut(&cut);
         // zenoh's list of sessions is asked for only while a link is not seen up.
         let mut poll = SESSION_POLL;
+        let poll_max = session_poll_max(p.peers.len() + 1);
         while !ls.linked(&linked) {
             ls.on_sessions(p.sessions().await);
             if ls.linked(&linked) {
@@ -374,7 +382,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                     return Ok(end);
                 }
             }
-            poll = (poll * 2).min(SESSION_POLL_MAX);
+            poll = (poll * 2).min(poll_max);
         }
         let cmd = agent.on_scan(&scan);
         let mut out = std::mem::take(&mut answers);
