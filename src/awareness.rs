@@ -38,16 +38,6 @@ pub struct Known {
 }
 
 impl Known {
-    /// Whether cell `c` is known.
-    pub fn contains(&self, c: Cell) -> bool {
-        match self.rect {
-            Some(r) if r.contains(c) => {
-                self.flags[(c.y - r.min.y) as usize * r.width() as usize + (c.x - r.min.x) as usize]
-            }
-            _ => false,
-        }
-    }
-
     /// The flags of row `y` over the columns of `over` (which holds `self.rect`), as a row of
     /// `over.width()` flags; `None` when the row knows nothing (outside the rectangle).
     fn row(&self, y: i32, over: Rect) -> Option<Vec<bool>> {

@@ -78,11 +78,6 @@ impl Rect {
         }
     }
 
-    /// The smallest rectangle holding `self` and `c`.
-    pub fn including(self, c: Cell) -> Rect {
-        self.union(Rect::cell(c))
-    }
-
     /// [`Rect::union`] of optional rectangles (`None`: no cell).
     pub fn union_of(a: Option<Rect>, b: Option<Rect>) -> Option<Rect> {
         match (a, b) {
