@@ -238,7 +238,12 @@ impl Link {
             st.down_reason().is_none()
         };
         let conns = lock(&self.conns);
-        let was = self.up.send_replace(up);
+        // Only a change wakes those who wait on it (the accept loop, held connections).
+        let mut was = up;
+        self.up.send_if_modified(|u| {
+            was = std::mem::replace(u, up);
+            was != up
+        });
         if was && !up {
             tracing::info!(link = %self.name, "link down: resetting {} connection(s)", conns.len());
             for c in conns.values() {

@@ -16,7 +16,11 @@ use serde::{Deserialize, Serialize};
 #[serde(deny_unknown_fields, default)]
 pub struct Scenario {
     pub seed: u64,
-    pub max_steps: u32,
+    /// The run stops at this step at the latest; `None` (the key left out): derived from the
+    /// map by [`Scenario::derived_max_steps`] when the scenario is resolved (`swarm run` writes
+    /// the number into the run's `scenario.toml`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_steps: Option<u32>,
     pub done_pct: f64,
     pub clock: Clock,
     pub world: World,
@@ -551,7 +555,7 @@ impl Default for Scenario {
     fn default() -> Self {
         Scenario {
             seed: 1,
-            max_steps: 3000,
+            max_steps: None,
             done_pct: 99.0,
             clock: Clock::default(),
             world: World::default(),
@@ -700,7 +704,37 @@ pub const GENERATED_WORLDS: [&str; 8] = [
     "library",
 ];
 
+/// The fewest steps of a derived step limit (the fixed default before limits were derived).
+pub const DERIVED_MAX_STEPS_MIN: u32 = 3000;
+/// The most steps of a derived step limit.
+pub const DERIVED_MAX_STEPS_MAX: u32 = 1_000_000;
+/// The width of the strip a robot is taken to clear of unknown cells per metre it drives, when
+/// its sensor reaches at least half of it: indoors, walls hide most of what a longer range would
+/// reach (one robot on intel_lab clears 369 m² in 1 100 steps of 0.5 m: 0.67 m per metre).
+const CLEARED_STRIP_M: f64 = 1.0;
+
 impl Scenario {
+    /// The step limit of a scenario that leaves `max_steps` out, for a world of `reachable_cells`
+    /// free cells reachable from the spawn area: twice the steps one robot needs to drive a
+    /// lawn-mower path over that area with strips [`CLEARED_STRIP_M`] wide (narrower when the
+    /// sensor's range is shorter than half of it) at `robots.speed_m_per_s`. The team's size does
+    /// not enter: a team is never slower than its one robot, so the limit is generous for
+    /// teams; it is only a limit — a run ends as soon as it is explored. Clamped to
+    /// [[`DERIVED_MAX_STEPS_MIN`], [`DERIVED_MAX_STEPS_MAX`]].
+    pub fn derived_max_steps(&self, reachable_cells: usize) -> u32 {
+        let area_m2 = reachable_cells as f64 * self.world.resolution_m.powi(2);
+        let strip_m = CLEARED_STRIP_M.min(2.0 * self.sensor.max_range_m);
+        let metres_per_step = self.robots.speed_m_per_s * self.clock.step_seconds;
+        let steps = (2.0 * area_m2 / (strip_m * metres_per_step)).round();
+        if steps.is_nan() {
+            return DERIVED_MAX_STEPS_MAX;
+        }
+        steps.clamp(
+            f64::from(DERIVED_MAX_STEPS_MIN),
+            f64::from(DERIVED_MAX_STEPS_MAX),
+        ) as u32
+    }
+
     /// Reads a scenario file and applies `KEY=VALUE` overrides.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Scenario, ScenarioError> {
         let text = std::fs::read_to_string(path).map_err(|e| ScenarioError::Read {
@@ -740,7 +774,9 @@ impl Scenario {
         positive("clock.speedup", s.clock.speedup)?;
         at_least("clock.step_timeout_ms", s.clock.step_timeout_ms as f64, 1.0)?;
         at_least("clock.dead_after", f64::from(s.clock.dead_after), 1.0)?;
-        at_least("max_steps", f64::from(s.max_steps), 1.0)?;
+        if let Some(m) = s.max_steps {
+            at_least("max_steps", f64::from(m), 1.0)?;
+        }
         if !(s.done_pct > 0.0 && s.done_pct <= 100.0) {
             return Err(invalid("done_pct", s.done_pct, "must be in (0, 100]"));
         }
@@ -1237,6 +1273,9 @@ const OPTIONAL_FLOAT_KEYS: [&str; 2] = [
     "radio.range_pct_of_diagonal",
 ];
 
+/// Keys without a default value, accepted as whole numbers.
+const OPTIONAL_INT_KEYS: [&str; 1] = ["max_steps"];
+
 /// Keys without a default value, accepted as arrays of two numbers.
 const OPTIONAL_PAIR_KEYS: [&str; 1] = ["base_station.pose"];
 
@@ -1253,6 +1292,21 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
         let optional = OPTIONAL_FLOAT_KEYS.contains(&key.as_str());
         if optional && matches!(v, toml::Value::Float(_) | toml::Value::Integer(_)) {
             continue;
+        }
+        if OPTIONAL_INT_KEYS.contains(&key.as_str()) {
+            match v {
+                toml::Value::Integer(i) if *i < 0 => {
+                    return Err(invalid(&key, i, "must not be negative"));
+                }
+                toml::Value::Integer(_) => continue,
+                other => {
+                    return Err(ScenarioError::WrongType {
+                        key,
+                        got: type_name(other),
+                        want: "integer",
+                    })
+                }
+            }
         }
         if OPTIONAL_PAIR_KEYS.contains(&key.as_str()) {
             let pair = v.as_array().filter(|a| {
@@ -1301,6 +1355,39 @@ mod tests {
             Ok(_) => panic!("expected an error for {text:?} {overrides:?}"),
             Err(e) => e.to_string(),
         }
+    }
+
+    #[test]
+    fn max_steps_may_be_left_out_and_is_a_whole_number_when_given() {
+        let s = Scenario::from_toml("", &[]).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(s.max_steps, None);
+        assert!(!s.to_toml().contains("max_steps"));
+        let s = Scenario::from_toml("max_steps = 40", &[]).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(s.max_steps, Some(40));
+        assert!(s.to_toml().contains("max_steps = 40"));
+        assert!(err("", &["max_steps=-3"]).contains("must not be negative"));
+        assert!(err("", &["max_steps=0"]).contains("max_steps"));
+        assert!(err("max_steps = 1.5", &[]).contains("integer"));
+        assert!(err("max_steps = \"auto\"", &[]).contains("integer"));
+    }
+
+    #[test]
+    fn a_derived_step_limit_grows_with_the_area_and_shrinks_with_speed_and_range() {
+        let s = Scenario::default();
+        // 0.2 m cells: 25 a square metre; 1 m strips at 0.5 m a step: 4 steps a square metre.
+        assert_eq!(s.derived_max_steps(25 * 1000), 4000);
+        assert_eq!(s.derived_max_steps(25 * 2000), 8000);
+        assert_eq!(s.derived_max_steps(0), DERIVED_MAX_STEPS_MIN);
+        assert_eq!(s.derived_max_steps(usize::MAX), DERIVED_MAX_STEPS_MAX);
+        let mut fast = s.clone();
+        fast.robots.speed_m_per_s = 1.0;
+        assert_eq!(fast.derived_max_steps(25 * 2000), 4000);
+        let mut short = s.clone();
+        short.sensor.max_range_m = 0.25;
+        assert_eq!(short.derived_max_steps(25 * 1000), 8000);
+        let mut long = s;
+        long.sensor.max_range_m = 30.0;
+        assert_eq!(long.derived_max_steps(25 * 1000), 4000);
     }
 
     #[test]

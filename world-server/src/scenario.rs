@@ -1,7 +1,8 @@
 //! A scenario made ready to run, the one way every entry point does it (`swarm run`, `swarm
 //! replay`, `swarm sweep`'s checks, the world-server): a file or the embedded default, with
 //! `--set` overrides; a map name found relative to the file's directory and made an absolute
-//! path; `radio.range_pct_of_diagonal` turned into `radio.range_m`.
+//! path; `radio.range_pct_of_diagonal` turned into `radio.range_m`; a left-out `max_steps`
+//! derived from the world's reachable area ([`Scenario::derived_max_steps`]).
 
 use std::path::{Path, PathBuf};
 
@@ -10,6 +11,7 @@ use proto::grid::Occ;
 use proto::scenario::Scenario;
 
 use crate::map::load_ros_map;
+use crate::world::World;
 
 /// The embedded default scenario (`configs/default.toml`).
 pub const DEFAULT_SCENARIO: &str = include_str!("../../configs/default.toml");
@@ -58,6 +60,10 @@ pub fn resolve(file: Option<&Path>, set: &[String]) -> anyhow::Result<Resolved> 
     };
     if let Some(pct) = s.radio.range_pct_of_diagonal {
         s.radio.range_m = pct / 100.0 * environment_diagonal_m(&s, map_file.as_deref())?;
+    }
+    if s.max_steps.is_none() {
+        let world = World::build(&s, map_file.as_deref())?;
+        s.max_steps = Some(s.derived_max_steps(world.reachable.count(Occ::Free)));
     }
     Ok(Resolved {
         scenario: s,
@@ -134,6 +140,27 @@ mod tests {
         assert_eq!(
             r.name(),
             map.file_stem().unwrap_or_default().to_string_lossy()
+        );
+    }
+
+    #[test]
+    fn a_left_out_step_limit_is_derived_from_the_reachable_area_and_a_given_one_kept() {
+        let steps = |set: &[&str]| {
+            let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
+            resolve(None, &set)
+                .unwrap_or_else(|e| panic!("{e:#}"))
+                .scenario
+                .max_steps
+        };
+        // intel_lab: 9 222 reachable cells of 0.2 m (369 m²): 1 476 steps, below the floor.
+        assert_eq!(steps(&[]), Some(3000));
+        assert_eq!(steps(&["max_steps=17"]), Some(17));
+        // mit_killian_court: 72 542 cells (2 901.7 m²) at 0.5 m a step: 2 × 2 901.7 / 0.5, rounded.
+        assert_eq!(steps(&["world.map=mit_killian_court"]), Some(11_607));
+        // Half the speed, twice the steps (23 213.4, rounded).
+        assert_eq!(
+            steps(&["world.map=mit_killian_court", "robots.speed_m_per_s=0.25"]),
+            Some(23_213)
         );
     }
 
