@@ -520,9 +520,7 @@ pub struct ScheduledReport {
 pub fn chaos(args: &ChaosArgs) -> anyhow::Result<(Report, PathBuf)> {
     let resolved = world_server::scenario::resolve(args.scenario.as_deref(), &args.set)?;
     let mut scenario = resolved.scenario;
-    let within = args
-        .within
-        .unwrap_or(scenario.max_steps.map_or(300, |m| m.min(300)));
+    let within = args.within.unwrap_or(scenario.step_limit().min(300));
     let planned = schedule(&scenario, args.faults, args.seed, within, &args.only);
     scenario
         .faults

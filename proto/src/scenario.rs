@@ -735,6 +735,12 @@ impl Scenario {
         ) as u32
     }
 
+    /// The run's step limit: `max_steps`, which resolving a scenario always sets (see
+    /// [`Scenario::derived_max_steps`]); an unresolved scenario without one has no limit.
+    pub fn step_limit(&self) -> u32 {
+        self.max_steps.unwrap_or(u32::MAX)
+    }
+
     /// Reads a scenario file and applies `KEY=VALUE` overrides.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Scenario, ScenarioError> {
         let text = std::fs::read_to_string(path).map_err(|e| ScenarioError::Read {

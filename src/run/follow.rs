@@ -126,7 +126,7 @@ impl Record {
         progress.show(&format!(
             "step {:>5}/{}  best coverage {:5.1}% (robot {})  robots alive {alive}/{}",
             st.step,
-            plan.max_steps(),
+            plan.scenario.step_limit(),
             self.eval.best.0,
             self.eval.best.1,
             plan.robots()
@@ -137,7 +137,7 @@ impl Record {
         if alive == 0 {
             return Some(ExitReason::AllRobotsDead);
         }
-        if step >= plan.max_steps() && self.end.is_none() {
+        if step >= plan.scenario.step_limit() && self.end.is_none() {
             self.end = Some((step.saturating_sub(1), ExitReason::MaxSteps));
         }
         // A status may complete a step (a robot found dead, or missed).

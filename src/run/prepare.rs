@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context;
-use proto::msg::{RobotId, Step};
+use proto::msg::RobotId;
 use proto::scenario::{Process, Scenario};
 use world_server::scenario::resolve;
 
@@ -32,12 +32,6 @@ pub struct Plan {
 impl Plan {
     pub fn robots(&self) -> RobotId {
         self.scenario.robots.count
-    }
-
-    /// The run's step limit: the scenario's, or derived from the map by `resolve` (which always
-    /// sets it).
-    pub fn max_steps(&self) -> Step {
-        self.scenario.max_steps.unwrap_or(Step::MAX)
     }
 
     /// The host of `process`, if the run is spread over hosts.

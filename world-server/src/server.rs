@@ -13,7 +13,6 @@ use std::collections::{HashMap, HashSet};
 use std::time::Duration;
 
 use proto::exit::ExitReason;
-use proto::grid::Occ;
 use proto::keys;
 use proto::msg::{decode, encode, Cmd, Control, RobotId, Step};
 use proto::node::{zerr, ZenohError};
@@ -150,10 +149,7 @@ pub async fn serve(
         ClockMode::Lockstep => Duration::from_millis(s.clock.step_timeout_ms),
         ClockMode::Realtime => Duration::from_secs_f64(s.clock.step_seconds / s.clock.speedup),
     };
-    // Resolved scenarios carry their limit; one built by hand derives it from this world.
-    let max_steps = s
-        .max_steps
-        .unwrap_or_else(|| s.derived_max_steps(world.reachable.count(Occ::Free)));
+    let max_steps = s.step_limit();
     let mut step: Step = 0;
     put(&session, keys::STATUS, encode(&world.status(step))).await?;
     let end = loop {
