@@ -140,6 +140,8 @@ pub struct Link {
     credit: Mutex<[Option<Credit>; 2]>,
     /// Connections through the link that reached robot b (see [`Link::serve`]).
     through: watch::Sender<usize>,
+    /// Set when netem stops: connections held ([`Link::hold`]) end at once.
+    stopping: watch::Sender<bool>,
 }
 
 /// A direction's budget as netem reckons it from the bytes it carried, step by step: a token
@@ -219,6 +221,7 @@ impl Link {
             refused_total: AtomicU64::new(0),
             credit: Mutex::new([None, None]),
             through: watch::Sender::new(0),
+            stopping: watch::Sender::new(false),
         })
     }
 
@@ -296,12 +299,20 @@ impl Link {
         }
     }
 
-    /// Resets every connection and waits (up to `wait`) until their tasks have ended; aborts the rest.
-    /// Whether a connection through the link is open.
-    pub fn has_connections(&self) -> bool {
-        !lock(&self.conns).is_empty()
+    /// Whether a connection through the link reached robot b (one that is held while the link
+    /// is down, or while b does not listen, carries nothing yet).
+    pub fn has_connections_through(&self) -> bool {
+        *self.through.borrow() > 0
     }
 
+    /// Resets every connection that is held (it carries nothing yet), now and from now on: the
+    /// first thing netem does when it stops. A robot's zenoh does not close while an opening
+    /// handshake on a held connection is pending, so waiting for it would wait for netem.
+    pub fn release_held(&self) {
+        self.stopping.send_replace(true);
+    }
+
+    /// Resets every connection and waits (up to `wait`) until their tasks have ended; aborts the rest.
     pub async fn close_all(&self, wait: Duration) {
         self.reset_connections();
         let deadline = tokio::time::Instant::now() + wait;
@@ -415,6 +426,7 @@ impl Link {
     ) -> bool {
         use tokio::io::AsyncReadExt;
         let mut up = self.up.subscribe();
+        let mut stopping = self.stopping.subscribe();
         let mut buf = [0u8; 512];
         loop {
             let waited = tokio::time::Instant::now() >= until;
@@ -426,6 +438,7 @@ impl Link {
                 changed = up.changed() => if changed.is_err() { return false },
                 () = tokio::time::sleep_until(until), if !waited => {}
                 _ = killed(kill) => return false,
+                () = stopped(&mut stopping) => return false,
                 read = client.read(&mut buf[..room]), if room > 0 => match read {
                     Ok(0) | Err(_) => return false,
                     Ok(k) => held.extend_from_slice(&buf[..k]),

@@ -326,7 +326,6 @@ fn radio_model(cfg: &NetemConfig) -> Model {
     }
 }
 
-/// Binds every listener (and the HTTP API), spawns the tasks. Needs a tokio runtime.
 /// How long [`Netem::shutdown`] waits for connections to end by themselves before it resets them.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(1);
 
@@ -349,6 +348,7 @@ fn burst_seconds(rate: u64, step_seconds: f64, markers: bool) -> f64 {
     }
 }
 
+/// Binds every listener (and the HTTP API), spawns the tasks. Needs a tokio runtime.
 pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     validate(&cfg)?;
     let clock = match cfg.mode {
@@ -830,8 +830,17 @@ impl Netem {
         // At the end of a run the robots are told to stop at the same time as netem: give their
         // connections a moment to end by themselves (every byte written is then sent or counted
         // lost by its sink), so that a reset here does not race bytes still leaving the kernel.
+        // Held connections carry nothing: they go at once (waiting for them too kept every run
+        // a second longer, see `Link::release_held`).
+        for l in &self.shared.links {
+            l.release_held();
+        }
         let grace = tokio::time::Instant::now() + SHUTDOWN_GRACE;
-        while self.shared.links.iter().any(|l| l.has_connections())
+        while self
+            .shared
+            .links
+            .iter()
+            .any(|l| l.has_connections_through())
             && tokio::time::Instant::now() < grace
         {
             tokio::time::sleep(Duration::from_millis(5)).await;
@@ -985,6 +994,56 @@ mod tests {
             }
         });
         (rx, task)
+    }
+
+    #[tokio::test]
+    async fn shutdown_resets_held_connections_at_once_and_gives_the_others_their_grace() {
+        let mut r = robots(3).await;
+        let cfg = NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
+        );
+        let n = start(cfg).await.unwrap();
+        // 0–1 in range, 0–2 and 1–2 out of it.
+        n.on_step(
+            0,
+            &[
+                (0, at(0.0, 0.0), true),
+                (1, at(5.0, 0.0), true),
+                (2, at(50.0, 0.0), true),
+            ],
+        );
+        let (mut a, mut b) = connect(&n, &mut r, 0, 1).await;
+        a.write_all(b"x").await.unwrap();
+        let mut buf = [0u8; 1];
+        tokio::time::timeout(Duration::from_secs(2), b.read_exact(&mut buf))
+            .await
+            .unwrap()
+            .unwrap();
+        let mut held = TcpStream::connect(n.listen_addr(0, 2).unwrap())
+            .await
+            .unwrap();
+        held.write_all(b"hello").await.unwrap();
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let started = std::time::Instant::now();
+        let stopping = tokio::spawn(n.shutdown());
+        // The held connection goes at once; the one through waits for its robots to close it.
+        assert!(ends_within(&mut held, Duration::from_millis(500)).await);
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        assert!(
+            !stopping.is_finished(),
+            "the connection through has its grace"
+        );
+        drop((a, b));
+        tokio::time::timeout(Duration::from_secs(2), stopping)
+            .await
+            .unwrap()
+            .unwrap();
+        assert!(
+            started.elapsed() < SHUTDOWN_GRACE,
+            "{:?}",
+            started.elapsed()
+        );
     }
 
     #[tokio::test]
