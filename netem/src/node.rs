@@ -87,9 +87,11 @@ pub async fn follow(
                 // The base station is a node like a robot (it only never moves).
                 let poses: Vec<_> = st.robots.iter().chain(&st.base).map(|r| (r.id, r.pose, r.alive)).collect();
                 let rows = netem.advance(st.step, &poses);
-                // The step's links first: lockstep robots wait for them before they act.
-                let plan = netem.plan();
-                sim.put(keys::NETEM_PLAN, encode(&plan)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
+                // The step's links first: lockstep robots wait for them before they act. Each
+                // node gets its own (the whole plan to every robot was n³ bytes a step).
+                for (id, plan) in netem.plan().split(poses.iter().map(|p| p.0)) {
+                    sim.put(keys::plan(id), encode(&plan)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
+                }
                 if let (Some(prev), false) = (last, rows.is_empty()) {
                     let report = LinkReport { step: prev, links: rows.iter().map(state).collect() };
                     sim.put(keys::NETEM_LINKS, encode(&report)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;

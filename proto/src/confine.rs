@@ -95,23 +95,20 @@ pub fn grants(p: Principal) -> Vec<Grant> {
     let mut g = vec![grant(Egress, INTEREST, &["sim/**"])];
     match p {
         Principal::Robot(i) | Principal::BaseStation(i) => {
-            let (cmd, telemetry, scan, alive) = (
+            let (cmd, telemetry, scan, plan, alive) = (
                 keys::cmd(i),
                 keys::telemetry(i),
                 keys::scan(i),
+                keys::plan(i),
                 keys::sim_alive(i),
             );
             g.extend([
                 grant(Ingress, PUT, &[&cmd, &telemetry]),
-                grant(
-                    Ingress,
-                    SUBSCRIBE,
-                    &[&scan, keys::NETEM_PLAN, keys::CONTROL],
-                ),
+                grant(Ingress, SUBSCRIBE, &[&scan, &plan, keys::CONTROL]),
                 grant(Ingress, TOKEN, &[&alive]),
                 grant(Ingress, WATCH, &[keys::WORLD_ALIVE, keys::NETEM_ALIVE]),
                 grant(Ingress, QUERY, &[keys::WORLD_INFO]),
-                grant(Egress, PUT, &[&scan, keys::NETEM_PLAN, keys::CONTROL]),
+                grant(Egress, PUT, &[&scan, &plan, keys::CONTROL]),
                 grant(Egress, TOKEN, &[keys::WORLD_ALIVE, keys::NETEM_ALIVE]),
                 grant(Egress, REPLY, &[keys::WORLD_INFO]),
             ]);
@@ -120,7 +117,7 @@ pub fn grants(p: Principal) -> Vec<Grant> {
             grant(
                 Ingress,
                 PUT,
-                &[keys::NETEM_PLAN, keys::NETEM_LINKS, keys::PROCESS_ORDERS],
+                &[keys::PLAN_ALL, keys::NETEM_LINKS, keys::PROCESS_ORDERS],
             ),
             grant(Ingress, SUBSCRIBE, &[keys::STATUS, keys::CONTROL]),
             grant(Ingress, TOKEN, &[keys::NETEM_ALIVE]),

@@ -13,9 +13,8 @@ pub const WORLD_TRUTH: &str = "sim/world/truth";
 pub const STATUS: &str = "sim/status";
 /// netem's per-step [`crate::msg::LinkReport`].
 pub const NETEM_LINKS: &str = "sim/netem/links";
-/// netem's per-step [`crate::msg::LinkPlan`]: which links are up for the step (lockstep robots
-/// wait for it before they act).
-pub const NETEM_PLAN: &str = "sim/netem/plan";
+/// netem's per-step [`crate::msg::LinkPlan`]s, one per node (see [`plan`]).
+pub const PLAN_ALL: &str = "sim/robot/*/plan";
 /// netem's liveliness token, declared once it follows the world's status (lockstep robots wait
 /// for it before they join).
 pub const NETEM_ALIVE: &str = "sim/netem/alive";
@@ -37,6 +36,13 @@ pub const RADIO_ALIVE_ALL: &str = "radio/alive/*";
 
 pub fn scan(id: RobotId) -> String {
     format!("sim/robot/{id}/scan")
+}
+
+/// netem's per-step [`crate::msg::LinkPlan`] for node `id`: which of its links are up for the
+/// step (a lockstep robot waits for it before it acts). One per node, so that what a robot
+/// receives grows with its neighbours, not with the team's pairs.
+pub fn plan(id: RobotId) -> String {
+    format!("sim/robot/{id}/plan")
 }
 
 pub fn cmd(id: RobotId) -> String {

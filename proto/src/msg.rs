@@ -6,6 +6,8 @@
 //! docs/design.md §4.8). Every payload starts with [`PROTOCOL_VERSION`] so that mixed builds fail
 //! loudly instead of misreading each other.
 
+use std::collections::BTreeMap;
+
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 use crate::geom::{LaserSpec, MapInfo, Pose};
@@ -345,6 +347,31 @@ impl LinkPlan {
                 })
                 .collect(),
         }
+    }
+
+    /// The plan each of `nodes` receives: the links it is an end of, in this plan's order (a
+    /// node without a link that is up gets an empty plan). Costs the links plus the nodes.
+    pub fn split(&self, nodes: impl IntoIterator<Item = RobotId>) -> BTreeMap<RobotId, LinkPlan> {
+        let mut out: BTreeMap<RobotId, LinkPlan> = nodes
+            .into_iter()
+            .map(|id| {
+                (
+                    id,
+                    LinkPlan {
+                        step: self.step,
+                        links: Vec::new(),
+                    },
+                )
+            })
+            .collect();
+        for l in &self.links {
+            for end in [l.a, l.b] {
+                if let Some(p) = out.get_mut(&end) {
+                    p.links.push(*l);
+                }
+            }
+        }
+        out
     }
 
     /// The robots `me` may talk to in the step (up and not held), in id order.
@@ -1198,6 +1225,21 @@ mod link_plan_tests {
             credit: [Some(100), Some(7)],
         };
         assert_eq!((l.rate_from(1), l.delay_from(1)), (Some(10), 3));
+        // Split per node: each keeps its own links, in order; a node without one gets none.
+        let parts = p.split([0, 2, 4]);
+        assert_eq!(parts.keys().copied().collect::<Vec<_>>(), [0, 2, 4]);
+        for (&id, part) in &parts {
+            assert_eq!(part.step, p.step);
+            let mine: Vec<_> = p
+                .links
+                .iter()
+                .filter(|l| l.other(id).is_some())
+                .copied()
+                .collect();
+            assert_eq!(part.links, mine);
+            assert_eq!(part.neighbours(id), p.neighbours(id));
+        }
+        assert!(parts[&4].links.is_empty());
         assert_eq!((l.credit_from(1), l.credit_from(4)), (Some(100), Some(7)));
         assert_eq!((l.rate_from(4), l.delay_from(4)), (Some(20), 0));
     }

@@ -442,6 +442,9 @@ fn addressed_only(me: crate::msg::RobotId, team: u16) -> String {
     )
 }
 
+/// zenoh's own lease, which a sim-plane session keeps in realtime runs (wall milliseconds).
+pub const SIM_LEASE_MS: u64 = 10_000;
+
 /// Largest zenoh batch on the radio plane: at 1 000 bytes/s one batch crosses in half a second.
 pub const RADIO_BATCH_BYTES: u16 = 512;
 /// Radio link lease (wall milliseconds); 4 keep-alives per lease.

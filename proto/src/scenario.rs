@@ -735,6 +735,24 @@ impl Scenario {
         ) as u32
     }
 
+    /// The lease of every sim-plane session (wall milliseconds): zenoh's own, 10 s
+    /// ([`crate::node::SIM_LEASE_MS`]); in lockstep at least as long as the world takes to
+    /// declare a silent robot dead (`dead_after` step timeouts), at most an hour. A process
+    /// starved of CPU on a loaded machine (128 robots on two cores: for more than 10 s) is then
+    /// judged by the world's step clock rather than dropped by zenoh first; one that exits or
+    /// is killed closes its connection and is noticed at once whatever the lease.
+    pub fn sim_lease_ms(&self) -> u64 {
+        use crate::node::{LOCKSTEP_RADIO_LEASE_MS, SIM_LEASE_MS};
+        match self.clock.mode {
+            ClockMode::Lockstep => self
+                .clock
+                .step_timeout_ms
+                .saturating_mul(u64::from(self.clock.dead_after))
+                .clamp(SIM_LEASE_MS, LOCKSTEP_RADIO_LEASE_MS),
+            ClockMode::Realtime => SIM_LEASE_MS,
+        }
+    }
+
     /// The run's step limit: `max_steps`, which resolving a scenario always sets (see
     /// [`Scenario::derived_max_steps`]); an unresolved scenario without one has no limit.
     pub fn step_limit(&self) -> u32 {
@@ -1361,6 +1379,22 @@ mod tests {
             Ok(_) => panic!("expected an error for {text:?} {overrides:?}"),
             Err(e) => e.to_string(),
         }
+    }
+
+    #[test]
+    fn the_sim_lease_outlasts_the_worlds_verdict_in_lockstep_within_bounds() {
+        let mut s = Scenario::default();
+        // The default: 5 step timeouts of 2 s, zenoh's own 10 s.
+        assert_eq!(s.sim_lease_ms(), crate::node::SIM_LEASE_MS);
+        s.clock.step_timeout_ms = 600_000;
+        assert_eq!(s.sim_lease_ms(), 3_000_000);
+        s.clock.step_timeout_ms = u64::MAX;
+        assert_eq!(s.sim_lease_ms(), crate::node::LOCKSTEP_RADIO_LEASE_MS);
+        s.clock.step_timeout_ms = 1;
+        assert_eq!(s.sim_lease_ms(), crate::node::SIM_LEASE_MS);
+        s.clock.step_timeout_ms = 600_000;
+        s.clock.mode = ClockMode::Realtime;
+        assert_eq!(s.sim_lease_ms(), crate::node::SIM_LEASE_MS);
     }
 
     #[test]

@@ -122,10 +122,7 @@ impl Subs {
         Ok(Subs {
             world_lost: std::cell::Cell::new(None),
             scans: sim.declare_subscriber(keys::scan(id)).await.map_err(zerr)?,
-            plans: sim
-                .declare_subscriber(keys::NETEM_PLAN)
-                .await
-                .map_err(zerr)?,
+            plans: sim.declare_subscriber(keys::plan(id)).await.map_err(zerr)?,
             ctl: sim.declare_subscriber(keys::CONTROL).await.map_err(zerr)?,
             world_alive: sim
                 .liveliness()
@@ -335,7 +332,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             if let Some(t) = ls.ready() {
                 break t;
             }
-            if let Some(end) = note(p.id, &mut ls, &mut agent, p.subs.next(p.idle).await) {
+            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
                 return Ok(end);
             }
         };
@@ -378,7 +375,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             }
             // zenoh tells no event when a session forms: look again soon.
             if let Ok(e) = tokio::time::timeout(poll, p.subs.next(p.idle)).await {
-                if let Some(end) = note(p.id, &mut ls, &mut agent, e) {
+                if let Some(end) = note(&mut ls, &mut agent, e) {
                     return Ok(end);
                 }
             }
@@ -404,7 +401,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                 put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
                 continue 'steps;
             }
-            if let Some(end) = note(p.id, &mut ls, &mut agent, p.subs.next(p.idle).await) {
+            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
                 return Ok(end);
             }
         }
@@ -423,16 +420,11 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
 
 /// Notes an event in the lockstep bookkeeping (a radio payload counted and decoded once, by
 /// the agent's radio); `Some` when it ends the robot.
-fn note(me: RobotId, ls: &mut Lockstep, agent: &mut Agent, e: Event) -> Option<End> {
+fn note(ls: &mut Lockstep, agent: &mut Agent, e: Event) -> Option<End> {
     match e {
         Event::Scan(s) => ls.on_scan(s),
-        Event::Plan(mut plan) => {
-            // The plan lists every link of the team, n(n−1)/2 when all are in range; a robot
-            // only ever asks about its own, so it keeps those (its step's lookups then cost
-            // its neighbours, not the team squared).
-            plan.links.retain(|l| l.a == me || l.b == me);
-            ls.on_plan(plan);
-        }
+        // netem sends each robot only its own links (`keys::plan`).
+        Event::Plan(plan) => ls.on_plan(plan),
         Event::Radio(kind, bytes) => {
             if let Some(m) = agent.receive(&kind, &bytes) {
                 ls.on_radio(m);

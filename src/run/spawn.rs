@@ -235,14 +235,25 @@ fn sim_client(plan: &Plan, who: Principal) -> ZenohArgs {
     ZenohArgs {
         connect: vec![plan.ports.sim_endpoint()],
         credentials: Some(secrets::credentials(plan, who)),
+        cfg: sim_lease(plan),
         ..ZenohArgs::default()
     }
+}
+
+/// Every sim-plane session's lease (each side declares its own): the scenario's
+/// ([`proto::scenario::Scenario::sim_lease_ms`]).
+fn sim_lease(plan: &Plan) -> Vec<String> {
+    vec![format!(
+        "transport/link/tx/lease:{}",
+        plan.scenario.sim_lease_ms()
+    )]
 }
 
 fn world_server_argv(plan: &Plan) -> Vec<String> {
     let router = ZenohArgs {
         listen: vec![plan.ports.sim_endpoint()],
         users: Some(secrets::users(plan)),
+        cfg: sim_lease(plan),
         ..ZenohArgs::default()
     };
     let args = world_server::cli::Args::new(plan.scenario_file.clone(), router);
