@@ -164,27 +164,43 @@ impl Agent {
         let penalty = (weight > 0.0).then(|| plan::obstacle_penalty(g, sigma_cells, weight));
         let detour = self.right_of_way.detour(g, me, &self.heard);
         let free = detour.as_ref().unwrap_or(g);
-        let costs = plan::costs_with(free, me, penalty.as_deref());
         self.right_of_way.give_up(&mut self.target);
-        let frontiers: Vec<Cell> = plan::frontiers(g, &costs);
-        let valid = self
-            .target
-            .is_some_and(|t| self.right_of_way.usable(t, me) && frontiers.contains(&t));
-        let candidates = self.right_of_way.candidates(&frontiers, me);
-        self.target = self.coordinator.choose(&Situation {
-            id: self.id,
-            step: self.step,
-            me,
-            grid: g,
-            known: self.known,
-            costs: &costs,
-            penalty: penalty.as_deref(),
-            candidates: &candidates,
-            target: self.target,
-            valid,
-            neighbours: self.radio.neighbours(),
-            heard: &self.heard,
+        let usable = self.target.filter(|&t| self.right_of_way.usable(t, me));
+        // A strategy that keeps a valid target needs only the way to it: search as far as
+        // the target, and all over only when it is gone (explored, unreachable) or the
+        // strategy looks at every frontier each step.
+        let mut costs = match usable.filter(|_| self.coordinator.keeps_valid_target()) {
+            Some(t) => plan::costs_until(free, me, penalty.as_deref(), t),
+            None => plan::costs_with(free, me, penalty.as_deref()),
+        };
+        let kept = usable.filter(|&t| {
+            !costs.is_complete()
+                && self.coordinator.keeps_valid_target()
+                && plan::is_frontier(g, &costs, t)
         });
+        let mut frontiers = Vec::new();
+        if kept.is_none() {
+            if !costs.is_complete() {
+                costs = plan::costs_with(free, me, penalty.as_deref());
+            }
+            frontiers = plan::frontiers(g, &costs);
+            let valid = usable.is_some_and(|t| frontiers.contains(&t));
+            let candidates = self.right_of_way.candidates(&frontiers, me);
+            self.target = self.coordinator.choose(&Situation {
+                id: self.id,
+                step: self.step,
+                me,
+                grid: g,
+                known: self.known,
+                costs: &costs,
+                penalty: penalty.as_deref(),
+                candidates: &candidates,
+                target: self.target,
+                valid,
+                neighbours: self.radio.neighbours(),
+                heard: &self.heard,
+            });
+        }
         let w = &self.world;
         let steered = match self.coordinator.steer() {
             Steer::Target => None,
@@ -193,7 +209,7 @@ impl Agent {
         };
         if let Some(waypoint) = steered {
             // The strategy moves the robot itself: idle only when nothing is left to explore.
-            self.idle = frontiers.is_empty();
+            self.idle = kept.is_none() && frontiers.is_empty();
             return waypoint;
         }
         let max_cells = w.max_speed_m_per_s * w.step_seconds / w.map.resolution_m;

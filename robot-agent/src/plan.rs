@@ -54,6 +54,9 @@ pub struct CostMap {
     /// Predecessor on a shortest path per cell index; [`NO_PRED`] for the start and unreachable
     /// cells.
     pred: Vec<u32>,
+    /// The search settled every cell up to this cost and stopped ([`costs_until`]); costs
+    /// beyond it are unknown and read as unreachable. `f64::INFINITY`: a full search.
+    limit: f64,
 }
 
 impl CostMap {
@@ -67,7 +70,12 @@ impl CostMap {
     pub fn cost(&self, c: Cell) -> Option<f64> {
         self.index(c)
             .map(|i| self.dist[i])
-            .filter(|d| d.is_finite())
+            .filter(|&d| d.is_finite() && d <= self.limit)
+    }
+
+    /// Whether the search covered every cell it could reach (not stopped by [`costs_until`]).
+    pub fn is_complete(&self) -> bool {
+        self.limit == f64::INFINITY
     }
 
     fn index(&self, c: Cell) -> Option<usize> {
@@ -178,7 +186,18 @@ pub fn obstacle_penalty(g: &Grid, sigma: f64, weight: f64) -> Vec<f32> {
 
 /// [`costs`] with a per-cell penalty ([`obstacle_penalty`]; `None`: none).
 pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
-    dijkstra(g, start, &[start], penalty)
+    dijkstra(g, start, &[start], penalty, None)
+}
+
+/// [`costs_with`] that stops as soon as `target` is settled: a search as far as the target
+/// rather than over everything explored (a robot that keeps its target needs only the way
+/// there). Every cost it reports, and every path to a cell with one — `target`'s first — is
+/// [`costs_with`]'s: Dijkstra settles cells in the same order up to there, and a settled cell's
+/// cost and predecessor never change. Cells costlier than `target` read as unreachable. When
+/// `target` is unreachable the search runs out by itself and the map is complete
+/// ([`CostMap::is_complete`]).
+pub fn costs_until(g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell) -> CostMap {
+    dijkstra(g, start, &[start], penalty, Some(target))
 }
 
 /// The cost of reaching every cell from the nearest of `sources` (a multi-source Dijkstra, no
@@ -187,14 +206,20 @@ pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
 /// only through [`path_to`] from it, so do not ask for paths).
 pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
     let start = sources.first().copied().unwrap_or(Cell::new(-1, -1));
-    dijkstra(g, start, sources, None)
+    dijkstra(g, start, sources, None, None)
 }
 
 /// The search runs over a window of the grid — its known part and the sources — and costs in
 /// proportion to that, not to the map: every free cell is inside the known part, and a path
 /// steps only onto free cells. Window indices are row-major like the grid's, so the order in
 /// which equal costs are settled is the grid's.
-fn dijkstra(g: &Grid, start: Cell, sources: &[Cell], penalty: Option<&[f32]>) -> CostMap {
+fn dijkstra(
+    g: &Grid,
+    start: Cell,
+    sources: &[Cell],
+    penalty: Option<&[f32]>,
+    until: Option<Cell>,
+) -> CostMap {
     let window = sources
         .iter()
         .filter(|&&c| g.contains(c))
@@ -212,7 +237,9 @@ fn dijkstra(g: &Grid, start: Cell, sources: &[Cell], penalty: Option<&[f32]>) ->
         start,
         dist: vec![f64::INFINITY; cells],
         pred: vec![NO_PRED; cells],
+        limit: f64::INFINITY,
     };
+    let stop = until.and_then(|c| map.index(c));
     let mut heap = BinaryHeap::new();
     for &c in sources {
         if let Some(s) = map.index(c) {
@@ -226,6 +253,13 @@ fn dijkstra(g: &Grid, start: Cell, sources: &[Cell], penalty: Option<&[f32]>) ->
     while let Some(Entry { cost, index }) = heap.pop() {
         if cost > map.dist[index] {
             continue;
+        }
+        if Some(index) == stop {
+            // Every cell cheaper than this one is settled; one as cheap that is not yet has
+            // its final cost already (it can only be lowered by a cheaper cell), so the limit
+            // may include this cost.
+            map.limit = cost;
+            break;
         }
         for (n, step) in moves(g, map.cell_of(index)) {
             // `moves` yields only free cells, which lie inside the grid.
@@ -255,13 +289,17 @@ pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
     g.known_bounds()
         .into_iter()
         .flat_map(Rect::cells)
-        .filter(|&c| g.get(c) == Occ::Free && costs.cost(c).is_some())
-        .filter(|&c| {
-            c.neighbours4()
-                .iter()
-                .any(|&n| g.contains(n) && g.get(n) == Occ::Unknown)
-        })
+        .filter(|&c| is_frontier(g, costs, c))
         .collect()
+}
+
+/// Whether `c` is one of [`frontiers`]`(g, costs)`.
+pub fn is_frontier(g: &Grid, costs: &CostMap, c: Cell) -> bool {
+    g.get(c) == Occ::Free
+        && costs.cost(c).is_some()
+        && c.neighbours4()
+            .iter()
+            .any(|&n| g.contains(n) && g.get(n) == Occ::Unknown)
 }
 
 /// The cheapest frontier, ties broken by `(y, x)` (costs equal to within 10⁻⁶ cells count as
@@ -780,6 +818,32 @@ mod tests {
                 prop_assert_eq!(path_to(&part, c), path_to(&all, c));
             }
             prop_assert_eq!(frontiers(&g, &part), frontiers(&every, &all));
+        }
+
+        /// Stopped at a target, the search reports exactly the full search's costs up to the
+        /// target's and the same paths — the target's among them — and nothing beyond.
+        #[test]
+        fn the_search_until_a_target_is_the_full_search_as_far_as_it_goes(
+            g in arb_grid(), sx in 0i32..14, sy in 0i32..14, tx in 0i32..14, ty in 0i32..14
+        ) {
+            let cell = |x: i32, y: i32| Cell::new(x % g.width() as i32, y % g.height() as i32);
+            let (start, target) = (cell(sx, sy), cell(tx, ty));
+            let (until, all) = (costs_until(&g, start, None, target), costs(&g, start));
+            let reach = all.cost(target);
+            prop_assert_eq!(until.cost(target), reach);
+            prop_assert_eq!(until.is_complete(), reach.is_none());
+            for i in 0..g.len() {
+                let c = g.cell_of(i);
+                match (until.cost(c), all.cost(c)) {
+                    (Some(u), a) => {
+                        prop_assert_eq!(Some(u), a);
+                        prop_assert_eq!(path_to(&until, c), path_to(&all, c));
+                        prop_assert_eq!(is_frontier(&g, &until, c), is_frontier(&g, &all, c));
+                    }
+                    (None, Some(a)) => prop_assert!(reach.is_some_and(|r| a > r), "{:?} at {} lost", c, a),
+                    (None, None) => {}
+                }
+            }
         }
 
         #[test]

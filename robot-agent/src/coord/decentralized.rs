@@ -19,6 +19,10 @@ impl Decentralized {
 }
 
 impl Coordinator for Decentralized {
+    fn keeps_valid_target(&self) -> bool {
+        true
+    }
+
     fn choose(&mut self, s: &Situation<'_>) -> Option<Cell> {
         if s.valid {
             return s.target;

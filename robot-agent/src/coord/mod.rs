@@ -65,6 +65,14 @@ pub trait Coordinator: Send {
     /// This step's target: keep `s.target` or pick another (`None`: no target).
     fn choose(&mut self, s: &Situation<'_>) -> Option<Cell>;
 
+    /// Whether [`Coordinator::choose`] keeps a valid target (`s.valid`) without looking at
+    /// anything else. The agent then searches only as far as that target while it stays a
+    /// frontier ([`crate::plan::costs_until`]), and asks `choose` nothing: the step costs the
+    /// way to the target, not everything explored.
+    fn keeps_valid_target(&self) -> bool {
+        false
+    }
+
     /// The messages to send after this step's decision.
     fn messages(&mut self, _s: &Status<'_>) -> Vec<Addressed> {
         Vec::new()

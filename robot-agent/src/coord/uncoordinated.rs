@@ -10,6 +10,10 @@ use crate::plan;
 pub struct Uncoordinated;
 
 impl Coordinator for Uncoordinated {
+    fn keeps_valid_target(&self) -> bool {
+        true
+    }
+
     fn choose(&mut self, s: &Situation<'_>) -> Option<Cell> {
         if s.valid {
             return s.target;
