@@ -140,8 +140,10 @@ pub struct Link {
     credit: Mutex<[Option<Credit>; 2]>,
     /// Connections through the link that reached robot b (see [`Link::serve`]).
     through: watch::Sender<usize>,
-    /// Set when netem stops: connections held ([`Link::hold`]) end at once.
-    stopping: watch::Sender<bool>,
+    /// netem's stop: the accept loop ends and connections held ([`Link::hold`]) end at once —
+    /// they carry nothing, and a robot's zenoh does not close while an opening handshake on one
+    /// is pending, so netem waiting for them would wait for itself.
+    shutdown: watch::Receiver<bool>,
 }
 
 /// A direction's budget as netem reckons it from the bytes it carried, step by step: a token
@@ -198,11 +200,13 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 impl Link {
     /// A link whose listener is bound at `listen`; call [`Link::serve`] to start accepting.
+    /// It stops when `shutdown` becomes true.
     pub fn new(
         params: LinkParams,
         listen: SocketAddr,
         clock: SimClock,
         state: LinkState,
+        shutdown: watch::Receiver<bool>,
     ) -> Arc<Link> {
         let up = state.down_reason().is_none();
         Arc::new(Link {
@@ -221,7 +225,7 @@ impl Link {
             refused_total: AtomicU64::new(0),
             credit: Mutex::new([None, None]),
             through: watch::Sender::new(0),
-            stopping: watch::Sender::new(false),
+            shutdown,
         })
     }
 
@@ -305,13 +309,6 @@ impl Link {
         *self.through.borrow() > 0
     }
 
-    /// Resets every connection that is held (it carries nothing yet), now and from now on: the
-    /// first thing netem does when it stops. A robot's zenoh does not close while an opening
-    /// handshake on a held connection is pending, so waiting for it would wait for netem.
-    pub fn release_held(&self) {
-        self.stopping.send_replace(true);
-    }
-
     /// Resets every connection and waits (up to `wait`) until their tasks have ended; aborts the rest.
     pub async fn close_all(&self, wait: Duration) {
         self.reset_connections();
@@ -326,7 +323,7 @@ impl Link {
         }
     }
 
-    /// Spawns the accept loop on `listener`; it ends when `shutdown` becomes true.
+    /// Spawns the accept loop on `listener`; it ends when netem stops.
     ///
     /// The listener is closed while the link is up and a connection through it has reached
     /// robot b — the port stays netem's, held by that connection — and bound again the moment
@@ -334,12 +331,9 @@ impl Link {
     /// descriptors instead of three: 16 000 instead of 24 000 at 128 robots all in range (see
     /// [`crate::fds`]). (The launcher looks for free ports without `SO_REUSEADDR`, so it never
     /// takes a port a connection holds.)
-    pub fn serve(
-        self: &Arc<Self>,
-        listener: TcpListener,
-        mut shutdown: watch::Receiver<bool>,
-    ) -> JoinHandle<()> {
+    pub fn serve(self: &Arc<Self>, listener: TcpListener) -> JoinHandle<()> {
         let link = Arc::clone(self);
+        let mut shutdown = self.shutdown.clone();
         tokio::spawn(async move {
             let mut listener = Some(listener);
             let mut up = link.up.subscribe();
@@ -426,7 +420,7 @@ impl Link {
     ) -> bool {
         use tokio::io::AsyncReadExt;
         let mut up = self.up.subscribe();
-        let mut stopping = self.stopping.subscribe();
+        let mut stopping = self.shutdown.clone();
         let mut buf = [0u8; 512];
         loop {
             let waited = tokio::time::Instant::now() >= until;
@@ -893,9 +887,15 @@ pub(crate) mod tests {
             radio: None,
             always: true,
         };
-        let link = Link::new(params, listener.local_addr().unwrap(), clock, state);
         let (stop_tx, stop_rx) = watch::channel(false);
-        link.serve(listener, stop_rx);
+        let link = Link::new(
+            params,
+            listener.local_addr().unwrap(),
+            clock,
+            state,
+            stop_rx,
+        );
+        link.serve(listener);
         (link, stop_tx)
     }
 

@@ -399,7 +399,13 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
             radio: None,
             always: cfg.radio.model == RadioModel::Always,
         };
-        links.push(Link::new(params, listen, clock.clone(), state));
+        links.push(Link::new(
+            params,
+            listen,
+            clock.clone(),
+            state,
+            shutdown_rx.clone(),
+        ));
         listeners.push(listener);
     }
     let mut faults = cfg.faults;
@@ -439,7 +445,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         .links
         .iter()
         .zip(listeners)
-        .map(|(l, listener)| l.serve(listener, shutdown_rx.clone()))
+        .map(|(l, listener)| l.serve(listener))
         .collect();
     let mut http_addr = None;
     if let Some(addr) = cfg.http {
@@ -830,11 +836,8 @@ impl Netem {
         // At the end of a run the robots are told to stop at the same time as netem: give their
         // connections a moment to end by themselves (every byte written is then sent or counted
         // lost by its sink), so that a reset here does not race bytes still leaving the kernel.
-        // Held connections carry nothing: they go at once (waiting for them too kept every run
-        // a second longer, see `Link::release_held`).
-        for l in &self.shared.links {
-            l.release_held();
-        }
+        // Held connections carry nothing: the stop above ended them at once (waiting for them
+        // too kept every run a second longer, see `Link::hold`).
         let grace = tokio::time::Instant::now() + SHUTDOWN_GRACE;
         while self
             .shared
@@ -945,6 +948,14 @@ mod tests {
         v
     }
 
+    /// Every pair of `r` under a 10 m disk range with no rate limit.
+    fn disk_10m(r: &Robots) -> NetemConfig {
+        NetemConfig::new(
+            all_pairs(r),
+            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
+        )
+    }
+
     fn radio(model: RadioModel, range_m: f64, rate: u64, medium: Medium) -> ScenarioRadio {
         ScenarioRadio {
             model,
@@ -999,10 +1010,7 @@ mod tests {
     #[tokio::test]
     async fn shutdown_resets_held_connections_at_once_and_gives_the_others_their_grace() {
         let mut r = robots(3).await;
-        let cfg = NetemConfig::new(
-            all_pairs(&r),
-            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
-        );
+        let cfg = disk_10m(&r);
         let n = start(cfg).await.unwrap();
         // 0–1 in range, 0–2 and 1–2 out of it.
         n.on_step(
@@ -1049,10 +1057,7 @@ mod tests {
     #[tokio::test]
     async fn disk_range_cuts_holds_and_restores_a_link() {
         let mut r = robots(2).await;
-        let cfg = NetemConfig::new(
-            all_pairs(&r),
-            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
-        );
+        let cfg = disk_10m(&r);
         let n = start(cfg).await.unwrap();
         assert!(!n.snapshot()[0].up, "no poses yet");
         n.on_step(0, &[(0, at(0.0, 0.0), true), (1, at(5.0, 0.0), true)]);
@@ -1375,10 +1380,7 @@ mod tests {
     #[tokio::test]
     async fn bad_configurations_and_taken_ports_are_errors() {
         let r = robots(2).await;
-        let mut cfg = NetemConfig::new(
-            all_pairs(&r),
-            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
-        );
+        let mut cfg = disk_10m(&r);
         cfg.step_seconds = 0.0;
         assert!(matches!(
             start(cfg.clone()).await,
@@ -1391,10 +1393,7 @@ mod tests {
             Err(NetemError::Config(_))
         ));
         let taken = TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let mut cfg = NetemConfig::new(
-            all_pairs(&r),
-            radio(RadioModel::Disk, 10.0, 0, Medium::PerLink),
-        );
+        let mut cfg = disk_10m(&r);
         cfg.pairs[0].listen = taken.local_addr().unwrap();
         let e = start(cfg).await.err().unwrap();
         assert!(e.to_string().contains("r0-r1"), "{e}");

@@ -169,15 +169,12 @@ impl Agent {
         // A strategy that keeps a valid target needs only the way to it: search as far as
         // the target, and all over only when it is gone (explored, unreachable) or the
         // strategy looks at every frontier each step.
-        let mut costs = match usable.filter(|_| self.coordinator.keeps_valid_target()) {
+        let keep = usable.filter(|_| self.coordinator.keeps_valid_target());
+        let mut costs = match keep {
             Some(t) => plan::costs_until(free, me, penalty.as_deref(), t),
             None => plan::costs_with(free, me, penalty.as_deref()),
         };
-        let kept = usable.filter(|&t| {
-            !costs.is_complete()
-                && self.coordinator.keeps_valid_target()
-                && plan::is_frontier(g, &costs, t)
-        });
+        let kept = keep.filter(|&t| plan::is_frontier(g, &costs, t));
         let mut frontiers = Vec::new();
         if kept.is_none() {
             if !costs.is_complete() {
