@@ -17,6 +17,8 @@ pub mod connectivity;
 pub mod curve;
 /// Coverage and exploration time from telemetry.
 pub mod evaluate;
+/// `swarm export-mcap`: a run as MCAP in Foxglove's schemas, from its step log.
+pub mod export_mcap;
 /// Where the processes of a run go: the hosts file (`swarm run --hosts`) and its placement.
 pub mod hosts;
 /// `swarm netem`: the netem process and runtime link control over its HTTP API.
@@ -41,7 +43,13 @@ pub mod results;
 pub mod run;
 /// The run directory's files.
 pub mod rundir;
+/// The run's step log (`steps.log`): per step, robots, links and grid changes, for replay.
+pub mod steplog;
 /// Supervision and process faults: kill, restart, freeze, thaw; restarts by policy.
 pub mod supervise;
 /// `swarm sweep`: grids of runs × seeds, run a few at a time, resumable.
 pub mod sweep;
+/// A run step by step from its step-log records: frames, chart series, robot details (the viewer's).
+pub mod timeline;
+/// The run viewer: a web page following a run live (`swarm run --view`) or replaying one (`swarm view`).
+pub mod view;

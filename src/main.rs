@@ -32,6 +32,13 @@ enum Command {
     /// robot held is lost, no panic, no orphan process, memory bounded. Writes chaos.json; exit
     /// code 0 if every check passed, 2 if one failed, 1 on error.
     Chaos(swarm::chaos::ChaosArgs),
+    /// Replay a finished run in the web viewer (the page `swarm run --view` serves live): a
+    /// time slider over its steps.log. Prints the address it serves; stops on Ctrl-C.
+    View(swarm::view::ViewArgs),
+    /// Write a finished run as MCAP (RUN_DIR/run.mcap, or --out) from its steps.log: grids,
+    /// poses, robots and links as Foxglove's well-known schemas, per-link byte counters — open
+    /// it in Foxglove Studio. Prints the file and the messages per topic.
+    ExportMcap(swarm::export_mcap::ExportArgs),
     /// Run a world-server process (what `swarm run` starts; use it to spread a run over machines).
     WorldServer(world_server::cli::Args),
     /// Run one robot-agent process (what `swarm run` starts, once per robot).
@@ -83,6 +90,32 @@ fn main() -> ExitCode {
             }
             Err(e) => {
                 eprintln!("swarm chaos: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+        Command::View(args) => {
+            proto::node::init_logging();
+            let result = tokio::runtime::Runtime::new()
+                .map_err(anyhow::Error::from)
+                .and_then(|rt| rt.block_on(swarm::view::replay(&args)));
+            match result {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("swarm view: {e:#}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::ExportMcap(args) => match swarm::export_mcap::export(&args) {
+            Ok((path, counts)) => {
+                println!("written {}", path.display());
+                for (topic, n) in counts {
+                    println!("  {topic}: {n} messages");
+                }
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("swarm export-mcap: {e:#}");
                 ExitCode::FAILURE
             }
         },

@@ -111,21 +111,41 @@ impl Picture {
         }
     }
 
+    /// Colours one grid cell.
+    pub fn cell(&mut self, c: proto::grid::Cell, col: [u8; 3]) {
+        self.fill_cell(c.x, c.y, col);
+    }
+
     pub fn save(&self, path: &Path) -> anyhow::Result<()> {
         write_png(path, self.width, self.height, &self.rgb)
+    }
+
+    /// The picture as PNG bytes.
+    pub fn png(&self) -> anyhow::Result<Vec<u8>> {
+        let mut out = Vec::new();
+        encode_png(&mut out, self.width, self.height, &self.rgb)?;
+        Ok(out)
     }
 }
 
 /// Writes 8-bit RGB pixels (row 0 at the top) as a PNG file.
 pub fn write_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> anyhow::Result<()> {
     let file = File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut enc = png::Encoder::new(BufWriter::new(file), width, height);
+    encode_png(BufWriter::new(file), width, height, rgb)
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Encodes 8-bit RGB pixels (row 0 at the top) as PNG into `w`.
+pub fn encode_png<W: std::io::Write>(
+    w: W,
+    width: u32,
+    height: u32,
+    rgb: &[u8],
+) -> anyhow::Result<()> {
+    let mut enc = png::Encoder::new(w, width, height);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
-    let mut w = enc
-        .write_header()
-        .with_context(|| format!("writing {}", path.display()))?;
-    w.write_image_data(rgb)
-        .with_context(|| format!("writing {}", path.display()))?;
+    let mut w = enc.write_header()?;
+    w.write_image_data(rgb)?;
     Ok(())
 }

@@ -422,6 +422,7 @@ impl Plan {
             set,
             quiet: true,
             hosts: None,
+            view: None,
         };
         let mut cmd = Command::new(exe);
         cmd.arg("run").args(args.to_argv());

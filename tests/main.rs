@@ -11,6 +11,7 @@ mod chaos;
 mod cli;
 mod confine;
 mod determinism;
+mod export;
 mod hosts;
 mod lifecycle;
 mod mapping;

@@ -11,7 +11,8 @@
 //! * [`op_chunk`] — the compact op encoding (thesis Table 6.1) and applying the ops to a replica;
 //! * [`scenario`] — scenario TOML, `--set` overrides, link and process faults;
 //! * [`map_yaml`] and [`map_image`] — ROS map_server YAML and PGM/PNG images;
-//! * [`netem_http`] — netem's control API: HTTP/1.1 requests and their JSON bodies.
+//! * [`netem_http`] — netem's control API: its JSON request bodies (proxy updates, toxics,
+//!   process faults; HTTP itself is hyper's).
 //!
 //! The committed corpora (`corpus/<target>/`) are valid inputs to start from, written by the
 //! ignored test `write_seed_corpus` (robots really exchanging, the project's maps and
@@ -215,7 +216,7 @@ pub fn map_image(data: &[u8]) {
     let _ = decode_image(data, &t);
 }
 
-/// netem's control API.
+/// netem's control API: a request body.
 pub fn netem_http(data: &[u8]) {
     netem::http::decode_only(data);
 }
@@ -414,30 +415,18 @@ mod tests {
         p5.extend([0, 254, 205, 255, 0, 0, 254, 254, 205, 205, 0, 254]);
         write("map_image", "small-p5.pgm", &p5);
         write("map_image", "small-p2.pgm", b"P2\n3 2\n255\n0 254 205\n254 0 100\n");
-        // netem's API.
-        for (name, req) in [
-            ("get-proxies", "GET /proxies HTTP/1.1\r\nHost: x\r\n\r\n".to_string()),
-            ("cut", "POST /proxies/r0-r1 HTTP/1.1\r\nContent-Length: 17\r\n\r\n{\"enabled\":false}".into()),
+        // netem's API: request bodies (HTTP itself is hyper's).
+        for (name, body) in [
+            ("cut", r#"{"enabled":false}"#),
             (
                 "toxic",
-                {
-                    let body = r#"{"name":"lat","type":"latency","stream":"downstream","toxicity":1.0,"attributes":{"latency":200,"jitter":20}}"#;
-                    format!("POST /proxies/r0-r1/toxics HTTP/1.1\r\nContent-Length: {}\r\n\r\n{body}", body.len())
-                },
+                r#"{"name":"lat","type":"latency","stream":"downstream","toxicity":1.0,"attributes":{"latency":200,"jitter":20}}"#,
             ),
-            (
-                "patch-keepalive",
-                {
-                    let body = r#"{"attributes":{"rate":500}}"#;
-                    format!(
-                        "PATCH /proxies/r0-r1/toxics/bw HTTP/1.1\r\nContent-Length: {}\r\n\r\n{body}GET /metrics HTTP/1.0\r\n\r\n",
-                        body.len()
-                    )
-                },
-            ),
-            ("chunked", "POST /reset HTTP/1.1\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n".into()),
+            ("patch", r#"{"attributes":{"rate":500}}"#),
+            ("kill", r#"{"kind":"kill","restart_after":3}"#),
+            ("empty", ""),
         ] {
-            write("netem_http", name, req.as_bytes());
+            write("netem_http", name, body.as_bytes());
         }
     }
 

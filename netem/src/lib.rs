@@ -29,7 +29,7 @@ pub mod clock;
 pub mod faults;
 /// The file descriptors netem holds (two per pair) and raising the limit on them.
 pub mod fds;
-/// The toxiproxy-compatible HTTP API and its small, total HTTP/1.1 request parser.
+/// The toxiproxy-compatible HTTP API (on axum).
 pub mod http;
 /// One robot pair's proxy: accept loop, connections (held while the link is down), up/down
 /// state, cut.

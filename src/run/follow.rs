@@ -21,6 +21,7 @@ use crate::children::{describe, Children};
 use crate::evaluate::Evaluator;
 use crate::progress::Progress;
 use crate::rundir::LinkLog;
+use crate::steplog::StepLogWriter;
 use crate::supervise::{Action, Supervisor};
 
 /// Steps every robot must be idle in a row before the run ends with `no-frontiers` (data still
@@ -58,6 +59,9 @@ pub struct Record {
     /// log it reported holding at any step taken (up to the run's last step), in ops and —
     /// where the exchange measures them — encoded bytes.
     pub held_max: BTreeMap<(RobotId, u16), Held>,
+    /// `steps.log`, written as the reports are taken (dropped, with a warning, if it cannot be
+    /// written: the run goes on).
+    pub log: Option<StepLogWriter>,
 }
 
 /// Per log owner: (ops, encoded bytes if measured) of its log.
@@ -87,6 +91,17 @@ impl Record {
             idle_since: None,
             end: None,
             settled_in_time: true,
+            log: None,
+        }
+    }
+
+    /// Writes to the step log; on an error says so once and writes no more.
+    fn log(&mut self, f: impl FnOnce(&mut StepLogWriter) -> anyhow::Result<()>) {
+        if let Some(w) = &mut self.log {
+            if let Err(e) = f(w) {
+                tracing::warn!("{e:#}; no step log from here on");
+                self.log = None;
+            }
         }
     }
 
@@ -132,6 +147,7 @@ impl Record {
             plan.robots()
         ));
         self.order.on_status(&st);
+        self.log(|w| w.status(&st));
         let step = st.step;
         self.statuses.push(st);
         if alive == 0 {
@@ -186,7 +202,17 @@ impl Record {
                 most.0 = most.0.max(n);
                 most.1 = most.1.max(bytes);
             }
+            let logged = self.log.as_mut().and_then(|w| w.robot_step(&t));
+            let scored = self.eval.rows.len();
             self.eval.add(t);
+            if let Some(mut r) = logged {
+                r.coverage_pct = self
+                    .eval
+                    .rows
+                    .get(scored)
+                    .map(|row| row.coverage_pct as f32);
+                self.log(|w| w.robot(r));
+            }
         }
         // Lockstep: the whole step is in, so every share compares grids of this step.
         // Realtime: one report, against every other robot's latest grid.
@@ -449,7 +475,10 @@ pub async fn follow(
             r = sim.link_reports.recv_async() => match message::<LinkReport, _>(r, "link report") {
                 Err(()) => Some(CLOSED),
                 Ok(r) => {
-                    if let Some(r) = r { rec.links.add(r) }
+                    if let Some(r) = r {
+                        rec.log(|w| w.links(&r));
+                        rec.links.add(r);
+                    }
                     None
                 }
             },

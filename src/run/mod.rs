@@ -39,6 +39,10 @@ pub struct RunArgs {
     /// started there (ssh, or a command prefix); see README "Running across machines".
     #[arg(long, value_name = "FILE")]
     pub hosts: Option<PathBuf>,
+    /// Serve a live web viewer of the run at ADDR (default 127.0.0.1:0: a free port); the
+    /// address is printed and written to the run directory as `view.addr`.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:0")]
+    pub view: Option<std::net::SocketAddr>,
 }
 
 impl RunArgs {
@@ -56,6 +60,9 @@ impl RunArgs {
         }
         if let Some(h) = &self.hosts {
             a.extend(["--hosts".into(), h.to_string_lossy().into_owned()]);
+        }
+        if let Some(v) = self.view {
+            a.push(format!("--view={v}"));
         }
         // Last, after `--`: a scenario path that starts with `-` is not taken for a flag.
         if let Some(s) = &self.scenario {
@@ -103,6 +110,37 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         plan.scenario.process_faults()?,
     );
     let mut rec = follow::Record::new(eval, lockstep, sup);
+    let mut log = crate::steplog::StepLogWriter::create(
+        &plan.dir,
+        run.truth.map,
+        &run.truth_grid,
+        plan.robots(),
+        plan.scenario.clock.step_seconds,
+    )?;
+    let viewer = match args.view {
+        Some(addr) => {
+            let api = crate::view::NetemApi {
+                addr: plan.ports.http,
+                token: if plan.api_token() {
+                    Some(
+                        std::fs::read_to_string(plan.dir.join("netem.token"))?
+                            .trim()
+                            .to_string(),
+                    )
+                } else {
+                    None
+                },
+            };
+            let (viewer, feed) = crate::view::live(addr, log.header().clone(), api).await?;
+            std::fs::write(plan.dir.join("view.addr"), format!("{}\n", viewer.addr))?;
+            progress.event(&format!("swarm run: viewer at http://{}/", viewer.addr));
+            let f = feed.clone();
+            log.tee = Some(Box::new(move |r| f.push(r.clone())));
+            Some((viewer, feed))
+        }
+        None => None,
+    };
+    rec.log = Some(log);
     let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
     let (processes, memory) = finish::stop(run, &mut rec, &mut progress).await;
@@ -110,6 +148,13 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         progress.event(&format!("swarm run: {e}"));
     }
     rec.truncate();
+    if let Some(Err(e)) = rec.log.take().map(crate::steplog::StepLogWriter::finish) {
+        progress.event(&format!("swarm run: {e:#}"));
+    }
+    if let Some((viewer, feed)) = viewer {
+        feed.finish();
+        viewer.stop();
+    }
     let up = rec.links.up_by_step();
     finish::score_contact(&plan, &mut rec, &up);
     finish::score_comm_level(&plan, &mut rec, &up);
@@ -146,6 +191,7 @@ mod tests {
             set: vec!["robots.count=3".into(), "seed=2".into()],
             quiet: true,
             hosts: Some(PathBuf::from("lab/hosts.toml")),
+            view: Some("127.0.0.1:0".parse().expect("an address")),
         };
         let bare = RunArgs {
             scenario: None,
@@ -153,6 +199,7 @@ mod tests {
             set: Vec::new(),
             quiet: false,
             hosts: None,
+            view: None,
         };
         for args in [full, bare] {
             let argv = ["run".to_string()].into_iter().chain(args.to_argv());

@@ -1,0 +1,309 @@
+// swarm-explore viewer: one page for a live run (`swarm run --view`) and a replay
+// (`swarm view RUN_DIR`). Everything comes from the viewer's server: /api/info, /api/truth.png,
+// /api/frame/<step|latest>, /api/series, /api/robot/<id>[/grid.png], and in a live run the
+// WebSocket /ws (one JSON frame per step; the server drops frames for a slow page, never steps).
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const COLOURS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6",
+  "#9a6324", "#469990", "#800000", "#808000", "#000075"];
+const LINK_STYLE = {
+  up: { colour: "rgba(30,150,60,0.85)", dash: [] },
+  down: { colour: "rgba(140,140,140,0.5)", dash: [4, 4] },
+  range: { colour: "rgba(140,140,140,0.5)", dash: [4, 4] },
+  fault: { colour: "rgba(210,30,30,0.9)", dash: [6, 3] },
+  blackhole: { colour: "rgba(120,40,160,0.9)", dash: [2, 3] },
+};
+const TYPE_COLOURS = { ins: "#4363d8", rep: "#3cb44b", del: "#e6194b", em: "#f58231", chg: "#911eb4",
+  rm: "#42d4f4", conn: "#808080", targ: "#000000", save: "#9a6324", scan: "#469990", cells: "#800000",
+  mark: "#bbbbbb", bid: "#f032e6", task: "#808000", role: "#000075", move: "#aaffc3" };
+
+const state = {
+  info: null, truth: null, frame: null, trails: [], series: null,
+  selected: null, // {robot: id} or {link: [a, b]}
+  playing: null,
+};
+
+function colour(id) { return COLOURS[id % COLOURS.length]; }
+
+function say(msg) { $("status").textContent = msg || ""; }
+
+async function getJson(url) {
+  const r = await fetch(url);
+  if (!r.ok) throw new Error(`${url}: ${r.status} ${await r.text()}`);
+  return r.json();
+}
+
+async function post(url, body) {
+  const r = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body || {}) });
+  const text = await r.text();
+  if (!r.ok) { say(`${url}: ${r.status} ${text}`); return null; }
+  say("");
+  return text ? JSON.parse(text) : {};
+}
+
+// The map's frame on the canvas: metres to pixels, y up.
+function view() {
+  const c = $("map"), m = state.info.map;
+  const w = m.width * m.resolution_m, h = m.height * m.resolution_m;
+  const s = Math.min(c.width / w, c.height / h);
+  return {
+    s, w: w * s, h: h * s,
+    px: (x) => (x - m.origin_x_m) * s,
+    py: (y) => h * s - (y - m.origin_y_m) * s,
+  };
+}
+
+function draw() {
+  const c = $("map"), g = c.getContext("2d");
+  g.clearRect(0, 0, c.width, c.height);
+  if (!state.info) return;
+  const v = view();
+  g.imageSmoothingEnabled = false;
+  if ($("truth").checked && state.truth) g.drawImage(state.truth, 0, 0, v.w, v.h);
+  else { g.strokeStyle = "#999"; g.strokeRect(0, 0, v.w, v.h); }
+  const f = state.frame;
+  if (!f) return;
+  const at = new Map(f.robots.map((r) => [r.id, r]));
+  // Links under robots.
+  for (const l of f.links) {
+    const a = at.get(l.a), b = at.get(l.b);
+    if (!a || !b) continue;
+    if ((l.state === "range" || l.state === "down") && !isSelectedLink(l)) continue; // not drawn unless picked
+    const st = LINK_STYLE[l.state] || LINK_STYLE.up;
+    const perSecond = (l.bytes_a_to_b + l.bytes_b_to_a) / state.info.step_seconds;
+    g.lineWidth = 1 + Math.log2(1 + perSecond) / 2 + (isSelectedLink(l) ? 2 : 0);
+    g.strokeStyle = st.colour;
+    g.setLineDash(st.dash);
+    g.beginPath(); g.moveTo(v.px(a.x), v.py(a.y)); g.lineTo(v.px(b.x), v.py(b.y)); g.stroke();
+  }
+  g.setLineDash([]);
+  if ($("trails").checked) {
+    state.trails.forEach((t, id) => {
+      if (!t || t.length < 2) return;
+      g.strokeStyle = colour(id); g.globalAlpha = 0.5; g.lineWidth = 1;
+      g.beginPath(); g.moveTo(v.px(t[0][0]), v.py(t[0][1]));
+      for (const p of t) g.lineTo(v.px(p[0]), v.py(p[1]));
+      g.stroke(); g.globalAlpha = 1;
+    });
+  }
+  for (const r of f.robots) {
+    const x = v.px(r.x), y = v.py(r.y);
+    if (r.target) {
+      g.strokeStyle = colour(r.id); g.setLineDash([2, 3]); g.lineWidth = 1;
+      g.beginPath(); g.moveTo(x, y); g.lineTo(v.px(r.target[0]), v.py(r.target[1])); g.stroke();
+      g.setLineDash([]);
+      g.strokeRect(v.px(r.target[0]) - 3, v.py(r.target[1]) - 3, 6, 6);
+    }
+    g.fillStyle = r.alive ? colour(r.id) : "#777";
+    g.beginPath(); g.arc(x, y, 6, 0, 2 * Math.PI); g.fill();
+    g.strokeStyle = "#000"; g.lineWidth = state.selected && state.selected.robot === r.id ? 3 : 1;
+    g.stroke();
+    g.beginPath(); g.moveTo(x, y);
+    g.lineTo(x + 10 * Math.cos(r.theta), y - 10 * Math.sin(r.theta)); g.stroke();
+    g.fillStyle = "#000"; g.fillText(String(r.id), x + 8, y - 8);
+  }
+}
+
+function isSelectedLink(l) {
+  return state.selected && state.selected.link &&
+    state.selected.link[0] === l.a && state.selected.link[1] === l.b;
+}
+
+// What is under a click: a robot within 9 px, else the nearest link within 6 px.
+function pick(ev) {
+  const f = state.frame;
+  if (!f) return null;
+  const rect = $("map").getBoundingClientRect(), v = view();
+  const mx = ev.clientX - rect.left, my = ev.clientY - rect.top;
+  let best = null;
+  for (const r of f.robots) {
+    const d = Math.hypot(v.px(r.x) - mx, v.py(r.y) - my);
+    if (d < 9 && (!best || d < best.d)) best = { d, robot: r.id };
+  }
+  if (best) return best;
+  const at = new Map(f.robots.map((r) => [r.id, r]));
+  for (const l of f.links) {
+    const a = at.get(l.a), b = at.get(l.b);
+    if (!a || !b) continue;
+    const d = segmentDistance(mx, my, v.px(a.x), v.py(a.y), v.px(b.x), v.py(b.y));
+    if (d < 6 && (!best || d < best.d)) best = { d, link: [l.a, l.b] };
+  }
+  return best;
+}
+
+function segmentDistance(px, py, ax, ay, bx, by) {
+  const dx = bx - ax, dy = by - ay, len = dx * dx + dy * dy;
+  const t = len === 0 ? 0 : Math.max(0, Math.min(1, ((px - ax) * dx + (py - ay) * dy) / len));
+  return Math.hypot(px - (ax + t * dx), py - (ay + t * dy));
+}
+
+async function showDetail() {
+  const d = $("detail"), sel = state.selected, f = state.frame;
+  if (!sel || !f) { d.innerHTML = ""; return; }
+  const stepQ = state.info.live ? "" : `?step=${f.step}`;
+  if (sel.robot !== undefined) {
+    let r;
+    try { r = await getJson(`/api/robot/${sel.robot}${stepQ}`); } catch (e) { say(e.message); return; }
+    const views = (r.views || []).map((w) =>
+      `<tr><td>${w.owner}</td><td>${w.held}</td><td>${w.shown}</td></tr>`).join("");
+    d.innerHTML = `<h3 style="color:${colour(r.id)}">robot ${r.id}</h3>
+      <table>
+      <tr><th>step</th><td>${r.step}</td></tr><tr><th>life</th><td>${r.life}</td></tr>
+      <tr><th>target</th><td>${r.target ? r.target.map((x) => x.toFixed(1)).join(", ") : "none"}</td></tr>
+      <tr><th>idle</th><td>${r.idle}</td></tr><tr><th>known cells</th><td>${r.known_cells}</td></tr>
+      <tr><th>frontier cells</th><td>${r.frontier_cells}</td></tr>
+      <tr><th>splitting frequency</th><td>${r.splits_per_step == null ? "–" : r.splits_per_step.toFixed(2)}</td></tr>
+      <tr><th>largest backlog</th><td>${r.backlog_bytes} B</td></tr>
+      <tr><th>bytes sent / received</th><td>${r.bytes_sent} / ${r.bytes_received}</td></tr>
+      </table>
+      <p>planning grid (frontiers in red):</p>
+      <img id="grid" alt="planning grid of robot ${r.id}" src="/api/robot/${r.id}/grid.png${stepQ}${stepQ ? "&" : "?"}t=${f.step}">
+      ${views ? `<p>what it shows of each owner's log (ops held, shown up to a save point):</p>
+      <table><tr><th>owner</th><th>held</th><th>shown</th></tr>${views}</table>` : ""}`;
+  } else if (sel.link) {
+    const [a, b] = sel.link;
+    const l = f.links.find((x) => x.a === a && x.b === b);
+    if (!l) { d.innerHTML = ""; return; }
+    const controls = state.info.live ? `
+      <p><button id="cut">cut</button> <button id="restore">restore</button></p>
+      <p><label>bandwidth B/s <input id="bw" type="number" min="1" value="1000" size="7"></label>
+      <button id="setbw">set</button></p>
+      <p><label>latency ms <input id="lat" type="number" min="0" value="200" size="7"></label>
+      <button id="setlat">set</button></p>` : "";
+    d.innerHTML = `<h3>link r${a}-r${b}</h3><table>
+      <tr><th>state</th><td id="link-state">${l.state}</td></tr>
+      <tr><th>bytes ${a}→${b} this step</th><td>${l.bytes_a_to_b}</td></tr>
+      <tr><th>bytes ${b}→${a} this step</th><td>${l.bytes_b_to_a}</td></tr>
+      <tr><th>queued</th><td>${l.queued_bytes} B</td></tr></table>${controls}`;
+    if (state.info.live) {
+      const name = `r${a}-r${b}`;
+      $("cut").onclick = () => post(`/api/link/${name}`, { enabled: false });
+      $("restore").onclick = () => post(`/api/link/${name}`, { enabled: true });
+      $("setbw").onclick = () => post(`/api/link/${name}`, { bandwidth_bytes_per_s: Number($("bw").value) });
+      $("setlat").onclick = () => post(`/api/link/${name}`, { latency_ms: Number($("lat").value) });
+    }
+  }
+}
+
+// A line chart of `lines` ([{values, colour}]) over `steps`, up to `upto`; horizontal marks.
+function chart(canvas, steps, lines, upto, marks) {
+  const g = canvas.getContext("2d"), W = canvas.width, H = canvas.height, pad = 28;
+  g.clearRect(0, 0, W, H);
+  const n = steps.findIndex((s) => s > upto);
+  const end = n < 0 ? steps.length : n;
+  let max = 1;
+  for (const l of lines) for (let i = 0; i < end; i++) max = Math.max(max, l.values[i] || 0);
+  for (const m of marks || []) max = Math.max(max, m);
+  const last = Math.max(1, steps[steps.length - 1] || 1);
+  const x = (s) => pad + (W - pad - 4) * s / last, y = (v) => H - 14 - (H - 20) * v / max;
+  g.strokeStyle = "#ccc"; g.fillStyle = "#666"; g.font = "10px sans-serif";
+  for (const m of marks || []) {
+    g.beginPath(); g.moveTo(pad, y(m)); g.lineTo(W - 4, y(m)); g.stroke(); g.fillText(String(m), 2, y(m) + 3);
+  }
+  g.fillText(String(Math.round(max)), 2, 10); g.fillText(`step ${last}`, W - 60, H - 2);
+  for (const l of lines) {
+    g.strokeStyle = l.colour; g.lineWidth = 1.5; g.beginPath();
+    for (let i = 0; i < end; i++) {
+      const px = x(steps[i]), py = y(l.values[i] || 0);
+      if (i === 0) g.moveTo(px, py); else g.lineTo(px, py);
+    }
+    g.stroke();
+  }
+}
+
+function drawCharts() {
+  const s = state.series, f = state.frame;
+  if (!s || !f) return;
+  chart($("chart-coverage"), s.steps, [{ values: s.coverage, colour: "#2b6cb0" }], f.step, [50, 90, 95, 100]);
+  const types = Object.keys(s.bytes_by_type).filter((k) => s.bytes_by_type[k].some((v) => v > 0));
+  chart($("chart-bytes"), s.steps,
+    types.map((k) => ({ values: s.bytes_by_type[k], colour: TYPE_COLOURS[k] || "#000" })), f.step);
+  chart($("chart-backlog"), s.steps, [{ values: s.backlog_max, colour: "#c05621" }], f.step);
+}
+
+function show(frame) {
+  state.frame = frame;
+  if (frame.trails) state.trails = frame.trails;
+  $("step").textContent = `step ${frame.step}`;
+  $("coverage").textContent = `coverage ${frame.coverage_pct.toFixed(1)} %`;
+  draw(); drawCharts();
+}
+
+// Live: a frame appends to trails and series.
+function onLiveFrame(frame) {
+  for (const r of frame.robots) {
+    (state.trails[r.id] = state.trails[r.id] || []).push([r.x, r.y]);
+  }
+  const s = state.series;
+  if (s && (s.steps.length === 0 || frame.step > s.steps[s.steps.length - 1])) {
+    s.steps.push(frame.step); s.coverage.push(frame.coverage_pct); s.backlog_max.push(frame.backlog_max);
+    for (const k of Object.keys(frame.bytes_by_type)) {
+      (s.bytes_by_type[k] = s.bytes_by_type[k] || new Array(s.steps.length - 1).fill(0)).push(frame.bytes_by_type[k]);
+    }
+  }
+  show(frame);
+  if (state.selected && state.selected.robot !== undefined && frame.step % 5 === 0) showDetail();
+}
+
+function connectLive() {
+  const ws = new WebSocket(`ws://${location.host}/ws`);
+  ws.onmessage = (m) => onLiveFrame(JSON.parse(m.data));
+  ws.onclose = () => { $("mode").textContent = "live (run ended)"; };
+}
+
+async function seek(step) {
+  try { show(await getJson(`/api/frame/${step}`)); } catch (e) { say(e.message); }
+  if (state.selected) showDetail();
+}
+
+async function main() {
+  state.info = await getJson("/api/info");
+  const c = $("map"), m = state.info.map;
+  // Fit the canvas to the map's aspect.
+  const aspect = (m.width) / (m.height);
+  if (aspect > c.width / c.height) c.height = Math.round(c.width / aspect); else c.width = Math.round(c.height * aspect);
+  state.truth = new Image();
+  state.truth.onload = draw;
+  state.truth.src = "/api/truth.png";
+  state.series = await getJson("/api/series");
+  $("mode").textContent = state.info.live ? "live" : "replay";
+  $("clock").hidden = !state.info.live;
+  $("seek").hidden = state.info.live;
+  for (const id of ["truth", "trails"]) $(id).onchange = draw;
+  $("map").onclick = (ev) => {
+    const p = pick(ev);
+    state.selected = p ? (p.robot !== undefined ? { robot: p.robot } : { link: p.link }) : null;
+    draw(); showDetail();
+  };
+  $("map").onmousemove = (ev) => {
+    const p = pick(ev);
+    if (p && p.link) {
+      const l = state.frame.links.find((x) => x.a === p.link[0] && x.b === p.link[1]);
+      $("map").title = l ? `r${l.a}-r${l.b}: ${l.state}, queued ${l.queued_bytes} B` : "";
+    } else $("map").title = p ? `robot ${p.robot}` : "";
+  };
+  if (state.info.live) {
+    $("pause").onclick = () => post("/api/clock/pause");
+    $("resume").onclick = () => post("/api/clock/resume");
+    $("single").onclick = () => post("/api/clock/step");
+    try { show(await getJson("/api/frame/latest")); } catch (e) { /* no step yet */ }
+    connectLive();
+  } else {
+    const sl = $("slider");
+    sl.min = state.info.first_step; sl.max = state.info.last_step; sl.value = state.info.first_step;
+    sl.oninput = () => seek(Number(sl.value));
+    $("play").onclick = () => {
+      if (state.playing) { clearInterval(state.playing); state.playing = null; $("play").textContent = "play"; return; }
+      $("play").textContent = "stop";
+      state.playing = setInterval(() => {
+        if (Number(sl.value) >= Number(sl.max)) { $("play").click(); return; }
+        sl.value = Number(sl.value) + 1; seek(Number(sl.value));
+      }, 100);
+    };
+    await seek(state.info.first_step);
+  }
+}
+
+main().catch((e) => say(e.message));

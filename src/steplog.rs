@@ -1,0 +1,551 @@
+//! The run's step log, `steps.log` in the run directory: what a viewer needs to show a run again
+//! step by step — where every robot stood and where it was going, every link's state and bytes,
+//! and how every robot's planning grid changed. Changes, not whole grids: a robot's grid is
+//! written whole at its first report, after a restart and every [`KEYFRAME_STEPS`] steps (so a
+//! replay can seek), otherwise as runs of the cells that changed since its last report.
+//!
+//! The launcher writes it as it takes the run's reports ([`StepLogWriter`]); `swarm view` and
+//! `swarm export-mcap` read it ([`read`]). The file is a sequence of records, each a
+//! little-endian `u32` length and the record in postcard; the first is a [`Header`]. Reading is
+//! total: a file that is not a step log, or one cut short, gives an error naming the file and
+//! where it stops — never a panic.
+//!
+//! **Invariant:** replaying a robot's grid changes from its last whole grid gives exactly the
+//! grid it reported at that step (property-tested: [`diff`] then [`apply`]).
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use proto::geom::MapInfo;
+use proto::grid::{Grid, Occ};
+use proto::msg::{LinkReport, RobotId, Status, Step, Telemetry};
+use serde::{Deserialize, Serialize};
+
+/// The file's name in a run directory.
+pub const FILE: &str = "steps.log";
+/// Format version, in the header.
+pub const VERSION: u32 = 1;
+/// What the header's `magic` holds.
+pub const MAGIC: [u8; 8] = *b"swarmlog";
+/// A robot's grid is written whole at least this often (in its steps).
+pub const KEYFRAME_STEPS: Step = 100;
+/// The largest record a reader accepts (a whole grid of `MAX_CELLS` cells in RLE fits).
+const MAX_RECORD_BYTES: usize = 256 << 20;
+
+/// The first record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Header {
+    pub magic: [u8; 8],
+    pub version: u32,
+    /// The map's frame (every grid below is of this size).
+    pub map: MapInfo,
+    /// Robots in the run (ids `0..robots`); a base station, if any, is node `robots`.
+    pub robots: u16,
+    /// Simulated seconds per step.
+    pub step_seconds: f64,
+    /// The truth map, run-length encoded ([`Grid::to_rle`]).
+    pub truth: Vec<u8>,
+}
+
+/// One record of the log.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Record {
+    Header(Header),
+    /// The world's status before step `step`'s moves: every robot's pose and whether it lives.
+    Poses {
+        step: Step,
+        robots: Vec<Pose>,
+    },
+    /// What robot `robot` reported of step `step`.
+    Robot(RobotStep),
+    /// netem's report of step `step`.
+    Links {
+        step: Step,
+        links: Vec<LinkStep>,
+    },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    pub id: RobotId,
+    pub x: f32,
+    pub y: f32,
+    pub theta: f32,
+    pub alive: bool,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RobotStep {
+    pub step: Step,
+    pub robot: RobotId,
+    pub life: u16,
+    /// Where the robot stood when it decided (metres, radians).
+    pub x: f32,
+    pub y: f32,
+    pub theta: f32,
+    pub target: Option<(f32, f32)>,
+    pub idle: bool,
+    pub known_cells: u32,
+    pub bytes_sent: u64,
+    pub bytes_received: u64,
+    /// Polygon exchange: the splitting frequency for the next step.
+    pub splits_per_step: Option<f32>,
+    /// The largest backlog to any neighbour, bytes.
+    pub backlog_bytes: u64,
+    /// Payload bytes sent so far in this life, per traffic class ([`proto::msg::Traffic::ALL`]
+    /// order).
+    pub sent_by_type: Vec<u64>,
+    /// Polygon exchange: per other owner, the ops of its log held and shown (up to its last
+    /// save point held).
+    pub views: Vec<(RobotId, u32, u32)>,
+    /// The evaluator's coverage of the report, % of the reachable free cells.
+    pub coverage_pct: Option<f32>,
+    pub grid: GridChange,
+}
+
+/// How a robot's planning grid changed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum GridChange {
+    /// The whole grid, run-length encoded ([`Grid::to_rle`]).
+    Whole(Vec<u8>),
+    /// The cells that changed since the robot's last report, as runs.
+    Runs(Vec<Run>),
+}
+
+/// `len` cells of value `occ`, starting `gap` cells after the end of the run before it (the
+/// first: after cell 0), in row-major order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Run {
+    pub gap: u32,
+    pub len: u32,
+    pub occ: Occ,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkStep {
+    pub a: RobotId,
+    pub b: RobotId,
+    pub up: bool,
+    pub bytes_a_to_b: u64,
+    pub bytes_b_to_a: u64,
+    pub queued_bytes: u64,
+}
+
+/// The runs that turn `old` into `new` (grids of one size), over the cells either may know.
+pub fn diff(old: &Grid, new: &Grid) -> Vec<Run> {
+    let mut runs = Vec::new();
+    let Some(r) = proto::grid::Rect::union_of(old.known_bounds(), new.known_bounds()) else {
+        return runs;
+    };
+    let w = new.width() as usize;
+    let (a, b) = (old.cells(), new.cells());
+    let mut end = 0usize; // the end of the last run
+    for y in r.min.y as usize..=r.max.y as usize {
+        let row = y * w;
+        let mut x = r.min.x as usize;
+        while x <= r.max.x as usize {
+            let i = row + x;
+            if a[i] == b[i] {
+                x += 1;
+                continue;
+            }
+            let occ = b[i];
+            let mut len = 1;
+            while x + len <= r.max.x as usize && a[i + len] != b[i + len] && b[i + len] == occ {
+                len += 1;
+            }
+            runs.push(Run {
+                gap: (i - end) as u32,
+                len: len as u32,
+                occ,
+            });
+            end = i + len;
+            x += len;
+        }
+    }
+    runs
+}
+
+/// Applies `runs` to `grid`; runs past its end are an error (a foreign or damaged log).
+pub fn apply(grid: &mut Grid, runs: &[Run]) -> Result<(), String> {
+    let mut at = 0usize;
+    for r in runs {
+        let start = at
+            .checked_add(r.gap as usize)
+            .ok_or("a run's position overflows")?;
+        let end = start
+            .checked_add(r.len as usize)
+            .filter(|&e| e <= grid.len())
+            .ok_or_else(|| format!("a run ends past the grid's {} cells", grid.len()))?;
+        for i in start..end {
+            grid.set_index(i, r.occ);
+        }
+        at = end;
+    }
+    Ok(())
+}
+
+/// What gets every record written after the header.
+pub type Tee = Box<dyn FnMut(&Record) + Send>;
+
+/// Writes `steps.log` as the launcher takes the run's reports.
+pub struct StepLogWriter {
+    out: BufWriter<File>,
+    path: PathBuf,
+    map: MapInfo,
+    /// Per robot: the life and grid of its last report, and the step its grid was last whole.
+    last: BTreeMap<RobotId, (u16, Grid, Step)>,
+    /// Bytes written so far.
+    pub bytes: u64,
+    header: Header,
+    /// Gets every record written after the header (the live viewer).
+    pub tee: Option<Tee>,
+}
+
+impl StepLogWriter {
+    pub fn create(
+        dir: &Path,
+        map: MapInfo,
+        truth: &Grid,
+        robots: u16,
+        step_seconds: f64,
+    ) -> anyhow::Result<StepLogWriter> {
+        let path = dir.join(FILE);
+        let file = File::create(&path)
+            .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", path.display()))?;
+        let header = Header {
+            magic: MAGIC,
+            version: VERSION,
+            map,
+            robots,
+            step_seconds,
+            truth: truth.to_rle(),
+        };
+        let mut w = StepLogWriter {
+            out: BufWriter::new(file),
+            path,
+            map,
+            last: BTreeMap::new(),
+            bytes: 0,
+            header: header.clone(),
+            tee: None,
+        };
+        w.write(&Record::Header(header))?;
+        Ok(w)
+    }
+
+    /// The log's header.
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    fn write(&mut self, r: &Record) -> anyhow::Result<()> {
+        let bytes = postcard::to_stdvec(r)?;
+        let len = u32::try_from(bytes.len())?;
+        self.out
+            .write_all(&len.to_le_bytes())
+            .and_then(|()| self.out.write_all(&bytes))
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", self.path.display()))?;
+        self.bytes += 4 + bytes.len() as u64;
+        if let Some(tee) = &mut self.tee {
+            tee(r);
+        }
+        Ok(())
+    }
+
+    pub fn status(&mut self, st: &Status) -> anyhow::Result<()> {
+        let robots = st
+            .robots
+            .iter()
+            .chain(&st.base)
+            .map(|r| Pose {
+                id: r.id,
+                x: r.pose.x as f32,
+                y: r.pose.y as f32,
+                theta: r.pose.theta as f32,
+                alive: r.alive,
+            })
+            .collect();
+        self.write(&Record::Poses {
+            step: st.step,
+            robots,
+        })
+    }
+
+    /// A robot's report as a record (its grid as changes since its last report), for
+    /// [`Self::robot`] once scored; `None` for a report whose grid does not decode to the map's
+    /// size (the evaluator counts it as bad telemetry).
+    pub fn robot_step(&mut self, t: &Telemetry) -> Option<RobotStep> {
+        let grid = Grid::from_rle(&t.grid_rle).ok()?;
+        if grid.width() != self.map.width || grid.height() != self.map.height {
+            return None;
+        }
+        let (change, whole_at) = match self.last.get(&t.robot) {
+            Some((life, old, whole_at))
+                if *life == t.life && t.step < whole_at.saturating_add(KEYFRAME_STEPS) =>
+            {
+                (GridChange::Runs(diff(old, &grid)), *whole_at)
+            }
+            _ => (GridChange::Whole(t.grid_rle.clone()), t.step),
+        };
+        self.last.insert(t.robot, (t.life, grid, whole_at));
+        Some(RobotStep {
+            step: t.step,
+            robot: t.robot,
+            life: t.life,
+            x: t.pose.x as f32,
+            y: t.pose.y as f32,
+            theta: t.pose.theta as f32,
+            target: t.target.map(|(x, y)| (x as f32, y as f32)),
+            idle: t.idle,
+            known_cells: t.known_cells,
+            bytes_sent: t.bytes_sent,
+            bytes_received: t.bytes_received,
+            splits_per_step: t.splits_per_step.map(|s| s as f32),
+            backlog_bytes: t.backlog_bytes.iter().map(|b| b.1).max().unwrap_or(0),
+            sent_by_type: t.sent_by_type.clone(),
+            views: t.views.iter().map(|v| (v.owner, v.held, v.shown)).collect(),
+            coverage_pct: None,
+            grid: change,
+        })
+    }
+
+    /// Writes a robot's report.
+    pub fn robot(&mut self, r: RobotStep) -> anyhow::Result<()> {
+        self.write(&Record::Robot(r))
+    }
+
+    pub fn links(&mut self, r: &LinkReport) -> anyhow::Result<()> {
+        let links = r
+            .links
+            .iter()
+            .map(|l| LinkStep {
+                a: l.a,
+                b: l.b,
+                up: l.up,
+                bytes_a_to_b: l.bytes_a_to_b,
+                bytes_b_to_a: l.bytes_b_to_a,
+                queued_bytes: l.queued_bytes,
+            })
+            .collect();
+        self.write(&Record::Links {
+            step: r.step,
+            links,
+        })
+    }
+
+    /// Flushes what is buffered; the size of the file.
+    pub fn finish(mut self) -> anyhow::Result<u64> {
+        self.out
+            .flush()
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", self.path.display()))?;
+        Ok(self.bytes)
+    }
+}
+
+/// A step log read back: its header and records in order.
+#[derive(Debug)]
+pub struct StepLog {
+    pub header: Header,
+    pub records: Vec<Record>,
+}
+
+impl StepLog {
+    /// The last step any robot's report was taken for (the run's last step), if any.
+    pub fn last_step(&self) -> Option<Step> {
+        self.records
+            .iter()
+            .filter_map(|r| match r {
+                Record::Robot(r) => Some(r.step),
+                _ => None,
+            })
+            .max()
+    }
+
+    /// The truth map (checked to decode when the log was read).
+    pub fn truth(&self) -> Grid {
+        Grid::from_rle(&self.header.truth).unwrap_or_else(|_| {
+            Grid::new(self.header.map.width, self.header.map.height, Occ::Unknown)
+        })
+    }
+}
+
+/// Every robot's planning grid, kept up to date record by record.
+#[derive(Default)]
+pub struct Grids {
+    pub grids: BTreeMap<RobotId, Grid>,
+}
+
+impl Grids {
+    /// Applies one robot report's grid change; an error names what does not fit.
+    pub fn apply(&mut self, map: &MapInfo, r: &RobotStep) -> Result<&Grid, String> {
+        let at = |e: String| format!("robot {} step {}: {e}", r.robot, r.step);
+        if matches!(r.grid, GridChange::Runs(_)) && !self.grids.contains_key(&r.robot) {
+            return Err(at("changes before a whole grid".into()));
+        }
+        let slot = self
+            .grids
+            .entry(r.robot)
+            .or_insert_with(|| Grid::new(map.width, map.height, Occ::Unknown));
+        match &r.grid {
+            GridChange::Whole(rle) => {
+                let g = Grid::from_rle(rle).map_err(|e| at(e.to_string()))?;
+                if g.width() != map.width || g.height() != map.height {
+                    return Err(at("a grid not of the map's size".into()));
+                }
+                *slot = g;
+            }
+            GridChange::Runs(runs) => apply(slot, runs).map_err(at)?,
+        }
+        Ok(slot)
+    }
+}
+
+/// Reads `dir/steps.log`.
+pub fn read(dir: &Path) -> anyhow::Result<StepLog> {
+    let path = dir.join(FILE);
+    let mut bytes = Vec::new();
+    File::open(&path)
+        .and_then(|mut f| f.read_to_end(&mut bytes))
+        .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+    decode(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// Decodes a whole step log. Total: any bytes give a log or an error.
+pub fn decode(mut bytes: &[u8]) -> Result<StepLog, String> {
+    let mut records = Vec::new();
+    let mut at = 0usize;
+    while !bytes.is_empty() {
+        let Some((len, rest)) = bytes.split_first_chunk::<4>() else {
+            return Err(format!("cut short at byte {at} (record {})", records.len()));
+        };
+        let len = u32::from_le_bytes(*len) as usize;
+        if len > MAX_RECORD_BYTES {
+            return Err(format!(
+                "record {} at byte {at} claims {len} bytes: not a step log",
+                records.len()
+            ));
+        }
+        let Some((body, rest)) = rest.split_at_checked(len) else {
+            return Err(format!("cut short at byte {at} (record {})", records.len()));
+        };
+        let r: Record = postcard::from_bytes(body)
+            .map_err(|e| format!("record {} at byte {at} does not decode: {e}", records.len()))?;
+        records.push(r);
+        at += 4 + len;
+        bytes = rest;
+    }
+    let mut records = records.into_iter();
+    let header = match records.next() {
+        Some(Record::Header(h)) if h.magic == MAGIC => h,
+        _ => return Err("not a step log (no header)".into()),
+    };
+    if header.version != VERSION {
+        return Err(format!(
+            "step log version {} (this swarm reads version {VERSION})",
+            header.version
+        ));
+    }
+    if u64::from(header.map.width) * u64::from(header.map.height) > proto::grid::MAX_CELLS {
+        return Err("the map in its header is larger than any grid".into());
+    }
+    match Grid::from_rle(&header.truth) {
+        Ok(g) if g.width() == header.map.width && g.height() == header.map.height => {}
+        _ => return Err("the truth map in its header does not decode to the map's size".into()),
+    }
+    Ok(StepLog {
+        header,
+        records: records.collect(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn grid_of(w: u32, h: u32, cells: &[u8]) -> Grid {
+        let mut g = Grid::new(w, h, Occ::Unknown);
+        for (i, &c) in cells.iter().enumerate().take(g.len()) {
+            let v = match c % 3 {
+                0 => Occ::Unknown,
+                1 => Occ::Free,
+                _ => Occ::Occupied,
+            };
+            if v != Occ::Unknown {
+                g.set_index(i, v);
+            }
+        }
+        g
+    }
+
+    proptest! {
+        #[test]
+        fn applying_the_diff_gives_the_new_grid(
+            w in 1u32..20, h in 1u32..20,
+            a in prop::collection::vec(0u8..9, 0..400),
+            b in prop::collection::vec(0u8..9, 0..400),
+        ) {
+            let (old, new) = (grid_of(w, h, &a), grid_of(w, h, &b));
+            let runs = diff(&old, &new);
+            let mut g = old.clone();
+            apply(&mut g, &runs).expect("test");
+            prop_assert_eq!(g.cells(), new.cells());
+            // Runs cover changed cells only.
+            let changed = old.cells().iter().zip(new.cells()).filter(|(x, y)| x != y).count();
+            prop_assert_eq!(runs.iter().map(|r| r.len as usize).sum::<usize>(), changed);
+        }
+
+        #[test]
+        fn any_bytes_decode_or_give_an_error(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
+            let _ = decode(&bytes);
+        }
+    }
+
+    #[test]
+    fn a_log_reads_back_and_a_cut_one_names_where() {
+        let dir = std::env::temp_dir().join(format!("steplog-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("test");
+        let map = MapInfo::at_origin(4, 3, 0.5);
+        let truth = Grid::new(4, 3, Occ::Free);
+        let mut w = StepLogWriter::create(&dir, map, &truth, 1, 1.0).expect("test");
+        let mut g = Grid::new(4, 3, Occ::Unknown);
+        g.set(proto::grid::Cell::new(1, 1), Occ::Free);
+        let mut t = Telemetry {
+            grid_rle: g.to_rle(),
+            ..Telemetry::default()
+        };
+        let r = w.robot_step(&t).expect("test");
+        w.robot(r).expect("test");
+        g.set(proto::grid::Cell::new(2, 1), Occ::Occupied);
+        t.step = 1;
+        t.grid_rle = g.to_rle();
+        let r = w.robot_step(&t).expect("test");
+        w.robot(r).expect("test");
+        t.grid_rle = Grid::new(5, 3, Occ::Free).to_rle();
+        assert!(w.robot_step(&t).is_none(), "a grid not of the map's size");
+        w.finish().expect("test");
+        let log = read(&dir).expect("test");
+        assert_eq!(log.header.map, map);
+        let Record::Robot(r) = &log.records[1] else {
+            panic!("{:?}", log.records[1]);
+        };
+        assert_eq!(
+            r.grid,
+            GridChange::Runs(vec![Run {
+                gap: 6,
+                len: 1,
+                occ: Occ::Occupied
+            }])
+        );
+        let bytes = std::fs::read(dir.join(FILE)).expect("test");
+        std::fs::write(dir.join(FILE), &bytes[..bytes.len() - 1]).expect("test");
+        let e = read(&dir).expect_err("an error").to_string();
+        assert!(e.contains("steps.log") && e.contains("cut short"), "{e}");
+        std::fs::write(dir.join(FILE), b"PK\x03\x04 a zip file").expect("test");
+        assert!(read(&dir).is_err());
+        std::fs::remove_dir_all(&dir).expect("test");
+    }
+}

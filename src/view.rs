@@ -1,0 +1,425 @@
+//! The run viewer: a web page that follows a run live (`swarm run --view`) or replays a finished
+//! one (`swarm view RUN_DIR`), served by this process on axum. The page (`assets/view/`) is
+//! static and built into the binary; its data comes from a [`Timeline`] fed with the step
+//! log's records — live by the launcher as it writes them, in a replay from `steps.log`.
+//!
+//! Routes: `GET /` (and `/app.js`, `/style.css`), `GET /api/info`, `GET /api/truth.png`,
+//! `GET /api/series`, `GET /api/frame/{step|latest}` (with every trajectory up to the step),
+//! `GET /api/robot/{id}` and `GET /api/robot/{id}/grid.png` (`?step=N`; `404` for a robot the
+//! run does not have or that has not reported yet), and in a live run `GET /ws` (a WebSocket:
+//! one JSON [`Frame`] per step) and `POST /api/link/{name}` (cut, restore, bandwidth, latency:
+//! forwarded to netem's API with the run's token — netem itself refuses browsers).
+//!
+//! The viewer never slows the run: the launcher hands it each record under a short lock, and
+//! a page that reads frames slower than they come misses some (a bounded broadcast queue
+//! drops the oldest), never a step.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use anyhow::Context;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Path, Query, State};
+use axum::http::header::CONTENT_TYPE;
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::Router;
+use proto::grid::{Grid, Occ};
+use proto::msg::{RobotId, Step};
+use tokio::net::TcpListener;
+use tokio::sync::broadcast;
+
+use crate::render::Picture;
+use crate::steplog::{Header, Record};
+use crate::timeline::{frontiers, Timeline};
+
+const INDEX: &str = include_str!("../assets/view/index.html");
+const APP: &str = include_str!("../assets/view/app.js");
+const STYLE: &str = include_str!("../assets/view/style.css");
+
+/// Frames a live page may fall behind by before it misses some.
+const FRAMES_QUEUED: usize = 16;
+
+/// Flags of `swarm view`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ViewArgs {
+    /// A finished run's directory (it holds steps.log).
+    pub run_dir: PathBuf,
+    /// Where to serve the page (port 0: any free port; the address is printed).
+    #[arg(long, default_value = "127.0.0.1:0")]
+    pub addr: SocketAddr,
+}
+
+/// How the live viewer reaches netem's API.
+#[derive(Clone, Debug)]
+pub struct NetemApi {
+    pub addr: SocketAddr,
+    pub token: Option<String>,
+}
+
+/// What the page's server shares.
+struct App {
+    timeline: Mutex<Timeline>,
+    truth_png: Vec<u8>,
+    /// A live run: frames as they come, and netem's API.
+    live: Option<(broadcast::Sender<Arc<String>>, NetemApi)>,
+}
+
+fn lock(m: &Mutex<Timeline>) -> MutexGuard<'_, Timeline> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// The live viewer's side in the launcher: hand it every step-log record.
+#[derive(Clone)]
+pub struct Feed {
+    app: Arc<App>,
+}
+
+impl Feed {
+    /// Takes a record; a robot report that opens a new step sends the page the frame of the
+    /// step before it (every report of a step is taken before the next step's).
+    pub fn push(&self, r: Record) {
+        let mut t = lock(&self.app.timeline);
+        let before = t.latest();
+        let new_step = matches!(&r, Record::Robot(rs) if Some(rs.step) != before);
+        t.push(r);
+        if let (true, Some(step), Some((frames, _))) = (new_step, before, &self.app.live) {
+            if frames.receiver_count() > 0 {
+                if let Ok(json) = serde_json::to_string(&t.frame(step, false)) {
+                    let _ = frames.send(Arc::new(json));
+                }
+            }
+        }
+    }
+
+    /// The last step's frame, once the run has ended.
+    pub fn finish(&self) {
+        let t = lock(&self.app.timeline);
+        if let (Some(step), Some((frames, _))) = (t.latest(), &self.app.live) {
+            if let Ok(json) = serde_json::to_string(&t.frame(step, false)) {
+                let _ = frames.send(Arc::new(json));
+            }
+        }
+    }
+}
+
+/// A viewer being served.
+pub struct Viewer {
+    pub addr: SocketAddr,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl Viewer {
+    pub fn stop(self) {
+        self.task.abort();
+    }
+}
+
+fn png_of(g: &Grid, header: &Header, marks: &[proto::grid::Cell]) -> anyhow::Result<Vec<u8>> {
+    let mut p = Picture::of_grid(g, header.map);
+    for &c in marks {
+        p.cell(c, [220, 30, 30]);
+    }
+    p.png()
+}
+
+async fn start(app: Arc<App>, addr: SocketAddr) -> anyhow::Result<Viewer> {
+    let listener = TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("the viewer cannot listen on {addr}"))?;
+    let addr = listener.local_addr()?;
+    let router = Router::new()
+        .route(
+            "/",
+            get(|| async { ([(CONTENT_TYPE, "text/html; charset=utf-8")], INDEX) }),
+        )
+        .route(
+            "/app.js",
+            get(|| async { ([(CONTENT_TYPE, "text/javascript")], APP) }),
+        )
+        .route(
+            "/style.css",
+            get(|| async { ([(CONTENT_TYPE, "text/css")], STYLE) }),
+        )
+        .route("/api/info", get(info))
+        .route("/api/truth.png", get(truth))
+        .route("/api/series", get(series))
+        .route("/api/frame/{step}", get(frame))
+        .route("/api/robot/{id}", get(robot))
+        .route("/api/robot/{id}/grid.png", get(robot_grid))
+        .route("/api/link/{name}", post(link))
+        .route("/ws", get(ws))
+        .fallback(|| async { (StatusCode::NOT_FOUND, "not found") })
+        .with_state(app);
+    let task = tokio::spawn(async move {
+        if let Err(e) = axum::serve(listener, router).await {
+            tracing::warn!("the viewer stopped: {e}");
+        }
+    });
+    Ok(Viewer { addr, task })
+}
+
+/// The live viewer of a run that is starting: serve on `addr`; the launcher feeds it.
+pub async fn live(
+    addr: SocketAddr,
+    header: Header,
+    netem: NetemApi,
+) -> anyhow::Result<(Viewer, Feed)> {
+    let (frames, _) = broadcast::channel(FRAMES_QUEUED);
+    let app = Arc::new(App {
+        truth_png: truth_png(&header)?,
+        timeline: Mutex::new(Timeline::new(header)),
+        live: Some((frames, netem)),
+    });
+    let viewer = start(Arc::clone(&app), addr).await?;
+    Ok((viewer, Feed { app }))
+}
+
+/// `swarm view RUN_DIR`: serves the replay until interrupted.
+pub async fn replay(args: &ViewArgs) -> anyhow::Result<()> {
+    let log = crate::steplog::read(&args.run_dir)?;
+    let app = Arc::new(App {
+        truth_png: truth_png(&log.header)?,
+        timeline: Mutex::new(Timeline::of(log.header, log.records)),
+        live: None,
+    });
+    let viewer = start(app, args.addr).await?;
+    println!(
+        "replay of {} at http://{}/",
+        args.run_dir.display(),
+        viewer.addr
+    );
+    tokio::signal::ctrl_c().await?;
+    viewer.stop();
+    Ok(())
+}
+
+fn truth_png(h: &Header) -> anyhow::Result<Vec<u8>> {
+    let g = Grid::from_rle(&h.truth)
+        .unwrap_or_else(|_| Grid::new(h.map.width, h.map.height, Occ::Unknown));
+    png_of(&g, h, &[])
+}
+
+type Shared = State<Arc<App>>;
+
+fn json<T: serde::Serialize>(v: &T) -> Response {
+    match serde_json::to_vec(v) {
+        Ok(b) => ([(CONTENT_TYPE, "application/json")], b).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
+}
+
+fn not_found(what: String) -> Response {
+    (StatusCode::NOT_FOUND, what).into_response()
+}
+
+async fn info(State(app): Shared) -> Response {
+    let t = lock(&app.timeline);
+    let (first, last) = t.span().unwrap_or((0, 0));
+    json(&serde_json::json!({
+        "live": app.live.is_some(),
+        "robots": t.header.robots,
+        "map": t.header.map,
+        "step_seconds": t.header.step_seconds,
+        "first_step": first,
+        "last_step": last,
+    }))
+}
+
+async fn truth(State(app): Shared) -> Response {
+    ([(CONTENT_TYPE, "image/png")], app.truth_png.clone()).into_response()
+}
+
+async fn series(State(app): Shared) -> Response {
+    json(lock(&app.timeline).series())
+}
+
+async fn frame(State(app): Shared, Path(step): Path<String>) -> Response {
+    let t = lock(&app.timeline);
+    let step = match step.as_str() {
+        "latest" => t.latest(),
+        s => s.parse::<Step>().ok(),
+    };
+    match step {
+        Some(s) => json(&t.frame(s, true)),
+        None => not_found("no such step (a number, or latest once the run has reported)".into()),
+    }
+}
+
+#[derive(serde::Deserialize)]
+struct AtStep {
+    step: Option<Step>,
+}
+
+/// The robot `id` names in this run, and the step asked for (default: the latest); else why
+/// not (a 404).
+fn robot_at(t: &Timeline, id: &str, q: &AtStep) -> Result<(RobotId, Step), String> {
+    let id: RobotId = id
+        .parse()
+        .ok()
+        .filter(|&i| i <= t.header.robots)
+        .ok_or_else(|| format!("no robot {id:?} in this run"))?;
+    let step = q.step.or(t.latest()).ok_or("no step yet")?;
+    Ok((id, step))
+}
+
+async fn robot(State(app): Shared, Path(id): Path<String>, Query(q): Query<AtStep>) -> Response {
+    let t = lock(&app.timeline);
+    let (id, step) = match robot_at(&t, &id, &q) {
+        Ok(x) => x,
+        Err(why) => return not_found(why),
+    };
+    match t.robot(id, step) {
+        Some(d) => json(&d),
+        None => not_found(format!("robot {id} has not reported by step {step}")),
+    }
+}
+
+async fn robot_grid(
+    State(app): Shared,
+    Path(id): Path<String>,
+    Query(q): Query<AtStep>,
+) -> Response {
+    let (grid, header) = {
+        let t = lock(&app.timeline);
+        let (id, step) = match robot_at(&t, &id, &q) {
+            Ok(x) => x,
+            Err(why) => return not_found(why),
+        };
+        match t.grid(id, step) {
+            Some(g) => (g, t.header.clone()),
+            None => return not_found(format!("robot {id} has not reported by step {step}")),
+        }
+    };
+    match png_of(&grid, &header, &frontiers(&grid)) {
+        Ok(png) => ([(CONTENT_TYPE, "image/png")], png).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
+}
+
+/// What a click on a link asks for.
+#[derive(serde::Deserialize)]
+struct LinkAction {
+    enabled: Option<bool>,
+    bandwidth_bytes_per_s: Option<u64>,
+    latency_ms: Option<u64>,
+}
+
+/// Forwards a link action to netem's API: `enabled` as a proxy update, a bandwidth or latency
+/// as the viewer's own toxic on the link (created, or updated if it is there).
+async fn link(State(app): Shared, Path(name): Path<String>, body: axum::body::Bytes) -> Response {
+    let Some((_, api)) = &app.live else {
+        return (StatusCode::CONFLICT, "a replay has no links to change").into_response();
+    };
+    let a: LinkAction = match serde_json::from_slice(&body) {
+        Ok(a) => a,
+        Err(e) => {
+            return (StatusCode::BAD_REQUEST, format!("bad request body: {e}")).into_response()
+        }
+    };
+    if !name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-') {
+        return not_found(format!("no link {name:?}"));
+    }
+    let calls: Vec<NetemCall> = match a {
+        LinkAction {
+            enabled: Some(on), ..
+        } => vec![(
+            format!("/proxies/{name}"),
+            serde_json::json!({ "enabled": on }).to_string(),
+            None,
+        )],
+        LinkAction {
+            bandwidth_bytes_per_s: Some(rate),
+            ..
+        } => vec![toxic(
+            &name,
+            "viewer_bandwidth",
+            "bandwidth",
+            serde_json::json!({ "rate_bytes_per_s": rate }),
+        )],
+        LinkAction {
+            latency_ms: Some(ms),
+            ..
+        } => vec![toxic(
+            &name,
+            "viewer_latency",
+            "latency",
+            serde_json::json!({ "latency": ms }),
+        )],
+        _ => {
+            return (
+                StatusCode::BAD_REQUEST,
+                "say enabled, bandwidth_bytes_per_s or latency_ms",
+            )
+                .into_response()
+        }
+    };
+    let api = api.clone();
+    let answer = tokio::task::spawn_blocking(move || -> anyhow::Result<(u16, String)> {
+        let mut last = (500, String::new());
+        for (path, body, update) in calls {
+            last = crate::netemctl::http(api.addr, api.token.as_deref(), "POST", &path, &body)?;
+            // The toxic is there already: update it.
+            if let (409, Some((path, body))) = (last.0, update) {
+                last =
+                    crate::netemctl::http(api.addr, api.token.as_deref(), "PATCH", &path, &body)?;
+            }
+        }
+        Ok(last)
+    })
+    .await;
+    match answer {
+        Ok(Ok((status, text))) => (
+            StatusCode::from_u16(status).unwrap_or(StatusCode::BAD_GATEWAY),
+            [(CONTENT_TYPE, "application/json")],
+            text,
+        )
+            .into_response(),
+        Ok(Err(e)) => (StatusCode::BAD_GATEWAY, format!("{e:#}")).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
+}
+
+/// A POST to netem's API (path, body), and the PATCH (path, body) to send instead if it
+/// answers `409` (the toxic is there already).
+type NetemCall = (String, String, Option<(String, String)>);
+
+/// A toxic POST for link `link`, and the PATCH that updates it if it exists.
+fn toxic(link: &str, name: &str, kind: &str, attributes: serde_json::Value) -> NetemCall {
+    (
+        format!("/proxies/{link}/toxics"),
+        serde_json::json!({ "name": name, "type": kind, "attributes": attributes }).to_string(),
+        Some((
+            format!("/proxies/{link}/toxics/{name}"),
+            serde_json::json!({ "attributes": attributes }).to_string(),
+        )),
+    )
+}
+
+async fn ws(State(app): Shared, upgrade: WebSocketUpgrade) -> Response {
+    let Some((frames, _)) = &app.live else {
+        return (StatusCode::CONFLICT, "a replay has no live frames").into_response();
+    };
+    let rx = frames.subscribe();
+    upgrade.on_upgrade(move |socket| send_frames(socket, rx))
+}
+
+/// Sends every frame it gets; a lagging page skips what it missed.
+async fn send_frames(mut socket: WebSocket, mut rx: broadcast::Receiver<Arc<String>>) {
+    loop {
+        match rx.recv().await {
+            Ok(f) => {
+                if socket.send(Message::Text(f.as_str().into())).await.is_err() {
+                    return;
+                }
+            }
+            Err(broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(broadcast::error::RecvError::Closed) => {
+                let _ = socket.send(Message::Close(None)).await;
+                return;
+            }
+        }
+    }
+}
