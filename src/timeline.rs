@@ -389,3 +389,150 @@ pub fn frontiers(g: &Grid) -> Vec<proto::grid::Cell> {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::steplog::{diff, LinkStep, Pose, Run};
+    use proto::geom::MapInfo;
+    use proto::grid::Cell;
+
+    fn header() -> Header {
+        Header {
+            magic: crate::steplog::MAGIC,
+            version: crate::steplog::VERSION,
+            map: MapInfo::at_origin(4, 3, 1.0),
+            robots: 2,
+            step_seconds: 1.0,
+            truth: Grid::new(4, 3, Occ::Free).to_rle(),
+        }
+    }
+
+    fn report(robot: RobotId, step: Step, x: f32, grid: GridChange, coverage: f32) -> Record {
+        Record::Robot(RobotStep {
+            step,
+            robot,
+            life: 0,
+            x,
+            y: 1.0,
+            theta: 0.0,
+            target: Some((3.0, 2.0)),
+            idle: false,
+            known_cells: 1,
+            bytes_sent: 10,
+            bytes_received: 5,
+            splits_per_step: None,
+            backlog_bytes: u64::from(step) * 7,
+            sent_by_type: vec![u64::from(step) + 1, 2],
+            views: vec![(1 - robot, 3, 2)],
+            coverage_pct: Some(coverage),
+            grid,
+        })
+    }
+
+    /// Two robots over three steps: robot 0 reports its grid whole, then as changes.
+    fn timeline() -> (Timeline, Vec<Grid>) {
+        let mut grids = vec![Grid::new(4, 3, Occ::Unknown)];
+        for (i, c) in [(1, 1), (2, 1)].into_iter().enumerate() {
+            let mut g = grids[i].clone();
+            g.set(Cell::new(c.0, c.1), Occ::Free);
+            grids.push(g);
+        }
+        let mut t = Timeline::new(header());
+        t.push(Record::Poses {
+            step: 0,
+            robots: vec![
+                Pose {
+                    id: 0,
+                    x: 0.5,
+                    y: 0.5,
+                    theta: 0.0,
+                    alive: true,
+                },
+                Pose {
+                    id: 1,
+                    x: 2.5,
+                    y: 0.5,
+                    theta: 0.0,
+                    alive: true,
+                },
+            ],
+        });
+        for step in 0..3u32 {
+            let s = step as usize;
+            let change = if step == 0 {
+                GridChange::Whole(grids[0].to_rle())
+            } else {
+                GridChange::Runs(diff(&grids[s - 1], &grids[s]))
+            };
+            t.push(report(0, step, step as f32, change, 10.0 * step as f32));
+            t.push(report(
+                1,
+                step,
+                3.0,
+                GridChange::Whole(grids[0].to_rle()),
+                5.0,
+            ));
+            t.push(Record::Links {
+                step,
+                links: vec![LinkStep {
+                    a: 0,
+                    b: 1,
+                    up: step != 1,
+                    bytes_a_to_b: 100,
+                    bytes_b_to_a: 0,
+                    queued_bytes: 3,
+                }],
+            });
+        }
+        (t, grids)
+    }
+
+    #[test]
+    fn a_robots_grid_at_a_step_is_its_whole_grid_with_the_changes_since() {
+        let (t, grids) = timeline();
+        for (step, g) in grids.iter().enumerate() {
+            assert_eq!(
+                t.grid(0, step as Step).map(|x| x.cells().to_vec()),
+                Some(g.cells().to_vec())
+            );
+        }
+        assert!(t.grid(5, 2).is_none(), "no such robot");
+        // Changes with no whole grid before them cannot be replayed.
+        let mut bad = Timeline::new(header());
+        bad.push(report(
+            0,
+            0,
+            0.0,
+            GridChange::Runs(vec![Run {
+                gap: 0,
+                len: 1,
+                occ: Occ::Free,
+            }]),
+            0.0,
+        ));
+        assert!(bad.grid(0, 0).is_none());
+    }
+
+    #[test]
+    fn a_frame_shows_each_robots_report_of_the_step_and_the_series_up_to_it() {
+        let (t, _) = timeline();
+        let f = t.frame(1, true);
+        assert_eq!(f.robots.len(), 2);
+        assert_eq!((f.robots[0].x, f.robots[0].target), (1.0, Some((3.0, 2.0))));
+        assert_eq!(f.links[0].state, "down");
+        assert_eq!(t.frame(2, false).links[0].state, "up");
+        assert_eq!(f.coverage_pct, 10.0);
+        assert_eq!(f.backlog_max, 7);
+        // Bytes per class: both robots' latest totals (ins = step + 1 each, rep = 2 each).
+        assert_eq!(f.bytes_by_type.get("ins"), Some(&4));
+        assert_eq!(f.bytes_by_type.get("rep"), Some(&4));
+        assert_eq!(f.trails.as_ref().map(|t| t[0].len()), Some(2));
+        assert_eq!(t.span(), Some((0, 2)));
+        assert_eq!(t.series().coverage, vec![5.0, 10.0, 20.0]);
+        let d = t.robot(0, 2).expect("robot 0 reported");
+        assert_eq!((d.step, d.known_cells, d.views.len()), (2, 1, 1));
+        assert_eq!(d.frontier_cells, 2, "both free cells border unknown ones");
+        assert!(t.robot(0, 2).is_some() && t.robot(7, 2).is_none());
+    }
+}

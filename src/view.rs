@@ -322,32 +322,32 @@ async fn link(State(app): Shared, Path(name): Path<String>, body: axum::body::By
     if !name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-') {
         return not_found(format!("no link {name:?}"));
     }
-    let calls: Vec<NetemCall> = match a {
+    let (path, body, update): NetemCall = match a {
         LinkAction {
             enabled: Some(on), ..
-        } => vec![(
+        } => (
             format!("/proxies/{name}"),
             serde_json::json!({ "enabled": on }).to_string(),
             None,
-        )],
+        ),
         LinkAction {
             bandwidth_bytes_per_s: Some(rate),
             ..
-        } => vec![toxic(
+        } => toxic(
             &name,
             "viewer_bandwidth",
             "bandwidth",
             serde_json::json!({ "rate_bytes_per_s": rate }),
-        )],
+        ),
         LinkAction {
             latency_ms: Some(ms),
             ..
-        } => vec![toxic(
+        } => toxic(
             &name,
             "viewer_latency",
             "latency",
             serde_json::json!({ "latency": ms }),
-        )],
+        ),
         _ => {
             return (
                 StatusCode::BAD_REQUEST,
@@ -358,16 +358,14 @@ async fn link(State(app): Shared, Path(name): Path<String>, body: axum::body::By
     };
     let api = api.clone();
     let answer = tokio::task::spawn_blocking(move || -> anyhow::Result<(u16, String)> {
-        let mut last = (500, String::new());
-        for (path, body, update) in calls {
-            last = crate::netemctl::http(api.addr, api.token.as_deref(), "POST", &path, &body)?;
+        let answer = crate::netemctl::http(api.addr, api.token.as_deref(), "POST", &path, &body)?;
+        match (answer.0, update) {
             // The toxic is there already: update it.
-            if let (409, Some((path, body))) = (last.0, update) {
-                last =
-                    crate::netemctl::http(api.addr, api.token.as_deref(), "PATCH", &path, &body)?;
+            (409, Some((path, body))) => {
+                crate::netemctl::http(api.addr, api.token.as_deref(), "PATCH", &path, &body)
             }
+            _ => Ok(answer),
         }
-        Ok(last)
     })
     .await;
     match answer {

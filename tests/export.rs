@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
 use std::time::Duration;
 
-use crate::support::{csv, stderr, swarm_run, TempDir, SWARM};
+use crate::support::{csv, fails_naming, stderr, swarm_run, TempDir, SWARM};
 
 #[test]
 fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
@@ -77,23 +77,7 @@ fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
     let log = run.join("steps.log");
     let whole = std::fs::read(&log).expect("steps.log");
     std::fs::write(&log, &whole[..whole.len() - 3]).expect("cut steps.log");
-    let cut = Command::new(SWARM)
-        .arg("export-mcap")
-        .arg(&run)
-        .output()
-        .expect("runs");
-    assert_eq!(cut.status.code(), Some(1));
-    let e = stderr(&cut);
-    assert!(e.contains("steps.log") && e.contains("cut short"), "{e}");
-    let foreign = Command::new(SWARM)
-        .arg("export-mcap")
-        .arg(dir.path())
-        .output()
-        .expect("runs");
-    assert_eq!(foreign.status.code(), Some(1));
-    assert!(
-        stderr(&foreign).contains("steps.log"),
-        "{}",
-        stderr(&foreign)
-    );
+    let e = fails_naming(&["export-mcap"], &run, "steps.log");
+    assert!(e.contains("cut short"), "{e}");
+    fails_naming(&["export-mcap"], dir.path(), "steps.log");
 }

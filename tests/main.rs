@@ -22,4 +22,5 @@ mod process_faults;
 mod roles;
 mod runs;
 mod sweep;
+mod view;
 mod wire;

@@ -260,3 +260,17 @@ pub fn pgm(path: &Path) -> Pgm {
     assert_eq!(cells.len() % width, 0, "{}", path.display());
     Pgm { width, cells }
 }
+
+/// Runs `swarm ARGS… PATH`, which must fail (exit code 1) with an error naming `file`; returns
+/// its stderr.
+pub fn fails_naming(args: &[&str], path: &Path, file: &str) -> String {
+    let out = Command::new(SWARM)
+        .args(args)
+        .arg(path)
+        .output()
+        .expect("swarm runs");
+    let e = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{args:?}: {e}");
+    assert!(e.contains(file), "{args:?}: {e}");
+    e
+}

@@ -269,7 +269,6 @@ async function main() {
   state.truth.src = "/api/truth.png";
   state.series = await getJson("/api/series");
   $("mode").textContent = state.info.live ? "live" : "replay";
-  $("clock").hidden = !state.info.live;
   $("seek").hidden = state.info.live;
   for (const id of ["truth", "trails"]) $(id).onchange = draw;
   $("map").onclick = (ev) => {
@@ -285,9 +284,6 @@ async function main() {
     } else $("map").title = p ? `robot ${p.robot}` : "";
   };
   if (state.info.live) {
-    $("pause").onclick = () => post("/api/clock/pause");
-    $("resume").onclick = () => post("/api/clock/resume");
-    $("single").onclick = () => post("/api/clock/step");
     try { show(await getJson("/api/frame/latest")); } catch (e) { /* no step yet */ }
     connectLive();
   } else {
