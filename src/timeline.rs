@@ -9,7 +9,7 @@ use proto::grid::{Grid, Occ};
 use proto::msg::{RobotId, Step, Traffic};
 use serde::Serialize;
 
-use crate::steplog::{apply, GridChange, Header, LinkStep, Record, RobotStep};
+use crate::steplog::{GridChange, Grids, Header, LinkStep, Record, RobotStep};
 
 /// One step as the page draws it.
 #[derive(Clone, Debug, Serialize)]
@@ -314,18 +314,13 @@ impl Timeline {
         let whole = idx[..=k]
             .iter()
             .rposition(|&i| matches!(&self.records[i], Record::Robot(r) if matches!(r.grid, GridChange::Whole(_))))?;
-        let mut grid: Option<Grid> = None;
+        let mut grids = Grids::default();
         for &i in &idx[whole..=k] {
-            let Record::Robot(r) = &self.records[i] else {
-                continue;
-            };
-            match (&r.grid, grid.as_mut()) {
-                (GridChange::Whole(rle), _) => grid = Grid::from_rle(rle).ok(),
-                (GridChange::Runs(runs), Some(g)) => apply(g, runs).ok()?,
-                (GridChange::Runs(_), None) => return None,
+            if let Record::Robot(r) = &self.records[i] {
+                grids.apply(&self.header.map, r).ok()?;
             }
         }
-        grid
+        grids.grids.remove(&robot)
     }
 
     /// What the page shows of `robot` at `step`; `None`: no such robot or no report yet.
