@@ -701,6 +701,7 @@ mod tests {
             bytes_total: 0,
             queued_bytes: 0,
             connected,
+            cut: None,
         }
     }
 

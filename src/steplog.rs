@@ -131,6 +131,8 @@ pub struct LinkStep {
     pub bytes_a_to_b: u64,
     pub bytes_b_to_a: u64,
     pub queued_bytes: u64,
+    /// Why it carries nothing (down, or up but held).
+    pub cut: Option<proto::msg::LinkCut>,
 }
 
 /// The runs that turn `old` into `new` (grids of one size), over the cells either may know.
@@ -328,6 +330,7 @@ impl StepLogWriter {
                 bytes_a_to_b: l.bytes_a_to_b,
                 bytes_b_to_a: l.bytes_b_to_a,
                 queued_bytes: l.queued_bytes,
+                cut: l.cut,
             })
             .collect();
         self.write(&Record::Links {

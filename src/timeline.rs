@@ -43,7 +43,7 @@ pub struct RobotFrame {
 pub struct LinkFrame {
     pub a: RobotId,
     pub b: RobotId,
-    /// `up` or `down`.
+    /// `up`, `blackhole`, or why it is down: `range`, `fault`, `dead`.
     pub state: &'static str,
     pub bytes_a_to_b: u64,
     pub bytes_b_to_a: u64,
@@ -103,12 +103,14 @@ pub struct Timeline {
     series: Series,
 }
 
-/// `up` or `down` (why it is down is not in the step log yet).
+/// `up`, `blackhole` (up but held), or why it is down: `range`, `fault`, `dead` (`down` if
+/// netem did not say).
 fn link_state(l: &LinkStep) -> &'static str {
-    if l.up {
-        "up"
-    } else {
-        "down"
+    match (l.up, l.cut) {
+        (true, Some(proto::msg::LinkCut::Blackhole)) => "blackhole",
+        (true, _) => "up",
+        (false, Some(c)) => c.as_str(),
+        (false, None) => "down",
     }
 }
 
@@ -477,6 +479,7 @@ mod tests {
                     bytes_a_to_b: 100,
                     bytes_b_to_a: 0,
                     queued_bytes: 3,
+                    cut: (step == 1).then_some(proto::msg::LinkCut::Fault),
                 }],
             });
         }
@@ -515,7 +518,7 @@ mod tests {
         let f = t.frame(1, true);
         assert_eq!(f.robots.len(), 2);
         assert_eq!((f.robots[0].x, f.robots[0].target), (1.0, Some((3.0, 2.0))));
-        assert_eq!(f.links[0].state, "down");
+        assert_eq!(f.links[0].state, "fault");
         assert_eq!(t.frame(2, false).links[0].state, "up");
         assert_eq!(f.coverage_pct, 10.0);
         assert_eq!(f.backlog_max, 7);

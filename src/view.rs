@@ -16,6 +16,7 @@
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use anyhow::Context;
@@ -27,9 +28,11 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
 use proto::grid::{Grid, Occ};
-use proto::msg::{RobotId, Step};
+use proto::keys;
+use proto::msg::{encode, Control, RobotId, Step};
 use tokio::net::TcpListener;
 use tokio::sync::broadcast;
+use zenoh::qos::CongestionControl;
 
 use crate::render::Picture;
 use crate::steplog::{Header, Record};
@@ -63,8 +66,47 @@ pub struct NetemApi {
 struct App {
     timeline: Mutex<Timeline>,
     truth_png: Vec<u8>,
-    /// A live run: frames as they come, and netem's API.
-    live: Option<(broadcast::Sender<Arc<String>>, NetemApi)>,
+    /// A live run: frames as they come, netem's API, the step clock.
+    live: Option<Live>,
+}
+
+/// What a live run's page reaches besides the timeline.
+struct Live {
+    frames: broadcast::Sender<Arc<String>>,
+    netem: NetemApi,
+    /// The launcher's sim-plane session: the page's pause / resume / step go out on it as
+    /// [`Control`] orders to the world-server (and the robots, which then do not time out).
+    sim: zenoh::Session,
+    /// The last clock order sent from the page (what the page shows).
+    paused: std::sync::atomic::AtomicBool,
+    /// What the pages were sent.
+    stats: Mutex<FrameStats>,
+}
+
+/// Frames sent to the live pages over a run.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct FrameStats {
+    /// Frames sent, to every page.
+    pub sent: u64,
+    /// Frames a page that fell behind skipped.
+    pub skipped: u64,
+    /// From the first frame sent to the last (any page).
+    pub span: Option<(std::time::Instant, std::time::Instant)>,
+}
+
+impl FrameStats {
+    /// Frames per second while pages were sent frames.
+    pub fn per_second(&self) -> Option<f64> {
+        let (a, b) = self.span?;
+        let s = b.duration_since(a).as_secs_f64();
+        (s > 0.0).then(|| self.sent as f64 / s)
+    }
+
+    fn sent_one(&mut self) {
+        let now = std::time::Instant::now();
+        self.sent += 1;
+        self.span = Some((self.span.map_or(now, |(a, _)| a), now));
+    }
 }
 
 fn lock(m: &Mutex<Timeline>) -> MutexGuard<'_, Timeline> {
@@ -85,7 +127,7 @@ impl Feed {
         let before = t.latest();
         let new_step = matches!(&r, Record::Robot(rs) if Some(rs.step) != before);
         t.push(r);
-        if let (true, Some(step), Some((frames, _))) = (new_step, before, &self.app.live) {
+        if let (true, Some(step), Some(Live { frames, .. })) = (new_step, before, &self.app.live) {
             if frames.receiver_count() > 0 {
                 if let Ok(json) = serde_json::to_string(&t.frame(step, false)) {
                     let _ = frames.send(Arc::new(json));
@@ -94,10 +136,22 @@ impl Feed {
         }
     }
 
+    /// What the live pages were sent so far.
+    pub fn stats(&self) -> FrameStats {
+        self.app
+            .live
+            .as_ref()
+            .map_or_else(FrameStats::default, |l| {
+                *l.stats
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+            })
+    }
+
     /// The last step's frame, once the run has ended.
     pub fn finish(&self) {
         let t = lock(&self.app.timeline);
-        if let (Some(step), Some((frames, _))) = (t.latest(), &self.app.live) {
+        if let (Some(step), Some(Live { frames, .. })) = (t.latest(), &self.app.live) {
             if let Ok(json) = serde_json::to_string(&t.frame(step, false)) {
                 let _ = frames.send(Arc::new(json));
             }
@@ -150,6 +204,7 @@ async fn start(app: Arc<App>, addr: SocketAddr) -> anyhow::Result<Viewer> {
         .route("/api/robot/{id}", get(robot))
         .route("/api/robot/{id}/grid.png", get(robot_grid))
         .route("/api/link/{name}", post(link))
+        .route("/api/clock/{order}", post(clock))
         .route("/ws", get(ws))
         .fallback(|| async { (StatusCode::NOT_FOUND, "not found") })
         .with_state(app);
@@ -166,12 +221,19 @@ pub async fn live(
     addr: SocketAddr,
     header: Header,
     netem: NetemApi,
+    sim: zenoh::Session,
 ) -> anyhow::Result<(Viewer, Feed)> {
     let (frames, _) = broadcast::channel(FRAMES_QUEUED);
     let app = Arc::new(App {
         truth_png: truth_png(&header)?,
         timeline: Mutex::new(Timeline::new(header)),
-        live: Some((frames, netem)),
+        live: Some(Live {
+            frames,
+            netem,
+            sim,
+            paused: false.into(),
+            stats: Mutex::default(),
+        }),
     });
     let viewer = start(Arc::clone(&app), addr).await?;
     Ok((viewer, Feed { app }))
@@ -220,6 +282,7 @@ async fn info(State(app): Shared) -> Response {
     let (first, last) = t.span().unwrap_or((0, 0));
     json(&serde_json::json!({
         "live": app.live.is_some(),
+        "paused": app.live.as_ref().is_some_and(|l| l.paused.load(Ordering::Relaxed)),
         "robots": t.header.robots,
         "map": t.header.map,
         "step_seconds": t.header.step_seconds,
@@ -309,8 +372,36 @@ struct LinkAction {
 
 /// Forwards a link action to netem's API: `enabled` as a proxy update, a bandwidth or latency
 /// as the viewer's own toxic on the link (created, or updated if it is there).
+/// `POST /api/clock/{pause|resume|step}`: the order goes to the world-server on the sim plane;
+/// a pause holds the step after the one under way.
+async fn clock(State(app): Shared, Path(order): Path<String>) -> Response {
+    let Some(live) = &app.live else {
+        return (StatusCode::CONFLICT, "a replay has no clock to hold").into_response();
+    };
+    let (c, paused) = match order.as_str() {
+        "pause" => (Control::Pause, true),
+        "resume" => (Control::Resume, false),
+        "step" => (Control::Step, true),
+        _ => return not_found(format!("no clock order {order:?} (pause, resume, step)")),
+    };
+    if let Err(e) = live
+        .sim
+        .put(keys::CONTROL, encode(&c))
+        .congestion_control(CongestionControl::Block)
+        .await
+    {
+        return (
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("the sim plane did not take the order: {e}"),
+        )
+            .into_response();
+    }
+    live.paused.store(paused, Ordering::Relaxed);
+    json(&serde_json::json!({ "paused": paused }))
+}
+
 async fn link(State(app): Shared, Path(name): Path<String>, body: axum::body::Bytes) -> Response {
-    let Some((_, api)) = &app.live else {
+    let Some(Live { netem: api, .. }) = &app.live else {
         return (StatusCode::CONFLICT, "a replay has no links to change").into_response();
     };
     let a: LinkAction = match serde_json::from_slice(&body) {
@@ -397,23 +488,37 @@ fn toxic(link: &str, name: &str, kind: &str, attributes: serde_json::Value) -> N
 }
 
 async fn ws(State(app): Shared, upgrade: WebSocketUpgrade) -> Response {
-    let Some((frames, _)) = &app.live else {
+    let Some(Live { frames, .. }) = &app.live else {
         return (StatusCode::CONFLICT, "a replay has no live frames").into_response();
     };
     let rx = frames.subscribe();
-    upgrade.on_upgrade(move |socket| send_frames(socket, rx))
+    let app = Arc::clone(&app);
+    upgrade.on_upgrade(move |socket| send_frames(socket, rx, app))
 }
 
 /// Sends every frame it gets; a lagging page skips what it missed.
-async fn send_frames(mut socket: WebSocket, mut rx: broadcast::Receiver<Arc<String>>) {
+async fn send_frames(
+    mut socket: WebSocket,
+    mut rx: broadcast::Receiver<Arc<String>>,
+    app: Arc<App>,
+) {
+    let stats = |f: &dyn Fn(&mut FrameStats)| {
+        if let Some(live) = &app.live {
+            f(&mut live
+                .stats
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner));
+        }
+    };
     loop {
         match rx.recv().await {
             Ok(f) => {
                 if socket.send(Message::Text(f.as_str().into())).await.is_err() {
                     return;
                 }
+                stats(&|s| s.sent_one());
             }
-            Err(broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(broadcast::error::RecvError::Lagged(n)) => stats(&|s| s.skipped += n),
             Err(broadcast::error::RecvError::Closed) => {
                 let _ = socket.send(Message::Close(None)).await;
                 return;

@@ -6,6 +6,7 @@ mod capture;
 mod support;
 
 mod bids;
+mod browser;
 mod bypass;
 mod chaos;
 mod cli;

@@ -274,3 +274,64 @@ pub fn fails_naming(args: &[&str], path: &Path, file: &str) -> String {
     assert!(e.contains(file), "{args:?}: {e}");
     e
 }
+
+/// Waits for a launcher that was cut a link to finish (exit 0 or 2), then checks that
+/// `links.csv` goes on after the cut at `step` and has the pair `a`-`b` down from `step + 4` on.
+pub fn ended_with_link_down(launcher: Launcher, run: &Path, (a, b): (u64, u64), step: u64) {
+    let out = launcher.wait_output(Duration::from_secs(180));
+    assert!(
+        out.status.code().is_some_and(|c| c == 0 || c == 2),
+        "{}",
+        stderr(&out)
+    );
+    let rows: Vec<_> = csv(&run.join("links.csv"))
+        .into_iter()
+        .filter(|r| r["a"] == a.to_string() && r["b"] == b.to_string())
+        .filter(|r| r["step"].parse::<u64>().is_ok_and(|s| s > step + 3))
+        .collect();
+    assert!(
+        !rows.is_empty(),
+        "links.csv goes on after the cut at step {step}"
+    );
+    let up: Vec<&String> = rows
+        .iter()
+        .filter(|r| r["up"] != "0")
+        .map(|r| &r["step"])
+        .collect();
+    assert!(
+        up.is_empty(),
+        "r{a}-r{b} up after the cut at step {step}: steps {up:?}"
+    );
+}
+
+/// `swarm run --view` of 3 robots on `office` (radio always in range, realtime) with `sets` on
+/// top, into `dir/run`; waits for the viewer's and netem's addresses.
+pub fn viewed_run(
+    dir: &TempDir,
+    sets: &[&str],
+) -> (
+    Launcher,
+    PathBuf,
+    std::net::SocketAddr,
+    std::net::SocketAddr,
+) {
+    let run = dir.path().join("run");
+    let mut cmd = Command::new(SWARM);
+    let base = [
+        "world.map=office",
+        "robots.count=3",
+        "radio.model=always",
+        "clock.mode=realtime",
+        "done_pct=100",
+    ];
+    run_args(&mut cmd, &run, &[&base[..], sets].concat());
+    cmd.arg("--view");
+    let launcher = Launcher::spawn(cmd);
+    let addr = |file: &str| {
+        wait_file(&run.join(file), Duration::from_secs(60))
+            .parse()
+            .unwrap_or_else(|e| panic!("{file} holds an address: {e}"))
+    };
+    let (view, netem) = (addr("view.addr"), addr("netem.addr"));
+    (launcher, run, view, netem)
+}

@@ -1,15 +1,15 @@
 //! The run viewer over HTTP: `swarm run --view` serves the page and its data while the run goes
 //! on; a link cut from the viewer reaches netem (its `/proxies` shows it disabled, `links.csv`
-//! shows it down from then on); a robot the run does not have is a 404; `swarm view` of a
-//! finished run serves the same page, and of a foreign directory fails naming `steps.log`.
+//! shows it down from then on); the page's pause holds the step clock, a single step lets one
+//! step through, resume lets the run go on; a robot the run does not have is a 404; `swarm view`
+//! of a finished run serves the same page, and of a foreign directory fails naming `steps.log`.
 
 use std::net::SocketAddr;
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 use swarm::netemctl::http;
 
-use crate::support::{csv, fails_naming, run_args, stderr, wait_file, Launcher, TempDir, SWARM};
+use crate::support::{ended_with_link_down, fails_naming, viewed_run, TempDir};
 
 fn get(addr: SocketAddr, path: &str) -> (u16, String) {
     http(addr, None, "GET", path, "").unwrap_or_else(|e| panic!("GET {path}: {e:#}"))
@@ -34,32 +34,16 @@ fn get_bytes(addr: SocketAddr, path: &str) -> Vec<u8> {
 #[test]
 fn the_live_viewer_serves_the_run_and_cuts_a_link_through_netem() {
     let dir = TempDir::new("view");
-    let run = dir.path().join("run");
-    let mut cmd = Command::new(SWARM);
-    run_args(
-        &mut cmd,
-        &run,
+    // 10 steps a second: time to act on the page while the run goes on.
+    let (launcher, run, view, netem) = viewed_run(
+        &dir,
         &[
-            "world.map=office",
             "world.width_m=14",
             "world.height_m=10",
-            "robots.count=3",
-            "radio.model=always",
-            // Realtime, 10 steps a second: time to act on the page while the run goes on.
-            "clock.mode=realtime",
             "clock.step_seconds=0.1",
             "max_steps=150",
-            "done_pct=100",
         ],
     );
-    cmd.arg("--view");
-    let launcher = Launcher::spawn(cmd);
-    let view: SocketAddr = wait_file(&run.join("view.addr"), Duration::from_secs(60))
-        .parse()
-        .expect("view.addr holds an address");
-    let netem: SocketAddr = wait_file(&run.join("netem.addr"), Duration::from_secs(60))
-        .parse()
-        .expect("netem.addr holds an address");
 
     let (st, page) = get(view, "/");
     assert_eq!(st, 200);
@@ -127,28 +111,44 @@ fn the_live_viewer_serves_the_run_and_cuts_a_link_through_netem() {
         400
     );
 
-    let out = launcher.wait_output(Duration::from_secs(120));
-    assert!(
-        out.status.code().is_some_and(|c| c == 0 || c == 2),
-        "{}",
-        stderr(&out)
+    // The page's clock: a pause holds the next step, a single step lets one through, resume
+    // lets the run go on; an order the clock does not know is a 404.
+    let post = |path: &str| http(view, None, "POST", path, "").expect("POST").0;
+    let latest = || -> u64 {
+        let (_, body) = get(view, "/api/frame/latest");
+        let f: serde_json::Value = serde_json::from_str(&body).expect("JSON");
+        f["step"].as_u64().expect("a step")
+    };
+    let wait_for = |want: &dyn Fn(u64) -> bool, what: &str| {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while !want(latest()) {
+            assert!(
+                Instant::now() < deadline,
+                "{what}: still at step {}",
+                latest()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+    assert_eq!(post("/api/clock/pause"), 200);
+    std::thread::sleep(Duration::from_millis(800));
+    let held = latest();
+    std::thread::sleep(Duration::from_millis(1500));
+    assert_eq!(latest(), held, "paused at step {held}");
+    assert_eq!(post("/api/clock/step"), 200);
+    wait_for(&|s| s > held, "one step");
+    std::thread::sleep(Duration::from_millis(1000));
+    assert_eq!(
+        latest(),
+        held + 1,
+        "one step after step {held}, then paused"
     );
+    assert_eq!(post("/api/clock/resume"), 200);
+    wait_for(&|s| s > held + 3, "resumed");
+    assert_eq!(post("/api/clock/rewind"), 404);
+
     // From a step after the cut on, links.csv has r0-r1 down.
-    let rows: Vec<_> = csv(&run.join("links.csv"))
-        .into_iter()
-        .filter(|r| r["a"] == "0" && r["b"] == "1")
-        .filter(|r| r["step"].parse::<u64>().is_ok_and(|s| s > step + 3))
-        .collect();
-    assert!(!rows.is_empty(), "links.csv goes on after the cut");
-    let up: Vec<&String> = rows
-        .iter()
-        .filter(|r| r["up"] != "0")
-        .map(|r| &r["step"])
-        .collect();
-    assert!(
-        up.is_empty(),
-        "r0-r1 up after the cut at step {step}: steps {up:?}"
-    );
+    ended_with_link_down(launcher, &run, (0, 1), step);
 
     // The replay of the finished run; a foreign directory fails naming the file.
     fails_naming(&["view", "--addr", "127.0.0.1:0"], dir.path(), "steps.log");

@@ -1,7 +1,8 @@
 // swarm-explore viewer: one page for a live run (`swarm run --view`) and a replay
 // (`swarm view RUN_DIR`). Everything comes from the viewer's server: /api/info, /api/truth.png,
 // /api/frame/<step|latest>, /api/series, /api/robot/<id>[/grid.png], and in a live run the
-// WebSocket /ws (one JSON frame per step; the server drops frames for a slow page, never steps).
+// WebSocket /ws (one JSON frame per step; the server drops frames for a slow page, never steps),
+// POST /api/link/<name> (to netem) and POST /api/clock/<pause|resume|step> (to the world-server).
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -10,6 +11,7 @@ const COLOURS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4
 const LINK_STYLE = {
   up: { colour: "rgba(30,150,60,0.85)", dash: [] },
   down: { colour: "rgba(140,140,140,0.5)", dash: [4, 4] },
+  dead: { colour: "rgba(60,60,60,0.7)", dash: [1, 3] },
   range: { colour: "rgba(140,140,140,0.5)", dash: [4, 4] },
   fault: { colour: "rgba(210,30,30,0.9)", dash: [6, 3] },
   blackhole: { colour: "rgba(120,40,160,0.9)", dash: [2, 3] },
@@ -18,7 +20,11 @@ const TYPE_COLOURS = { ins: "#4363d8", rep: "#3cb44b", del: "#e6194b", em: "#f58
   rm: "#42d4f4", conn: "#808080", targ: "#000000", save: "#9a6324", scan: "#469990", cells: "#800000",
   mark: "#bbbbbb", bid: "#f032e6", task: "#808000", role: "#000075", move: "#aaffc3" };
 
+// A live page draws at most this often (ms).
+const DRAW_MS = 100;
+
 const state = {
+  paused: false, latest: null, drawing: null, detailAt: 0,
   info: null, truth: null, frame: null, trails: [], series: null,
   selected: null, // {robot: id} or {link: [a, b]}
   playing: null,
@@ -66,11 +72,12 @@ function draw() {
   const f = state.frame;
   if (!f) return;
   const at = new Map(f.robots.map((r) => [r.id, r]));
-  // Links under robots.
-  for (const l of f.links) {
+  // Links under robots (unless hidden: a big team's links hide its robots).
+  for (const l of $("links").checked ? f.links : []) {
     const a = at.get(l.a), b = at.get(l.b);
     if (!a || !b) continue;
-    if ((l.state === "range" || l.state === "down") && !isSelectedLink(l)) continue; // not drawn unless picked
+    // Out of range: not drawn unless picked (most pairs of a team are).
+    if ((l.state === "range" || l.state === "down") && !isSelectedLink(l)) continue;
     const st = LINK_STYLE[l.state] || LINK_STYLE.up;
     const perSecond = (l.bytes_a_to_b + l.bytes_b_to_a) / state.info.step_seconds;
     g.lineWidth = 1 + Math.log2(1 + perSecond) / 2 + (isSelectedLink(l) ? 2 : 0);
@@ -122,7 +129,7 @@ function pick(ev) {
     const d = Math.hypot(v.px(r.x) - mx, v.py(r.y) - my);
     if (d < 9 && (!best || d < best.d)) best = { d, robot: r.id };
   }
-  if (best) return best;
+  if (best || !$("links").checked) return best;
   const at = new Map(f.robots.map((r) => [r.id, r]));
   for (const l of f.links) {
     const a = at.get(l.a), b = at.get(l.b);
@@ -243,14 +250,38 @@ function onLiveFrame(frame) {
       (s.bytes_by_type[k] = s.bytes_by_type[k] || new Array(s.steps.length - 1).fill(0)).push(frame.bytes_by_type[k]);
     }
   }
-  show(frame);
-  if (state.selected && state.selected.robot !== undefined && frame.step % 5 === 0) showDetail();
+  state.latest = frame;
+  if (state.drawing) return;
+  // Draws at most every DRAW_MS: frames that come faster update the data only (a page that
+  // redrew map and charts for each of 30 frames a second took a core of a 2-core machine).
+  state.drawing = setTimeout(() => {
+    state.drawing = null;
+    show(state.latest);
+    const now = Date.now();
+    if (state.selected && state.selected.robot !== undefined && now - state.detailAt > 1000) {
+      state.detailAt = now;
+      showDetail();
+    }
+  }, DRAW_MS);
+}
+
+// Live: pause / resume / one step of the run's clock (the world-server holds the next step).
+async function clockOrder(order) {
+  const r = await post(`/api/clock/${order}`);
+  if (r) showPaused(r.paused);
+}
+
+function showPaused(paused) {
+  state.paused = paused;
+  $("pause").textContent = paused ? "resume" : "pause";
+  $("stepone").disabled = !paused;
+  $("mode").textContent = paused ? "live (paused)" : "live";
 }
 
 function connectLive() {
   const ws = new WebSocket(`ws://${location.host}/ws`);
   ws.onmessage = (m) => onLiveFrame(JSON.parse(m.data));
-  ws.onclose = () => { $("mode").textContent = "live (run ended)"; };
+  ws.onclose = () => { $("mode").textContent = "live (run ended)"; $("clock").hidden = true; };
 }
 
 async function seek(step) {
@@ -270,7 +301,7 @@ async function main() {
   state.series = await getJson("/api/series");
   $("mode").textContent = state.info.live ? "live" : "replay";
   $("seek").hidden = state.info.live;
-  for (const id of ["truth", "trails"]) $(id).onchange = draw;
+  for (const id of ["truth", "trails", "links"]) $(id).onchange = draw;
   $("map").onclick = (ev) => {
     const p = pick(ev);
     state.selected = p ? (p.robot !== undefined ? { robot: p.robot } : { link: p.link }) : null;
@@ -284,6 +315,10 @@ async function main() {
     } else $("map").title = p ? `robot ${p.robot}` : "";
   };
   if (state.info.live) {
+    $("clock").hidden = false;
+    showPaused(!!state.info.paused);
+    $("pause").onclick = () => clockOrder(state.paused ? "resume" : "pause");
+    $("stepone").onclick = () => clockOrder("step");
     try { show(await getJson("/api/frame/latest")); } catch (e) { /* no step yet */ }
     connectLive();
   } else {

@@ -291,7 +291,7 @@ mod tests {
     #[test]
     #[ignore]
     fn write_seed_corpus() {
-        use proto::msg::{encode, LinkState, OpChunk, PlannedLink, RobotStatus};
+        use proto::msg::{encode, LinkCut, LinkState, OpChunk, PlannedLink, RobotStatus};
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         // Radio: three robots of each strategy and exchange mode talking for a few steps.
         let mut seen = std::collections::BTreeSet::new();
@@ -364,6 +364,7 @@ mod tests {
         write("sim_plane", "scan", &encode(&plain_scan(3)));
         write("sim_plane", "cmd", &encode(&Cmd { step: 3, robot: 1, waypoint: Some((2.0, 2.5)) }));
         write("sim_plane", "control", &encode(&Control::Stop));
+        write("sim_plane", "control-pause", &encode(&Control::Pause));
         let order = ProcessOrder {
             process: proto::scenario::Process::Robot(1),
             order: proto::msg::Order::Kill { restart_after: Some(3) },
@@ -388,8 +389,10 @@ mod tests {
             bytes_total: 30,
             queued_bytes: 0,
             connected: true,
+            cut: None,
         };
-        write("sim_plane", "link-report", &encode(&LinkReport { step: 5, links: vec![state] }));
+        let cut = LinkState { a: 0, b: 2, up: false, connected: false, cut: Some(LinkCut::Fault), ..state.clone() };
+        write("sim_plane", "link-report", &encode(&LinkReport { step: 5, links: vec![state, cut] }));
         // Scenarios: the embedded default and every shipped scenario, plus faults of each kind.
         write("scenario", "default.toml", &std::fs::read(root.join("configs/default.toml")).expect("default.toml"));
         for e in std::fs::read_dir(root.join("configs/scenarios")).expect("configs/scenarios").flatten() {

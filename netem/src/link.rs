@@ -192,6 +192,8 @@ pub struct LinkSnapshot {
     pub established_total: u64,
     pub refused_total: u64,
     pub toxics: Vec<Toxic>,
+    /// Up but held by a toxic (a blackhole: a `timeout` of 0).
+    pub held: bool,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -300,6 +302,7 @@ impl Link {
             established_total: self.established_total.load(Relaxed),
             refused_total: self.refused_total.load(Relaxed),
             toxics: self.toxics().iter().map(|t| t.toxic.clone()).collect(),
+            held: self.planned(1).is_some_and(|p| p.held),
         }
     }
 

@@ -267,6 +267,7 @@ mod tests {
             established_total: 2,
             refused_total: 0,
             toxics: vec![],
+            held: false,
         }
     }
 

@@ -28,7 +28,7 @@ use tokio::task::JoinHandle;
 use crate::accounting::Dir;
 use crate::clock::{SimClock, SimTime};
 use crate::faults::{self, ActiveToxic, BaseShape, Fault, Pair, ScheduledFault, Toxic, ToxicKind};
-use crate::link::{Link, LinkParams, LinkSnapshot, LinkState, MAX_TOXICS};
+use crate::link::{DownReason, Link, LinkParams, LinkSnapshot, LinkState, MAX_TOXICS};
 use crate::radio::{Model, PathLoss, Radio};
 use crate::shaping::Budget;
 
@@ -151,7 +151,7 @@ pub struct LinkTelemetry {
     pub b: RobotId,
     pub up: bool,
     /// `disabled`, `dead`, `out_of_range` or `no_pose` when down.
-    pub down_reason: Option<&'static str>,
+    pub down_reason: Option<DownReason>,
     /// `None` until both poses are known.
     pub distance_m: Option<f64>,
     pub signal_dbm: Option<f64>,
@@ -175,6 +175,8 @@ pub struct LinkTelemetry {
     pub established_total: u64,
     pub refused_total: u64,
     pub toxics: usize,
+    /// Up but held (a blackhole).
+    pub held: bool,
 }
 
 /// The state shared by the handle, the HTTP API and the tasks.
@@ -877,7 +879,7 @@ fn telemetry_row(step: Option<Step>, s: &LinkSnapshot, step_bytes: [u64; 2]) -> 
         a: s.a,
         b: s.b,
         up: s.up,
-        down_reason: s.down_reason.map(|r| r.as_str()),
+        down_reason: s.down_reason,
         distance_m: s.verdict.map(|v| v.distance_m),
         signal_dbm: s.verdict.and_then(|v| v.signal_dbm),
         walls: s.verdict.and_then(|v| v.walls),
@@ -896,6 +898,7 @@ fn telemetry_row(step: Option<Step>, s: &LinkSnapshot, step_bytes: [u64; 2]) -> 
         established_total: s.established_total,
         refused_total: s.refused_total,
         toxics: s.toxics.len(),
+        held: s.held,
     }
 }
 
@@ -1082,7 +1085,7 @@ mod tests {
         n.on_step(1, &[(1, at(20.0, 0.0), true)]);
         let t = n.telemetry();
         assert!(!t[0].up);
-        assert_eq!(t[0].down_reason, Some("out_of_range"));
+        assert_eq!(t[0].down_reason, Some(DownReason::OutOfRange));
         assert!(ends_within(&mut a, Duration::from_secs(2)).await);
         assert!(ends_within(&mut b, Duration::from_secs(2)).await);
         // A connection while the link is down is held: nothing reaches robot 1, nothing counts.
@@ -1117,7 +1120,7 @@ mod tests {
             "the dropped one never went"
         );
         n.on_step(3, &[(1, at(8.0, 0.0), false)]);
-        assert_eq!(n.telemetry()[0].down_reason, Some("dead"));
+        assert_eq!(n.telemetry()[0].down_reason, Some(DownReason::Dead));
         n.shutdown().await;
     }
 

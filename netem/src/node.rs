@@ -8,7 +8,7 @@ use std::time::Duration;
 use proto::grid::Grid;
 use proto::keys;
 use proto::msg::{
-    decode, encode, Control, LinkReport, LinkState, ProcessOrder, Status, Step, TruthMap,
+    decode, encode, Control, LinkCut, LinkReport, LinkState, ProcessOrder, Status, Step, TruthMap,
 };
 use proto::node::{zerr, ZenohError};
 use proto::scenario::{RadioModel, Scenario};
@@ -17,6 +17,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::sample::SampleKind;
 use zenoh::Session;
 
+use crate::link::DownReason;
 use crate::netem::{LinkTelemetry, Netem};
 
 /// The truth map (for path-loss wall counts), asked of the world-server.
@@ -45,6 +46,18 @@ fn state(t: &LinkTelemetry) -> LinkState {
         bytes_total: t.bytes_a_to_b_total + t.bytes_b_to_a_total,
         queued_bytes: t.queued_bytes,
         connected: t.connections > 0,
+        cut: cut(t),
+    }
+}
+
+/// Why the link carries nothing, for the launcher (and the viewer).
+fn cut(t: &LinkTelemetry) -> Option<LinkCut> {
+    match t.down_reason {
+        _ if t.up && t.held => Some(LinkCut::Blackhole),
+        _ if t.up => None,
+        Some(DownReason::Disabled) => Some(LinkCut::Fault),
+        Some(DownReason::Dead) => Some(LinkCut::Dead),
+        Some(DownReason::OutOfRange | DownReason::NoPose) | None => Some(LinkCut::Range),
     }
 }
 

@@ -116,6 +116,11 @@ pub fn radio_mark(to: RobotId) -> String {
     format!("radio/{to}/mark")
 }
 
+/// Every `<kind>` a `radio/<to>/<kind>` key of ours has (one per `radio_*` function above).
+pub const RADIO_KINDS: &[&str] = &[
+    "hello", "delta", "ops", "patch", "team", "bid", "role", "move", "task", "targ", "mark",
+];
+
 /// Everything on the radio addressed to robot `to` (`radio/<to>/<kind>`).
 pub fn radio_inbox(to: RobotId) -> String {
     format!("radio/{to}/*")
@@ -150,6 +155,22 @@ mod tests {
         assert_eq!(radio_kind(&radio_hello(3)), Some("hello"));
         assert_eq!(radio_kind(&radio_ops(3)), Some("ops"));
         assert_eq!(radio_kind(&radio_team(0)), Some("team"));
+        let ours: [fn(RobotId) -> String; 11] = [
+            radio_hello,
+            radio_delta,
+            radio_ops,
+            radio_patch,
+            radio_team,
+            radio_bid,
+            radio_role,
+            radio_move,
+            radio_task,
+            radio_targ,
+            radio_mark,
+        ];
+        let kinds: Vec<_> = ours.iter().map(|f| f(3)).collect();
+        let kinds: Vec<_> = kinds.iter().filter_map(|k| radio_kind(k)).collect();
+        assert_eq!(kinds, RADIO_KINDS);
         assert_eq!(radio_kind("radio/3"), None);
         assert_eq!(radio_kind("sim/robot/3/cmd"), None);
     }

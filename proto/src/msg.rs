@@ -14,7 +14,7 @@ use crate::geom::{LaserSpec, MapInfo, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 10;
+pub const PROTOCOL_VERSION: u16 = 11;
 
 pub type RobotId = u16;
 pub type Step = u32;
@@ -456,6 +456,32 @@ pub struct LinkState {
     /// A connection through netem's proxy for the pair is open at the end of the step (the
     /// robots' radio sessions are connected or handshaking).
     pub connected: bool,
+    /// Why the link is down (`up` false), or that it is up but held (a blackhole).
+    pub cut: Option<LinkCut>,
+}
+
+/// Why a link carries nothing in a step, as netem says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum LinkCut {
+    /// Out of the radio's range (or no poses yet).
+    Range,
+    /// Cut on purpose: a fault, a partition, `enabled: false` through the API.
+    Fault,
+    /// A robot of the pair is declared dead.
+    Dead,
+    /// Up but held: a blackhole (nothing crosses, the sessions stay).
+    Blackhole,
+}
+
+impl LinkCut {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            LinkCut::Range => "range",
+            LinkCut::Fault => "fault",
+            LinkCut::Dead => "dead",
+            LinkCut::Blackhole => "blackhole",
+        }
+    }
 }
 
 /// Launcher → everyone on `sim/ctl/**`.
@@ -463,6 +489,13 @@ pub struct LinkState {
 pub enum Control {
     /// End the run: every process finishes its step and exits 0.
     Stop,
+    /// Hold the step clock: the world-server finishes the step it is in and starts no other
+    /// until [`Control::Resume`] or [`Control::Step`]; robots wait without timing out.
+    Pause,
+    /// Let the clock go on.
+    Resume,
+    /// While paused: one step, then paused again (nothing when the clock runs).
+    Step,
 }
 
 /// netem → launcher on [`crate::keys::PROCESS_ORDERS`]: a process fault asked for at runtime
@@ -1020,6 +1053,9 @@ mod tests {
             log_bytes: vec![(0, 480), (1026, 12)],
         });
         round_trip(Control::Stop);
+        round_trip(Control::Pause);
+        round_trip(Control::Resume);
+        round_trip(Control::Step);
         round_trip(LinkReport {
             step: 3,
             links: vec![LinkState {
@@ -1032,6 +1068,7 @@ mod tests {
                 bytes_total: 300,
                 queued_bytes: 7,
                 connected: true,
+                cut: Some(LinkCut::Blackhole),
             }],
         });
         round_trip(Hello {

@@ -38,6 +38,10 @@ pub struct Lockstep {
     /// Received messages (markers aside) in the order they arrived, already counted and
     /// decoded; each with the step it is to be acted on in, once its marker came.
     inbox: Vec<(Option<Step>, Msg)>,
+    /// Per sender, how many of its messages in `inbox` have no step yet (arrived since the
+    /// last [`Lockstep::take`]): what the barrier compares with a marker's count, kept as
+    /// messages come so that a check costs the neighbours, not the inbox.
+    undated: BTreeMap<RobotId, usize>,
     /// Peers whose radio liveliness token is seen (a stale one aside).
     tokens: BTreeSet<RobotId>,
     /// Peers this robot has a zenoh session with itself (a token can also come through
@@ -63,7 +67,10 @@ impl Lockstep {
             Msg::Mark(m) => {
                 self.marks.entry(m.step).or_default().insert(m.from, m.sent);
             }
-            m => self.inbox.push((None, m)),
+            m => {
+                *self.undated.entry(m.from()).or_default() += 1;
+                self.inbox.push((None, m));
+            }
         }
     }
 
@@ -143,10 +150,7 @@ impl Lockstep {
 
     /// Messages from `peer` whose marker has not come yet.
     fn arrived_from(&self, peer: RobotId) -> usize {
-        self.inbox
-            .iter()
-            .filter(|(due, m)| due.is_none() && m.from() == peer)
-            .count()
+        self.undated.get(&peer).copied().unwrap_or(0)
     }
 
     /// The neighbours among `peers` whose marker of `t` did not come (their session was lost).
@@ -177,6 +181,8 @@ impl Lockstep {
                 *f = (*f).max(*d);
             }
         }
+        // Every message gets its step now.
+        self.undated.clear();
         for (due, m) in &mut self.inbox {
             if due.is_none() {
                 let from = m.from();
@@ -326,5 +332,60 @@ mod tests {
         assert!(!l.linked(&[1]), "the new session is not listed yet");
         l.on_sessions([1].into());
         assert!(l.linked(&[1]));
+    }
+
+    mod counts {
+        use super::*;
+        use proptest::prelude::*;
+
+        /// One thing that happens to a robot's lockstep bookkeeping.
+        #[derive(Clone, Debug)]
+        enum Op {
+            Radio(RobotId),
+            Start(Step),
+            Take(Step),
+        }
+
+        fn op() -> impl Strategy<Value = Op> {
+            prop_oneof![
+                4 => (0u16..4).prop_map(Op::Radio),
+                1 => (0u32..6).prop_map(Op::Start),
+                1 => (0u32..6).prop_map(Op::Take),
+            ]
+        }
+
+        proptest! {
+            /// The barrier's kept count of a sender's undated messages is the inbox's.
+            #[test]
+            fn the_kept_count_is_the_inboxs(ops in prop::collection::vec(op(), 0..60)) {
+                let mut l = Lockstep::default();
+                let plan = |t| LinkPlan::plain(t, &[(0, 1), (0, 2), (0, 3)]);
+                let mut n = 0;
+                for o in ops {
+                    match o {
+                        Op::Radio(from) => {
+                            n += 1;
+                            l.on_radio(hello(from, n));
+                        }
+                        Op::Start(t) => {
+                            l.on_scan(scan(t));
+                            l.on_plan(plan(t));
+                            l.start(0, t);
+                        }
+                        Op::Take(t) => {
+                            l.take(0, t, &plan(t));
+                        }
+                    }
+                    for p in 0..4 {
+                        let counted = l
+                            .inbox
+                            .iter()
+                            .filter(|(due, m)| due.is_none() && m.from() == p)
+                            .count();
+                        prop_assert_eq!(l.arrived_from(p), counted);
+                    }
+                }
+            }
+        }
     }
 }

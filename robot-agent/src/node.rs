@@ -4,7 +4,8 @@
 //! decisions are [`crate::agent::Agent`]'s; this module only moves bytes between zenoh and the agent
 //! (the agent's radio encodes, decodes and counts them).
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::cell::RefCell;
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::Duration;
 
 use proto::keys;
@@ -12,6 +13,7 @@ use proto::msg::{decode, encode, Cmd, Control, LinkPlan, RobotId, Scan, WorldInf
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
 use zenoh::handlers::FifoChannelHandler;
+use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::{Sample, SampleKind};
@@ -43,20 +45,62 @@ pub async fn world_info(sim: &Session, wait: Duration) -> Result<WorldInfo, Zeno
 /// (`CongestionControl::Drop`); the exchange's handshakes make losses harmless. Lockstep: a
 /// message is never dropped (`Block`; the robots' pacing keeps the queues short) and never
 /// batched with another (`express`), so that the bytes on the wire do not depend on timing.
-async fn send_radio(radio: &Session, out: Vec<Outgoing>, lockstep: bool) {
+async fn send_radio(radio: &Session, keys: &RadioKeys, out: Vec<Outgoing>, lockstep: bool) {
     let cc = if lockstep {
         CongestionControl::Block
     } else {
         CongestionControl::Drop
     };
     for Outgoing { key, bytes, .. } in out {
+        let Some(expr) = keys.get(radio, &key).await else {
+            tracing::debug!("radio key {key} is not a key expression");
+            continue;
+        };
         if let Err(e) = radio
-            .put(&key, bytes)
+            .put(expr, bytes)
             .congestion_control(cc)
             .express(lockstep)
             .await
         {
             tracing::debug!("radio put to {key} failed: {e}");
+        }
+    }
+}
+
+/// The radio keys a robot puts on and receives at, each declared once to its own session.
+///
+/// zenoh keeps the route of a key it has a resource for and works out the route of any other key
+/// on every message, walking every subscription of the team: with 128 robots that was 30 % of a
+/// robot's CPU. A declaration stays in the process (the session's own table); what goes on the
+/// wire, and so every byte netem counts, is unchanged.
+struct RadioKeys(RefCell<HashMap<String, KeyExpr<'static>>>);
+
+impl RadioKeys {
+    /// With this robot's inbox keys (`radio/<id>/<kind>` for every kind) declared, so that what
+    /// arrives is routed on a kept route too.
+    async fn with_inbox(radio: &Session, id: RobotId) -> RadioKeys {
+        let keys = RadioKeys(RefCell::default());
+        for kind in keys::RADIO_KINDS {
+            keys.get(radio, &format!("radio/{id}/{kind}")).await;
+        }
+        keys
+    }
+
+    /// `key`, declared; undeclared if the session refuses the declaration (closing); `None` if
+    /// it is not a key expression at all.
+    async fn get(&self, radio: &Session, key: &str) -> Option<KeyExpr<'static>> {
+        if let Some(expr) = self.0.borrow().get(key) {
+            return Some(expr.clone());
+        }
+        match radio.declare_keyexpr(key.to_string()).await {
+            Ok(expr) => {
+                self.0.borrow_mut().insert(key.to_string(), expr.clone());
+                Some(expr)
+            }
+            Err(e) => {
+                tracing::debug!("declaring radio key {key} failed: {e}");
+                KeyExpr::new(key.to_string()).ok()
+            }
         }
     }
 }
@@ -77,6 +121,9 @@ const WORLD_GRACE: Duration = Duration::from_secs(3);
 struct Subs {
     /// Since when the world-server's token has been gone (`None`: it is there).
     world_lost: std::cell::Cell<Option<tokio::time::Instant>>,
+    /// The launcher paused the step clock ([`Control::Pause`]): no scan is due, so silence is
+    /// not the world's end.
+    paused: std::cell::Cell<bool>,
     scans: Subscriber<FifoChannelHandler<Sample>>,
     plans: Subscriber<FifoChannelHandler<Sample>>,
     ctl: Subscriber<FifoChannelHandler<Sample>>,
@@ -121,6 +168,7 @@ impl Subs {
     async fn declare(id: RobotId, sim: &Session, radio: &Session) -> Result<Subs, ZenohError> {
         Ok(Subs {
             world_lost: std::cell::Cell::new(None),
+            paused: std::cell::Cell::new(false),
             scans: sim.declare_subscriber(keys::scan(id)).await.map_err(zerr)?,
             plans: sim.declare_subscriber(keys::plan(id)).await.map_err(zerr)?,
             ctl: sim.declare_subscriber(keys::CONTROL).await.map_err(zerr)?,
@@ -145,7 +193,8 @@ impl Subs {
         })
     }
 
-    /// The next event; `idle` without any scan: the world fell silent.
+    /// The next event; `idle` without any scan (and the clock not paused): the world fell
+    /// silent.
     async fn next(&self, idle: Duration) -> Event {
         let world_lost = self.world_lost.get();
         tokio::select! {
@@ -166,6 +215,9 @@ impl Subs {
             c = self.ctl.recv_async() => {
                 match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
                     Ok(Ok(Control::Stop)) | Err(_) => Event::End(End::Stopped),
+                    Ok(Ok(Control::Pause)) => { self.paused.set(true); Event::Nothing }
+                    Ok(Ok(Control::Resume)) => { self.paused.set(false); Event::Nothing }
+                    Ok(Ok(Control::Step)) => Event::Nothing,
                     Ok(Err(e)) => { tracing::warn!("bad control message: {e}"); Event::Nothing }
                 }
             }
@@ -185,7 +237,7 @@ impl Subs {
             () = tokio::time::sleep_until(world_lost.unwrap_or_else(tokio::time::Instant::now)), if world_lost.is_some() => {
                 Event::End(End::WorldGone)
             }
-            _ = tokio::time::sleep(idle) => Event::End(End::WorldSilent),
+            _ = tokio::time::sleep(idle), if !self.paused.get() => Event::End(End::WorldSilent),
         }
     }
 }
@@ -244,6 +296,7 @@ pub async fn run_robot(
         id,
         sim: &sim,
         radio: &radio,
+        radio_keys: RadioKeys::with_inbox(&radio, id).await,
         subs: &subs,
         idle: idle_timeout,
         peers: (0..s.nodes())
@@ -263,6 +316,7 @@ struct Planes<'a> {
     id: RobotId,
     sim: &'a Session,
     radio: &'a Session,
+    radio_keys: RadioKeys,
     subs: &'a Subs,
     idle: Duration,
     /// Every other robot of the run, by its radio session's zenoh id.
@@ -304,16 +358,16 @@ async fn as_it_comes(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError
             Event::Scan(scan) => {
                 let cmd = agent.on_scan(&scan);
                 put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
-                send_radio(p.radio, agent.radio_step(), false).await;
+                send_radio(p.radio, &p.radio_keys, agent.radio_step(), false).await;
                 put_sim(p.sim, keys::telemetry(p.id), encode(&agent.telemetry())).await?;
             }
             Event::Radio(kind, bytes) => {
                 let out = agent.on_radio(&kind, &bytes);
-                send_radio(p.radio, out, false).await;
+                send_radio(p.radio, &p.radio_keys, out, false).await;
             }
             Event::Peer(peer, true) => {
                 let out = agent.link_up(peer);
-                send_radio(p.radio, out, false).await;
+                send_radio(p.radio, &p.radio_keys, out, false).await;
             }
             Event::Peer(peer, false) => agent.link_down(peer),
             Event::Plan(_) | Event::Nothing => {}
@@ -393,7 +447,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                 .map(|o| (o.to, o.key.as_str(), o.bytes.len()))
                 .collect::<Vec<_>>()
         );
-        send_radio(p.radio, out, true).await;
+        send_radio(p.radio, &p.radio_keys, out, true).await;
         while !ls.marked(t, &linked) {
             if ls.newer_than(t) {
                 // The world went on without this step (a neighbour's marker never came: it is

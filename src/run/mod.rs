@@ -131,7 +131,8 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
                     None
                 },
             };
-            let (viewer, feed) = crate::view::live(addr, log.header().clone(), api).await?;
+            let (viewer, feed) =
+                crate::view::live(addr, log.header().clone(), api, run.sim.session.clone()).await?;
             std::fs::write(plan.dir.join("view.addr"), format!("{}\n", viewer.addr))?;
             progress.event(&format!("swarm run: viewer at http://{}/", viewer.addr));
             let f = feed.clone();
@@ -153,6 +154,14 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     }
     if let Some((viewer, feed)) = viewer {
         feed.finish();
+        let st = feed.stats();
+        if let Some(fps) = st.per_second() {
+            progress.event(&format!(
+                "swarm run: the viewer sent {} frames to its pages ({fps:.1} a second while one \
+                 was open); a page that fell behind skipped {}",
+                st.sent, st.skipped
+            ));
+        }
         viewer.stop();
     }
     let up = rec.links.up_by_step();

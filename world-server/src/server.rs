@@ -34,6 +34,34 @@ pub enum End {
     Ended { step: Step, reason: ExitReason },
 }
 
+/// The step clock's pause: what the launcher's [`Control::Pause`], [`Control::Resume`] and
+/// [`Control::Step`] leave it at. A pause never cuts a step short; it holds the next one.
+#[derive(Debug, Default)]
+struct Clock {
+    paused: bool,
+    /// Paused, with one step let through.
+    one_step: bool,
+}
+
+impl Clock {
+    fn order(&mut self, c: Control) {
+        match c {
+            Control::Pause => (self.paused, self.one_step) = (true, false),
+            Control::Resume => (self.paused, self.one_step) = (false, false),
+            Control::Step => self.one_step = self.paused,
+            Control::Stop => {}
+        }
+    }
+
+    /// Whether the next step may start (taking the one step a [`Control::Step`] let through).
+    fn may_step(&mut self) -> bool {
+        if !self.paused {
+            return true;
+        }
+        std::mem::take(&mut self.one_step)
+    }
+}
+
 /// Options of the serve loop that are not part of the scenario.
 pub struct ServeOpts {
     /// How long to wait for all robots to join before giving up.
@@ -123,6 +151,7 @@ pub async fn serve(
     let n = world.nodes();
     let mut bad = BadInput::default();
 
+    let mut clock = Clock::default();
     // Wait for every node's sim-plane token: a node declares it once its subscribers are up.
     let mut present = HashSet::new();
     let deadline = Instant::now() + opts.startup_timeout;
@@ -136,7 +165,11 @@ pub async fn serve(
                     _ => bad.record(sample.key_expr().as_str(), "unknown robot id"),
                 }
             }
-            c = ctl.recv_async() => if c.is_ok() { return Ok(End::Stopped { step: 0 }) },
+            c = ctl.recv_async() => match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
+                Ok(Ok(Control::Stop)) | Err(_) => return Ok(End::Stopped { step: 0 }),
+                Ok(Ok(order)) => clock.order(order),
+                Ok(Err(e)) => bad.record(keys::CONTROL, e),
+            },
             _ = sleep_until(deadline) => {
                 let missing: Vec<usize> = (0..n).filter(|i| !present.contains(&(*i as RobotId))).collect();
                 return Err(ZenohError(format!("nodes {missing:?} did not join within {:?} (robots 0..robots.count, then the base station)", opts.startup_timeout)));
@@ -165,6 +198,27 @@ pub async fn serve(
                 step,
                 reason: ExitReason::AllRobotsDead,
             };
+        }
+        if !clock.may_step() {
+            tracing::info!("the clock is paused before step {step}");
+            let mut stop = false;
+            while !clock.may_step() {
+                match ctl
+                    .recv_async()
+                    .await
+                    .map(|c| decode::<Control>(&c.payload().to_bytes()))
+                {
+                    Ok(Ok(Control::Stop)) | Err(_) => {
+                        stop = true;
+                        break;
+                    }
+                    Ok(Ok(order)) => clock.order(order),
+                    Ok(Err(e)) => bad.record(keys::CONTROL, e),
+                }
+            }
+            if stop {
+                break End::Stopped { step };
+            }
         }
         let started = Instant::now();
         for &id in &alive {
@@ -223,6 +277,8 @@ pub async fn serve(
                 c = ctl.recv_async() => {
                     match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
                         Ok(Ok(Control::Stop)) | Err(_) => { stop = true; break; }
+                        // Pausing takes effect once this step is done.
+                        Ok(Ok(order)) => clock.order(order),
                         Ok(Err(e)) => bad.record(keys::CONTROL, e),
                     }
                 }
@@ -256,4 +312,27 @@ pub async fn serve(
     tokio::time::sleep(Duration::from_millis(200)).await;
     queries.abort();
     Ok(end)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pause_holds_steps_a_step_lets_one_through_and_resume_all() {
+        let mut c = Clock::default();
+        assert!(c.may_step() && c.may_step());
+        c.order(Control::Step);
+        assert!(c.may_step(), "a step order while running changes nothing");
+        c.order(Control::Pause);
+        assert!(!c.may_step() && !c.may_step());
+        c.order(Control::Step);
+        assert!(c.may_step(), "one step");
+        assert!(!c.may_step(), "then paused again");
+        c.order(Control::Step);
+        c.order(Control::Pause);
+        assert!(!c.may_step(), "a pause takes back a step not yet taken");
+        c.order(Control::Resume);
+        assert!(c.may_step() && c.may_step());
+    }
 }
