@@ -343,11 +343,17 @@ pub fn path_to(costs: &CostMap, target: Cell) -> Option<Vec<Cell>> {
 /// only free cells (its supercover; the first cell, where the robot stands, is exempt).
 ///
 /// Only the leading part of the path up to the first cell beyond `max_cells` is considered, so the
-/// waypoint never skips a stretch of the path the robot has not reached. `None` when the path has
-/// fewer than two cells, or when no such cell exists — in particular when even the path's second
-/// cell lies farther than `max_cells`.
+/// waypoint never skips a stretch of the path the robot has not reached. When even the path's
+/// second cell lies farther than `max_cells` (a diagonal first step, or a step shorter than a
+/// cell), that cell: the world clips the move to the step, and the robot covers part of the way
+/// (without it a robot whose step is under √2 cells never took a diagonal first move, and one
+/// under a cell never moved). `None` when the path has fewer than two cells.
 pub fn next_waypoint(g: &Grid, path: &[Cell], max_cells: f64) -> Option<Cell> {
     let (&first, rest) = path.split_first()?;
+    let &second = rest.first()?;
+    if f64::from(second.x - first.x).hypot(f64::from(second.y - first.y)) > max_cells {
+        return Some(second);
+    }
     let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
     let reach = rest.iter().take_while(|&&c| {
         let (dx, dy) = (f64::from(c.x - first.x), f64::from(c.y - first.y));
@@ -688,14 +694,16 @@ mod tests {
         // A straight corridor: as far as the step allows.
         check_waypoint("S.....T", 3.0, "...W...");
         check_waypoint("S.....T", 10.0, "......W");
-        // The diagonal first step (√2) does not fit into one cell's move.
+        // The diagonal first step (√2) does not fit into one cell's move: it is the waypoint
+        // all the same (the world clips the move to the step).
         check_waypoint(
             "?.T
              .S.",
             1.2,
-            "?..
+            "?.W
              ...",
         );
+        check_waypoint("S.....T", 0.5, ".W.....");
         // Around a corner the waypoint stops where the straight segment would cross the wall.
         check_waypoint(
             "###T.
@@ -907,7 +915,10 @@ mod tests {
             prop_assert!((total - map.cost(target).unwrap_or(f64::NAN)).abs() < 1e-9);
 
             let waypoint = next_waypoint(&g, &path, max_cells);
-            if let Some(w) = waypoint {
+            let first_step = path.get(1).map(|b| f64::from(b.x - start.x).hypot(f64::from(b.y - start.y)));
+            if let (Some(w), Some(step)) = (waypoint, first_step.filter(|&d| d > max_cells)) {
+                prop_assert_eq!(Some(w), path.get(1).copied(), "a first step of {} > {} cells", step, max_cells);
+            } else if let Some(w) = waypoint {
                 prop_assert!(path[1..].contains(&w));
                 prop_assert!(f64::from(w.x - start.x).hypot(f64::from(w.y - start.y)) <= max_cells);
                 let line = supercover(
@@ -917,9 +928,8 @@ mod tests {
                 for c in line {
                     prop_assert!(c == start || g.get(c) == Occ::Free, "{:?} on the segment is not free", c);
                 }
-            } else if let [a, b, ..] = path[..] {
-                let first_step = f64::from(b.x - a.x).hypot(f64::from(b.y - a.y));
-                prop_assert!(first_step > max_cells, "a legal first step always qualifies");
+            } else {
+                prop_assert!(path.len() < 2, "a path of two cells or more always has a waypoint");
             }
         }
     }
