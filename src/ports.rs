@@ -10,8 +10,19 @@
 //! ports are distinct and concurrent launchers rarely meet. The check binds without
 //! `SO_REUSEADDR`, so a port that any socket still holds — a connection netem accepted on it
 //! after closing its listener, or one in TIME_WAIT — counts as taken.
+//!
+//! A port checked and let go is free until a child binds it, and another launcher searching at
+//! the same moment could pick it too. So ports come in blocks of [`BLOCK`], and a process takes
+//! ports only from blocks it holds: a lock (`flock`) on the block's file in
+//! `$TMPDIR/swarm-ports/`, kept until the process exits — the kernel lets go of the lock of a
+//! process that died, so a crashed launcher leaves no block taken. Launchers on one machine
+//! never hand out the same port; a 128-robot run holds some 130 blocks.
 
+use std::collections::BTreeMap;
+use std::fs::File;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 /// Lowest port we use.
 const LOW: u16 = 10_000;
@@ -39,8 +50,58 @@ pub fn free_ports(n: usize) -> std::io::Result<Vec<u16>> {
     free_ports_on(IpAddr::V4(Ipv4Addr::LOCALHOST), n)
 }
 
+/// Ports per block: a process hands out only ports of the blocks it holds.
+pub const BLOCK: u16 = 64;
+
+/// The blocks this process holds, each by its locked file (kept open until the process exits).
+static HELD: Mutex<BTreeMap<u16, File>> = Mutex::new(BTreeMap::new());
+
+/// Where the blocks' lock files are.
+fn lock_dir() -> PathBuf {
+    std::env::temp_dir().join("swarm-ports")
+}
+
+/// Whether `held` has block `b`, taking it if no other holder has it. Without a lock file (the
+/// directory cannot be written) the block counts as held: the bind check alone decides.
+fn hold(held: &mut BTreeMap<u16, File>, dir: &Path, b: u16) -> bool {
+    if held.contains_key(&b) {
+        return true;
+    }
+    let Ok(file) = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(dir.join(format!("{b}.lock")))
+    else {
+        return true;
+    };
+    match file.try_lock() {
+        Ok(()) => {
+            held.insert(b, file);
+            true
+        }
+        Err(std::fs::TryLockError::WouldBlock) => false,
+        Err(std::fs::TryLockError::Error(_)) => true,
+    }
+}
+
 /// `n` distinct free TCP ports on `ip` (an address of this host).
 pub fn free_ports_on(ip: IpAddr, n: usize) -> std::io::Result<Vec<u16>> {
+    let dir = lock_dir();
+    let _ = std::fs::create_dir_all(&dir);
+    let mut held = HELD
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    free_ports_held(ip, n, &mut held, &dir)
+}
+
+/// [`free_ports_on`] with the blocks held in `held`, their lock files in `dir`.
+fn free_ports_held(
+    ip: IpAddr,
+    n: usize,
+    held: &mut BTreeMap<u16, File>,
+    dir: &Path,
+) -> std::io::Result<Vec<u16>> {
     let high = ephemeral_start().max(LOW + 1024);
     let span = u64::from(high - LOW);
     let start = jitter() % span;
@@ -51,6 +112,9 @@ pub fn free_ports_on(ip: IpAddr, n: usize) -> std::io::Result<Vec<u16>> {
             break;
         }
         let port = LOW + ((start + k) % span) as u16;
+        if !hold(held, dir, port / BLOCK) {
+            continue;
+        }
         match bind_alone(SocketAddr::new(ip, port)) {
             Ok(()) => found.push(port),
             // Out of descriptors is not a taken port: say so instead of searching on.
@@ -106,6 +170,29 @@ mod tests {
                 "port {p} is free again"
             );
         }
+    }
+
+    #[test]
+    fn ports_come_only_from_blocks_nobody_else_holds() {
+        let dir = std::env::temp_dir().join(format!("swarm-ports-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let ip = IpAddr::V4(Ipv4Addr::LOCALHOST);
+        let mut first = BTreeMap::new();
+        let a = free_ports_held(ip, 200, &mut first, &dir).unwrap_or_else(|e| panic!("{e}"));
+        // Another holder (its own open files, as another launcher's) gets none of them, and
+        // holds none of the first one's blocks.
+        let mut second = BTreeMap::new();
+        for _ in 0..20 {
+            let b = free_ports_held(ip, 200, &mut second, &dir).unwrap_or_else(|e| panic!("{e}"));
+            assert!(b.iter().all(|p| !a.contains(p)), "a port handed out twice");
+            assert!(b.iter().all(|p| !first.contains_key(&(p / BLOCK))));
+        }
+        assert!(second.keys().all(|b| !first.contains_key(b)));
+        // Once the first holder is gone (its files closed), its blocks can be taken again.
+        let blocks: Vec<u16> = first.keys().copied().collect();
+        drop(first);
+        assert!(blocks.iter().all(|&b| hold(&mut second, &dir, b)));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

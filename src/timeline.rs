@@ -349,6 +349,25 @@ impl Timeline {
         })
     }
 
+    /// Whether every robot alive at `step` (by the world's status of the step) has reported
+    /// it; `false` before the status of the step came.
+    pub fn complete(&self, step: Step) -> bool {
+        let Some(Record::Poses { robots, .. }) = self
+            .steps
+            .get(&step)
+            .and_then(|at| at.poses)
+            .map(|i| &self.records[i])
+        else {
+            return false;
+        };
+        let reported: std::collections::BTreeSet<RobotId> =
+            self.robot_steps(step).map(|r| r.robot).collect();
+        robots
+            .iter()
+            .filter(|p| p.alive)
+            .all(|p| reported.contains(&p.id))
+    }
+
     /// The step the latest record is of.
     pub fn latest(&self) -> Option<Step> {
         self.series.steps.last().copied()
@@ -510,6 +529,37 @@ mod tests {
             0.0,
         ));
         assert!(bad.grid(0, 0).is_none());
+    }
+
+    #[test]
+    fn a_step_is_complete_once_every_robot_alive_in_it_reported() {
+        let (t, _) = timeline();
+        assert!(t.complete(0), "both robots reported step 0");
+        assert!(!t.complete(1), "no status of step 1");
+        let mut t = Timeline::new(header());
+        let pose = |id, alive| Pose {
+            id,
+            x: 0.5,
+            y: 0.5,
+            theta: 0.0,
+            alive,
+        };
+        let whole = || GridChange::Whole(Grid::new(4, 3, Occ::Unknown).to_rle());
+        t.push(Record::Poses {
+            step: 4,
+            robots: vec![pose(0, true), pose(1, true)],
+        });
+        t.push(report(0, 4, 0.0, whole(), 1.0));
+        assert!(!t.complete(4), "robot 1 has not reported");
+        t.push(report(1, 4, 0.0, whole(), 1.0));
+        assert!(t.complete(4));
+        // A dead robot is not waited for.
+        t.push(Record::Poses {
+            step: 5,
+            robots: vec![pose(0, true), pose(1, false)],
+        });
+        t.push(report(0, 5, 0.0, whole(), 1.0));
+        assert!(t.complete(5));
     }
 
     #[test]

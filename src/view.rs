@@ -7,8 +7,10 @@
 //! `GET /api/series`, `GET /api/frame/{step|latest}` (with every trajectory up to the step),
 //! `GET /api/robot/{id}` and `GET /api/robot/{id}/grid.png` (`?step=N`; `404` for a robot the
 //! run does not have or that has not reported yet), and in a live run `GET /ws` (a WebSocket:
-//! one JSON [`Frame`] per step) and `POST /api/link/{name}` (cut, restore, bandwidth, latency:
-//! forwarded to netem's API with the run's token — netem itself refuses browsers).
+//! one JSON [`Frame`] per step), `GET /api/robot/{id}/polygons` (the robot's own polygonal
+//! approximation and its peers' as it holds them, asked of the robot on the sim plane),
+//! `POST /api/link/{name}` (cut, restore, bandwidth, latency: forwarded to netem's API with the
+//! run's token — netem itself refuses browsers) and `POST /api/clock/{pause|resume|step}`.
 //!
 //! The viewer never slows the run: the launcher hands it each record under a short lock, and
 //! a page that reads frames slower than they come misses some (a bounded broadcast queue
@@ -81,6 +83,22 @@ struct Live {
     paused: std::sync::atomic::AtomicBool,
     /// What the pages were sent.
     stats: Mutex<FrameStats>,
+    /// The last step whose frame went out.
+    framed: Mutex<Option<Step>>,
+}
+
+impl Live {
+    fn stats(&self) -> MutexGuard<'_, FrameStats> {
+        self.stats
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn framed(&self) -> MutexGuard<'_, Option<Step>> {
+        self.framed
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
 }
 
 /// Frames sent to the live pages over a run.
@@ -120,17 +138,32 @@ pub struct Feed {
 }
 
 impl Feed {
-    /// Takes a record; a robot report that opens a new step sends the page the frame of the
-    /// step before it (every report of a step is taken before the next step's).
+    /// Takes a record. A step's frame goes to the pages once every robot alive in it has
+    /// reported it — or, if some never does, when the next step's first report comes (every
+    /// report of a step is taken before the next step's). So a paused run shows its last step.
     pub fn push(&self, r: Record) {
+        let Some(live) = &self.app.live else {
+            lock(&self.app.timeline).push(r);
+            return;
+        };
         let mut t = lock(&self.app.timeline);
         let before = t.latest();
-        let new_step = matches!(&r, Record::Robot(rs) if Some(rs.step) != before);
+        let reported = match &r {
+            Record::Robot(rs) => Some(rs.step),
+            _ => None,
+        };
         t.push(r);
-        if let (true, Some(step), Some(Live { frames, .. })) = (new_step, before, &self.app.live) {
-            if frames.receiver_count() > 0 {
+        let due = match reported {
+            Some(s) if t.complete(s) => Some(s),
+            Some(s) if Some(s) != before => before,
+            _ => None,
+        };
+        let mut framed = live.framed();
+        if let Some(step) = due.filter(|&s| framed.is_none_or(|f| s > f)) {
+            *framed = Some(step);
+            if live.frames.receiver_count() > 0 {
                 if let Ok(json) = serde_json::to_string(&t.frame(step, false)) {
-                    let _ = frames.send(Arc::new(json));
+                    let _ = live.frames.send(Arc::new(json));
                 }
             }
         }
@@ -141,19 +174,20 @@ impl Feed {
         self.app
             .live
             .as_ref()
-            .map_or_else(FrameStats::default, |l| {
-                *l.stats
-                    .lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner)
-            })
+            .map_or_else(FrameStats::default, |l| *l.stats())
     }
 
     /// The last step's frame, once the run has ended.
     pub fn finish(&self) {
         let t = lock(&self.app.timeline);
-        if let (Some(step), Some(Live { frames, .. })) = (t.latest(), &self.app.live) {
+        if let (Some(step), Some(live)) = (t.latest(), &self.app.live) {
+            let mut framed = live.framed();
+            if *framed == Some(step) {
+                return;
+            }
+            *framed = Some(step);
             if let Ok(json) = serde_json::to_string(&t.frame(step, false)) {
-                let _ = frames.send(Arc::new(json));
+                let _ = live.frames.send(Arc::new(json));
             }
         }
     }
@@ -203,6 +237,7 @@ async fn start(app: Arc<App>, addr: SocketAddr) -> anyhow::Result<Viewer> {
         .route("/api/frame/{step}", get(frame))
         .route("/api/robot/{id}", get(robot))
         .route("/api/robot/{id}/grid.png", get(robot_grid))
+        .route("/api/robot/{id}/polygons", get(robot_polygons))
         .route("/api/link/{name}", post(link))
         .route("/api/clock/{order}", post(clock))
         .route("/ws", get(ws))
@@ -233,6 +268,7 @@ pub async fn live(
             sim,
             paused: false.into(),
             stats: Mutex::default(),
+            framed: Mutex::default(),
         }),
     });
     let viewer = start(Arc::clone(&app), addr).await?;
@@ -316,14 +352,18 @@ struct AtStep {
     step: Option<Step>,
 }
 
+/// The robot `id` names in this run (the base station included); else why not (a 404).
+fn robot_id(t: &Timeline, id: &str) -> Result<RobotId, String> {
+    id.parse()
+        .ok()
+        .filter(|&i| i <= t.header.robots)
+        .ok_or_else(|| format!("no robot {id:?} in this run"))
+}
+
 /// The robot `id` names in this run, and the step asked for (default: the latest); else why
 /// not (a 404).
 fn robot_at(t: &Timeline, id: &str, q: &AtStep) -> Result<(RobotId, Step), String> {
-    let id: RobotId = id
-        .parse()
-        .ok()
-        .filter(|&i| i <= t.header.robots)
-        .ok_or_else(|| format!("no robot {id:?} in this run"))?;
+    let id = robot_id(t, id)?;
     let step = q.step.or(t.latest()).ok_or("no step yet")?;
     Ok((id, step))
 }
@@ -360,6 +400,80 @@ async fn robot_grid(
         Ok(png) => ([(CONTENT_TYPE, "image/png")], png).into_response(),
         Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
     }
+}
+
+/// `GET /api/robot/{id}/polygons` (live only): what the robot holds of every owner's polygonal
+/// approximation, asked of the robot itself ([`keys::held`]), its vertices in metres. Only the
+/// robot has it — the step log keeps digests, not polygons — so a replay answers 409.
+async fn robot_polygons(State(app): Shared, Path(id): Path<String>) -> Response {
+    let Some(live) = &app.live else {
+        return (
+            StatusCode::CONFLICT,
+            "polygons are asked of the live robots; a replay has only their digests",
+        )
+            .into_response();
+    };
+    let (id, map) = {
+        let t = lock(&app.timeline);
+        match robot_id(&t, &id) {
+            Ok(id) => (id, t.header.map),
+            Err(why) => return not_found(why),
+        }
+    };
+    match proto::node::query_once::<proto::msg::Held>(&live.sim, &keys::held(id)).await {
+        Ok(Some(held)) if held.robot == id => json(&held_json(&held, &map)),
+        Ok(Some(held)) => (
+            StatusCode::BAD_GATEWAY,
+            format!("robot {id}'s key was answered for robot {}", held.robot),
+        )
+            .into_response(),
+        Ok(None) => (
+            StatusCode::GATEWAY_TIMEOUT,
+            format!("robot {id} did not answer (its process is down, or busy with a step)"),
+        )
+            .into_response(),
+        Err(e) => (StatusCode::BAD_GATEWAY, e.to_string()).into_response(),
+    }
+}
+
+/// What a robot holds, for the page: per owner (the robot and its life), ops held and shown,
+/// and each polygon's vertices in metres with f_occ of the edge from each (`o`ccupied,
+/// `f`ree, `u`nknown).
+fn held_json(h: &proto::msg::Held, map: &proto::geom::MapInfo) -> serde_json::Value {
+    let metres = |q: i32, origin: f64| origin + f64::from(q) / 4.0 * map.resolution_m;
+    let owners: Vec<serde_json::Value> = h
+        .owners
+        .iter()
+        .map(|o| {
+            let (robot, life) = proto::msg::owner_life(o.owner);
+            let polygons: Vec<serde_json::Value> = o
+                .polygons
+                .iter()
+                .map(|p| {
+                    let points: Vec<[f64; 2]> = p
+                        .vertices
+                        .iter()
+                        .map(|&(x, y, _)| [metres(x, map.origin_x_m), metres(y, map.origin_y_m)])
+                        .collect();
+                    let occ: String = p
+                        .vertices
+                        .iter()
+                        .map(|&(_, _, o)| match o {
+                            Occ::Occupied => 'o',
+                            Occ::Free => 'f',
+                            Occ::Unknown => 'u',
+                        })
+                        .collect();
+                    serde_json::json!({ "outside": p.outside, "points": points, "occ": occ })
+                })
+                .collect();
+            serde_json::json!({
+                "owner": o.owner, "robot": robot, "life": life,
+                "held": o.held, "shown": o.shown, "polygons": polygons,
+            })
+        })
+        .collect();
+    serde_json::json!({ "robot": h.robot, "step": h.step, "owners": owners })
 }
 
 /// What a click on a link asks for.
@@ -502,23 +616,16 @@ async fn send_frames(
     mut rx: broadcast::Receiver<Arc<String>>,
     app: Arc<App>,
 ) {
-    let stats = |f: &dyn Fn(&mut FrameStats)| {
-        if let Some(live) = &app.live {
-            f(&mut live
-                .stats
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner));
-        }
-    };
+    let Some(live) = &app.live else { return };
     loop {
         match rx.recv().await {
             Ok(f) => {
                 if socket.send(Message::Text(f.as_str().into())).await.is_err() {
                     return;
                 }
-                stats(&|s| s.sent_one());
+                live.stats().sent_one();
             }
-            Err(broadcast::error::RecvError::Lagged(n)) => stats(&|s| s.skipped += n),
+            Err(broadcast::error::RecvError::Lagged(n)) => live.stats().skipped += n,
             Err(broadcast::error::RecvError::Closed) => {
                 let _ = socket.send(Message::Close(None)).await;
                 return;

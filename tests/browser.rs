@@ -5,9 +5,10 @@
 //! colour is drawn where the viewer's frame of each screenshot's step puts it, and gone from the
 //! first place in the second); "pause" holds the run (the page's step stays); a click on a link
 //! and on its panel's "cut" button cuts it (netem's `/proxies` shows it disabled, `links.csv`
-//! shows it down from then on); a click on a robot shows its planning grid; "step" lets one step
-//! through, "resume" lets the run go on. The replay of the finished run (`swarm view`): moving the slider
-//! seeks to a step, and every robot is drawn where `metrics.csv` says it was at that step.
+//! shows it down from then on); a click on a robot shows its planning grid and lists the polygons
+//! it holds (asked of the robot); "step" lets one step through, "resume" lets the run go on. The
+//! replay of the finished run (`swarm view`): moving the slider seeks to a step, and every robot
+//! is drawn where `metrics.csv` says it was at that step (polygons are a live run's: 409).
 //!
 //! Chromium is started with its networking limited to this machine: no host name resolves
 //! (`--host-resolver-rules`), background services, updates and sync are off; the page is on a
@@ -182,6 +183,20 @@ async fn shown_step(client: &Client) -> Option<u64> {
         .strip_prefix("step ")?
         .parse()
         .ok()
+}
+
+/// Waits (at most `limit`) until the page shows a step `want` takes; that step.
+async fn shown_step_until(
+    client: &Client,
+    limit: Duration,
+    what: &str,
+    want: impl Fn(u64) -> bool,
+) -> u64 {
+    let want = &want;
+    until(limit, what, move || async move {
+        shown_step(client).await.filter(|&s| want(s))
+    })
+    .await
 }
 
 /// Polls `f` every 100 ms until it gives something, at most `limit`.
@@ -369,10 +384,11 @@ async fn page_test() {
     })
     .await;
     assert!(mode.starts_with("live"), "{mode}");
-    until(
+    shown_step_until(
+        &client,
         Duration::from_secs(60),
         "the page showing step 3",
-        || async { shown_step(&client).await.filter(|&s| s >= 3) },
+        |s| s >= 3,
     )
     .await;
     let info = get_json(view, "/api/info");
@@ -490,6 +506,17 @@ async fn page_test() {
                     || async { (client.execute(loaded, vec![]).await.ok()? == true).then_some(()) },
                 )
                 .await;
+                // Its polygons, asked of the robot, listed in the panel (and drawn on the map).
+                let listed = "const t = document.getElementById('held-table'); \
+                              return t ? t.rows.length - 1 : 0;";
+                until(
+                    Duration::from_secs(20),
+                    "the polygons the robot holds in its panel",
+                    || async {
+                        (client.execute(listed, vec![]).await.ok()?.as_u64()? >= 1).then_some(())
+                    },
+                )
+                .await;
                 keep(&client, "view-live.png").await;
                 break;
             }
@@ -505,10 +532,7 @@ async fn page_test() {
         "still paused at step {held}"
     );
     click_id(&client, "stepone").await;
-    until(Duration::from_secs(10), "one step", || async {
-        (shown_step(&client).await? > held).then_some(())
-    })
-    .await;
+    shown_step_until(&client, Duration::from_secs(10), "one step", |s| s > held).await;
     tokio::time::sleep(Duration::from_millis(1000)).await;
     assert_eq!(
         shown_step(&client).await,
@@ -516,8 +540,8 @@ async fn page_test() {
         "one step from {held}"
     );
     click_id(&client, "pause").await;
-    until(Duration::from_secs(20), "the run going on", || async {
-        (shown_step(&client).await? > held + 5).then_some(())
+    shown_step_until(&client, Duration::from_secs(20), "the run going on", |s| {
+        s > held + 5
     })
     .await;
 
@@ -542,6 +566,14 @@ async fn page_test() {
         .find(|w| w.starts_with("http://"))
         .unwrap_or_else(|| panic!("an address in {line:?}"))
         .to_string();
+    // Polygons are the live robots' own: a replay has none to ask for.
+    let addr: SocketAddr = url
+        .trim_start_matches("http://")
+        .trim_end_matches('/')
+        .parse()
+        .unwrap_or_else(|e| panic!("{url}: {e}"));
+    let (st, why) = http(addr, None, "GET", "/api/robot/0/polygons", "").expect("GET polygons");
+    assert_eq!(st, 409, "{why}");
     client.goto(&url).await.expect("the replay page");
     until(Duration::from_secs(20), "the replay's mode", || async {
         (text(&client, "#mode").await? == "replay").then_some(())
@@ -582,10 +614,11 @@ async fn page_test() {
         .await
         .expect("moving the slider");
     assert_eq!(v, json!(target), "the slider takes step {target}");
-    until(
+    shown_step_until(
+        &client,
         Duration::from_secs(20),
         "the replay at the step",
-        || async { (shown_step(&client).await? == target).then_some(()) },
+        |s| s == target,
     )
     .await;
     let (shown, replayed) = shot(&client).await;

@@ -1,7 +1,8 @@
 //! The run viewer over HTTP: `swarm run --view` serves the page and its data while the run goes
 //! on; a link cut from the viewer reaches netem (its `/proxies` shows it disabled, `links.csv`
 //! shows it down from then on); the page's pause holds the step clock, a single step lets one
-//! step through, resume lets the run go on; a robot the run does not have is a 404; `swarm view`
+//! step through, resume lets the run go on; a robot's polygons are asked of the robot; a robot
+//! the run does not have is a 404; `swarm view`
 //! of a finished run serves the same page, and of a foreign directory fails naming `steps.log`.
 
 use std::net::SocketAddr;
@@ -135,6 +136,40 @@ fn the_live_viewer_serves_the_run_and_cuts_a_link_through_netem() {
     let held = latest();
     std::thread::sleep(Duration::from_millis(1500));
     assert_eq!(latest(), held, "paused at step {held}");
+    // What a robot holds, asked of the robot: its own polygons first, every vertex on the map.
+    let (st, body) = get(view, "/api/robot/0/polygons");
+    assert_eq!(st, 200, "{body}");
+    let polygons: serde_json::Value = serde_json::from_str(&body).expect("JSON");
+    assert_eq!(polygons["robot"], 0, "{polygons}");
+    let owners = polygons["owners"].as_array().expect("owners");
+    assert_eq!(
+        owners[0]["robot"], 0,
+        "its own approximation first: {polygons}"
+    );
+    assert!(owners[0]["held"].as_u64() > Some(0), "{polygons}");
+    let own = owners[0]["polygons"].as_array().expect("polygons");
+    assert!(
+        !own.is_empty(),
+        "robot 0 has no polygons after {held} steps"
+    );
+    for p in owners
+        .iter()
+        .flat_map(|o| o["polygons"].as_array().expect("polygons"))
+    {
+        let points = p["points"].as_array().expect("points");
+        assert_eq!(Some(points.len()), p["occ"].as_str().map(str::len), "{p}");
+        for xy in points {
+            let (x, y) = (xy[0].as_f64().expect("x"), xy[1].as_f64().expect("y"));
+            assert!(
+                (0.0..=14.0).contains(&x) && (0.0..=10.0).contains(&y),
+                "{xy} off the map"
+            );
+        }
+    }
+    for o in owners {
+        assert!(o["shown"].as_u64() <= o["held"].as_u64(), "{o}");
+    }
+    assert_eq!(get(view, "/api/robot/9/polygons").0, 404);
     assert_eq!(post("/api/clock/step"), 200);
     wait_for(&|s| s > held, "one step");
     std::thread::sleep(Duration::from_millis(1000));

@@ -2,7 +2,8 @@
 // (`swarm view RUN_DIR`). Everything comes from the viewer's server: /api/info, /api/truth.png,
 // /api/frame/<step|latest>, /api/series, /api/robot/<id>[/grid.png], and in a live run the
 // WebSocket /ws (one JSON frame per step; the server drops frames for a slow page, never steps),
-// POST /api/link/<name> (to netem) and POST /api/clock/<pause|resume|step> (to the world-server).
+// /api/robot/<id>/polygons (asked of the robot), POST /api/link/<name> (to netem) and
+// POST /api/clock/<pause|resume|step> (to the world-server).
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -27,6 +28,7 @@ const state = {
   paused: false, latest: null, drawing: null, detailAt: 0,
   info: null, truth: null, frame: null, trails: [], series: null,
   selected: null, // {robot: id} or {link: [a, b]}
+  polygons: null, // live: what the selected robot holds (/api/robot/<id>/polygons)
   playing: null,
 };
 
@@ -86,6 +88,7 @@ function draw() {
     g.beginPath(); g.moveTo(v.px(a.x), v.py(a.y)); g.lineTo(v.px(b.x), v.py(b.y)); g.stroke();
   }
   g.setLineDash([]);
+  drawPolygons(g, v);
   if ($("trails").checked) {
     state.trails.forEach((t, id) => {
       if (!t || t.length < 2) return;
@@ -111,6 +114,47 @@ function draw() {
     g.lineTo(x + 10 * Math.cos(r.theta), y - 10 * Math.sin(r.theta)); g.stroke();
     g.fillStyle = "#000"; g.fillText(String(r.id), x + 8, y - 8);
   }
+}
+
+// f_occ of an edge: occupied edges solid, free ones dashed, unknown ones dotted and faint.
+const EDGE_STYLE = { o: { dash: [], alpha: 1 }, f: { dash: [5, 3], alpha: 0.8 }, u: { dash: [1, 3], alpha: 0.5 } };
+
+// The selected robot's polygons: its own (thick) and each owner's it holds, in the owner's colour.
+function drawPolygons(g, v) {
+  const p = state.polygons;
+  if (!p || !$("polygons").checked || !state.selected || state.selected.robot !== p.robot) return;
+  for (const o of p.owners) {
+    g.strokeStyle = colour(o.robot);
+    g.lineWidth = o.robot === p.robot ? 2.5 : 1.5;
+    for (const poly of o.polygons) {
+      const n = poly.points.length;
+      for (let i = 0; i < n; i++) {
+        const a = poly.points[i], b = poly.points[(i + 1) % n], st = EDGE_STYLE[poly.occ[i]] || EDGE_STYLE.u;
+        g.setLineDash(st.dash); g.globalAlpha = st.alpha;
+        g.beginPath(); g.moveTo(v.px(a[0]), v.py(a[1])); g.lineTo(v.px(b[0]), v.py(b[1])); g.stroke();
+      }
+    }
+  }
+  g.setLineDash([]); g.globalAlpha = 1;
+}
+
+// Live: asks the selected robot what it holds; the table lists it, the map draws it.
+async function loadPolygons(id) {
+  const el = $("held");
+  try {
+    const p = await getJson(`/api/robot/${id}/polygons`);
+    if (!state.selected || state.selected.robot !== id) return;
+    state.polygons = p;
+    if (el) {
+      const rows = p.owners.map((o) => `<tr><td style="color:${colour(o.robot)}">${o.robot}${o.life ? ` (life ${o.life})` : ""}</td>
+        <td>${o.held}</td><td>${o.shown}</td><td>${o.polygons.length}</td>
+        <td>${o.polygons.reduce((n, q) => n + q.points.length, 0)}</td></tr>`).join("");
+      el.innerHTML = p.owners.length === 0 ? "<p>no polygons (this run does not exchange polygons)</p>" :
+        `<p>polygons it holds at step ${p.step} (drawn on the map; edges: occupied solid, free dashed, unknown dotted):</p>
+        <table id="held-table"><tr><th>owner</th><th>ops held</th><th>shown</th><th>polygons</th><th>vertices</th></tr>${rows}</table>`;
+    }
+    draw();
+  } catch (e) { if (el) el.textContent = e.message; }
 }
 
 function isSelectedLink(l) {
@@ -167,8 +211,10 @@ async function showDetail() {
       </table>
       <p>planning grid (frontiers in red):</p>
       <img id="grid" alt="planning grid of robot ${r.id}" src="/api/robot/${r.id}/grid.png${stepQ}${stepQ ? "&" : "?"}t=${f.step}">
-      ${views ? `<p>what it shows of each owner's log (ops held, shown up to a save point):</p>
+      <div id="held">${state.info.live ? "asking the robot for its polygons…" : ""}</div>
+      ${views && !state.info.live ? `<p>what it shows of each owner's log (ops held, shown up to a save point; its polygons are asked of live robots only):</p>
       <table><tr><th>owner</th><th>held</th><th>shown</th></tr>${views}</table>` : ""}`;
+    if (state.info.live) loadPolygons(r.id);
   } else if (sel.link) {
     const [a, b] = sel.link;
     const l = f.links.find((x) => x.a === a && x.b === b);
@@ -301,10 +347,11 @@ async function main() {
   state.series = await getJson("/api/series");
   $("mode").textContent = state.info.live ? "live" : "replay";
   $("seek").hidden = state.info.live;
-  for (const id of ["truth", "trails", "links"]) $(id).onchange = draw;
+  for (const id of ["truth", "trails", "links", "polygons"]) $(id).onchange = draw;
   $("map").onclick = (ev) => {
     const p = pick(ev);
     state.selected = p ? (p.robot !== undefined ? { robot: p.robot } : { link: p.link }) : null;
+    state.polygons = null;
     draw(); showDetail();
   };
   $("map").onmousemove = (ev) => {

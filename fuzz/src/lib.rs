@@ -3,7 +3,7 @@
 //! no panic, no hang, no unbounded allocation — which is what the fuzzer checks:
 //!
 //! * [`sim_plane`] — every sim-plane message (status, scan, command, telemetry, link plan,
-//!   control, world info, truth, link report, process order) and the run-length grids inside
+//!   control, world info, truth, link report, process order, what a robot holds) and the run-length grids inside
 //!   them; a decoded scan is handed to a robot, which integrates it and plans;
 //! * [`radio`] — every radio payload kind as a robot receives it, taken into a robot of one of
 //!   the strategies and exchange modes, which then (as the input chooses) integrates a scan and
@@ -104,6 +104,9 @@ pub fn sim_plane(data: &[u8]) {
         let _ = Grid::from_rle(&t.reachable_rle);
     }
     let _ = decode::<LinkReport>(data);
+    if let Ok(h) = decode::<proto::msg::Held>(data) {
+        let _ = h.owners.iter().map(|o| proto::msg::owner_life(o.owner)).count();
+    }
     if let Ok(o) = decode::<ProcessOrder>(data) {
         let mut s = Scenario::default();
         s.robots.count = 3;
@@ -346,6 +349,7 @@ mod tests {
                 if si == 0 && mi == 0 {
                     let t = team[1].telemetry();
                     write("sim_plane", "telemetry", &encode(&t));
+                    write("sim_plane", "held", &encode(&team[1].held()));
                 }
             }
         }

@@ -1,8 +1,9 @@
 //! Confinement of the sim plane: every process joins the world-server's router under its own
 //! name and password, and the router lets it publish, subscribe, declare and ask only on its own
-//! keys (robot `i`: its command, telemetry, scan and liveliness token; netem: the link plan and
-//! reports, and the process faults its API is asked for; the launcher: control; an observer:
-//! read-only). Everything else is denied.
+//! keys (robot `i`: its command, telemetry, scan, liveliness token and the answer to what it
+//! holds; netem: the link plan and reports, and the process faults its API is asked for; the
+//! launcher: control, and asking any robot what it holds; an observer: read-only). Everything
+//! else is denied.
 //!
 //! This module is the table of who may do what ([`grants`]) and its rendering as zenoh's
 //! `access_control` configuration ([`access_control`]); `node` applies it (the router reads the
@@ -77,6 +78,7 @@ const QUERY: &[&str] = &["query"];
 const REPLY: &[&str] = &["reply"];
 const TOKEN: &[&str] = &["liveliness_token"];
 const WATCH: &[&str] = &["declare_liveliness_subscriber", "liveliness_query"];
+const ANSWER: &[&str] = &["declare_queryable"];
 /// Declarations the router passes on so that a client knows somebody listens (they carry no
 /// data: a publisher learns that its key has a subscriber).
 const INTEREST: &[&str] = &["declare_subscriber", "declare_queryable"];
@@ -95,12 +97,13 @@ pub fn grants(p: Principal) -> Vec<Grant> {
     let mut g = vec![grant(Egress, INTEREST, &["sim/**"])];
     match p {
         Principal::Robot(i) | Principal::BaseStation(i) => {
-            let (cmd, telemetry, scan, plan, alive) = (
+            let (cmd, telemetry, scan, plan, alive, held) = (
                 keys::cmd(i),
                 keys::telemetry(i),
                 keys::scan(i),
                 keys::plan(i),
                 keys::sim_alive(i),
+                keys::held(i),
             );
             g.extend([
                 grant(Ingress, PUT, &[&cmd, &telemetry]),
@@ -108,6 +111,10 @@ pub fn grants(p: Principal) -> Vec<Grant> {
                 grant(Ingress, TOKEN, &[&alive]),
                 grant(Ingress, WATCH, &[keys::WORLD_ALIVE, keys::NETEM_ALIVE]),
                 grant(Ingress, QUERY, &[keys::WORLD_INFO]),
+                // What it holds, for a viewer that asks.
+                grant(Ingress, ANSWER, &[&held]),
+                grant(Ingress, REPLY, &[&held]),
+                grant(Egress, QUERY, &[&held]),
                 grant(Egress, PUT, &[&scan, &plan, keys::CONTROL]),
                 grant(Egress, TOKEN, &[keys::WORLD_ALIVE, keys::NETEM_ALIVE]),
                 grant(Egress, REPLY, &[keys::WORLD_INFO]),
@@ -139,7 +146,11 @@ pub fn grants(p: Principal) -> Vec<Grant> {
                     keys::PROCESS_ORDERS,
                 ],
             ),
-            grant(Ingress, QUERY, &[keys::WORLD_TRUTH, keys::WORLD_INFO]),
+            grant(
+                Ingress,
+                QUERY,
+                &[keys::WORLD_TRUTH, keys::WORLD_INFO, keys::HELD_ALL],
+            ),
             grant(
                 Egress,
                 PUT,
@@ -150,7 +161,11 @@ pub fn grants(p: Principal) -> Vec<Grant> {
                     keys::PROCESS_ORDERS,
                 ],
             ),
-            grant(Egress, REPLY, &[keys::WORLD_TRUTH, keys::WORLD_INFO]),
+            grant(
+                Egress,
+                REPLY,
+                &[keys::WORLD_TRUTH, keys::WORLD_INFO, keys::HELD_ALL],
+            ),
         ]),
         Principal::Observer => g.extend([
             grant(Ingress, SUBSCRIBE, &["sim/**"]),
@@ -283,6 +298,10 @@ mod tests {
                 }
             }
             assert!(subs.contains(&keys::scan(i)) && received.contains(&keys::scan(i)));
+            // It answers for itself only.
+            let answers = keys_of(*p, Flow::Ingress, "declare_queryable");
+            assert_eq!(answers, vec![keys::held(i)]);
+            assert_eq!(keys_of(*p, Flow::Ingress, "reply"), vec![keys::held(i)]);
             assert!(!subs.iter().any(|k| k.contains('*')));
         }
     }

@@ -49,6 +49,15 @@ pub fn cmd(id: RobotId) -> String {
     format!("sim/robot/{id}/cmd")
 }
 
+/// Robot `id` answers queries on this key with what it holds of every owner's polygonal
+/// approximation ([`crate::msg::Held`]): asked by the viewer, never on the step's path.
+pub fn held(id: RobotId) -> String {
+    format!("sim/robot/{id}/held")
+}
+
+/// Every robot's [`held`] key (the launcher may ask any of them).
+pub const HELD_ALL: &str = "sim/robot/*/held";
+
 pub fn telemetry(id: RobotId) -> String {
     format!("sim/telemetry/{id}")
 }
@@ -181,6 +190,7 @@ mod tests {
         assert_eq!(robot_of(&radio_alive(12)), Some(12));
         assert_eq!(robot_of(&telemetry(7)), Some(7));
         assert_eq!(robot_of(&cmd(5)), Some(5));
+        assert_eq!(robot_of(&held(9)), Some(9));
         assert_eq!(robot_of("sim/alive/x"), None);
         assert_eq!(robot_of("sim"), None);
     }

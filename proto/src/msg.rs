@@ -1,7 +1,7 @@
 //! Every message that crosses a process boundary, and its versioned postcard codec.
 //!
 //! Sim plane (world-server ⇄ robots ⇄ launcher): [`WorldInfo`], [`TruthMap`], [`Scan`], [`Cmd`],
-//! [`Status`], [`Telemetry`], [`Control`]. Radio plane (robot ⇄ robot, through netem):
+//! [`Status`], [`Telemetry`], [`Control`], [`Held`]. Radio plane (robot ⇄ robot, through netem):
 //! [`Hello`] (the thesis's `conn` handshake) and [`ScanDelta`] (the `raw-scans` exchange of
 //! docs/design.md §4.8). Every payload starts with [`PROTOCOL_VERSION`] so that mixed builds fail
 //! loudly instead of misreading each other.
@@ -190,6 +190,36 @@ pub struct Judged {
     pub step: Step,
     pub group: Vec<RobotId>,
     pub up: Vec<(RobotId, RobotId)>,
+}
+
+/// Robot → viewer, on request ([`crate::keys::held`]; sim plane, never radio traffic): every
+/// polygonal approximation the robot holds at `step` — its own and each other owner's as far
+/// as it has that owner's log (polygon exchange; empty in other exchange modes).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Held {
+    pub robot: RobotId,
+    pub step: Step,
+    pub owners: Vec<HeldApprox>,
+}
+
+/// One owner's approximation as a robot holds it: `held` ops of the owner's log, of which the
+/// first `shown` end at a save point and make up `polygons` (for the robot's own log both are
+/// its length).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct HeldApprox {
+    pub owner: RobotId,
+    pub held: u32,
+    pub shown: u32,
+    pub polygons: Vec<Outline>,
+}
+
+/// One polygon of an approximation: its vertices in quarter cells of the map's grid (cell
+/// `(x, y)` spans `[4x, 4x + 4) × [4y, 4y + 4)`), each with f_occ of the edge that starts at
+/// it. `outside`: the polygon encloses occupied or unknown space (else free space).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Outline {
+    pub outside: bool,
+    pub vertices: Vec<(i32, i32, crate::grid::Occ)>,
 }
 
 /// A receiver's view of another owner's approximation (telemetry): `held` ops of the owner's
@@ -1056,6 +1086,22 @@ mod tests {
         round_trip(Control::Pause);
         round_trip(Control::Resume);
         round_trip(Control::Step);
+        round_trip(Held {
+            robot: 2,
+            step: 40,
+            owners: vec![HeldApprox {
+                owner: 1026,
+                held: 12,
+                shown: 9,
+                polygons: vec![Outline {
+                    outside: true,
+                    vertices: vec![
+                        (6, 10, crate::grid::Occ::Occupied),
+                        (-2, 10, crate::grid::Occ::Unknown),
+                    ],
+                }],
+            }],
+        });
         round_trip(LinkReport {
             step: 3,
             links: vec![LinkState {

@@ -397,6 +397,17 @@ impl Agent {
         }
     }
 
+    /// What it holds of every owner's polygonal approximation at its last step (polygon
+    /// exchange; no owners in other modes): the answer to a viewer's question, never on the
+    /// step's path.
+    pub fn held(&self) -> proto::msg::Held {
+        proto::msg::Held {
+            robot: self.id,
+            step: self.step,
+            owners: self.sharing.held(),
+        }
+    }
+
     /// The robot saw no reachable frontier at its last step.
     pub fn is_idle(&self) -> bool {
         self.idle
@@ -410,5 +421,93 @@ impl Agent {
     /// The cells of G_s the last scan changed (for incremental contour pixels).
     pub fn own_changes(&self) -> &[Cell] {
         &self.own_changed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::world_info;
+    use proto::geom::MapInfo;
+    use proto::msg::MoveOutcome;
+    use world_server::laser;
+
+    /// A 30 × 20 cell room (0.2 m cells) with a pillar.
+    fn room() -> Grid {
+        let mut g = Grid::new(30, 20, Occ::Occupied);
+        for y in 1..19 {
+            for x in 1..29 {
+                g.set(Cell::new(x, y), Occ::Free);
+            }
+        }
+        for y in 8..12 {
+            for x in 13..17 {
+                g.set(Cell::new(x, y), Occ::Occupied);
+            }
+        }
+        g
+    }
+
+    #[test]
+    fn a_peer_holds_the_owners_polygons_once_it_has_its_log_up_to_the_save_point() {
+        let truth = room();
+        let info = MapInfo::at_origin(truth.width(), truth.height(), 0.2);
+        let s = Scenario::default();
+        assert_eq!(s.exchange.mode, proto::scenario::ExchangeMode::Polygon);
+        let world = world_info(&s, info, 2);
+        let mut team = [Agent::new(0, world.clone(), &s), Agent::new(1, world, &s)];
+        let mut out: Vec<Outgoing> = team.iter_mut().flat_map(|a| a.link_up(1 - a.id)).collect();
+        let poses = [(1.0, 1.0), (5.0, 3.0)].map(|(x, y)| Pose { x, y, theta: 0.0 });
+        let mut caught_up = None;
+        for step in 0..200 {
+            for (a, &pose) in team.iter_mut().zip(&poses) {
+                let ranges = laser::cast(&truth, &info, pose, &s.laser(), None);
+                let last_move = MoveOutcome::Stayed;
+                let _ = a.on_scan(&Scan {
+                    step,
+                    pose,
+                    ranges,
+                    last_move,
+                });
+                out.extend(a.radio_step());
+            }
+            for o in std::mem::take(&mut out) {
+                let kind = proto::keys::radio_kind(&o.key)
+                    .expect("a radio key")
+                    .to_string();
+                out.extend(team[usize::from(o.to)].on_radio(&kind, &o.bytes));
+            }
+            let (own, peer) = (team[0].held(), team[1].held());
+            assert_eq!((own.robot, own.step, peer.step), (0, step, step));
+            let mine = &own.owners[0];
+            assert_eq!((mine.owner, mine.held), (0, mine.shown));
+            assert_eq!(
+                peer.owners[0].owner, 1,
+                "a robot's own approximation comes first"
+            );
+            if let Some(held) = peer.owners.iter().find(|h| h.owner == 0) {
+                assert!(held.shown <= held.held && held.held <= mine.held);
+                if held.shown == mine.shown && step > 10 {
+                    assert_eq!(held.polygons, mine.polygons);
+                    caught_up = Some(step);
+                    break;
+                }
+            }
+        }
+        let step = caught_up.expect("robot 1 never showed robot 0's whole approximation");
+        let own = team[0].held();
+        assert!(
+            !own.owners[0].polygons.is_empty(),
+            "no polygons by step {step}"
+        );
+        assert!(own.owners[0].polygons.iter().any(|p| p.vertices.len() >= 3));
+    }
+
+    #[test]
+    fn other_exchange_modes_hold_no_polygons() {
+        let mut s = Scenario::default();
+        s.exchange.mode = proto::scenario::ExchangeMode::RawScans;
+        let world = world_info(&s, MapInfo::at_origin(30, 20, 0.2), 2);
+        assert!(Agent::new(0, world, &s).held().owners.is_empty());
     }
 }

@@ -66,6 +66,17 @@ impl Approximation {
         h
     }
 
+    /// The objects in id order as the sim plane's [`proto::msg::Outline`]s (for a viewer).
+    pub fn outlines(&self) -> Vec<proto::msg::Outline> {
+        self.objects
+            .values()
+            .map(|p| proto::msg::Outline {
+                outside: p.kind == Kind::Outside,
+                vertices: p.vertices.iter().map(|v| (v.p.x, v.p.y, v.occ)).collect(),
+            })
+            .collect()
+    }
+
     /// The unsimplified approximation: every point of P_t is a vertex (ids are object indices).
     pub fn exact(p: &Contours) -> Approximation {
         let objects = p

@@ -16,6 +16,7 @@ use zenoh::handlers::FifoChannelHandler;
 use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
+use zenoh::query::{Query, Queryable};
 use zenoh::sample::{Sample, SampleKind};
 use zenoh::session::ZenohId;
 use zenoh::Session;
@@ -130,6 +131,8 @@ struct Subs {
     world_alive: Subscriber<FifoChannelHandler<Sample>>,
     inbox: Subscriber<FifoChannelHandler<Sample>>,
     peers: Subscriber<FifoChannelHandler<Sample>>,
+    /// A viewer's questions about what this robot holds ([`keys::held`]).
+    asked: Queryable<FifoChannelHandler<Query>>,
 }
 
 /// Something that happened on either plane.
@@ -140,6 +143,8 @@ enum Event {
     Radio(String, Vec<u8>),
     /// A peer's radio liveliness token appeared (`true`) or vanished.
     Peer(RobotId, bool),
+    /// A viewer asks what the robot holds.
+    Asked(Query),
     /// Nothing to do (an undecodable message, logged).
     Nothing,
     End(End),
@@ -190,6 +195,7 @@ impl Subs {
                 .history(true)
                 .await
                 .map_err(zerr)?,
+            asked: sim.declare_queryable(keys::held(id)).await.map_err(zerr)?,
         })
     }
 
@@ -212,6 +218,10 @@ impl Subs {
                     None => Event::Nothing,
                 }
             }
+            q = self.asked.recv_async() => match q {
+                Ok(q) => Event::Asked(q),
+                Err(_) => Event::End(End::Stopped),
+            },
             c = self.ctl.recv_async() => {
                 match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
                     Ok(Ok(Control::Stop)) | Err(_) => Event::End(End::Stopped),
@@ -370,6 +380,7 @@ async fn as_it_comes(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError
                 send_radio(p.radio, &p.radio_keys, out, false).await;
             }
             Event::Peer(peer, false) => agent.link_down(peer),
+            Event::Asked(q) => answer(q, &agent),
             Event::Plan(_) | Event::Nothing => {}
             Event::End(e) => return Ok(e),
         }
@@ -485,8 +496,20 @@ fn note(ls: &mut Lockstep, agent: &mut Agent, e: Event) -> Option<End> {
             }
         }
         Event::Peer(peer, up) => ls.on_token(peer, up),
+        Event::Asked(q) => answer(q, agent),
         Event::Nothing => {}
         Event::End(e) => return Some(e),
     }
     None
+}
+
+/// Answers a viewer's question with what the agent holds ([`Agent::held`]); the reply goes out
+/// from a task of its own, so the step never waits for it.
+fn answer(q: Query, agent: &Agent) {
+    let bytes = encode(&agent.held());
+    tokio::spawn(async move {
+        if let Err(e) = q.reply(q.key_expr().clone(), bytes).await {
+            tracing::warn!("the answer to {} failed: {e}", q.key_expr());
+        }
+    });
 }

@@ -172,7 +172,7 @@ mod tests {
     use crate::agent::Agent;
     use proto::geom::Pose;
     use proto::grid::Occ;
-    use proto::msg::{Scan, Target, WorldInfo};
+    use proto::msg::{Scan, Target};
     use proto::scenario::{Scenario, Strategy};
     use world_server::{laser, motion};
 
@@ -277,13 +277,7 @@ mod tests {
         s.sensor.max_range_m = 2.0;
         s.coordination.strategy = Strategy::Decentralized;
         let info = map(truth.width(), truth.height());
-        let world = WorldInfo {
-            map: info,
-            laser: s.laser(),
-            step_seconds: s.clock.step_seconds,
-            robots: 2,
-            max_speed_m_per_s: s.robots.speed_m_per_s,
-        };
+        let world = crate::testutil::world_info(&s, info, 2);
         let mut agents = [Agent::new(0, world.clone(), &s), Agent::new(1, world, &s)];
         agents[0].link_up(1);
         agents[1].link_up(0);

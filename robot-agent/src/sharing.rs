@@ -185,6 +185,12 @@ pub trait Sharing: Send {
     fn held_bytes(&self) -> Vec<(RobotId, u64)> {
         Vec::new()
     }
+
+    /// Polygon mode: every approximation we hold — our own first, then each other owner's as
+    /// we show it — for a viewer (never on the step's path).
+    fn held(&self) -> Vec<proto::msg::HeldApprox> {
+        Vec::new()
+    }
 }
 
 /// Robot `me`'s sharing in scenario `s`'s exchange mode, in `world`, with a link budget of
@@ -374,6 +380,27 @@ impl Sharing for Polygon {
 
     fn held_bytes(&self) -> Vec<(RobotId, u64)> {
         self.exchange.held_bytes()
+    }
+
+    fn held(&self) -> Vec<proto::msg::HeldApprox> {
+        let own = u32::try_from(self.mapper.log().len()).unwrap_or(u32::MAX);
+        let mut all = vec![proto::msg::HeldApprox {
+            owner: self.exchange.own(),
+            held: own,
+            shown: own,
+            polygons: self.mapper.approximation().outlines(),
+        }];
+        for v in self.exchange.views() {
+            if let Some(a) = self.exchange.approximation(v.owner) {
+                all.push(proto::msg::HeldApprox {
+                    owner: v.owner,
+                    held: v.held,
+                    shown: v.shown,
+                    polygons: a.outlines(),
+                });
+            }
+        }
+        all
     }
 
     fn approx_error_avg(&self) -> Option<f64> {

@@ -9,6 +9,22 @@ use proto::grid::{Cell, Grid, Occ};
 
 use crate::qpoint::QPoint;
 
+/// What the world-server tells robots of a world of frame `map` with `robots` robots in
+/// scenario `s`.
+pub fn world_info(
+    s: &proto::scenario::Scenario,
+    map: proto::geom::MapInfo,
+    robots: u16,
+) -> proto::msg::WorldInfo {
+    proto::msg::WorldInfo {
+        map,
+        laser: s.laser(),
+        step_seconds: s.clock.step_seconds,
+        robots,
+        max_speed_m_per_s: s.robots.speed_m_per_s,
+    }
+}
+
 /// Random grids up to `max` × `max`, with a bias toward free cells so regions form.
 pub fn arb_grid(max: u32) -> impl Strategy<Value = Grid> {
     (1..=max, 1..=max, 0u8..4).prop_flat_map(|(w, h, bias)| {

@@ -19,7 +19,7 @@ use proto::node::{zerr, ZenohError};
 use proto::scenario::{ClockMode, Scenario};
 use tokio::time::{sleep_until, Instant};
 use zenoh::qos::CongestionControl;
-use zenoh::sample::SampleKind;
+use zenoh::sample::{Sample, SampleKind};
 use zenoh::Session;
 
 use crate::world::World;
@@ -50,6 +50,24 @@ impl Clock {
             Control::Resume => (self.paused, self.one_step) = (false, false),
             Control::Step => self.one_step = self.paused,
             Control::Stop => {}
+        }
+    }
+
+    /// Takes one sample of the control key (`None`: the subscription closed); true when the
+    /// run ends there — a [`Control::Stop`], or nobody can send orders any more. An order that
+    /// does not decode is bad input.
+    fn control(&mut self, sample: Option<Sample>, bad: &mut BadInput) -> bool {
+        let Some(sample) = sample else { return true };
+        match decode::<Control>(&sample.payload().to_bytes()) {
+            Ok(Control::Stop) => true,
+            Ok(order) => {
+                self.order(order);
+                false
+            }
+            Err(e) => {
+                bad.record(keys::CONTROL, e);
+                false
+            }
         }
     }
 
@@ -165,10 +183,8 @@ pub async fn serve(
                     _ => bad.record(sample.key_expr().as_str(), "unknown robot id"),
                 }
             }
-            c = ctl.recv_async() => match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
-                Ok(Ok(Control::Stop)) | Err(_) => return Ok(End::Stopped { step: 0 }),
-                Ok(Ok(order)) => clock.order(order),
-                Ok(Err(e)) => bad.record(keys::CONTROL, e),
+            c = ctl.recv_async() => if clock.control(c.ok(), &mut bad) {
+                return Ok(End::Stopped { step: 0 });
             },
             _ = sleep_until(deadline) => {
                 let missing: Vec<usize> = (0..n).filter(|i| !present.contains(&(*i as RobotId))).collect();
@@ -202,19 +218,8 @@ pub async fn serve(
         if !clock.may_step() {
             tracing::info!("the clock is paused before step {step}");
             let mut stop = false;
-            while !clock.may_step() {
-                match ctl
-                    .recv_async()
-                    .await
-                    .map(|c| decode::<Control>(&c.payload().to_bytes()))
-                {
-                    Ok(Ok(Control::Stop)) | Err(_) => {
-                        stop = true;
-                        break;
-                    }
-                    Ok(Ok(order)) => clock.order(order),
-                    Ok(Err(e)) => bad.record(keys::CONTROL, e),
-                }
+            while !stop && !clock.may_step() {
+                stop = clock.control(ctl.recv_async().await.ok(), &mut bad);
             }
             if stop {
                 break End::Stopped { step };
@@ -274,14 +279,11 @@ pub async fn serve(
                         _ => {}
                     }
                 }
-                c = ctl.recv_async() => {
-                    match c.map(|c| decode::<Control>(&c.payload().to_bytes())) {
-                        Ok(Ok(Control::Stop)) | Err(_) => { stop = true; break; }
-                        // Pausing takes effect once this step is done.
-                        Ok(Ok(order)) => clock.order(order),
-                        Ok(Err(e)) => bad.record(keys::CONTROL, e),
-                    }
-                }
+                // Pausing takes effect once this step is done.
+                c = ctl.recv_async() => if clock.control(c.ok(), &mut bad) {
+                    stop = true;
+                    break;
+                },
                 _ = sleep_until(started + timeout) => break,
             }
         }
