@@ -305,30 +305,65 @@ pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
     )
 }
 
-/// Every link report of a run, in arrival order.
+/// Every link report of a run, in arrival order, each kept packed (its links postcard-encoded:
+/// some 25 bytes a link instead of 64 — netem reports every pair every step, 8 100 of them at
+/// 128 robots, and the launcher holds the whole run until it ends).
 #[derive(Default)]
 pub struct LinkLog {
-    pub rows: Vec<(Step, LinkState)>,
+    reports: Vec<(Step, Box<[u8]>)>,
+    last: Option<Step>,
 }
 
 impl LinkLog {
     pub fn add(&mut self, r: LinkReport) {
-        for l in r.links {
-            self.rows.push((r.step, l));
-        }
+        self.last = self.last.max(Some(r.step));
+        let packed = proto::msg::encode(&r.links).into_boxed_slice();
+        self.reports.push((r.step, packed));
     }
 
     /// Drops the reports of steps after `last`.
     pub fn truncate(&mut self, last: Step) {
-        self.rows.retain(|(s, _)| *s <= last);
+        self.reports.retain(|(s, _)| *s <= last);
+        self.last = self.reports.iter().map(|(s, _)| *s).max();
+    }
+
+    /// The latest step reported.
+    pub fn last_step(&self) -> Option<Step> {
+        self.last
+    }
+
+    /// The links of one packed report (it was encoded here: it decodes).
+    fn unpack(packed: &[u8]) -> Vec<LinkState> {
+        proto::msg::decode(packed).unwrap_or_default()
+    }
+
+    /// Every link of every report, in arrival order.
+    pub fn rows(&self) -> impl Iterator<Item = (Step, LinkState)> + '_ {
+        self.reports
+            .iter()
+            .flat_map(|(step, packed)| Self::unpack(packed).into_iter().map(move |l| (*step, l)))
+    }
+
+    /// Every link, by step and pair (pairs reported twice in a step in arrival order), one
+    /// step unpacked at a time.
+    pub fn sorted_rows(&self) -> impl Iterator<Item = (Step, LinkState)> + '_ {
+        let mut by_step: BTreeMap<Step, Vec<&[u8]>> = BTreeMap::new();
+        for (step, packed) in &self.reports {
+            by_step.entry(*step).or_default().push(packed);
+        }
+        by_step.into_iter().flat_map(|(step, reports)| {
+            let mut links: Vec<LinkState> = reports.into_iter().flat_map(Self::unpack).collect();
+            links.sort_by_key(|l| (l.a, l.b));
+            links.into_iter().map(move |l| (step, l))
+        })
     }
 
     /// The pairs whose link was up, per step (sorted, so the same log gives the same map
     /// whatever order the reports came in).
     pub fn up_by_step(&self) -> BTreeMap<Step, Vec<(RobotId, RobotId)>> {
         let mut up: BTreeMap<Step, Vec<(RobotId, RobotId)>> = BTreeMap::new();
-        for (step, l) in self.rows.iter().filter(|(_, l)| l.up) {
-            up.entry(*step).or_default().push((l.a, l.b));
+        for (step, l) in self.rows().filter(|(_, l)| l.up) {
+            up.entry(step).or_default().push((l.a, l.b));
         }
         for pairs in up.values_mut() {
             pairs.sort_unstable();
@@ -342,7 +377,7 @@ impl LinkLog {
     pub fn wire_total(&self) -> u64 {
         // Per pair: the totals of netem's earlier lives, and the current one's.
         let mut totals: BTreeMap<(u16, u16), (u64, u64)> = BTreeMap::new();
-        for (_, l) in &self.rows {
+        for (_, l) in self.rows() {
             let (done, now) = totals.entry((l.a, l.b)).or_default();
             if l.bytes_total < *now {
                 *done += *now;
@@ -357,11 +392,11 @@ impl LinkLog {
         // Per pair: (step, up, connected).
         type Rows = Vec<(Step, bool, bool)>;
         let mut by_pair: BTreeMap<(u16, u16), Rows> = BTreeMap::new();
-        for (step, l) in &self.rows {
+        for (step, l) in self.rows() {
             by_pair
                 .entry((l.a, l.b))
                 .or_default()
-                .push((*step, l.up, l.connected));
+                .push((step, l.up, l.connected));
         }
         let mut r = Reconnects::default();
         for rows in by_pair.values_mut() {
@@ -557,11 +592,9 @@ pub struct LinkCsv {
 }
 
 /// `links.csv`: one row per step and robot pair.
-pub fn write_links(dir: &Path, rows: &[(Step, LinkState)]) -> anyhow::Result<()> {
-    let mut sorted: Vec<&(Step, LinkState)> = rows.iter().collect();
-    sorted.sort_by_key(|(step, l)| (*step, l.a, l.b));
-    let rows = sorted.into_iter().map(|(step, l)| LinkCsv {
-        step: *step,
+pub fn write_links(dir: &Path, log: &LinkLog) -> anyhow::Result<()> {
+    let rows = log.sorted_rows().map(|(step, l)| LinkCsv {
+        step,
         a: l.a,
         b: l.b,
         up: Flag(l.up),
@@ -856,6 +889,44 @@ mod tests {
         let text = std::fs::read_to_string(&path).unwrap_or_default();
         let _ = std::fs::remove_dir_all(&dir);
         assert_eq!(text, "step,robot,log_len,digest\n");
+    }
+
+    #[test]
+    fn the_packed_link_log_gives_back_every_link_and_sorts_by_step_and_pair() {
+        let link = |a, b, total, d: Option<f64>| LinkState {
+            a,
+            b,
+            distance_m: d,
+            bytes_total: total,
+            cut: Some(proto::msg::LinkCut::Range),
+            ..state(false, false)
+        };
+        let reports = [
+            (3, vec![link(1, 2, 10, Some(2.345)), link(0, 1, 7, None)]),
+            (2, vec![link(0, 2, u64::MAX, Some(0.1))]),
+            // netem again (a restart): step 3 once more.
+            (3, vec![link(0, 1, 1, Some(1.0))]),
+            (4, vec![link(0, 1, 2, None)]),
+        ];
+        let mut log = LinkLog::default();
+        for (step, links) in &reports {
+            log.add(LinkReport {
+                step: *step,
+                links: links.clone(),
+            });
+        }
+        let added: Vec<(Step, LinkState)> = reports
+            .iter()
+            .flat_map(|(s, ls)| ls.iter().map(move |l| (*s, l.clone())))
+            .collect();
+        assert_eq!(log.rows().collect::<Vec<_>>(), added);
+        let mut sorted = added.clone();
+        sorted.sort_by_key(|(s, l)| (*s, l.a, l.b));
+        assert_eq!(log.sorted_rows().collect::<Vec<_>>(), sorted);
+        assert_eq!(log.last_step(), Some(4));
+        log.truncate(3);
+        assert_eq!(log.last_step(), Some(3));
+        assert_eq!(log.rows().count(), 4);
     }
 
     #[test]

@@ -200,10 +200,7 @@ pub fn summary(
         // Judgements of steps netem reported (the run's last step may have none).
         link_judgement: rec
             .links
-            .rows
-            .iter()
-            .map(|(s, _)| *s)
-            .max()
+            .last_step()
             .and_then(|reported| check_judgements(&eval.judged, up, reported)),
         failed_processes: rec.failed.clone(),
         process_events: rec.sup.events.clone(),
@@ -415,7 +412,7 @@ pub fn write_tables(dir: &Path, rec: &Record) -> anyhow::Result<()> {
     write_metrics(dir, &rec.eval.rows)?;
     write_traffic(dir, &rec.eval.rows)?;
     write_saves_and_views(dir, &rec.eval.saves, &rec.eval.views)?;
-    write_links(dir, &rec.links.rows)
+    write_links(dir, &rec.links)
 }
 
 /// `truth.png` with every trajectory, `robot_<id>.png` per robot, and every robot's final

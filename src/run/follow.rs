@@ -252,7 +252,7 @@ impl Record {
         }
         let after = e.saturating_add(1);
         let status = self.statuses.iter().any(|s| s.step >= after);
-        let links = self.links.rows.iter().any(|(s, _)| *s >= e);
+        let links = self.links.last_step().is_some_and(|s| s >= e);
         // netem reports a step when the next one opens; a run without links has no reports.
         let no_links = self.statuses.first().is_some_and(|s| s.robots.len() < 2);
         self.order.next() > e && status && (links || no_links)
