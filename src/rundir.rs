@@ -311,12 +311,10 @@ pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
 #[derive(Default)]
 pub struct LinkLog {
     reports: Vec<(Step, Box<[u8]>)>,
-    last: Option<Step>,
 }
 
 impl LinkLog {
     pub fn add(&mut self, r: LinkReport) {
-        self.last = self.last.max(Some(r.step));
         let packed = proto::msg::encode(&r.links).into_boxed_slice();
         self.reports.push((r.step, packed));
     }
@@ -324,12 +322,11 @@ impl LinkLog {
     /// Drops the reports of steps after `last`.
     pub fn truncate(&mut self, last: Step) {
         self.reports.retain(|(s, _)| *s <= last);
-        self.last = self.reports.iter().map(|(s, _)| *s).max();
     }
 
     /// The latest step reported.
     pub fn last_step(&self) -> Option<Step> {
-        self.last
+        self.reports.iter().map(|(s, _)| *s).max()
     }
 
     /// The links of one packed report (it was encoded here: it decodes).

@@ -185,15 +185,27 @@ impl ApproxExchange {
     /// Per other owner: how many ops of its log we hold, how many of them the approximation we
     /// show reflects (up to the last save point), and that approximation's digest.
     pub fn views(&self) -> Vec<View> {
-        self.replicas
-            .iter()
-            .map(|(&owner, f)| View {
+        self.shown()
+            .map(|(owner, held, shown, a)| View {
                 owner,
-                held: u32::try_from(self.logs.log(owner).len()).unwrap_or(u32::MAX),
-                shown: u32::try_from(f.shown).unwrap_or(u32::MAX),
-                digest: f.replica.committed().digest(),
+                held,
+                shown,
+                digest: a.digest(),
             })
             .collect()
+    }
+
+    /// Per other owner, in id order: ops of its log we hold, how many of them the approximation
+    /// we show reflects, and that approximation.
+    pub fn shown(&self) -> impl Iterator<Item = (RobotId, u32, u32, &Approximation)> {
+        self.replicas.iter().map(|(&owner, f)| {
+            (
+                owner,
+                u32::try_from(self.logs.log(owner).len()).unwrap_or(u32::MAX),
+                u32::try_from(f.shown).unwrap_or(u32::MAX),
+                f.replica.committed(),
+            )
+        })
     }
 
     /// `owner`'s approximation at the last save point we hold (`None` for ourselves and for

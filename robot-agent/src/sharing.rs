@@ -390,16 +390,16 @@ impl Sharing for Polygon {
             shown: own,
             polygons: self.mapper.approximation().outlines(),
         }];
-        for v in self.exchange.views() {
-            if let Some(a) = self.exchange.approximation(v.owner) {
-                all.push(proto::msg::HeldApprox {
-                    owner: v.owner,
-                    held: v.held,
-                    shown: v.shown,
+        all.extend(
+            self.exchange
+                .shown()
+                .map(|(owner, held, shown, a)| proto::msg::HeldApprox {
+                    owner,
+                    held,
+                    shown,
                     polygons: a.outlines(),
-                });
-            }
-        }
+                }),
+        );
         all
     }
 
