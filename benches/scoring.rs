@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::Telemetry;
-use swarm::evaluate::Evaluator;
+use swarm::score::evaluate::Evaluator;
 
 const REGION: u32 = 300;
 const ROBOTS: u16 = 8;

@@ -22,23 +22,23 @@ enum Command {
     /// Replay one robot exploring alone, without network, through the mapping pipeline
     /// (contours, incremental approximation, edit ops): writes PNGs of G_s, P_t and A_t,
     /// replay.csv per step and replay.json with bytes per package type and e_avg.
-    Replay(swarm::replay::ReplayArgs),
+    Replay(swarm::cmd::replay::ReplayArgs),
     /// Run an experiment: every combination of its grid of scenario overrides × seeds, a few
     /// runs at a time; resumable (finished runs are skipped); writes runs.csv and results.csv.
-    Sweep(swarm::sweep::SweepArgs),
+    Sweep(swarm::sweep::runner::SweepArgs),
     /// A chaos campaign: a random schedule of process faults (robots killed, restarted, frozen;
     /// netem restarted) and link faults (cuts, partitions, latency, bandwidth, resets) drawn
     /// from --seed, one run under it, then a checker — the exploration completes, no op another
     /// robot held is lost, no panic, no orphan process, memory bounded. Writes chaos.json; exit
     /// code 0 if every check passed, 2 if one failed, 1 on error.
-    Chaos(swarm::chaos::ChaosArgs),
+    Chaos(swarm::cmd::chaos::ChaosArgs),
     /// Replay a finished run in the web viewer (the page `swarm run --view` serves live): a
     /// time slider over its steps.log. Prints the address it serves; stops on Ctrl-C.
-    View(swarm::view::ViewArgs),
+    View(swarm::view::server::ViewArgs),
     /// Write a finished run as MCAP (RUN_DIR/run.mcap, or --out) from its steps.log: grids,
     /// poses, robots and links as Foxglove's well-known schemas, per-link byte counters — open
     /// it in Foxglove Studio. Prints the file and the messages per topic.
-    ExportMcap(swarm::export_mcap::ExportArgs),
+    ExportMcap(swarm::view::export_mcap::ExportArgs),
     /// Run a world-server process (what `swarm run` starts; use it to spread a run over machines).
     WorldServer(world_server::cli::Args),
     /// Run one robot-agent process (what `swarm run` starts, once per robot).
@@ -51,25 +51,25 @@ enum Command {
     /// per robot pair); `list`, `cut`, `restore`, `set`, `unset`, `reset` control the links of a
     /// running swarm through its HTTP API (--run RUN_DIR or --api ADDR).
     #[command(subcommand)]
-    Netem(swarm::netemctl::NetemCommand),
+    Netem(swarm::cmd::netemctl::NetemCommand),
     /// What a host of `swarm run --hosts` answers before the run: its protocol version and
     /// free ports on one of its addresses, as one JSON line.
-    HostInfo(swarm::remote::HostInfoArgs),
+    HostInfo(swarm::process::remote::HostInfoArgs),
     /// What the launcher runs on an ssh host before a run: writes the run's files that the
     /// host's processes read (sent as JSON on stdin) into its copy of the run directory.
     #[command(hide = true)]
-    HostFiles(swarm::remote::HostFilesArgs),
+    HostFiles(swarm::process::remote::HostFilesArgs),
     /// What the launcher runs on an ssh host for each process: runs it, signals it as stdin
     /// says (stop, cont, term, kill), and kills it when stdin ends.
     #[command(hide = true)]
-    OnHost(swarm::remote::OnHostArgs),
+    OnHost(swarm::process::remote::OnHostArgs),
 }
 
 fn main() -> ExitCode {
     match Cli::parse().command {
         Command::Run(args) => run(args),
         Command::Replay(args) => replay(&args),
-        Command::Sweep(args) => match swarm::sweep::sweep(&args) {
+        Command::Sweep(args) => match swarm::sweep::runner::sweep(&args) {
             Ok(dir) => {
                 println!("sweep written to {}", dir.display());
                 ExitCode::SUCCESS
@@ -79,9 +79,9 @@ fn main() -> ExitCode {
                 ExitCode::FAILURE
             }
         },
-        Command::Chaos(args) => match swarm::chaos::chaos(&args) {
+        Command::Chaos(args) => match swarm::cmd::chaos::chaos(&args) {
             Ok((report, dir)) => {
-                println!("{}", swarm::chaos::summary_line(&report, &dir));
+                println!("{}", swarm::cmd::chaos::summary_line(&report, &dir));
                 if report.pass {
                     ExitCode::SUCCESS
                 } else {
@@ -97,7 +97,7 @@ fn main() -> ExitCode {
             proto::node::init_logging();
             let result = tokio::runtime::Runtime::new()
                 .map_err(anyhow::Error::from)
-                .and_then(|rt| rt.block_on(swarm::view::replay(&args)));
+                .and_then(|rt| rt.block_on(swarm::view::server::replay(&args)));
             match result {
                 Ok(()) => ExitCode::SUCCESS,
                 Err(e) => {
@@ -106,7 +106,7 @@ fn main() -> ExitCode {
                 }
             }
         }
-        Command::ExportMcap(args) => match swarm::export_mcap::export(&args) {
+        Command::ExportMcap(args) => match swarm::view::export_mcap::export(&args) {
             Ok((path, counts)) => {
                 println!("written {}", path.display());
                 for (topic, n) in counts {
@@ -122,8 +122,8 @@ fn main() -> ExitCode {
         Command::WorldServer(args) => world_server::cli::main(args),
         Command::RobotAgent(args) => robot_agent::cli::main(args),
         Command::BaseStation(args) => robot_agent::cli::base_main(args),
-        Command::Netem(swarm::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),
-        Command::HostInfo(args) => match swarm::remote::host_info(&args) {
+        Command::Netem(swarm::cmd::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),
+        Command::HostInfo(args) => match swarm::process::remote::host_info(&args) {
             Ok(info) => {
                 println!("{}", serde_json::to_string(&info).unwrap_or_default());
                 ExitCode::SUCCESS
@@ -133,21 +133,23 @@ fn main() -> ExitCode {
                 ExitCode::FAILURE
             }
         },
-        Command::HostFiles(args) => match swarm::remote::host_files(&args, std::io::stdin()) {
-            Ok(_) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("swarm host-files: {e:#}");
-                ExitCode::FAILURE
+        Command::HostFiles(args) => {
+            match swarm::process::remote::host_files(&args, std::io::stdin()) {
+                Ok(_) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("swarm host-files: {e:#}");
+                    ExitCode::FAILURE
+                }
             }
-        },
-        Command::OnHost(args) => match swarm::remote::on_host(&args) {
+        }
+        Command::OnHost(args) => match swarm::process::remote::on_host(&args) {
             Ok(code) => ExitCode::from(u8::try_from(code).unwrap_or(1)),
             Err(e) => {
                 eprintln!("swarm on-host: {e:#}");
                 ExitCode::FAILURE
             }
         },
-        Command::Netem(cmd) => match swarm::netemctl::control(&cmd) {
+        Command::Netem(cmd) => match swarm::cmd::netemctl::control(&cmd) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("swarm netem: {e:#}");
@@ -157,9 +159,9 @@ fn main() -> ExitCode {
     }
 }
 
-fn replay(args: &swarm::replay::ReplayArgs) -> ExitCode {
+fn replay(args: &swarm::cmd::replay::ReplayArgs) -> ExitCode {
     proto::node::init_logging();
-    match swarm::replay::replay(args) {
+    match swarm::cmd::replay::replay(args) {
         Ok((dir, s)) => {
             println!(
                 "replay of {}: {} steps, coverage {:.1}%, {} ops, {} bytes, e_avg {}",

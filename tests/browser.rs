@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 use fantoccini::actions::{InputSource, MouseActions, PointerAction, MOUSE_BUTTON_LEFT};
 use fantoccini::{Client, ClientBuilder, Locator};
 use serde_json::{json, Value};
-use swarm::netemctl::http;
+use swarm::cmd::netemctl::http;
 
 use crate::support::{
     csv, ended_with_link_down, free_ports, num, viewed_run, Launcher, TempDir, SWARM,
@@ -352,6 +352,7 @@ async fn browser(dir: &Path) -> (Client, Launcher) {
 }
 
 #[test]
+#[ignore = "needs Chromium and chromedriver: apt install chromium chromium-driver"]
 fn the_page_in_chromium_follows_the_run_cuts_a_link_and_replays() {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

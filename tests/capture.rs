@@ -195,8 +195,8 @@ pub struct LinkTotal {
 }
 
 pub fn link_totals(path: &Path) -> Vec<LinkTotal> {
-    let rows: Vec<netem::cli::LinkTotalsCsv> =
-        swarm::rundir::read_rows(path).unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+    let rows: Vec<netem::cli::LinkTotalsCsv> = swarm::rundir::tables::read_rows(path)
+        .unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
     rows.into_iter()
         .map(|r| LinkTotal {
             a: r.a.into(),

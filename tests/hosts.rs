@@ -3,9 +3,9 @@
 //! it chooses, no default route), runs every process of the run inside them — the launcher
 //! included — and deletes them when it ends, also on failure. One host is reached over real
 //! ssh: an `sshd` the test starts inside that namespace, with a key made for the test. Nothing
-//! in the root namespace sends to their addresses. Where namespaces cannot be made (not root)
-//! or there is no sshd, the tests say so and pass without running — unless
-//! `SWARM_REQUIRE_NETNS` is set (CI sets it).
+//! in the root namespace sends to their addresses. They need root, iproute2, sshd and tcpdump,
+//! so they are ignored by default; `.ci/run` installs the tools and runs them with
+//! `--include-ignored`. Where they run, a lab that cannot be made fails the test.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -109,24 +109,17 @@ impl Drop for Lab {
     }
 }
 
-/// `Some(value)` or, where the machine cannot, `None` after saying why the test cannot run here
-/// (a failure when `SWARM_REQUIRE_NETNS` is set).
-fn or_skip<T>(what: &str, made: Result<T, String>) -> Option<T> {
-    match made {
-        Ok(v) => Some(v),
-        Err(e) if std::env::var_os("SWARM_REQUIRE_NETNS").is_some() => {
-            panic!("cannot make {what}, and SWARM_REQUIRE_NETNS is set: {e}")
-        }
-        Err(e) => {
-            eprintln!("SKIPPED: cannot make {what} on this machine ({e}); run as root");
-            None
-        }
-    }
+/// The reason every test here is ignored by default.
+const NEEDS: &str = "needs root, iproute2, openssh-server and tcpdump: apt install iproute2 openssh-server openssh-client tcpdump";
+
+/// `value`, or a failure naming what could not be made.
+fn made<T>(what: &str, made: Result<T, String>) -> T {
+    made.unwrap_or_else(|e| panic!("cannot make {what} ({NEEDS}): {e}"))
 }
 
-/// The lab, or `None` after saying why the test cannot run here.
-fn lab(name: &str, hosts: usize) -> Option<Lab> {
-    or_skip("network namespaces", Lab::new(name, hosts))
+/// The lab (a failure where namespaces cannot be made).
+fn lab(name: &str, hosts: usize) -> Lab {
+    made("network namespaces", Lab::new(name, hosts))
 }
 
 /// An `sshd` inside one host of a lab, with a host key and a client key made for it; killed on
@@ -289,39 +282,37 @@ struct SshLab {
     dir: TempDir,
 }
 
-/// The [`SshLab`], or `None` after saying why the test cannot run here.
-fn ssh_lab(name: &str, robots: &str) -> Option<SshLab> {
-    let lab = lab(name, 4)?;
+/// The [`SshLab`] (a failure where it cannot be made).
+fn ssh_lab(name: &str, robots: &str) -> SshLab {
+    let lab = lab(name, 4);
     let dir = TempDir::new(&format!("hosts-{name}"));
-    let sshd = or_skip("an sshd in a namespace", Sshd::start(&lab, 3, dir.path()))?;
+    let sshd = made("an sshd in a namespace", Sshd::start(&lab, 3, dir.path()));
     let remote = dir.path().join("remote");
     let hosts = dir.path().join("hosts.toml");
     hosts_file(&lab, &hosts, robots, Some((3, &sshd, &remote)));
-    Some(SshLab {
+    SshLab {
         sshd,
         lab,
         remote,
         hosts,
         dir,
-    })
+    }
 }
 
 #[test]
+#[ignore = "needs root, iproute2, openssh-server and tcpdump: apt install iproute2 openssh-server openssh-client tcpdump"]
 fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run_on_one_host() {
     // Bound in this order, dropped in the reverse: sshd, the namespaces, then the files.
-    let Some(SshLab {
+    let SshLab {
         dir,
         hosts,
         remote,
         lab,
         sshd,
-    }) = ssh_lab("four", "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }")
-    else {
-        return;
-    };
+    } = ssh_lab("four", "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }");
     // Every radio byte crosses h0's port of the bridge: netem runs on h0, every robot elsewhere.
     let pcap = dir.path().join("bridge.pcap");
-    let capture = or_skip(
+    let capture = made(
         "a capture on the lab's bridge",
         Capture::start(&["ip", "netns", "exec", &lab.switch()], "p0", "tcp", &pcap),
     );
@@ -331,7 +322,7 @@ fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run
     run_args(&mut cmd, &spread, &sets);
     cmd.arg("--hosts").arg(&hosts);
     let out = Launcher::spawn(cmd).wait_output(Duration::from_secs(600));
-    let said = capture.map(|c| c.stop(&pcap));
+    let said = capture.stop(&pcap);
     let s = summary(&spread);
     assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
     assert_eq!(s["complete"], true, "{s}");
@@ -342,8 +333,8 @@ fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run
     // The robots on h3 ran over ssh, on a leash (their memory is not sampled: the launcher's
     // child is the ssh client) and ended well; the host's copy of the run (with their logins)
     // is gone.
-    let rows: Vec<swarm::children::ProcessRow> =
-        swarm::rundir::read_rows(&spread.join("processes.csv")).expect("processes.csv");
+    let rows: Vec<swarm::process::children::ProcessRow> =
+        swarm::rundir::tables::read_rows(&spread.join("processes.csv")).expect("processes.csv");
     for r in &rows {
         let over_ssh = ["robot-2", "robot-5"].contains(&r.process.as_str());
         assert_eq!(r.exit, "exit code 0", "{r:?}");
@@ -356,28 +347,27 @@ fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run
     // Every pair's link crossed netem, and netem's counters equal the bridge's bytes.
     let totals = link_totals(&spread.join("link_totals.csv"));
     assert_eq!(totals.len(), 8 * 7 / 2);
-    if let Some(said) = said {
-        if let Some(n) = dropped(&said) {
-            assert_eq!(n, 0, "the capture lost packets: {said}");
-        }
-        let segs = segments(&std::fs::read(&pcap).expect("pcap written"))
-            .unwrap_or_else(|e| panic!("{e}"));
-        let c = compare(&totals, &segs);
-        assert!(
-            c.counted_total > 10_000,
-            "too little traffic:\n{}",
-            c.report
-        );
-        assert!(
-            c.ok,
-            "netem's counters and the bridge disagree:\n{}\ntcpdump said:\n{said}",
-            c.report
-        );
-        eprintln!(
-            "bridge: counted {}, captured {}",
-            c.counted_total, c.captured_total
-        );
+    if let Some(n) = dropped(&said) {
+        assert_eq!(n, 0, "the capture lost packets: {said}");
     }
+    let segs =
+        segments(&std::fs::read(&pcap).expect("pcap written")).unwrap_or_else(|e| panic!("{e}"));
+    let c = compare(&totals, &segs);
+    assert!(
+        c.counted_total > 10_000,
+        "too little traffic:\n{}",
+        c.report
+    );
+    assert!(
+        c.ok,
+        "netem's counters and the bridge disagree:\n{}\ntcpdump said:\n{said}",
+        c.report
+    );
+    eprintln!(
+        "bridge: counted {}, captured {}",
+        c.counted_total, c.captured_total
+    );
+
     // The same scenario on one host (loopback), in the first namespace.
     let single = dir.path().join("single");
     let mut cmd = lab.exec(0, SWARM);
@@ -454,18 +444,16 @@ fn wait_for_processes(lab: &Lab, k: usize, n: usize) {
 /// whole (its sshd with it) loses its robots for good — their restarts fail, the run goes on
 /// with the rest. Afterwards no process of the run is left on any host.
 #[test]
+#[ignore = "needs root, iproute2, openssh-server and tcpdump: apt install iproute2 openssh-server openssh-client tcpdump"]
 fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_process() {
     // Bound in this order, dropped in the reverse: sshd, the namespaces, then the files.
-    let Some(SshLab {
+    let SshLab {
         dir,
         hosts,
         remote: _,
         lab,
         sshd,
-    }) = ssh_lab("drop", "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }")
-    else {
-        return;
-    };
+    } = ssh_lab("drop", "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }");
     let run = dir.path().join("run");
     let mut cmd = lab.exec(0, SWARM);
     run_args(&mut cmd, &run, &["robots.count=8"]);
@@ -507,18 +495,16 @@ fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_proces
 /// started by a command prefix die with it (parent-death signal), those on the ssh host when
 /// their ssh connections end (`swarm on-host`).
 #[test]
+#[ignore = "needs root, iproute2, openssh-server and tcpdump: apt install iproute2 openssh-server openssh-client tcpdump"]
 fn a_launcher_killed_mid_run_leaves_no_process_on_any_host() {
     // Bound in this order, dropped in the reverse: sshd, the namespaces, then the files.
-    let Some(SshLab {
+    let SshLab {
         dir,
         hosts,
         remote: _,
         lab,
         sshd,
-    }) = ssh_lab("orphan", "{ h1 = [0, 3], h2 = [1, 4], h3 = \"rest\" }")
-    else {
-        return;
-    };
+    } = ssh_lab("orphan", "{ h1 = [0, 3], h2 = [1, 4], h3 = \"rest\" }");
     let mut cmd = lab.exec(0, SWARM);
     run_args(&mut cmd, &dir.path().join("run"), &["robots.count=6"]);
     cmd.arg("--hosts").arg(&hosts);
@@ -545,8 +531,8 @@ fn a_launcher_killed_mid_run_leaves_no_process_on_any_host() {
 
 /// The mean bytes per step robot 0 sent robot 1 over steps `from..` of a run (`links.csv`).
 fn a_to_b_per_step(run: &Path, from: u64) -> f64 {
-    let rows: Vec<swarm::rundir::LinkCsv> =
-        swarm::rundir::read_rows(&run.join("links.csv")).expect("links.csv");
+    let rows: Vec<swarm::rundir::tables::LinkCsv> =
+        swarm::rundir::tables::read_rows(&run.join("links.csv")).expect("links.csv");
     let bytes: Vec<u64> = rows
         .iter()
         .filter(|r| r.a == 0 && r.b == 1 && u64::from(r.step) >= from)
@@ -566,10 +552,9 @@ fn a_to_b_per_step(run: &Path, from: u64) -> f64 {
 /// frames; a size table (`stab overhead`) takes the Ethernet, IP and TCP headers of each packet
 /// off, so that it counts what netem counts: TCP payload.
 #[test]
+#[ignore = "needs root, iproute2, openssh-server and tcpdump: apt install iproute2 openssh-server openssh-client tcpdump"]
 fn the_kernels_tbf_shapes_a_link_as_netem_does() {
-    let Some(lab) = lab("tbf", 4) else {
-        return;
-    };
+    let lab = lab("tbf", 4);
     let dir = TempDir::new("hosts-tbf");
     let hosts = dir.path().join("hosts.toml");
     let mut text = String::new();
@@ -681,16 +666,13 @@ fn the_kernels_tbf_shapes_a_link_as_netem_does() {
 #[ignore = "minutes long: a measurement (docs/results.md, X1)"]
 fn thirty_two_robots_over_four_namespaces_complete_as_on_one_host() {
     // Bound in this order, dropped in the reverse: sshd, the namespaces, then the files.
-    let Some(SshLab {
+    let SshLab {
         dir,
         hosts,
         remote: _,
         lab,
         sshd: _sshd,
-    }) = ssh_lab("x32", "{ h1 = [0, 3, 6, 9, 12, 15, 18, 21, 24, 27, 30], h2 = [1, 4, 7, 10, 13, 16, 19, 22, 25, 28, 31], h3 = \"rest\" }")
-    else {
-        return;
-    };
+    } = ssh_lab("x32", "{ h1 = [0, 3, 6, 9, 12, 15, 18, 21, 24, 27, 30], h2 = [1, 4, 7, 10, 13, 16, 19, 22, 25, 28, 31], h3 = \"rest\" }");
     // Two cores run 32 robots, netem and the world-server: a step may take seconds, and a robot
     // that misses the step time-out would make the run depend on the load.
     let sets = ["robots.count=32", "clock.step_timeout_ms=60000"];

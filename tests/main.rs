@@ -14,6 +14,7 @@ mod confine;
 mod determinism;
 mod export;
 mod hosts;
+mod layout;
 mod lifecycle;
 mod mapping;
 mod netem;

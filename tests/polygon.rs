@@ -404,7 +404,7 @@ fn polygons_against_raw_scans(map: &str, robots: u32) {
     assert!(out.status.code() == Some(0), "{sets:?}: {}", stderr(&out));
     let s = summary(&run);
     let links = csv(&run.join("links.csv"));
-    // Per link and direction, with step markers (README, "A links.csv row"): the robots pace a
+    // Per link and direction, with step markers (docs/guide/netem.md, "A links.csv row"): the robots pace a
     // link to its rate on the wire, with bursts of up to 4 steps' budget after idle steps (and
     // handshakes beyond it); over any 10 steps a link carries at most 10 steps' budget and one
     // burst, and no row more than one burst and a step.

@@ -214,7 +214,7 @@ pub fn stderr(o: &Output) -> String {
 
 /// `n` distinct free loopback ports.
 pub fn free_ports(n: usize) -> Vec<u16> {
-    swarm::ports::free_ports(n).expect("free ports")
+    swarm::process::ports::free_ports(n).expect("free ports")
 }
 
 /// A CSV file of the run directory as rows of column → value.

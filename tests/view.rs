@@ -8,7 +8,7 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use swarm::netemctl::http;
+use swarm::cmd::netemctl::http;
 
 use crate::support::{ended_with_link_down, fails_naming, viewed_run, TempDir};
 

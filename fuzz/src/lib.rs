@@ -160,11 +160,11 @@ pub fn radio(data: &[u8]) {
 
 /// The compact op encoding: decoded, re-encoded, and applied op by op to a replica.
 pub fn op_chunk(data: &[u8]) {
-    let Ok(ops) = robot_agent::wire::decode(data) else {
+    let Ok(ops) = robot_agent::exchange::wire::decode(data) else {
         return;
     };
-    let _ = robot_agent::wire::encode(&ops);
-    let mut replica = robot_agent::oplog::Replica::new();
+    let _ = robot_agent::exchange::wire::encode(&ops);
+    let mut replica = robot_agent::exchange::oplog::Replica::new();
     for op in &ops {
         if replica.apply(op).is_err() {
             replica.rewind();

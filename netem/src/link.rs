@@ -36,7 +36,8 @@ use crate::accounting::{Buffer, Dir, DirCounters, DirSnapshot};
 use crate::clock::{SimClock, SimTime};
 use crate::faults::{self, ActiveToxic, BaseShape, Kill, Toxic};
 use crate::radio::Verdict;
-use crate::shaping::{self, DirShape, PipeEnd};
+use crate::shaping::pipeline::{self, PipeEnd};
+use crate::shaping::DirShape;
 
 /// Most simultaneous connections per pair (zenoh opens one; a few more cover reconnect races).
 pub const MAX_CONNECTIONS: usize = 8;
@@ -730,7 +731,7 @@ async fn direction(
     [mut link, mut conn]: [watch::Receiver<Option<Kill>>; 2],
 ) -> Option<PipeEnd> {
     let killed = {
-        let pipe = shaping::pipeline(
+        let pipe = pipeline::pipeline(
             reader,
             &mut writer,
             buffer,

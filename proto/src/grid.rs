@@ -252,6 +252,18 @@ impl Grid {
         self.index(c).map_or(Occ::Unknown, |i| self.cells[i])
     }
 
+    /// Whether `c` is a frontier cell (Yamauchi 1997): free, with a 4-neighbour inside the grid
+    /// that is unknown. Beyond the grid's edge there is nothing to explore, so the edge is no
+    /// frontier. Whether a robot can reach the cell is the planner's question
+    /// (`robot_agent::nav::plan::is_frontier`); this is the one test of the cell itself, for the
+    /// planner and the viewer alike.
+    pub fn is_frontier(&self, c: Cell) -> bool {
+        self.get(c) == Occ::Free
+            && c.neighbours4()
+                .iter()
+                .any(|&n| self.contains(n) && self.get(n) == Occ::Unknown)
+    }
+
     /// Sets `c` (ignored outside the grid).
     pub fn set(&mut self, c: Cell, v: Occ) {
         if let Some(i) = self.index(c) {

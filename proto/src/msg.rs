@@ -851,7 +851,7 @@ pub struct GridPatch {
 pub type PatchDelta = LogDelta<GridPatch>;
 
 /// Radio, `polygon` exchange: ops `start..start+count` of `owner`'s op log, sent by `from`, in
-/// the compact op encoding of `robot_agent::wire` (thesis Table 6.1).
+/// the compact op encoding of `robot_agent::exchange::wire` (thesis Table 6.1).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct OpChunk {
     pub from: RobotId,

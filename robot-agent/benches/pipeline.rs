@@ -12,14 +12,14 @@ use std::path::PathBuf;
 use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion, Throughput};
 use proto::geom::{LaserSpec, MapInfo, Pose};
 use proto::grid::{Cell, Grid, Occ};
-use robot_agent::approx::Approximation;
-use robot_agent::approximator::Approximator;
-use robot_agent::contour::{ContourPixels, Contours};
-use robot_agent::delta::diff;
-use robot_agent::grid::Evidence;
-use robot_agent::merge::merge;
-use robot_agent::render::ExplorationView;
-use robot_agent::wire::encode;
+use robot_agent::exchange::delta::diff;
+use robot_agent::exchange::wire::encode;
+use robot_agent::mapping::approx::Approximation;
+use robot_agent::mapping::approximator::Approximator;
+use robot_agent::mapping::contour::{ContourPixels, Contours};
+use robot_agent::mapping::grid::Evidence;
+use robot_agent::mapping::merge::merge;
+use robot_agent::mapping::render::ExplorationView;
 
 const SPLITS: f64 = 2.0;
 

@@ -20,7 +20,7 @@ use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{MoveOutcome, Scan, Step, WorldInfo};
 use proto::scenario::Scenario;
 use robot_agent::agent::Agent;
-use robot_agent::radio::Outgoing;
+use robot_agent::radio::station::Outgoing;
 
 const REGION: u32 = 300;
 const ROBOTS: u16 = 4;

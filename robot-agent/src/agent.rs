@@ -3,11 +3,11 @@
 //! pick a target, plan, move. [`crate::node`] feeds it from zenoh and sends what it returns.
 //!
 //! The agent composes parts and decides nothing itself: what is exchanged is
-//! [`crate::sharing`]'s business (`raw-scans`, `polygon` or `grid-snapshots`); the planning grid
+//! [`crate::exchange::sharing`]'s business (`raw-scans`, `polygon` or `grid-snapshots`); the planning grid
 //! never lets a peer's data override a cell of G_s (thesis §5.2). Which frontier to go to is the
 //! coordination strategy's ([`crate::coord`], `coordination.strategy`), given what was heard of
-//! other robots; getting past other robots and refused moves is [`crate::right_of_way`]'s; the
-//! radio — neighbours, pacing, encoding and counting — is [`crate::radio`]'s.
+//! other robots; getting past other robots and refused moves is [`crate::nav::right_of_way`]'s; the
+//! radio — neighbours, pacing, encoding and counting — is [`crate::radio::station`]'s.
 
 use proto::geom::Pose;
 use proto::grid::{Cell, Grid, Occ};
@@ -15,11 +15,11 @@ use proto::msg::{Cmd, Mark, RobotId, Scan, Step, Telemetry, WorldInfo};
 use proto::scenario::Scenario;
 
 use crate::coord::{self, Coordinator, Heard, Situation, Status, Steer};
-use crate::grid::Evidence;
-use crate::plan;
-use crate::radio::{self, Msg, Outgoing, Radio};
-use crate::right_of_way::RightOfWay;
-use crate::sharing::{self, Sharing};
+use crate::exchange::sharing::{self, Sharing};
+use crate::mapping::grid::Evidence;
+use crate::nav::plan;
+use crate::nav::right_of_way::RightOfWay;
+use crate::radio::station::{self, Msg, Outgoing, Radio};
 
 pub struct Agent {
     pub id: RobotId,
@@ -28,7 +28,7 @@ pub struct Agent {
     base: bool,
     /// 0 for the process the run started; one more for each restart.
     life: u16,
-    /// Recovery deliberately broken ([`crate::exchange::BROKEN_RECOVERY_ENV`]).
+    /// Recovery deliberately broken ([`crate::exchange::transitive::BROKEN_RECOVERY_ENV`]).
     broken_recovery: bool,
     world: WorldInfo,
     /// G_s: what this robot sensed itself, and the beam counts behind it.
@@ -82,9 +82,9 @@ impl Agent {
             base,
             own_evidence: Evidence::new(&empty),
             own_changed: Vec::new(),
-            sharing: sharing::new(s, id, own_log, &world, radio::budget_per_step(s, &world)),
+            sharing: sharing::new(s, id, own_log, &world, station::budget_per_step(s, &world)),
             life,
-            broken_recovery: std::env::var(crate::exchange::BROKEN_RECOVERY_ENV)
+            broken_recovery: std::env::var(crate::exchange::transitive::BROKEN_RECOVERY_ENV)
                 .is_ok_and(|v| v == "forget-earlier-lives"),
             coordinator: coord::new(s, id, &world, max_range_cells),
             heard: Heard::default(),
@@ -340,7 +340,7 @@ impl Agent {
         Vec::new()
     }
 
-    /// The deliberately broken recovery ([`crate::exchange::BROKEN_RECOVERY_ENV`]): drops the
+    /// The deliberately broken recovery ([`crate::exchange::transitive::BROKEN_RECOVERY_ENV`]): drops the
     /// logs of every robot's lives before the latest one this node has heard of.
     fn forget_earlier_lives(&mut self) {
         let owners: Vec<RobotId> = self

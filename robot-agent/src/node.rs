@@ -22,8 +22,8 @@ use zenoh::session::ZenohId;
 use zenoh::Session;
 
 use crate::agent::Agent;
-use crate::lockstep::Lockstep;
-use crate::radio::Outgoing;
+use crate::radio::lockstep::Lockstep;
+use crate::radio::station::Outgoing;
 
 /// Why the robot stopped.
 #[derive(Debug, PartialEq, Eq)]
@@ -387,7 +387,7 @@ async fn as_it_comes(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError
     }
 }
 
-/// Lockstep: the step protocol of [`crate::lockstep`].
+/// Lockstep: the step protocol of [`crate::radio::lockstep`].
 async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
     let mut ls = Lockstep::default();
     // Answers produced while taking a step's arrivals: sent with the next step's traffic.

@@ -7,7 +7,7 @@ use std::sync::OnceLock;
 use proptest::prelude::*;
 use proto::grid::{Cell, Grid, Occ};
 
-use crate::qpoint::QPoint;
+use crate::mapping::qpoint::QPoint;
 
 /// What the world-server tells robots of a world of frame `map` with `robots` robots in
 /// scenario `s`.

@@ -19,17 +19,20 @@ use std::collections::BTreeMap;
 
 use proto::msg::Step;
 
-use crate::awareness::{mean_of_step_means, steps_since_base, UpLinks};
-use crate::children::{MemoryRow, ProcessRow};
-use crate::connectivity::{check_judgements, comm_level_pct};
-use crate::evaluate::{Evaluator, MetricsRow};
-use crate::progress::Progress;
-use crate::render::{robot_colour, Picture};
-use crate::rundir::{
-    bytes_by_type, coverage_steps, link_totals_wire, traffic_shares, write_links, write_metrics,
-    write_pgm, write_saves_and_views, write_traffic, AwarenessSummary, CommLevel, LostLog, Summary,
+use crate::process::children::{MemoryRow, ProcessRow};
+use crate::run::progress::Progress;
+use crate::rundir::render::{robot_colour, Picture};
+use crate::rundir::summary::{
+    bytes_by_type, coverage_steps, traffic_shares, AwarenessSummary, CommLevel, LostLog, Summary,
     SCHEMA_VERSION,
 };
+use crate::rundir::tables::{
+    link_totals_wire, write_links, write_metrics, write_pgm, write_saves_and_views, write_traffic,
+};
+use crate::score::awareness::{mean_of_step_means, steps_since_base};
+use crate::score::connectivity::UpLinks;
+use crate::score::connectivity::{check_judgements, comm_level_pct};
+use crate::score::evaluate::{Evaluator, MetricsRow};
 
 /// Tells everyone to stop, waits for every child (killing what does not stop), and collects the
 /// link reports that arrived meanwhile.

@@ -17,12 +17,12 @@ use proto::scenario::{Process, ProcessAction};
 use super::prepare::Plan;
 use super::spawn::{last_log_line, respawn, Started};
 use super::steps::StepOrder;
-use crate::children::{describe, Children};
-use crate::evaluate::Evaluator;
-use crate::progress::Progress;
-use crate::rundir::LinkLog;
-use crate::steplog::StepLogWriter;
-use crate::supervise::{Action, Supervisor};
+use crate::process::children::{describe, Children};
+use crate::process::supervise::{Action, Supervisor};
+use crate::run::progress::Progress;
+use crate::rundir::steplog::StepLogWriter;
+use crate::rundir::tables::LinkLog;
+use crate::score::evaluate::Evaluator;
 
 /// Steps every robot must be idle in a row before the run ends with `no-frontiers` (data still
 /// in flight on the radio may give an idle robot new frontiers).

@@ -11,10 +11,10 @@ use proto::msg::RobotId;
 use proto::scenario::{Process, Scenario};
 use world_server::scenario::resolve;
 
-use super::RunArgs;
-use crate::hosts::{Host, Hosts, Placement};
-use crate::ports::{endpoint, free_ports};
-use crate::remote;
+use super::args::RunArgs;
+use crate::process::hosts::{Host, Hosts, Placement};
+use crate::process::ports::{endpoint, free_ports};
+use crate::process::remote;
 
 /// Everything decided before the first process starts.
 pub struct Plan {

@@ -20,10 +20,10 @@ use zenoh::Session;
 
 use super::prepare::Plan;
 use super::secrets;
-use crate::children::{describe, Children};
-use crate::hosts::Start;
-use crate::ports::endpoint;
-use crate::remote;
+use crate::process::children::{describe, Children};
+use crate::process::hosts::Start;
+use crate::process::ports::endpoint;
+use crate::process::remote;
 
 /// A sim-plane subscription of the launcher.
 pub type Sub = Subscriber<FifoChannelHandler<Sample>>;

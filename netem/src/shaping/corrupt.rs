@@ -5,7 +5,7 @@
 
 use tokio::sync::{mpsc, watch};
 
-use super::{Chunk, DirShape, Rng};
+use crate::shaping::chunk::{Chunk, DirShape, Rng};
 
 /// Flips one random bit in each byte of `data` with probability `p`; returns how many bytes were
 /// changed. Skips geometrically between hits, so a small `p` costs little per byte.
@@ -68,9 +68,9 @@ pub async fn corrupt_effect(
 
 #[cfg(test)]
 mod tests {
-    use super::super::harness::{read_for, run};
     use super::*;
     use crate::clock::SimClock;
+    use crate::shaping::harness::{read_for, run};
     use std::time::Duration;
     use tokio::io::AsyncWriteExt;
 

@@ -11,8 +11,8 @@
 
 use tokio::sync::{mpsc, watch};
 
-use super::{Chunk, DirShape, Rng};
 use crate::clock::{SimClock, SimTime};
+use crate::shaping::chunk::{Chunk, DirShape, Rng};
 
 /// The delay of one piece: `latency ± U(jitter)`, never negative.
 pub fn delay_ns(latency_ns: u64, jitter_ns: u64, rng: &mut Rng) -> u64 {
@@ -65,8 +65,8 @@ pub async fn latency_effect(
 
 #[cfg(test)]
 mod tests {
-    use super::super::harness::{read_for, run};
     use super::*;
+    use crate::shaping::harness::{read_for, run};
     use std::time::Duration;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
 

@@ -13,12 +13,12 @@
 use proto::grid::{Cell, Grid};
 use proto::msg::{RobotId, Step, Team};
 
-use super::team::{self, Table};
-use super::{
+use crate::coord::team::{self, Table};
+use crate::coord::{
     best, decay, discount, normalized, Addressed, CoordMsg, Coordinator, Params, Situation, Status,
     To,
 };
-use crate::plan::{self, CostMap};
+use crate::nav::plan::{self, CostMap};
 
 /// A sub-team table entry older than this many steps no longer counts (its robot is gone from
 /// the sub-team).

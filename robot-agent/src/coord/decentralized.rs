@@ -5,8 +5,8 @@
 
 use proto::grid::{Cell, Grid};
 
-use super::{best, decay, discount, normalized, Coordinator, Params, Situation};
-use crate::plan::CostMap;
+use crate::coord::{best, decay, discount, normalized, Coordinator, Params, Situation};
+use crate::nav::plan::CostMap;
 
 pub struct Decentralized {
     params: Params,

@@ -14,11 +14,11 @@
 //!   ever stand on one; a position scores `frontier` when it is a frontier cell or a step nearer
 //!   the nearest one (path cost on the leader's map) than where the robot stands — the same
 //!   pull toward unexplored space, at the sensor's scale.
-//! * **Connectivity** is judged from what the pack knows ([`crate::reach::Reach::linked`]: the
+//! * **Connectivity** is judged from what the pack knows ([`crate::radio::reach::Reach::linked`]: the
 //!   radio model's parameters, walls counted on the leader's own map), never from the truth. The
 //!   leader's judgement of the links it expects goes to the launcher (`Judged` in telemetry),
 //!   which checks it against what netem then does.
-//! * **Leader and moves**: a group is what the team table ([`super::team`]) says can talk,
+//! * **Leader and moves**: a group is what the team table ([`crate::coord::team`]) says can talk,
 //!   transitively; its leader is its lowest id. The leader's decisions travel over the radio
 //!   (`Pack` messages, package type `move`), relayed member to member, one hop per step — so the
 //!   leader of n robots, whose farthest member is at most n − 1 hops away, plans each change
@@ -40,11 +40,11 @@ use proto::scenario::Scenario;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::team::{self, Table};
-use super::{Addressed, CoordMsg, Coordinator, Situation, Status, Steer, To};
-use crate::grid::supercover;
-use crate::plan::{self, CostMap};
-use crate::reach::Reach;
+use crate::coord::team::{self, Table};
+use crate::coord::{Addressed, CoordMsg, Coordinator, Situation, Status, Steer, To};
+use crate::mapping::grid::supercover;
+use crate::nav::plan::{self, CostMap};
+use crate::radio::reach::Reach;
 
 /// Steps of planned moves kept behind the current step (the leader predicts a member's position
 /// from its last report and the moves planned since).

@@ -1,11 +1,11 @@
-//! `uncoordinated`: every robot goes to its nearest frontier ([`crate::plan::nearest`]),
+//! `uncoordinated`: every robot goes to its nearest frontier ([`crate::nav::plan::nearest`]),
 //! whatever the others do — the baseline the coordinated strategies are measured against. It
 //! keeps its target while that is still a usable frontier.
 
 use proto::grid::Cell;
 
-use super::{Coordinator, Situation};
-use crate::plan;
+use crate::coord::{Coordinator, Situation};
+use crate::nav::plan;
 
 pub struct Uncoordinated;
 

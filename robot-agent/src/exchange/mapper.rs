@@ -1,0 +1,199 @@
+//! The mapping pipeline of one robot, thesis Algorithm 10 steps 2–5 (docs/design.md §4): extract the
+//! exact polygonal model P_t of G_s (§4.1), derive and refine the approximation A_t (§4.2, §4.3),
+//! append the edit operations A_{t−1} → A_t and a save point to the own op log (§4.2.3), and
+//! measure what that costs on the wire (Table 6.1) and how far A_t is from G_s (eq. 6.1).
+//!
+//! Pure composition of [`crate::mapping::contour`], [`crate::mapping::approx`], [`crate::exchange::oplog`], [`crate::exchange::wire`]
+//! and [`crate::mapping::approx_error`]; the exchange of the log is another module's job.
+
+use proto::grid::{Cell, Grid, Occ};
+use proto::msg::Traffic;
+
+use crate::exchange::oplog::OpLog;
+use crate::exchange::wire::Encoder;
+use crate::mapping::approx::Approximation;
+use crate::mapping::approx_error::approx_error_in_view;
+use crate::mapping::approximator::Approximator;
+use crate::mapping::contour::{ContourPixels, Contours};
+use crate::mapping::render::ExplorationView;
+
+/// Counts and encoded bytes of every op appended so far, per package type (indexed by
+/// [`Traffic`]; only its [`Traffic::OPS`] ever count).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct OpStats {
+    pub count: [u64; Traffic::ALL.len()],
+    pub bytes: [u64; Traffic::ALL.len()],
+}
+
+impl OpStats {
+    /// Mean encoded bytes of one op of type `t` (`None` if there was none).
+    pub fn mean_bytes(&self, t: Traffic) -> Option<f64> {
+        let i = t as usize;
+        (self.count[i] > 0).then(|| self.bytes[i] as f64 / self.count[i] as f64)
+    }
+}
+
+/// What one step did.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StepReport {
+    /// Points of P_t and its objects.
+    pub contour_points: usize,
+    pub objects: usize,
+    /// Vertices of A_t.
+    pub vertices: usize,
+    /// Ops appended this step (0 when A_t = A_{t−1}), and their encoded bytes in one chunk.
+    pub ops: usize,
+    pub bytes: usize,
+    /// Douglas–Peucker splits made this step.
+    pub splits: usize,
+    /// d_t: cells where G_s and the rendered A_t differ (eq. 6.1).
+    pub error_cells: usize,
+    /// Cells of G_s that are not unknown.
+    pub known_cells: usize,
+}
+
+#[derive(Clone, Debug)]
+pub struct Mapper {
+    approximator: Approximator,
+    contours: Option<Contours>,
+    /// The contour pixels of G_s, kept up to date from the changed cells.
+    pixels: Option<ContourPixels>,
+    /// G_s's exploration view, kept up to date from the changed cells.
+    view: Option<ExplorationView>,
+    log: OpLog,
+    previous: Approximation,
+    /// Douglas–Peucker splits per step (fractional values accumulate).
+    pub splits_per_step: f64,
+    pub stats: OpStats,
+    /// Σ d_t and Σ known cells over all steps (for e_avg).
+    error_sum: u64,
+    known_sum: u64,
+    steps: u64,
+}
+
+impl Mapper {
+    pub fn new(splits_per_step: f64) -> Mapper {
+        Mapper {
+            approximator: Approximator::new(),
+            contours: None,
+            pixels: None,
+            view: None,
+            log: OpLog::new(),
+            previous: Approximation::default(),
+            splits_per_step,
+            stats: OpStats::default(),
+            error_sum: 0,
+            known_sum: 0,
+            steps: 0,
+        }
+    }
+
+    /// Runs steps 2–5 of Algorithm 10 on the current self-explored grid `own`, of which only
+    /// the cells `changed` changed since the previous step (all of them count as changed at the
+    /// first step).
+    pub fn step(&mut self, own: &Grid, changed: &[Cell]) -> StepReport {
+        let pixels = match self.pixels.as_mut() {
+            Some(px) => {
+                px.update(own, changed.iter().copied());
+                px
+            }
+            None => self.pixels.insert(ContourPixels::scan(own)),
+        };
+        let p = Contours::extract_at(own, pixels);
+        let view = match self.view.as_mut() {
+            Some(v) => {
+                v.update(own, changed.iter().copied());
+                v
+            }
+            None => self.view.insert(ExplorationView::new(own)),
+        };
+        let a = self
+            .approximator
+            .step_in_view(&p, view.grid(), self.splits_per_step)
+            .clone();
+        let first = self.log.len();
+        let ops = self.log.record(&self.previous, &a);
+        let mut enc = Encoder::new();
+        for op in self.log.since(first) {
+            let b = enc.push(op);
+            let i = op.kind() as usize;
+            self.stats.count[i] += 1;
+            self.stats.bytes[i] += b as u64;
+        }
+        let bytes = enc.finish().len();
+        let error_cells = approx_error_in_view(view.grid(), &a);
+        let known_cells = own.len() - own.count(Occ::Unknown);
+        self.error_sum += error_cells as u64;
+        self.known_sum += known_cells as u64;
+        self.steps += 1;
+        let report = StepReport {
+            contour_points: p.len(),
+            objects: p.objects().len(),
+            vertices: a.vertex_count(),
+            ops,
+            bytes,
+            splits: self.approximator.last_refinement().splits,
+            error_cells,
+            known_cells,
+        };
+        self.previous = a;
+        self.contours = Some(p);
+        report
+    }
+
+    /// P_t of the last step.
+    pub fn contours(&self) -> Option<&Contours> {
+        self.contours.as_ref()
+    }
+
+    /// A_t of the last step.
+    pub fn approximation(&self) -> &Approximation {
+        &self.previous
+    }
+
+    pub fn log(&self) -> &OpLog {
+        &self.log
+    }
+
+    /// e_avg over the steps so far: Σ d_t / Σ known cells (eq. 6.1 with g·n the explored cells
+    /// summed over the steps).
+    pub fn error_avg(&self) -> Option<f64> {
+        (self.known_sum > 0).then(|| self.error_sum as f64 / self.known_sum as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::exchange::oplog::Replica;
+
+    #[test]
+    fn the_log_replays_to_the_current_approximation() {
+        let frames = [
+            "??????????\n??????????\n???....???\n??????????\n",
+            "??????????\n??#....#??\n??#....#??\n??######??\n",
+            "?########?\n?#......#?\n?#..##..#?\n?########?\n",
+        ];
+        let mut m = Mapper::new(3.0);
+        let mut before = Grid::from_ascii(frames[0]);
+        for f in frames {
+            let g = Grid::from_ascii(f);
+            let changed: Vec<Cell> = (0..g.len())
+                .filter(|&i| g.cells()[i] != before.cells()[i])
+                .map(|i| Cell::new((i % 10) as i32, (i / 10) as i32))
+                .collect();
+            let r = m.step(&g, &changed);
+            assert!(r.vertices > 0);
+            assert_eq!(r.contour_points, Contours::extract(&g).len());
+            before = g;
+        }
+        let mut replica = Replica::new();
+        for op in m.log().since(0) {
+            replica.apply(op).unwrap_or_else(|e| panic!("{e:?}"));
+        }
+        assert_eq!(replica.committed(), m.approximation());
+        let total: u64 = m.stats.count.iter().sum();
+        assert_eq!(total as usize, m.log().len());
+        assert!(m.error_avg().is_some());
+    }
+}

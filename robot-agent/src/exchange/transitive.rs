@@ -1,0 +1,362 @@
+//! The transitive exchange of append-only logs (thesis §5.1.2, Algorithm 8; docs/design.md §4.4), as
+//! a pure state machine generic over the record type: the caller moves the messages.
+//!
+//! Every robot keeps an append-only log of its own records and a copy of a prefix of every
+//! other robot's log it has heard of, and relays what it knows, so that A's records reach C
+//! through B even if A and C never meet. A sent-index table S[peer][owner] records how far we
+//! believe `peer` knows `owner`'s log; a handshake ([`Hello`], the thesis's `conn`) tells the
+//! truth about the peer and replaces our belief, deltas we send raise it optimistically, and
+//! deltas we receive raise it too (the sender holds what it sends). A receiver appends only
+//! contiguous records, ignores duplicates and reports a gap, on which the caller sends a
+//! handshake so the sender learns where to resume. Messages lost with a dropped link are
+//! harmless: the link's S row is forgotten, and the next handshake re-establishes it.
+//!
+//! [`crate::exchange::raw_scans`] instantiates it with laser scans (the baseline); its tests exercise this
+//! module.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+
+use proto::msg::{Hello, LogDelta, RobotId};
+
+/// The log exchange of one robot.
+#[derive(Clone, Debug)]
+pub struct LogExchange<R> {
+    /// Our node id: the sender of our deltas and handshakes.
+    me: RobotId,
+    /// The owner of the log we append to: `me` in the robot's first life, then
+    /// [`proto::msg::log_owner`] of its life (a restarted robot holds its earlier lives' logs
+    /// like anyone else's).
+    own: RobotId,
+    /// Per owner, the prefix of its log we hold (our own log is complete).
+    logs: BTreeMap<RobotId, Vec<R>>,
+    /// S[peer][owner]: how far we believe `peer` knows `owner`'s log. A peer has a row only after
+    /// its handshake; an owner missing from a row counts as known up to 0.
+    sent: BTreeMap<RobotId, BTreeMap<RobotId, u32>>,
+}
+
+/// What became of a received [`LogDelta`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum DeltaOutcome {
+    /// Records `new` of `owner`'s log (indices into [`LogExchange::log`]) are new; they
+    /// directly follow what we held before.
+    Appended { owner: RobotId, new: Range<u32> },
+    /// Every record was already held (an empty delta too).
+    Duplicate,
+    /// The delta starts beyond our `have` records of `owner`'s log: nothing was appended, and the
+    /// caller should send a handshake ([`LogExchange::knowledge`]) to the delta's sender.
+    Gap {
+        owner: RobotId,
+        have: u32,
+        start: u32,
+    },
+}
+
+impl<R: Clone> LogExchange<R> {
+    /// An exchange for robot `me` in its first life, holding nothing yet.
+    pub fn new(me: RobotId) -> LogExchange<R> {
+        LogExchange::owning(me, me)
+    }
+
+    /// An exchange for node `me` appending to the log of owner `own`, holding nothing yet.
+    pub fn owning(me: RobotId, own: RobotId) -> LogExchange<R> {
+        LogExchange {
+            me,
+            own,
+            logs: BTreeMap::from([(own, Vec::new())]),
+            sent: BTreeMap::new(),
+        }
+    }
+
+    /// The owner of our own log.
+    pub fn own(&self) -> RobotId {
+        self.own
+    }
+
+    /// Our own robot id.
+    pub fn id(&self) -> RobotId {
+        self.me
+    }
+
+    /// Appends a record to our own log.
+    pub fn record_own(&mut self, rec: R) {
+        self.logs.entry(self.own).or_default().push(rec);
+    }
+
+    /// The deltas to send `peer` now, within `budget_bytes` as measured by `size_of` (the size of
+    /// one delta on the wire), and updates S optimistically for what is returned.
+    ///
+    /// Each delta carries a contiguous run of one owner's records that the peer lacks by S. Owners
+    /// go in policy order (docs/design.md §4.4): largest lag first, ties → our own log, then the lowest
+    /// id. Records are added while the deltas' total size stays within the budget; at the first
+    /// record that does not fit, the call stops (later owners wait rather than overtake the
+    /// policy). So a record larger than the whole budget blocks everything behind it until a call
+    /// with a larger budget. Nothing is sent to a peer whose handshake we have not had.
+    pub fn outgoing(
+        &mut self,
+        peer: RobotId,
+        budget_bytes: usize,
+        size_of: impl Fn(&LogDelta<R>) -> usize,
+    ) -> Vec<LogDelta<R>> {
+        let Some(row) = self.sent.get(&peer) else {
+            return Vec::new();
+        };
+        let mut order: Vec<(u64, RobotId, u32)> = self
+            .logs
+            .iter()
+            .filter_map(|(&owner, log)| {
+                let known = row.get(&owner).copied().unwrap_or(0);
+                let lag = u64::from(len_u32(log).saturating_sub(known));
+                (lag > 0).then_some((lag, owner, known))
+            })
+            .collect();
+        let (me, own) = (self.me, self.own);
+        order.sort_by_key(|&(lag, owner, _)| (std::cmp::Reverse(lag), owner != own, owner));
+
+        let mut out = Vec::new();
+        let mut used = 0usize;
+        for (_, owner, start) in order {
+            let Some(log) = self.logs.get(&owner) else {
+                continue;
+            };
+            let (delta, size, full) = fill(
+                me,
+                owner,
+                start,
+                log,
+                budget_bytes.saturating_sub(used),
+                &size_of,
+            );
+            if !delta.records.is_empty() {
+                used += size;
+                out.push(delta);
+            }
+            if full {
+                break;
+            }
+        }
+        let row = self.sent.entry(peer).or_default();
+        for d in &out {
+            row.insert(d.owner, d.start.saturating_add(len_u32(&d.records)));
+        }
+        out
+    }
+
+    /// Takes a received delta: appends the records beyond what we hold if they follow on
+    /// contiguously, and raises S[d.from][d.owner] to the delta's end (the sender holds what it
+    /// sent) if we have had the sender's handshake.
+    ///
+    /// Records of our own log are never taken from anyone (only we write it; a restarted robot
+    /// writes a new owner's log and takes its earlier lives' back like any other owner's).
+    pub fn on_delta(&mut self, d: &LogDelta<R>) -> DeltaOutcome {
+        let end = d.start.saturating_add(len_u32(&d.records));
+        if d.from != self.me {
+            if let Some(row) = self.sent.get_mut(&d.from) {
+                let known = row.entry(d.owner).or_insert(0);
+                *known = end.max(*known);
+            }
+        }
+        if d.owner == self.own {
+            return DeltaOutcome::Duplicate;
+        }
+        let log = self.logs.entry(d.owner).or_default();
+        let have = len_u32(log);
+        if d.start > have {
+            return DeltaOutcome::Gap {
+                owner: d.owner,
+                have,
+                start: d.start,
+            };
+        }
+        if end <= have {
+            return DeltaOutcome::Duplicate;
+        }
+        // `have - start < records.len()` because `end > have`.
+        let skip = (have - d.start) as usize;
+        log.extend(
+            d.records
+                .iter()
+                .skip(skip)
+                .take((end - have) as usize)
+                .cloned(),
+        );
+        DeltaOutcome::Appended {
+            owner: d.owner,
+            new: have..len_u32(log),
+        }
+    }
+
+    /// Takes a delta like [`Self::on_delta`], and returns with the outcome the records it
+    /// appended to another robot's log (none for our own log: we made those records).
+    pub fn take_delta(&mut self, d: &LogDelta<R>) -> (DeltaOutcome, &[R]) {
+        let outcome = self.on_delta(d);
+        let new = match &outcome {
+            DeltaOutcome::Appended { owner, new } if *owner != self.own => self
+                .log(*owner)
+                .get(new.start as usize..new.end as usize)
+                .unwrap_or_default(),
+            _ => &[],
+        };
+        (outcome, new)
+    }
+
+    /// Drops `owner`'s records from index `len` on (records found to be corrupt); our next
+    /// handshake asks for them again. Our own log is never cut.
+    pub fn truncate(&mut self, owner: RobotId, len: u32) {
+        if owner != self.own {
+            if let Some(log) = self.logs.get_mut(&owner) {
+                log.truncate(len as usize);
+            }
+        }
+    }
+
+    /// The prefix of `owner`'s log we hold (empty for an owner we have not heard of).
+    pub fn log(&self, owner: RobotId) -> &[R] {
+        self.logs.get(&owner).map_or(&[], Vec::as_slice)
+    }
+
+    /// The owners whose logs we hold (at least ourselves), in id order.
+    pub fn owners(&self) -> impl Iterator<Item = RobotId> + '_ {
+        self.logs.keys().copied()
+    }
+
+    /// What we hold that `peer` lacks by S, weighed per owner by `weigh` (given the lacking
+    /// suffix of that owner's log; e.g. its encoded bytes); `None` before the peer's handshake.
+    pub fn backlog(&self, peer: RobotId, weigh: impl Fn(RobotId, &[R]) -> u64) -> Option<u64> {
+        let row = self.sent.get(&peer)?;
+        Some(
+            self.logs
+                .iter()
+                .map(|(&owner, log)| {
+                    let known = row.get(&owner).copied().unwrap_or(0) as usize;
+                    log.get(known..).map_or(0, |rest| weigh(owner, rest))
+                })
+                .sum(),
+        )
+    }
+}
+
+/// The handshake side of a log exchange (the thesis's `conn`), the same in every exchange mode:
+/// what we hold, what a peer holds, and the links that come and go.
+pub trait Handshake {
+    /// The handshake: how many records of each owner's log we hold.
+    fn knowledge(&self) -> Hello;
+    /// Takes a peer's handshake as the truth about what it holds.
+    fn on_hello(&mut self, h: &Hello);
+    /// A link to `peer` came up.
+    fn link_up(&mut self, peer: RobotId);
+    /// The link to `peer` went down.
+    fn link_down(&mut self, peer: RobotId);
+    /// How many records we hold that `peer` lacks; `None` before its handshake.
+    fn lag(&self, peer: RobotId) -> Option<u64>;
+    /// Drops everything we hold of `owner`'s log (never our own). Only the deliberately broken
+    /// recovery that tests `swarm chaos`'s checker calls it (`BROKEN_RECOVERY_ENV`).
+    fn forget(&mut self, owner: RobotId);
+}
+
+/// The environment variable that breaks recovery on purpose, to show that `swarm chaos`'s
+/// checker notices: set to `forget-earlier-lives`, a node that hears of a robot's later life
+/// drops what it holds of that robot's earlier lives (what a careless "newest incarnation
+/// wins" rule would do).
+pub const BROKEN_RECOVERY_ENV: &str = "SWARM_CHAOS_BROKEN_RECOVERY";
+
+impl<R: Clone> Handshake for LogExchange<R> {
+    /// The handshake: how many records of each owner's log we hold.
+    fn knowledge(&self) -> Hello {
+        Hello {
+            from: self.me,
+            knowledge: self
+                .logs
+                .iter()
+                .map(|(&owner, log)| (owner, len_u32(log)))
+                .collect(),
+        }
+    }
+
+    /// Takes a peer's handshake as the truth about what it holds: its S row becomes exactly the
+    /// listed indices (owners it does not list are known up to 0). If an owner is listed twice,
+    /// the larger index counts. A handshake claiming to come from ourselves is ignored.
+    fn on_hello(&mut self, h: &Hello) {
+        if h.from == self.me {
+            return;
+        }
+        let mut row = BTreeMap::new();
+        for &(owner, index) in &h.knowledge {
+            let known = row.entry(owner).or_insert(0);
+            *known = index.max(*known);
+        }
+        self.sent.insert(h.from, row);
+    }
+
+    /// A link to `peer` came up. Nothing is assumed about the peer until its handshake arrives:
+    /// any S row from an earlier contact is forgotten.
+    fn link_up(&mut self, peer: RobotId) {
+        self.sent.remove(&peer);
+    }
+
+    /// The link to `peer` went down: forget its S row, since we cannot know which of the messages
+    /// in flight arrived. The next handshake re-establishes it.
+    fn link_down(&mut self, peer: RobotId) {
+        self.sent.remove(&peer);
+    }
+
+    /// How many records we hold that `peer` lacks by S — the per-peer backlog; `None` before
+    /// the peer's handshake.
+    fn lag(&self, peer: RobotId) -> Option<u64> {
+        self.backlog(peer, |_, recs| recs.len() as u64)
+    }
+
+    fn forget(&mut self, owner: RobotId) {
+        if owner != self.own {
+            self.logs.remove(&owner);
+        }
+    }
+}
+
+/// One delta of `owner`'s records from `start` on, as many as fit into `budget_bytes`; returns it,
+/// its size, and whether a record was left out for lack of budget.
+///
+/// A delta's size grows with every record it carries, so the largest run that fits is found by
+/// bisection: O(log n) encodings of at most n records, where adding one record at a time would
+/// encode the growing delta n times (quadratic in a long suffix, as after a long separation on
+/// an unlimited link).
+fn fill<R: Clone>(
+    me: RobotId,
+    owner: RobotId,
+    start: u32,
+    log: &[R],
+    budget_bytes: usize,
+    size_of: &impl Fn(&LogDelta<R>) -> usize,
+) -> (LogDelta<R>, usize, bool) {
+    let rest = log.get(start as usize..).unwrap_or_default();
+    let delta = |n: usize| LogDelta {
+        from: me,
+        owner,
+        start,
+        records: rest[..n].to_vec(),
+    };
+    let all = delta(rest.len());
+    let size = size_of(&all);
+    if size <= budget_bytes {
+        return (all, size, false);
+    }
+    // Invariant: `lo` records fit (0 always does: nothing is sent then), `hi` do not.
+    let (mut lo, mut hi) = (0usize, rest.len());
+    let mut lo_size = 0;
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        let s = size_of(&delta(mid));
+        if s <= budget_bytes {
+            (lo, lo_size) = (mid, s);
+        } else {
+            hi = mid;
+        }
+    }
+    (delta(lo), lo_size, true)
+}
+
+/// A log length as the protocol's `u32` index (logs never reach 2³² records in practice; the
+/// index saturates rather than wraps if one did).
+fn len_u32<T>(v: &[T]) -> u32 {
+    u32::try_from(v.len()).unwrap_or(u32::MAX)
+}

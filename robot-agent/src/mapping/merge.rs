@@ -1,0 +1,243 @@
+//! The planning grid G_p: merging other robots' approximations with the self-explored grid
+//! G_s (thesis §5.2, Algorithm 9; docs/design.md §4.5).
+//!
+//! Principles: self-explored data wins; unknown space inside some robot's outside object stays
+//! unknown only if no robot whose inside object covers it knows better; occupied and free
+//! boundaries are never overwritten by unknown. Steps, over all approximations each:
+//! (1) every cell `undefined`; (2) fill outside objects with unknown; (3) draw outside-object
+//! edges, occupied → occupied, unknown → unknown (never over occupied); (4) per approximation,
+//! cells inside one of its inside objects that are undefined, or unknown but free by that same
+//! approximation, become free; (5) draw occupied edges of all objects (the thesis's Fig. 5.6(e)
+//! "contours of all inside objects" — walls of the inside object appear only here);
+//! (6) undefined → unknown; (7) every known cell of G_s overwrites.
+//!
+//! Interpretations. "Free by the same approximation" in (4) means inside an odd number of its
+//! polygons (inside, hole, island in a hole, …): the thesis's "not in one of its outside
+//! objects", extended so that a free region nested inside an outside object (a closed room
+//! seen from outside and inside) is freed too. Free edges of inside objects are *not* drawn in
+//! (5): they span contour pixels, which are never free, and drawing them free would invent a
+//! free ring beyond every frontier; left undefined they read unknown, so the merge of an
+//! unsimplified approximation reproduces G_s on every free cell and every cell 4-adjacent to
+//! one (docs/design.md §4.1's exploration equivalence).
+//!
+//! Steps (1)–(5) paint polygons onto cells and are shared with the rendering of a single
+//! approximation, so they live in [`crate::mapping::render`]; this module is Algorithm 9 itself: paint the
+//! other robots' approximations, then let G_s win.
+
+use proto::grid::{Grid, Occ, Rect};
+
+use crate::mapping::approx::{Approximation, Polygon};
+use crate::mapping::render::paint;
+
+/// Algorithm 9: the planning grid from `own` (G_s) and other robots' approximations, all in
+/// the frame of `own`.
+pub fn merge(own: &Grid, others: &[&Approximation]) -> Grid {
+    let mut out = Grid::new(own.width(), own.height(), Occ::Unknown);
+    merge_into(&mut out, own, others);
+    out
+}
+
+/// [`merge`] written over `out` (the last step's planning grid, of the same size), in
+/// proportion to the explored part of the map: only the cells that G_s knows, that some
+/// approximation paints, or that `out` knew are written — every other cell is and stays
+/// unknown.
+pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
+    let painted = others
+        .iter()
+        .fold(None, |r, a| Rect::union_of(r, a.cell_bounds()));
+    let region = [own.known_bounds(), out.known_bounds()]
+        .into_iter()
+        .fold(painted, Rect::union_of)
+        .and_then(|r| r.within(own.width(), own.height()));
+    let Some(r) = region else {
+        return;
+    };
+    let polys: Vec<Vec<&Polygon>> = others
+        .iter()
+        .map(|a| a.objects.values().collect())
+        .collect();
+    let plan = paint(&polys, r.min, r.width(), r.height());
+    let w = r.width() as usize;
+    for (y, painted) in (r.min.y..=r.max.y).zip(plan.chunks(w)) {
+        let mine = own.row(y, r.min.x, r.max.x);
+        let row = out.row_mut(y, r.min.x, r.max.x);
+        for ((dst, &s), &p) in row.iter_mut().zip(mine).zip(painted) {
+            // (7) every known cell of G_s overwrites; (6) undefined reads unknown.
+            *dst = match (s, p) {
+                (Occ::Free | Occ::Occupied, _) => s,
+                (_, Some(v)) => v,
+                (_, None) => Occ::Unknown,
+            };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapping::contour::{Contours, Kind};
+    use crate::mapping::render::exploration_view;
+    use crate::testutil::arb_grid;
+    use proptest::prelude::*;
+    use proto::grid::Cell;
+
+    fn exact(g: &Grid) -> Approximation {
+        Approximation::exact(&Contours::extract(g))
+    }
+
+    #[test]
+    fn unknown_edges_never_overwrite_occupied_cells() {
+        let own = Grid::new(5, 3, Occ::Unknown);
+        let walls = exact(&Grid::from_ascii("?????\n.###.\n....."));
+        let island = exact(&Grid::from_ascii(".....\n.???.\n....."));
+        for order in [[&walls, &island], [&island, &walls]] {
+            let g = merge(&own, &order);
+            assert_eq!(g.to_ascii(), ".....\n.###.\n.....\n");
+        }
+    }
+
+    /// Truth in the spirit of thesis Fig. 5.4(a): a star, a circle, a triangle, a rectangle.
+    const WORLD: &str = "
+        ################################
+        #..............................#
+        #...#........##................#
+        #..###......####...............#
+        #...#.......####...............#
+        #............##................#
+        #..............................#
+        #..............................#
+        #.......#..........#######.....#
+        #......###.........#######.....#
+        #.....#####........#######.....#
+        #....#######...................#
+        #..............................#
+        ################################";
+
+    /// The truth where `known(col, row-from-top)`, unknown elsewhere.
+    fn view(truth: &Grid, known: impl Fn(i32, i32) -> bool) -> Grid {
+        let mut g = Grid::new(truth.width(), truth.height(), Occ::Unknown);
+        let top = truth.height() as i32 - 1;
+        for y in 0..=top {
+            for x in 0..truth.width() as i32 {
+                if known(x, top - y) {
+                    g.set(Cell::new(x, y), truth.get(Cell::new(x, y)));
+                }
+            }
+        }
+        g
+    }
+
+    #[test]
+    fn three_robots_merge_like_figs_5_4_to_5_6() {
+        let truth = Grid::from_ascii(WORLD);
+        // Robot 1: the left part, but an unknown patch beside the star (it joins the star).
+        let r1 = view(&truth, |x, r| {
+            x <= 17 && !((6..=7).contains(&x) && (2..=4).contains(&r))
+        });
+        // Robot 2: the top part, with an unknown patch beside the circle.
+        let r2 = view(&truth, |x, r| {
+            r <= 6 && !((16..=17).contains(&x) && (3..=4).contains(&r))
+        });
+        // Robot 3 (merging): the bottom right with the rectangle.
+        let own = view(&truth, |x, r| x >= 14 && r >= 7);
+        let (a1, a2) = (exact(&r1), exact(&r2));
+        let plan = merge(&own, &[&a1, &a2]);
+
+        let views = [exploration_view(&r1), exploration_view(&r2)];
+        let mut want = own.clone();
+        for (i, w) in want.cells_mut().iter_mut().enumerate() {
+            let said = |v: Occ| views.iter().any(|g| g.cells()[i] == v);
+            if *w == Occ::Unknown {
+                *w = if said(Occ::Free) {
+                    Occ::Free
+                } else if said(Occ::Occupied) {
+                    Occ::Occupied
+                } else {
+                    Occ::Unknown
+                };
+            }
+        }
+        assert_eq!(plan.to_ascii(), want.to_ascii());
+        // Each robot's unknown patch is free because the other robot saw it free.
+        let top = truth.height() as i32 - 1;
+        for (x, r) in [(6, 3), (7, 2), (16, 3), (17, 4)] {
+            assert_eq!(
+                plan.get(Cell::new(x, top - r)),
+                Occ::Free,
+                "patch cell {x},{r}"
+            );
+        }
+    }
+
+    /// [`merge`] as it was written before it knew the explored part: every cell painted.
+    fn merge_every_cell(own: &Grid, others: &[&Approximation]) -> Grid {
+        let polys: Vec<Vec<&Polygon>> = others
+            .iter()
+            .map(|a| a.objects.values().collect())
+            .collect();
+        let plan = paint(&polys, Cell::new(0, 0), own.width(), own.height());
+        let mut out = Grid::new(own.width(), own.height(), Occ::Unknown);
+        for (i, p) in plan.into_iter().enumerate() {
+            let s = own.cells()[i];
+            out.set_index(
+                i,
+                match (s, p) {
+                    (Occ::Free | Occ::Occupied, _) => s,
+                    (_, Some(v)) => v,
+                    (_, None) => Occ::Unknown,
+                },
+            );
+        }
+        out
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(128))]
+
+        /// Written over the last step's planning grid, only where something is known, the
+        /// merge is the merge of every cell.
+        #[test]
+        fn the_kept_planning_grid_equals_the_merge_of_every_cell(
+            (before, after) in (12u32..40, 12u32..40).prop_flat_map(|(w, h)| {
+                let g = move || (crate::testutil::arb_grid(12), 0i32..40, 0i32..40)
+                    .prop_map(move |(g, x, y)| crate::testutil::placed(&g, w, h, Cell::new(x % w as i32, y % h as i32)));
+                ((g(), g()), (g(), g(), g()))
+            })
+        ) {
+            let ((own0, peer0), (own1, peer1, peer2)) = (before, after);
+            let mut kept = merge(&own0, &[&exact(&peer0)]);
+            let (a, b) = (exact(&peer1), exact(&peer2));
+            merge_into(&mut kept, &own1, &[&a, &b]);
+            prop_assert_eq!(kept.to_ascii(), merge_every_cell(&own1, &[&a, &b]).to_ascii());
+        }
+
+        #[test]
+        fn merging_arbitrary_polygons_never_panics(
+            polys in proptest::collection::vec((any::<bool>(), proptest::collection::vec((any::<i32>(), any::<i32>(), 0u8..3), 0..6)), 0..4)
+        ) {
+            let mut a = Approximation::default();
+            for (id, (inside, vs)) in polys.into_iter().enumerate() {
+                let kind = if inside { Kind::Inside } else { Kind::Outside };
+                let occ = |o: u8| [Occ::Free, Occ::Occupied, Occ::Unknown][usize::from(o)];
+                let vertices = vs.into_iter().map(|(x, y, o)| crate::mapping::approx::Vertex { p: crate::mapping::qpoint::QPoint::new(x, y), occ: occ(o) }).collect();
+                a.objects.insert(id as u32, Polygon { kind, vertices });
+            }
+            let g = merge(&Grid::new(8, 8, Occ::Unknown), &[&a]);
+            prop_assert_eq!(g.len(), 64);
+        }
+
+        #[test]
+        fn merge_never_overwrites_known_cells(
+            (own, a, b) in (4u32..14, 4u32..14).prop_flat_map(|(w, h)| {
+                let g = move || arb_grid(14).prop_map(move |g| crate::testutil::window(&g, w, h, 0, 0));
+                (g(), g(), g())
+            })
+        ) {
+            let (a, b) = (exact(&a), exact(&b));
+            let plan = merge(&own, &[&a, &b]);
+            for (p, s) in plan.cells().iter().zip(own.cells()) {
+                prop_assert!(*s == Occ::Unknown || p == s);
+            }
+        }
+    }
+}

@@ -1,0 +1,328 @@
+//! Rendering polygonal approximations onto cells (thesis §5.2).
+//!
+//! An approximation A_t stands for a grid: the one Algorithm 9 ([`crate::mapping::merge`], where its
+//! principles and steps are written down) paints from it. This module paints: [`paint`] does
+//! steps (1)–(5) for any set of approximations over any window of the grid frame, [`render`] is
+//! one approximation on its own (Algorithm 9 with an empty G_s), [`render_window`] a window of
+//! that, used to score one split locally ([`crate::mapping::refine`]). [`exploration_view`] is the other
+//! side of the comparison: G_s as any polygonal model can represent it.
+//!
+//! Place among the mapping modules (each imports only those before it): [`crate::mapping::contour`] →
+//! [`crate::mapping::approx`] → `render` → [`crate::mapping::refine`] → [`crate::mapping::approximator`] →
+//! [`crate::mapping::merge`], [`crate::mapping::approx_error`].
+
+use proto::grid::{Cell, Grid, Occ, Rect};
+
+use crate::mapping::approx::{Approximation, Polygon};
+use crate::mapping::contour::Kind;
+use crate::mapping::raster;
+
+/// A working canvas over the window `[x0, x0+width) × [y0, y0+height)` of the grid frame; a cell
+/// is `None` while no approximation said anything about it (the thesis's `undefined`).
+struct Canvas {
+    x0: i32,
+    y0: i32,
+    width: u32,
+    height: u32,
+    cells: Vec<Option<Occ>>,
+}
+
+impl Canvas {
+    fn new(origin: Cell, width: u32, height: u32) -> Canvas {
+        let cells = vec![None; width as usize * height as usize];
+        Canvas {
+            x0: origin.x,
+            y0: origin.y,
+            width,
+            height,
+            cells,
+        }
+    }
+
+    fn index(&self, c: Cell) -> Option<usize> {
+        let (x, y) = (c.x - self.x0, c.y - self.y0);
+        let inside = x >= 0 && y >= 0 && (x as u32) < self.width && (y as u32) < self.height;
+        inside.then(|| y as usize * self.width as usize + x as usize)
+    }
+
+    /// Every cell of the window whose centre lies inside `poly`, by index.
+    fn fill(&self, poly: &Polygon, mut f: impl FnMut(usize)) {
+        let (x_end, w) = (self.x0 + self.width as i32 - 1, self.width as usize);
+        let rows = self.y0..self.y0 + self.height as i32;
+        raster::fill(&poly.points(), rows, |y, xa, xb| {
+            let row = (y - self.y0) as usize * w;
+            for x in xa.max(self.x0)..=xb.min(x_end) {
+                f(row + (x - self.x0) as usize);
+            }
+        });
+    }
+
+    /// Every cell of the window on an edge of `poly`, with the edge's occupancy.
+    fn edges(&mut self, poly: &Polygon, mut f: impl FnMut(&mut Option<Occ>, Occ)) {
+        let n = poly.vertices.len();
+        let lo = Cell::new(self.x0, self.y0);
+        let hi = Cell::new(
+            self.x0 + self.width as i32 - 1,
+            self.y0 + self.height as i32 - 1,
+        );
+        for (i, v) in poly.vertices.iter().enumerate() {
+            let next = poly.vertices[(i + 1) % n].p;
+            raster::edge(v.p, next, lo, hi, |c| {
+                if let Some(k) = self.index(c) {
+                    f(&mut self.cells[k], v.occ);
+                }
+            });
+        }
+    }
+}
+
+/// Steps (1)–(5) of Algorithm 9 ([`crate::mapping::merge`]) for `approximations`, each as the list of its
+/// polygons, over the window of `width × height` cells at `origin`: per cell, row-major, what
+/// they say together, `None` where none of them says anything (the thesis's `undefined`).
+pub fn paint(
+    approximations: &[Vec<&Polygon>],
+    origin: Cell,
+    width: u32,
+    height: u32,
+) -> Vec<Option<Occ>> {
+    paint_on(Canvas::new(origin, width, height), approximations).cells
+}
+
+/// Steps (1)–(5) of Algorithm 9 on a canvas; each approximation as the list of its polygons.
+fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>]) -> Canvas {
+    let outside = || others.iter().flatten().filter(|o| o.kind == Kind::Outside);
+    for o in outside() {
+        let mut unknown = Vec::new();
+        plan.fill(o, |k| unknown.push(k));
+        unknown
+            .into_iter()
+            .for_each(|k| plan.cells[k] = Some(Occ::Unknown));
+    }
+    for o in outside() {
+        plan.edges(o, |cell, occ| match occ {
+            Occ::Occupied => *cell = Some(Occ::Occupied),
+            Occ::Unknown if *cell != Some(Occ::Occupied) => *cell = Some(Occ::Unknown),
+            _ => {}
+        });
+    }
+    for a in others {
+        free_inside(&mut plan, a);
+    }
+    for o in others.iter().flatten() {
+        plan.edges(o, |cell, occ| {
+            if occ == Occ::Occupied {
+                *cell = Some(Occ::Occupied);
+            }
+        });
+    }
+    plan
+}
+
+/// Step (4) for one approximation: cells inside its inside objects that are undefined, or
+/// unknown but inside an odd number of its polygons, become free.
+fn free_inside(plan: &mut Canvas, a: &[&Polygon]) {
+    const INSIDE: u8 = 1;
+    const ODD: u8 = 2;
+    let mut flags = vec![0u8; plan.cells.len()];
+    for o in a {
+        let bit = if o.kind == Kind::Inside { INSIDE } else { 0 };
+        plan.fill(o, |k| flags[k] = (flags[k] | bit) ^ ODD);
+    }
+    for (cell, f) in plan.cells.iter_mut().zip(flags) {
+        let free = match *cell {
+            None => f & INSIDE != 0,
+            Some(Occ::Unknown) => f & INSIDE != 0 && f & ODD != 0,
+            Some(_) => false,
+        };
+        if free {
+            *cell = Some(Occ::Free);
+        }
+    }
+}
+
+/// [`render`] of the approximation made of `polys`, restricted to the window of
+/// `width × height` cells at `origin`, row-major: inside the grid identical to the same cells of the full
+/// rendering, at the cost of the window (and one pass over the edges) — used to score a
+/// single split locally.
+pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) -> Vec<Occ> {
+    paint(&[polys.to_vec()], origin, width, height)
+        .into_iter()
+        .map(|p| p.unwrap_or(Occ::Unknown))
+        .collect()
+}
+
+/// The grid an approximation stands for on its own (`width × height`, the owner's frame):
+/// Algorithm 9 with an empty G_s. Paints only where its polygons lie.
+pub fn render(a: &Approximation, width: u32, height: u32) -> Grid {
+    let mut g = Grid::new(width, height, Occ::Unknown);
+    if let Some(r) = a.cell_bounds().and_then(|r| r.within(width, height)) {
+        render_into(&mut g, a, r);
+    }
+    g
+}
+
+/// Writes [`render`]`(a, ..)` of the cells of `r` into `g`.
+fn render_into(g: &mut Grid, a: &Approximation, r: Rect) {
+    let polys: Vec<&Polygon> = a.objects.values().collect();
+    let cells = render_window(&polys, r.min, r.width(), r.height());
+    for (c, v) in r.cells().zip(cells) {
+        g.set(c, v);
+    }
+}
+
+/// G_s as any polygonal model can represent it: non-free cells with no free 4-neighbour
+/// (buried behind other non-free cells) read unknown. [`render`] of the unsimplified
+/// approximation equals exactly this (exploration equivalence, docs/design.md §4.1). Reads only
+/// the known part of `g` (the rest reads unknown in the view too).
+pub fn exploration_view(g: &Grid) -> Grid {
+    let mut out = Grid::new(g.width(), g.height(), Occ::Unknown);
+    if let Some(r) = g.known_bounds() {
+        for c in r.cells() {
+            out.set(c, viewed(g, c));
+        }
+    }
+    out
+}
+
+/// [`exploration_view`] of a grid kept up to date as the grid changes: a cell's view depends
+/// only on the cell and its 4-neighbours, so a step that changed some cells re-reads those and
+/// their neighbours — work in proportion to what changed, not to the grid's area.
+///
+/// **Invariant:** after [`ExplorationView::update`] with every cell that changed, the view
+/// equals [`exploration_view`] of the grid.
+#[derive(Clone, Debug)]
+pub struct ExplorationView {
+    view: Grid,
+}
+
+impl ExplorationView {
+    pub fn new(g: &Grid) -> ExplorationView {
+        ExplorationView {
+            view: exploration_view(g),
+        }
+    }
+
+    /// `g` after the cells `changed` changed (and no others).
+    pub fn update(&mut self, g: &Grid, changed: impl IntoIterator<Item = Cell>) {
+        for c in changed {
+            for n in std::iter::once(c).chain(c.neighbours4()) {
+                if g.contains(n) {
+                    self.view.set(n, viewed(g, n));
+                }
+            }
+        }
+    }
+
+    /// The view.
+    pub fn grid(&self) -> &Grid {
+        &self.view
+    }
+}
+
+/// One cell of [`exploration_view`]`(g)`.
+fn viewed(g: &Grid, c: Cell) -> Occ {
+    let v = g.get(c);
+    let exposed = c.neighbours4().iter().any(|&n| g.get(n) == Occ::Free);
+    if v != Occ::Free && !exposed {
+        Occ::Unknown
+    } else {
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapping::contour::Contours;
+    use crate::testutil::{arb_grid, arb_map_window};
+    use proptest::prelude::*;
+
+    fn exact(g: &Grid) -> Approximation {
+        Approximation::exact(&Contours::extract(g))
+    }
+
+    /// Rendering the unsimplified approximation of `pic` gives back `pic` (buried cells read
+    /// unknown).
+    fn check(pic: &str) {
+        let g = Grid::from_ascii(pic);
+        let got = render(&exact(&g), g.width(), g.height());
+        assert_eq!(
+            got.to_ascii(),
+            exploration_view(&g).to_ascii(),
+            "render of\n{pic}"
+        );
+    }
+
+    #[test]
+    fn exact_renders_reproduce_the_grid() {
+        check("...\n.#.\n...");
+        check("?##\n...");
+        check("....\n.#..\n..#.\n....");
+        check("####\n#.##\n##.#\n####");
+        check(".......\n.#####.\n.#...#.\n.#####.\n.......");
+        check(".......\n.##?##.\n.#?.?#.\n.#####.\n.......");
+        check("#####\n#???#\n#?#?#\n#...#\n#####");
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(128))]
+
+        #[test]
+        fn exploration_equivalence_on_random_grids(g in arb_grid(16)) {
+            let got = render(&exact(&g), g.width(), g.height());
+            prop_assert_eq!(got.to_ascii(), exploration_view(&g).to_ascii());
+        }
+
+        #[test]
+        fn exploration_equivalence_on_real_maps(g in arb_map_window(48, 48)) {
+            let got = render(&exact(&g), g.width(), g.height());
+            prop_assert_eq!(got.to_ascii(), exploration_view(&g).to_ascii());
+        }
+
+        #[test]
+        fn the_kept_view_equals_the_view_from_scratch(
+            g in arb_grid(14),
+            edits in proptest::collection::vec(((0i32..14, 0i32..14), 0u8..3), 0..40)
+        ) {
+            let mut g = g;
+            let mut kept = ExplorationView::new(&g);
+            for ((x, y), v) in edits {
+                let c = Cell::new(x, y);
+                g.set(c, [Occ::Free, Occ::Occupied, Occ::Unknown][usize::from(v)]);
+                kept.update(&g, [c]);
+                prop_assert_eq!(kept.grid().to_ascii(), exploration_view(&g).to_ascii());
+            }
+        }
+
+        /// The view and the rendering read only the explored part of a grid; they agree with
+        /// reading every cell.
+        #[test]
+        fn bounded_views_and_renders_agree_with_every_cell(g in crate::testutil::arb_placed_grid(), splits in 0usize..12) {
+            let every: Vec<Occ> = (0..g.len()).map(|i| viewed(&g, g.cell_of(i))).collect();
+            prop_assert_eq!(exploration_view(&g).cells().to_vec(), every);
+            let a = crate::mapping::approximator::approximate(&Contours::extract(&g), &g, splits);
+            let polys: Vec<&Polygon> = a.objects.values().collect();
+            let full = render_window(&polys, Cell::new(0, 0), g.width(), g.height());
+            prop_assert_eq!(render(&a, g.width(), g.height()).cells().to_vec(), full);
+        }
+
+        #[test]
+        fn window_renders_agree_with_full_renders(
+            g in arb_grid(14), splits in 0usize..12, (x, y, w, h) in (0i32..14, 0i32..14, 1u32..8, 1u32..8)
+        ) {
+            let a = crate::mapping::approximator::approximate(&Contours::extract(&g), &g, splits);
+            let full = render(&a, g.width(), g.height());
+            let polys: Vec<&Polygon> = a.objects.values().collect();
+            let win = render_window(&polys, Cell::new(x, y), w, h);
+            for (k, got) in win.iter().enumerate() {
+                let c = Cell::new(x + (k as u32 % w) as i32, y + (k as u32 / w) as i32);
+                // A simplified outside polygon may reach past the grid; `render` clips there
+                // and so does every caller of `render_window` (refine's windows).
+                if !g.contains(c) {
+                    continue;
+                }
+                prop_assert_eq!(*got, full.get(c), "cell {:?}", c);
+            }
+        }
+    }
+}

@@ -1,0 +1,932 @@
+//! Path planning on a ternary grid: costs, frontiers, paths and waypoints (docs/design.md §4.6, first
+//! paragraph; thesis §4.5).
+//!
+//! Every coordination strategy needs the same three things from the planning grid G_p: the cost
+//! V of reaching each cell from the robot's cell, the frontiers (reachable free cells next to
+//! unknown space, Yamauchi's targets), and a way to get to the chosen target. The thesis computes V
+//! by value iteration (Algorithm 7); with deterministic moves that is a shortest-path problem, so
+//! here it is a Dijkstra over free cells, 8-connected with Euclidean step costs (1 and √2). A
+//! diagonal step needs both orthogonal neighbours free: the robot never cuts a wall's corner, and a
+//! diagonal step's straight segment (which passes through the shared corner) touches only free
+//! cells — the same supercover test the world-server applies to a move.
+//!
+//! The path to a target follows the Dijkstra predecessors; [`next_waypoint`] then shortcuts it to
+//! the farthest path cell that one move can reach along a verified straight segment.
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+use proto::grid::{Cell, Grid, Occ, Rect};
+
+use crate::mapping::grid::supercover;
+
+/// Costs that differ by less than this count as equal when frontiers are ranked, so that the
+/// tie-break by position is not decided by the rounding of sums of 1 and √2.
+pub(crate) const COST_TIE_QUANTUM: f64 = 1e-6;
+
+/// Marks a cell without predecessor (the start, and unreachable cells).
+const NO_PRED: u32 = u32::MAX;
+
+/// The eight moves as (dx, dy); orthogonal moves first.
+const MOVES: [(i32, i32); 8] = [
+    (1, 0),
+    (0, 1),
+    (-1, 0),
+    (0, -1),
+    (1, 1),
+    (-1, 1),
+    (-1, -1),
+    (1, -1),
+];
+
+/// The cost (in cells) of reaching every cell from one start cell, with the shortest-path tree.
+#[derive(Clone, Debug)]
+pub struct CostMap {
+    /// The window of the grid the search could reach (the explored part and the sources);
+    /// every cell beyond it is unreachable.
+    x0: i32,
+    y0: i32,
+    width: u32,
+    height: u32,
+    start: Cell,
+    /// Cost per row-major cell index of the window; `f64::INFINITY` when unreachable.
+    dist: Vec<f64>,
+    /// Predecessor on a shortest path per cell index; [`NO_PRED`] for the start and unreachable
+    /// cells.
+    pred: Vec<u32>,
+    /// The search settled every cell up to this cost and stopped ([`costs_until`]); costs
+    /// beyond it are unknown and read as unreachable. `f64::INFINITY`: a full search.
+    limit: f64,
+}
+
+impl CostMap {
+    /// The cell the costs are measured from.
+    pub fn start(&self) -> Cell {
+        self.start
+    }
+
+    /// The cost of the cheapest path from the start to `c` in cells; `None` when `c` is
+    /// unreachable or outside the grid.
+    pub fn cost(&self, c: Cell) -> Option<f64> {
+        self.index(c)
+            .map(|i| self.dist[i])
+            .filter(|&d| d.is_finite() && d <= self.limit)
+    }
+
+    /// Whether the search covered every cell it could reach (not stopped by [`costs_until`]).
+    pub fn is_complete(&self) -> bool {
+        self.limit == f64::INFINITY
+    }
+
+    fn index(&self, c: Cell) -> Option<usize> {
+        let (x, y) = (c.x - self.x0, c.y - self.y0);
+        let inside = x >= 0 && y >= 0 && (x as u32) < self.width && (y as u32) < self.height;
+        inside.then(|| y as usize * self.width as usize + x as usize)
+    }
+
+    fn cell_of(&self, i: usize) -> Cell {
+        let w = self.width as usize;
+        Cell::new(self.x0 + (i % w) as i32, self.y0 + (i / w) as i32)
+    }
+}
+
+/// A Dijkstra queue entry, ordered so that `BinaryHeap` pops the cheapest first and, among equal
+/// costs, the lowest index (which keeps the search deterministic).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Entry {
+    cost: f64,
+    index: usize,
+}
+
+impl Eq for Entry {}
+
+impl Ord for Entry {
+    fn cmp(&self, other: &Self) -> Ordering {
+        other
+            .cost
+            .total_cmp(&self.cost)
+            .then_with(|| other.index.cmp(&self.index))
+    }
+}
+
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// The moves allowed out of `c`: into free cells, 8-connected, diagonals only between two free
+/// orthogonal neighbours. Returns (neighbour, step cost).
+fn moves(g: &Grid, c: Cell) -> impl Iterator<Item = (Cell, f64)> + '_ {
+    let free = move |x: i32, y: i32| g.get(Cell::new(x, y)) == Occ::Free;
+    MOVES.iter().filter_map(move |&(dx, dy)| {
+        let n = Cell::new(c.x + dx, c.y + dy);
+        if !free(n.x, n.y) {
+            return None;
+        }
+        if dx != 0 && dy != 0 {
+            (free(c.x + dx, c.y) && free(c.x, c.y + dy)).then_some((n, std::f64::consts::SQRT_2))
+        } else {
+            Some((n, 1.0))
+        }
+    })
+}
+
+/// Dijkstra from `start` over the free cells of `g` (8-connected, step costs 1 and √2, no corner
+/// cutting). The start cell itself is traversable whatever its value — the robot stands on it —
+/// but every other cell on a path is free. A start outside the grid reaches nothing.
+pub fn costs(g: &Grid, start: Cell) -> CostMap {
+    costs_with(g, start, None)
+}
+
+/// The penalty of being near obstacles (thesis §4.4.1: the planning map smoothed with a Gaussian
+/// kernel, so that robots are punished for moving close to objects or through narrow corridors):
+/// per cell, the occupied indicator blurred with a Gaussian of `sigma` cells (radius 3σ, a
+/// separable filter), scaled by `weight`. A step into a cell costs (1 + penalty) times its length.
+pub fn obstacle_penalty(g: &Grid, sigma: f64, weight: f64) -> Vec<f32> {
+    let (w, h) = (g.width() as usize, g.height() as usize);
+    if sigma <= 0.0 || weight <= 0.0 || w == 0 || h == 0 {
+        return vec![0.0; g.len()];
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let kernel: Vec<f64> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let sum: f64 = kernel.iter().sum();
+    let kernel: Vec<f64> = kernel.iter().map(|k| k / sum).collect();
+    let occ: Vec<f64> = g
+        .cells()
+        .iter()
+        .map(|&c| if c == Occ::Occupied { 1.0 } else { 0.0 })
+        .collect();
+    let blur = |src: &[f64], horizontal: bool| -> Vec<f64> {
+        let mut out = vec![0.0; src.len()];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = 0.0;
+                for (k, kv) in kernel.iter().enumerate() {
+                    let o = k as isize - r;
+                    let (sx, sy) = if horizontal {
+                        (x as isize + o, y as isize)
+                    } else {
+                        (x as isize, y as isize + o)
+                    };
+                    if sx >= 0 && sy >= 0 && (sx as usize) < w && (sy as usize) < h {
+                        acc += kv * src[sy as usize * w + sx as usize];
+                    }
+                }
+                out[y * w + x] = acc;
+            }
+        }
+        out
+    };
+    let smooth = blur(&blur(&occ, true), false);
+    smooth.iter().map(|&v| (v * weight) as f32).collect()
+}
+
+/// [`costs`] with a per-cell penalty ([`obstacle_penalty`]; `None`: none).
+pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
+    dijkstra(g, start, &[start], penalty, None)
+}
+
+/// [`costs_with`] that stops as soon as `target` is settled: a search as far as the target
+/// rather than over everything explored (a robot that keeps its target needs only the way
+/// there). Every cost it reports, and every path to a cell with one — `target`'s first — is
+/// [`costs_with`]'s: Dijkstra settles cells in the same order up to there, and a settled cell's
+/// cost and predecessor never change. Cells costlier than `target` read as unreachable. When
+/// `target` is unreachable the search runs out by itself and the map is complete
+/// ([`CostMap::is_complete`]).
+pub fn costs_until(g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell) -> CostMap {
+    dijkstra(g, start, &[start], penalty, Some(target))
+}
+
+/// The cost of reaching every cell from the nearest of `sources` (a multi-source Dijkstra, no
+/// penalty): e.g. the distance of every cell to the nearest frontier. Sources outside the grid
+/// are left out; [`CostMap::start`] is the first source (a path leads to the nearest source
+/// only through [`path_to`] from it, so do not ask for paths).
+pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
+    let start = sources.first().copied().unwrap_or(Cell::new(-1, -1));
+    dijkstra(g, start, sources, None, None)
+}
+
+/// The search runs over a window of the grid — its known part and the sources — and costs in
+/// proportion to that, not to the map: every free cell is inside the known part, and a path
+/// steps only onto free cells. Window indices are row-major like the grid's, so the order in
+/// which equal costs are settled is the grid's.
+fn dijkstra(
+    g: &Grid,
+    start: Cell,
+    sources: &[Cell],
+    penalty: Option<&[f32]>,
+    until: Option<Cell>,
+) -> CostMap {
+    let window = sources
+        .iter()
+        .filter(|&&c| g.contains(c))
+        .fold(g.known_bounds(), |r, &c| {
+            Rect::union_of(r, Some(Rect::cell(c)))
+        });
+    let (x0, y0, width, height) =
+        window.map_or((0, 0, 0, 0), |r| (r.min.x, r.min.y, r.width(), r.height()));
+    let cells = width as usize * height as usize;
+    let mut map = CostMap {
+        x0,
+        y0,
+        width,
+        height,
+        start,
+        dist: vec![f64::INFINITY; cells],
+        pred: vec![NO_PRED; cells],
+        limit: f64::INFINITY,
+    };
+    let stop = until.and_then(|c| map.index(c));
+    let mut heap = BinaryHeap::new();
+    for &c in sources {
+        if let Some(s) = map.index(c) {
+            map.dist[s] = 0.0;
+            heap.push(Entry {
+                cost: 0.0,
+                index: s,
+            });
+        }
+    }
+    while let Some(Entry { cost, index }) = heap.pop() {
+        if cost > map.dist[index] {
+            continue;
+        }
+        if Some(index) == stop {
+            // Every cell cheaper than this one is settled; one as cheap that is not yet has
+            // its final cost already (it can only be lowered by a cheaper cell), so the limit
+            // may include this cost.
+            map.limit = cost;
+            break;
+        }
+        for (n, step) in moves(g, map.cell_of(index)) {
+            // `moves` yields only free cells, which lie inside the grid.
+            let Some(ni) = map.index(n) else { continue };
+            let extra = penalty
+                .and_then(|p| p.get(g.index(n)?))
+                .map_or(0.0, |&p| f64::from(p));
+            let next = cost + step * (1.0 + extra);
+            if next < map.dist[ni] {
+                map.dist[ni] = next;
+                map.pred[ni] = index as u32;
+                heap.push(Entry {
+                    cost: next,
+                    index: ni,
+                });
+            }
+        }
+    }
+    map
+}
+
+/// The frontier cells: reachable free cells with at least one unknown 4-neighbour inside the grid,
+/// in row-major order (bottom row first). Cells beyond the grid's edge do not count as unknown:
+/// the map's extent is known, and nothing lies out there to explore.
+pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
+    // Free cells lie in the known part of the grid.
+    g.known_bounds()
+        .into_iter()
+        .flat_map(Rect::cells)
+        .filter(|&c| is_frontier(g, costs, c))
+        .collect()
+}
+
+/// Whether `c` is one of [`frontiers`]`(g, costs)`.
+pub fn is_frontier(g: &Grid, costs: &CostMap, c: Cell) -> bool {
+    g.is_frontier(c) && costs.cost(c).is_some()
+}
+
+/// The cheapest frontier, ties broken by `(y, x)` (costs equal to within 10⁻⁶ cells count as
+/// ties); `None` when no frontier is reachable.
+pub fn nearest_frontier(g: &Grid, costs: &CostMap) -> Option<Cell> {
+    nearest(frontiers(g, costs), costs)
+}
+
+/// The cheapest reachable cell among `cells`, with [`nearest_frontier`]'s tie-break.
+pub fn nearest(cells: impl IntoIterator<Item = Cell>, costs: &CostMap) -> Option<Cell> {
+    cells
+        .into_iter()
+        .filter(|&c| costs.cost(c).is_some())
+        .min_by_key(|&c| {
+            let cost = costs.cost(c).unwrap_or(f64::INFINITY);
+            ((cost / COST_TIE_QUANTUM).round() as i64, c.y, c.x)
+        })
+}
+
+/// The cells of a cheapest path from the start of `costs` to `target`, both included, following
+/// the Dijkstra predecessors; `None` when `target` is unreachable.
+pub fn path_to(costs: &CostMap, target: Cell) -> Option<Vec<Cell>> {
+    costs.cost(target)?;
+    let mut i = costs.index(target)?;
+    let mut path = vec![target];
+    // The predecessor tree has no cycles; the bound makes that an enforced invariant.
+    for _ in 0..costs.dist.len() {
+        let p = costs.pred[i];
+        if p == NO_PRED {
+            break;
+        }
+        i = p as usize;
+        path.push(costs.cell_of(i));
+    }
+    path.reverse();
+    (path.first() == Some(&costs.start)).then_some(path)
+}
+
+/// The farthest cell along `path` within `max_cells` (Euclidean, from the path's first cell) that
+/// the robot can reach on one straight segment: the segment between the two cell centres touches
+/// only free cells (its supercover; the first cell, where the robot stands, is exempt).
+///
+/// Only the leading part of the path up to the first cell beyond `max_cells` is considered, so the
+/// waypoint never skips a stretch of the path the robot has not reached. When even the path's
+/// second cell lies farther than `max_cells` (a diagonal first step, or a step shorter than a
+/// cell), that cell: the world clips the move to the step, and the robot covers part of the way
+/// (without it a robot whose step is under √2 cells never took a diagonal first move, and one
+/// under a cell never moved). `None` when the path has fewer than two cells.
+pub fn next_waypoint(g: &Grid, path: &[Cell], max_cells: f64) -> Option<Cell> {
+    let (&first, rest) = path.split_first()?;
+    let &second = rest.first()?;
+    if f64::from(second.x - first.x).hypot(f64::from(second.y - first.y)) > max_cells {
+        return Some(second);
+    }
+    let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
+    let reach = rest.iter().take_while(|&&c| {
+        let (dx, dy) = (f64::from(c.x - first.x), f64::from(c.y - first.y));
+        dx.hypot(dy) <= max_cells
+    });
+    let candidates: Vec<Cell> = reach.copied().collect();
+    candidates.into_iter().rev().find(|&c| {
+        supercover(centre(first), centre(c))
+            .into_iter()
+            .all(|s| s == first || g.get(s) == Occ::Free)
+    })
+}
+
+/// Where a robot that must give way goes (robots are discs to each other, and a narrow passage
+/// holds only one): the cheapest cell, reachable from `me` without coming within `clearance`
+/// cells of `other`, that keeps at least `clearance` cells from the other robot's way — its
+/// path over `g` to `their_target` when that is known and reachable, else the straight line
+/// from `other` through `me` and on for [`GIVE_WAY_LINE_CELLS`] (it was coming this way).
+/// Returns the path to that cell on the grid with the other robot's disc blocked, starting at
+/// `me` (a single cell when `me` is already clear); `None` when no cell is clear.
+pub fn give_way(
+    g: &Grid,
+    me: Cell,
+    other: Cell,
+    their_target: Option<Cell>,
+    clearance: f64,
+) -> Option<(Grid, Vec<Cell>)> {
+    let way: Vec<Cell> = match their_target.and_then(|t| path_to(&costs(g, other), t)) {
+        Some(path) => path,
+        None => {
+            let dx = f64::from(me.x) - f64::from(other.x);
+            let dy = f64::from(me.y) - f64::from(other.y);
+            let len = dx.hypot(dy).max(1.0);
+            // Half-cell steps; no line on the grid is longer than its width plus its height, so
+            // the cap changes nothing there and keeps a robot reported far off the map (a bad
+            // scan) from walking a line of billions of cells.
+            let most = f64::from(g.width()) + f64::from(g.height()) + GIVE_WAY_LINE_CELLS;
+            let steps = ((len + GIVE_WAY_LINE_CELLS).min(most) * 2.0).ceil() as i32;
+            (0..=steps)
+                .map(|k| {
+                    let t = f64::from(k) * 0.5 / len;
+                    let x = f64::from(other.x) + dx * t;
+                    let y = f64::from(other.y) + dy * t;
+                    Cell::new(x.round() as i32, y.round() as i32)
+                })
+                .collect()
+        }
+    };
+    // Both ways start at `other`.
+    let mut in_the_way = vec![false; g.len()];
+    for &at in &way {
+        for c in disc(g, at, clearance) {
+            if let Some(i) = g.index(c) {
+                in_the_way[i] = true;
+            }
+        }
+    }
+    let blocked = around(g, me, other, clearance);
+    let from_me = costs(&blocked, me);
+    let aside = (0..g.len())
+        .filter(|&i| !in_the_way[i] && (g.cells()[i] == Occ::Free || g.cell_of(i) == me))
+        .map(|i| g.cell_of(i))
+        .filter(|&c| from_me.cost(c).is_some());
+    let aside = nearest(aside, &from_me)?;
+    Some((blocked, path_to(&from_me, aside)?))
+}
+
+/// `g` with the robot at `other` in it: the cells nearer than `clearance` to it are occupied,
+/// except `me` (for planning around another robot).
+pub fn around(g: &Grid, me: Cell, other: Cell, clearance: f64) -> Grid {
+    let mut blocked = g.clone();
+    for c in disc(g, other, clearance) {
+        if c != me {
+            blocked.set(c, Occ::Occupied);
+        }
+    }
+    blocked
+}
+
+/// The cells of `g` whose centres lie nearer than `radius` cells to the centre of `at`.
+fn disc(g: &Grid, at: Cell, radius: f64) -> impl Iterator<Item = Cell> + '_ {
+    let r = radius.ceil() as i32;
+    (-r..=r)
+        .flat_map(move |dy| (-r..=r).map(move |dx| Cell::new(at.x + dx, at.y + dy)))
+        .filter(move |&c| {
+            let (dx, dy) = (f64::from(c.x - at.x), f64::from(c.y - at.y));
+            g.contains(c) && dx.hypot(dy) < radius
+        })
+}
+
+/// How far beyond the giving-way robot the other robot's way is assumed to go when its target
+/// is not known ([`give_way`]).
+pub const GIVE_WAY_LINE_CELLS: f64 = 10.0;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn the_obstacle_penalty_keeps_paths_off_walls() {
+        // A wide corridor with a wall along its bottom: with the penalty, the path from left to
+        // right runs along the middle rather than hugging the wall.
+        let g = Grid::from_ascii(
+            "\
+############
+#..........#
+#..........#
+#..........#
+#..........#
+#..........#
+############
+",
+        );
+        let p = obstacle_penalty(&g, 1.0, 5.0);
+        let mid = p[3 * 12 + 5];
+        let edge = p[12 + 5];
+        assert!(edge > mid && mid >= 0.0, "edge {edge} mid {mid}");
+        let (a, b) = (Cell::new(1, 1), Cell::new(10, 1));
+        let plain = path_to(&costs(&g, a), b).unwrap_or_default();
+        let careful = path_to(&costs_with(&g, a, Some(&p)), b).unwrap_or_default();
+        let max_y = |path: &[Cell]| path.iter().map(|c| c.y).max().unwrap_or(0);
+        assert_eq!(
+            max_y(&plain),
+            1,
+            "the shortest path hugs the wall: {plain:?}"
+        );
+        assert!(
+            max_y(&careful) >= 2,
+            "the penalised path moves away: {careful:?}"
+        );
+        assert_eq!(obstacle_penalty(&g, 0.0, 5.0), vec![0.0; g.len()]);
+    }
+
+    /// The cells marked with one of `marks` in an ASCII picture (top line = top row), bottom row
+    /// first.
+    fn marked(pic: &str, marks: &[char]) -> Vec<Cell> {
+        let lines: Vec<&str> = pic
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty())
+            .collect();
+        let h = lines.len() as i32;
+        let mut out = Vec::new();
+        for (row, line) in lines.iter().enumerate() {
+            for (x, ch) in line.chars().enumerate() {
+                if marks.contains(&ch) {
+                    out.push(Cell::new(x as i32, h - 1 - row as i32));
+                }
+            }
+        }
+        out.sort_by_key(|c| (c.y, c.x));
+        out
+    }
+
+    /// Parses an ASCII map where `S` marks the (free) start cell, `T` a (free) target cell and
+    /// `s` an unknown start cell; the other characters are those of [`Grid::from_ascii`].
+    fn parse(pic: &str) -> (Grid, Cell, Option<Cell>) {
+        let start = marked(pic, &['S', 's'])
+            .first()
+            .copied()
+            .expect("map has a start");
+        let target = marked(pic, &['T']).first().copied();
+        let plain = pic.replace(['S', 'T'], ".").replace('s', "?");
+        (Grid::from_ascii(&plain), start, target)
+    }
+
+    /// Compares the costs from `S` with a picture of costs, one token per cell: the cost with one
+    /// decimal, or `-` where the cell is unreachable.
+    fn check_costs(pic: &str, expected: &str) {
+        let (g, start, _) = parse(pic);
+        let map = costs(&g, start);
+        let mut got = String::new();
+        for y in (0..g.height() as i32).rev() {
+            let row: Vec<String> = (0..g.width() as i32)
+                .map(|x| {
+                    map.cost(Cell::new(x, y))
+                        .map_or("-".into(), |v| format!("{v:.1}"))
+                })
+                .collect();
+            got.push_str(&row.join(" "));
+            got.push('\n');
+        }
+        let want: Vec<Vec<&str>> = expected
+            .lines()
+            .map(|l| l.split_whitespace().collect::<Vec<_>>())
+            .filter(|l| !l.is_empty())
+            .collect();
+        let have: Vec<Vec<&str>> = got
+            .lines()
+            .map(|l| l.split_whitespace().collect())
+            .collect();
+        assert_eq!(have, want, "costs:\n{got}");
+    }
+
+    /// Compares the frontiers (marked `F` in `expected`) and the nearest one (marked `N`).
+    fn check_frontiers(pic: &str, expected: &str) {
+        let (g, start, _) = parse(pic);
+        let map = costs(&g, start);
+        assert_eq!(frontiers(&g, &map), marked(expected, &['F', 'N']));
+        assert_eq!(
+            nearest_frontier(&g, &map),
+            marked(expected, &['N']).first().copied()
+        );
+    }
+
+    /// Plans from `S` to `T` and compares the waypoint within `max_cells` with `W` in `expected`
+    /// (no `W`: no waypoint).
+    fn check_waypoint(pic: &str, max_cells: f64, expected: &str) {
+        let (g, start, target) = parse(pic);
+        let map = costs(&g, start);
+        let path = path_to(&map, target.expect("map has a target")).expect("target is reachable");
+        let want = marked(expected, &['W']).first().copied();
+        assert_eq!(next_waypoint(&g, &path, max_cells), want, "path {path:?}");
+    }
+
+    #[test]
+    fn costs_in_an_empty_room() {
+        check_costs(
+            "....
+             ....
+             S...",
+            "2.0 2.4 2.8 3.8
+             1.0 1.4 2.4 3.4
+             0.0 1.0 2.0 3.0",
+        );
+    }
+
+    #[test]
+    fn costs_around_a_wall() {
+        check_costs(
+            ".....
+             .###.
+             ..S..",
+            "4.0 5.0 6.0 5.0 4.0
+             3.0 -   -   -   3.0
+             2.0 1.0 0.0 1.0 2.0",
+        );
+    }
+
+    #[test]
+    fn corners_are_not_cut() {
+        // The diagonal step from S to the upper right needs both orthogonal neighbours free.
+        check_costs(
+            "?.
+             S#",
+            "-   -
+             0.0 -",
+        );
+        check_costs(
+            "..
+             S#",
+            "1.0 2.0
+             0.0 -",
+        );
+    }
+
+    #[test]
+    fn start_cell_need_not_be_free() {
+        check_costs(
+            "...
+             .s.",
+            "1.4 1.0 1.4
+             1.0 0.0 1.0",
+        );
+        let g = Grid::from_ascii("...");
+        assert_eq!(
+            costs(&g, Cell::new(5, 0)).cost(Cell::new(0, 0)),
+            None,
+            "start off the grid"
+        );
+    }
+
+    #[test]
+    fn frontier_detection() {
+        check_frontiers(
+            "??????
+             ?..#??
+             ?S.#.?
+             ......",
+            "??????
+             ?FF#??
+             ?N.#F?
+             F....F",
+        );
+        // Unreachable free cells next to unknown are no frontiers, and the grid's edge is none.
+        check_frontiers(
+            "..#.?
+             S.#..",
+            "..#.?
+             ..#..",
+        );
+    }
+
+    #[test]
+    fn nearest_frontier_breaks_ties_by_row_then_column() {
+        check_frontiers(
+            "?.?
+             .S.
+             ?.?",
+            "?F?
+             FSF
+             ?N?",
+        );
+    }
+
+    #[test]
+    fn unreachable_target_has_no_path() {
+        let (g, start, _) = parse(
+            "S.#.
+             ..#.",
+        );
+        let map = costs(&g, start);
+        assert_eq!(path_to(&map, Cell::new(3, 0)), None);
+        assert_eq!(path_to(&map, Cell::new(2, 0)), None, "a wall");
+        assert_eq!(path_to(&map, Cell::new(9, 9)), None, "off the grid");
+        assert_eq!(path_to(&map, start), Some(vec![start]));
+    }
+
+    #[test]
+    fn path_goes_around_a_wall() {
+        let (g, start, target) = parse(
+            "....
+             .##.
+             S#T.",
+        );
+        let map = costs(&g, start);
+        let path = path_to(&map, target.expect("target")).expect("reachable");
+        assert_eq!(path.first(), Some(&start));
+        assert_eq!(path.last(), target.as_ref());
+        // No diagonal helps: each one would cut a corner of the wall.
+        assert_eq!(path.len(), 9);
+        assert_eq!(map.cost(Cell::new(2, 0)), Some(8.0));
+    }
+
+    #[test]
+    fn waypoints() {
+        // A straight corridor: as far as the step allows.
+        check_waypoint("S.....T", 3.0, "...W...");
+        check_waypoint("S.....T", 10.0, "......W");
+        // The diagonal first step (√2) does not fit into one cell's move: it is the waypoint
+        // all the same (the world clips the move to the step).
+        check_waypoint(
+            "?.T
+             .S.",
+            1.2,
+            "?.W
+             ...",
+        );
+        check_waypoint("S.....T", 0.5, ".W.....");
+        // Around a corner the waypoint stops where the straight segment would cross the wall.
+        check_waypoint(
+            "###T.
+             S....",
+            10.0,
+            "###..
+             ...W.",
+        );
+    }
+
+    /// Gives way from `S` to a robot at `O` heading for `T` (no `T`: unknown) with a clearance
+    /// of 2 cells, and compares where it goes with `A` in `expected` (no `A`: nowhere).
+    fn check_give_way(pic: &str, expected: &str) {
+        let (g, me, target) = parse(&pic.replace('O', "."));
+        let other = marked(pic, &['O'])[0];
+        let got = give_way(&g, me, other, target, 2.0).map(|(_, path)| path);
+        let want = marked(expected, &['A']).first().copied();
+        assert_eq!(
+            got.as_ref().and_then(|p| p.last().copied()),
+            want,
+            "path {got:?}"
+        );
+    }
+
+    #[test]
+    fn giving_way_in_a_corridor() {
+        // The other robot comes from the left and goes to T: the niche ahead of it, on its way
+        // but off its path, is the nearest place clear of it.
+        let niche = "##########.#####
+                     ##########.#####
+                     ......OS......T.";
+        check_give_way(
+            niche,
+            "##########A#####
+             ##########.#####
+             ................",
+        );
+        // Its target unknown: it is assumed to come on through; the same niche.
+        check_give_way(
+            &niche.replace('T', "."),
+            "##########A#####
+             ##########.#####
+             ................",
+        );
+        // Its target behind it: one step back keeps the clearance.
+        check_give_way("T.....OS........", "T.......A.......");
+        // A dead end, and the other robot's way runs to its end: nowhere to go.
+        check_give_way("......OS.T", "..........");
+        // The niche lies behind the other robot: out of reach past it.
+        check_give_way(
+            "##.#############
+             ##.#############
+             ......OS......T.",
+            "##.#############
+             ##.#############
+             ................",
+        );
+    }
+
+    #[test]
+    fn giving_way_to_a_robot_reported_far_off_the_map_walks_no_endless_line() {
+        // A bad scan (outside data) can put the other robot billions of cells away: the line
+        // of its way stays within what the grid can hold (found by the sim_plane fuzz target,
+        // which ran out of memory here).
+        let (g, me, _) = parse("......S...");
+        for other in [Cell::new(5, -1_000_000_000), Cell::new(i32::MIN, i32::MAX)] {
+            let _ = give_way(&g, me, other, None, 2.0);
+        }
+    }
+
+    fn arb_grid() -> impl Strategy<Value = Grid> {
+        (1u32..14, 1u32..14).prop_flat_map(|(w, h)| {
+            proptest::collection::vec(0u8..10, (w * h) as usize).prop_map(move |v| {
+                let mut g = Grid::new(w, h, Occ::Unknown);
+                for (c, b) in g.cells_mut().iter_mut().zip(v) {
+                    *c = match b {
+                        0..=6 => Occ::Free,
+                        7 | 8 => Occ::Occupied,
+                        _ => Occ::Unknown,
+                    };
+                }
+                g
+            })
+        })
+    }
+
+    /// Costs by Bellman–Ford relaxation, the plain definition Dijkstra must agree with.
+    fn reference_costs(g: &Grid, start: Cell) -> Vec<f64> {
+        let mut d = vec![f64::INFINITY; g.len()];
+        let Some(s) = g.index(start) else { return d };
+        d[s] = 0.0;
+        for _ in 0..g.len() {
+            for i in 0..g.len() {
+                for (n, step) in moves(g, g.cell_of(i)) {
+                    if let Some(ni) = g.index(n) {
+                        d[ni] = d[ni].min(d[i] + step);
+                    }
+                }
+            }
+        }
+        d
+    }
+
+    proptest! {
+        /// Searched over the explored part of a bigger map only, costs, paths and frontiers
+        /// are those of the search over every cell — the robot may stand anywhere, even on an
+        /// unknown cell beside the explored part.
+        #[test]
+        fn the_search_over_the_explored_part_is_the_search_over_every_cell(
+            g in crate::testutil::arb_placed_grid(), sx in 0i32..40, sy in 0i32..40
+        ) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            let mut every = g.clone();
+            every.cells_mut();
+            prop_assert_eq!(every.known_bounds(), every.whole());
+            let (part, all) = (costs(&g, start), costs(&every, start));
+            for i in 0..g.len() {
+                let c = g.cell_of(i);
+                prop_assert_eq!(part.cost(c), all.cost(c));
+                prop_assert_eq!(path_to(&part, c), path_to(&all, c));
+            }
+            prop_assert_eq!(frontiers(&g, &part), frontiers(&every, &all));
+        }
+
+        /// Stopped at a target, the search reports exactly the full search's costs up to the
+        /// target's and the same paths — the target's among them — and nothing beyond.
+        #[test]
+        fn the_search_until_a_target_is_the_full_search_as_far_as_it_goes(
+            g in arb_grid(), sx in 0i32..14, sy in 0i32..14, tx in 0i32..14, ty in 0i32..14
+        ) {
+            let cell = |x: i32, y: i32| Cell::new(x % g.width() as i32, y % g.height() as i32);
+            let (start, target) = (cell(sx, sy), cell(tx, ty));
+            let (until, all) = (costs_until(&g, start, None, target), costs(&g, start));
+            let reach = all.cost(target);
+            prop_assert_eq!(until.cost(target), reach);
+            prop_assert_eq!(until.is_complete(), reach.is_none());
+            for i in 0..g.len() {
+                let c = g.cell_of(i);
+                match (until.cost(c), all.cost(c)) {
+                    (Some(u), a) => {
+                        prop_assert_eq!(Some(u), a);
+                        prop_assert_eq!(path_to(&until, c), path_to(&all, c));
+                        prop_assert_eq!(is_frontier(&g, &until, c), is_frontier(&g, &all, c));
+                    }
+                    (None, Some(a)) => prop_assert!(reach.is_some_and(|r| a > r), "{:?} at {} lost", c, a),
+                    (None, None) => {}
+                }
+            }
+        }
+
+        #[test]
+        fn dijkstra_agrees_with_relaxation(g in arb_grid(), sx in 0i32..14, sy in 0i32..14) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            let map = costs(&g, start);
+            let want = reference_costs(&g, start);
+            for (i, w) in want.iter().enumerate() {
+                match map.cost(g.cell_of(i)) {
+                    Some(c) => prop_assert!((c - w).abs() < 1e-9),
+                    None => prop_assert!(w.is_infinite()),
+                }
+            }
+        }
+
+        #[test]
+        fn giving_way_keeps_clear(
+            g in arb_grid(),
+            cells in proptest::collection::vec((0i32..14, 0i32..14), 3),
+            known in any::<bool>(),
+            clearance in 0.5f64..3.0,
+        ) {
+            let cell = |(x, y): (i32, i32)| Cell::new(x % g.width() as i32, y % g.height() as i32);
+            let (me, other, target) = (cell(cells[0]), cell(cells[1]), cell(cells[2]));
+            if let Some((blocked, path)) = give_way(&g, me, other, known.then_some(target), clearance) {
+                prop_assert_eq!(path.first(), Some(&me));
+                for pair in path.windows(2) {
+                    prop_assert!(moves(&blocked, pair[0]).any(|(n, _)| n == pair[1]));
+                }
+                let aside = *path.last().unwrap_or(&me);
+                let far = |a: Cell, b: Cell| f64::from(a.x - b.x).hypot(f64::from(a.y - b.y)) >= clearance;
+                prop_assert!(far(aside, other), "{:?} is too near the other robot", aside);
+                if let Some(way) = known.then(|| path_to(&costs(&g, other), target)).flatten() {
+                    prop_assert!(way.iter().all(|&w| far(aside, w)), "{:?} is in the way", aside);
+                }
+            }
+        }
+
+        #[test]
+        fn paths_and_waypoints_are_sound(
+            g in arb_grid(),
+            sx in 0i32..14,
+            sy in 0i32..14,
+            pick in any::<prop::sample::Index>(),
+            max_cells in 0.0f64..12.0,
+        ) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            let map = costs(&g, start);
+            let reachable: Vec<Cell> = (0..g.len()).map(|i| g.cell_of(i)).filter(|&c| map.cost(c).is_some()).collect();
+            let target = reachable[pick.index(reachable.len())];
+            let path = path_to(&map, target).expect("reachable cells have paths");
+            prop_assert_eq!(path.first(), Some(&start));
+            prop_assert_eq!(path.last(), Some(&target));
+            let mut total = 0.0;
+            for pair in path.windows(2) {
+                let (a, b) = (pair[0], pair[1]);
+                let step = moves(&g, a).find(|&(n, _)| n == b);
+                prop_assert!(step.is_some(), "{:?} -> {:?} is no legal move", a, b);
+                total += step.map_or(0.0, |(_, s)| s);
+            }
+            prop_assert!((total - map.cost(target).unwrap_or(f64::NAN)).abs() < 1e-9);
+
+            let waypoint = next_waypoint(&g, &path, max_cells);
+            let first_step = path.get(1).map(|b| f64::from(b.x - start.x).hypot(f64::from(b.y - start.y)));
+            if let (Some(w), Some(step)) = (waypoint, first_step.filter(|&d| d > max_cells)) {
+                prop_assert_eq!(Some(w), path.get(1).copied(), "a first step of {} > {} cells", step, max_cells);
+            } else if let Some(w) = waypoint {
+                prop_assert!(path[1..].contains(&w));
+                prop_assert!(f64::from(w.x - start.x).hypot(f64::from(w.y - start.y)) <= max_cells);
+                let line = supercover(
+                    (f64::from(start.x) + 0.5, f64::from(start.y) + 0.5),
+                    (f64::from(w.x) + 0.5, f64::from(w.y) + 0.5),
+                );
+                for c in line {
+                    prop_assert!(c == start || g.get(c) == Occ::Free, "{:?} on the segment is not free", c);
+                }
+            } else {
+                prop_assert!(path.len() < 2, "a path of two cells or more always has a waypoint");
+            }
+        }
+    }
+}

@@ -1,0 +1,119 @@
+//! `swarm run` from its flags to its outcome: the four stages in order.
+
+use std::time::Instant;
+
+use crate::run::args::{Outcome, RunArgs};
+use crate::run::{finish, follow, prepare, spawn};
+
+use crate::process::supervise::Supervisor;
+use crate::run::progress::Progress;
+use crate::rundir::summary::{run_digest, write_summary};
+use crate::score::evaluate::Evaluator;
+
+/// Runs one scenario to the end. The caller turns the outcome into an exit code.
+///
+/// Processes: the world-server (sim-plane router), netem (one proxy per robot pair, HTTP API
+/// on a free port written to `netem.addr`), and one robot-agent per robot.
+pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
+    let started = Instant::now();
+    let plan = prepare::prepare(&args)?;
+    let mut progress = Progress::new(args.quiet);
+    let mut run = spawn::start(&plan).await?;
+    let eval = Evaluator::new(
+        run.truth_grid.clone(),
+        &run.reachable,
+        plan.scenario.done_pct,
+    )
+    .with_base(plan.scenario.base_id())
+    .with_team(plan.robots());
+    if !args.quiet {
+        eprintln!(
+            "swarm run: {} robots on {} ({} reachable free cells), run directory {}, netem API http://{}",
+            plan.robots(),
+            plan.name,
+            eval.reachable_cells(),
+            plan.dir.display(),
+            plan.ports.http_addr()
+        );
+    }
+    let lockstep = plan.scenario.clock.mode == proto::scenario::ClockMode::Lockstep;
+    let sup = Supervisor::new(
+        plan.scenario.supervise.clone(),
+        plan.scenario.process_faults()?,
+    );
+    let mut rec = follow::Record::new(eval, lockstep, sup);
+    let mut log = crate::rundir::steplog::StepLogWriter::create(
+        &plan.dir,
+        run.truth.map,
+        &run.truth_grid,
+        plan.robots(),
+        plan.scenario.clock.step_seconds,
+    )?;
+    let viewer = match args.view {
+        Some(addr) => {
+            let api = crate::view::server::NetemApi {
+                addr: plan.ports.http,
+                token: if plan.api_token() {
+                    Some(
+                        std::fs::read_to_string(plan.dir.join("netem.token"))?
+                            .trim()
+                            .to_string(),
+                    )
+                } else {
+                    None
+                },
+            };
+            let (viewer, feed) =
+                crate::view::server::live(addr, log.header().clone(), api, run.sim.session.clone())
+                    .await?;
+            std::fs::write(plan.dir.join("view.addr"), format!("{}\n", viewer.addr))?;
+            progress.event(&format!("swarm run: viewer at http://{}/", viewer.addr));
+            let f = feed.clone();
+            log.tee = Some(Box::new(move |r| f.push(r.clone())));
+            Some((viewer, feed))
+        }
+        None => None,
+    };
+    rec.log = Some(log);
+    let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
+    let (truth, info) = (run.truth_grid.clone(), run.truth.map);
+    let (processes, memory) = finish::stop(run, &mut rec, &mut progress).await;
+    for e in spawn::clean_hosts(&plan) {
+        progress.event(&format!("swarm run: {e}"));
+    }
+    rec.truncate();
+    if let Some(Err(e)) = rec
+        .log
+        .take()
+        .map(crate::rundir::steplog::StepLogWriter::finish)
+    {
+        progress.event(&format!("swarm run: {e:#}"));
+    }
+    if let Some((viewer, feed)) = viewer {
+        feed.finish();
+        let st = feed.stats();
+        if let Some(fps) = st.per_second() {
+            progress.event(&format!(
+                "swarm run: the viewer sent {} frames to its pages ({fps:.1} a second while one \
+                 was open); a page that fell behind skipped {}",
+                st.sent, st.skipped
+            ));
+        }
+        viewer.stop();
+    }
+    let up = rec.links.up_by_step();
+    finish::score_contact(&plan, &mut rec, &up);
+    finish::score_comm_level(&plan, &mut rec, &up);
+    let mut summary = finish::summary(&plan, &rec, &up, exit_reason, started);
+    finish::write_tables(&plan.dir, &rec)?;
+    crate::rundir::tables::write_rows(&plan.dir.join("processes.csv"), processes)?;
+    crate::rundir::tables::write_rows(&plan.dir.join("memory.csv"), memory)?;
+    finish::write_pictures(&plan.dir, (&truth, info), &rec, &mut progress)?;
+    summary.run_digest = run_digest(&plan.dir)?;
+    summary.deterministic = summary.nondeterministic.is_empty();
+    write_summary(&plan.dir, &summary)?;
+    Ok(Outcome {
+        dir: plan.dir,
+        summary,
+    })
+}

@@ -1,0 +1,12 @@
+//! The run directory: a stable, documented schema users script against (docs/run-directory.md).
+//! Names of files and fields do not change without a version bump
+//! ([`summary::SCHEMA_VERSION`]).
+
+/// PNG pictures of grids and trajectories.
+pub mod render;
+/// The run's step log (`steps.log`): per step, robots, links and grid changes, for replay.
+pub mod steplog;
+/// `summary.json`, typed.
+pub mod summary;
+/// The CSV tables as serde rows, and grids as PGM.
+pub mod tables;

@@ -1,0 +1,276 @@
+//! `summary.json`: what a run ended with, typed ([`Summary`]); written by the launcher and read
+//! back through the same type by every reader (chaos checker, sweep results, tests).
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::Context;
+use proto::exit::ExitReason;
+use proto::msg::{RobotId, Step, Traffic};
+use serde::{Deserialize, Serialize};
+
+use crate::score::evaluate::THRESHOLDS;
+
+/// Version of the run-directory schema, written into `summary.json`.
+pub const SCHEMA_VERSION: u32 = 6;
+
+/// `summary.json`.
+#[derive(Debug, Serialize)]
+pub struct Summary {
+    pub schema_version: u32,
+    pub complete: bool,
+    pub exit_reason: ExitReason,
+    pub robots: u16,
+    pub robots_alive_at_end: usize,
+    pub steps: u32,
+    pub wall_seconds: f64,
+    pub exploration_steps: Option<u32>,
+    pub coverage_steps: BTreeMap<String, Option<u32>>,
+    pub best_coverage_pct: f64,
+    pub reachable_cells: usize,
+    /// Bytes netem forwarded between robots (both directions, all links): the radio plane's
+    /// real TCP payload, zenoh's framing included.
+    pub bytes_wire_total: Option<u64>,
+    pub bytes_payload_total: u64,
+    pub bytes_by_type: BTreeMap<String, u64>,
+    /// Thesis eq. 6.1, the mean over the robots of their own approximation's e_avg; `null`
+    /// unless `exchange.mode = "polygon"`.
+    pub approx_error_avg: Option<f64>,
+    /// Thesis Tables 6.2–6.6: each package type's share of the polygon exchange's payload bytes,
+    /// in percent, with the vertex / object / overhead sums; `null` without polygon traffic.
+    pub traffic_shares_pct: Option<BTreeMap<String, f64>>,
+    /// Per robot, the splitting frequency s it ended with (polygon exchange; thesis §5.3).
+    pub splits_per_step_final: BTreeMap<String, Option<f64>>,
+    /// What waited for links: the largest backlog (bytes of log entries a neighbour lacked after
+    /// a robot's sending) over the run, and its mean over robot-steps that had neighbours.
+    pub backlog_max_bytes: u64,
+    pub backlog_mean_bytes: f64,
+    /// Per robot, per owner: how many records of the owner's log the robot held at the end.
+    pub logs_held: BTreeMap<String, BTreeMap<String, u32>>,
+    pub collisions: u64,
+    pub distance_m: Vec<f64>,
+    pub radio_decode_errors: u64,
+    /// How many steps links needed to reconnect after coming back into range or being restored.
+    pub reconnect: ReconnectSummary,
+    /// Team awareness (de Hoog et al. 2010, Fig. 5); `null` without a base station.
+    pub awareness: Option<AwarenessSummary>,
+    /// Rooker and Birk 2005, Fig. 6: the communication level over the steps (`metrics.csv`'s
+    /// `comm_level_pct`), its lowest and its mean.
+    pub comm_level_pct: Option<CommLevel>,
+    /// `pack`: the leaders' judgements of their links against netem's; `null` for the others.
+    pub link_judgement: Option<crate::score::connectivity::LinkJudgement>,
+    pub failed_processes: Vec<String>,
+    /// What was done to the processes — the scenario's process faults and supervised restarts —
+    /// in order ([`crate::process::supervise::Event`]).
+    pub process_events: Vec<crate::process::supervise::Event>,
+    /// Per robot life that ended before the run did: how much of its own log the team still
+    /// holds at the end, and what was lost with it (what only it held).
+    pub lost_logs: Vec<LostLog>,
+    /// {owner: ops}: the most of each owner's log a node other than its writer reported holding
+    /// at any step (what the team had; a checker compares it with `logs_held` at the end).
+    pub logs_held_by_others: BTreeMap<String, u32>,
+    /// {node: {owner: ops}}: like `logs_held`, the most each node (in its last life) held of
+    /// each owner's log at any step; a node that holds less at the end forgot something.
+    pub logs_held_max: BTreeMap<String, BTreeMap<String, u32>>,
+    /// The nodes (robots, then the base station) alive at the end.
+    pub nodes_alive_at_end: Vec<RobotId>,
+    /// Lockstep: whether nothing but the scenario decided the run. `false` in realtime mode, and
+    /// when a wall-clock timeout decided something or a process failed; `nondeterministic` says
+    /// what and where.
+    pub deterministic: bool,
+    pub nondeterministic: Vec<String>,
+    /// sha256 of the run's outputs ([`DIGESTED`] and `grids/`): two runs with the same digest
+    /// wrote the same tables and grids, byte for byte.
+    pub run_digest: String,
+}
+
+/// One ended life of a robot in `summary.json`'s `lost_logs`: its own log as it last reported
+/// it, and the most of it any node alive at the end holds (the team holds prefixes of a log, so
+/// what is beyond the longest one is lost). Bytes are the ops' compact encoding (polygon
+/// exchange; `null` for the other modes).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LostLog {
+    pub robot: RobotId,
+    pub life: u16,
+    pub ops_written: u32,
+    pub ops_held: u32,
+    pub ops_lost: u32,
+    pub bytes_written: Option<u64>,
+    pub bytes_lost: Option<u64>,
+}
+
+/// `awareness` in `summary.json`: the team-awareness metrics of de Hoog, Cameron and Visser
+/// (TAROS 2010, Fig. 5), over the run. Step means weigh every step the same.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct AwarenessSummary {
+    /// Fig. 5b: the share of the reachable free cells the base station knew at its last step.
+    pub base_known_pct: Option<f64>,
+    /// Its mean over the steps.
+    pub base_known_pct_mean: Option<f64>,
+    /// Fig. 5c: the mean over steps of the robots' mean `shared_pct`.
+    pub shared_pct_mean: Option<f64>,
+    /// Fig. 5d: the mean over steps of the robots' mean `steps_since_base`, and its largest
+    /// value.
+    pub steps_since_base_mean: Option<f64>,
+    pub steps_since_base_max: Option<Step>,
+    /// Fig. 5a: the mean over steps of `team_pct` (what the team knows together).
+    pub team_pct_mean: Option<f64>,
+}
+
+/// `comm_level_pct` in `summary.json`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct CommLevel {
+    pub min: f64,
+    pub mean: f64,
+}
+
+/// The run directory's tables that a run's digest covers (none of them holds a wall-clock
+/// field), with every grid in `grids/`.
+pub const DIGESTED: [&str; 5] = [
+    "links.csv",
+    "metrics.csv",
+    "traffic_by_type.csv",
+    "saves.csv",
+    "views.csv",
+];
+
+/// sha256 over the [`DIGESTED`] tables and `grids/*.pgm`, each as its name, length and bytes, in
+/// a fixed order (a missing table counts as empty).
+pub fn run_digest(dir: &Path) -> anyhow::Result<String> {
+    use sha2::{Digest, Sha256};
+    let mut names: Vec<String> = DIGESTED.iter().map(|s| s.to_string()).collect();
+    if let Ok(rd) = std::fs::read_dir(dir.join("grids")) {
+        let mut grids: Vec<String> = rd
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".pgm"))
+            .map(|n| format!("grids/{n}"))
+            .collect();
+        grids.sort();
+        names.extend(grids);
+    }
+    let mut h = Sha256::new();
+    for name in &names {
+        let bytes = match std::fs::read(dir.join(name)) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+            Err(e) => return Err(anyhow::anyhow!("reading {name} for the run digest: {e}")),
+        };
+        h.update((name.len() as u64).to_le_bytes());
+        h.update(name.as_bytes());
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(&bytes);
+    }
+    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+pub fn coverage_steps(reached: &BTreeMap<u32, u32>) -> BTreeMap<String, Option<u32>> {
+    THRESHOLDS
+        .iter()
+        .map(|t| (t.to_string(), reached.get(t).copied()))
+        .collect()
+}
+
+/// The groups of Tables 6.2–6.6 and their members.
+const SHARE_GROUPS: [(&str, [&str; 3]); 3] = [
+    ("vertex", ["ins", "rep", "del"]),
+    ("object", ["em", "chg", "rm"]),
+    ("overhead", ["conn", "targ", "save"]),
+];
+
+/// Each package type's share of the polygon exchange's bytes (`by_type` as in `summary.json`),
+/// with the group sums, in percent; `None` if no vertex or object bytes were sent.
+pub fn traffic_shares(by_type: &BTreeMap<String, u64>) -> Option<BTreeMap<String, f64>> {
+    let get = |k: &str| by_type.get(k).copied().unwrap_or(0) as f64;
+    let polygon: f64 = SHARE_GROUPS[..2]
+        .iter()
+        .flat_map(|(_, m)| m.iter())
+        .map(|k| get(k))
+        .sum();
+    if polygon == 0.0 {
+        return None;
+    }
+    let total: f64 = SHARE_GROUPS
+        .iter()
+        .flat_map(|(_, m)| m.iter())
+        .map(|k| get(k))
+        .sum();
+    let mut out = BTreeMap::new();
+    for (group, members) in SHARE_GROUPS {
+        let mut sum = 0.0;
+        for k in members {
+            let pct = 100.0 * get(k) / total;
+            sum += pct;
+            out.insert(k.to_string(), pct);
+        }
+        out.insert(group.to_string(), sum);
+    }
+    Some(out)
+}
+
+pub fn bytes_by_type(per_robot: &[Vec<u64>]) -> BTreeMap<String, u64> {
+    Traffic::ALL
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            (
+                t.name().to_string(),
+                per_robot
+                    .iter()
+                    .map(|v| v.get(i).copied().unwrap_or(0))
+                    .sum(),
+            )
+        })
+        .collect()
+}
+
+pub fn write_summary(dir: &Path, s: &Summary) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(s)?;
+    std::fs::write(dir.join("summary.json"), text + "\n").context("writing summary.json")
+}
+
+/// Reconnection after a link re-enters range (or is restored): for every time a link that had
+/// been connected went down and came back up, the steps from its first step up again to the
+/// first step whose end finds a connection through netem open (0: reconnected within the step).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Reconnects {
+    pub steps: Vec<Step>,
+    /// The link went down again before a connection was open.
+    pub lost_before_reconnect: usize,
+    /// Still waiting when the run ended.
+    pub pending_at_end: usize,
+}
+
+/// `reconnect` in `summary.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReconnectSummary {
+    /// Down-then-up events that reconnected.
+    pub events: usize,
+    pub mean_steps: Option<f64>,
+    pub max_steps: Option<Step>,
+    /// Steps → events, e.g. {"0": 40, "1": 3}.
+    pub histogram: BTreeMap<String, usize>,
+    pub lost_before_reconnect: usize,
+    pub pending_at_end: usize,
+}
+
+impl From<&Reconnects> for ReconnectSummary {
+    fn from(r: &Reconnects) -> ReconnectSummary {
+        let mut histogram: BTreeMap<Step, usize> = BTreeMap::new();
+        for &s in &r.steps {
+            *histogram.entry(s).or_default() += 1;
+        }
+        ReconnectSummary {
+            events: r.steps.len(),
+            mean_steps: (!r.steps.is_empty())
+                .then(|| r.steps.iter().map(|&s| f64::from(s)).sum::<f64>() / r.steps.len() as f64),
+            max_steps: r.steps.iter().copied().max(),
+            histogram: histogram
+                .into_iter()
+                .map(|(k, v)| (k.to_string(), v))
+                .collect(),
+            lost_before_reconnect: r.lost_before_reconnect,
+            pending_at_end: r.pending_at_end,
+        }
+    }
+}

@@ -1,0 +1,548 @@
+//! Team awareness: how much the team knows together, how much of it is shared, and how long
+//! robots have been out of touch with the base station — three of the four metrics of de Hoog,
+//! Cameron and Visser, *Autonomous Multi-Robot Exploration in Communication-Limited
+//! Environments* (TAROS 2010, Fig. 5; the fourth, the share known at the base station, is the
+//! base station's own coverage, which the evaluator already gives).
+//!
+//! * **Team coverage** (Fig. 5a): the share of the truth's reachable free cells that at least
+//!   one robot knows, |K_1 ∪ … ∪ K_N| — from the same per-cell holder counts, a counter of the
+//!   cells with a holder ([`SharedKnowledge::known_by_anyone`]).
+//! * **Shared knowledge** (Fig. 5c): for robot r with known space K_r, the share of K_r that
+//!   every robot of the team knows, |K_1 ∩ … ∩ K_N| / |K_r| × 100 (100 when K_r is empty). K_q
+//!   is what the evaluator counts as coverage: the truth's reachable free cells that robot q's
+//!   planning grid has free or occupied ([`known_cells`]). [`SharedKnowledge`] keeps, per cell,
+//!   how many robots know it, so that replacing one robot's grid is one pass over the cells and
+//!   the intersection's size is a counter — never a comparison of every pair of robots.
+//! * **Contact with the base station** (Fig. 5d): steps since a robot last had contact with
+//!   the base station, directly or carried by robots in between ([`steps_since_base`]). Contact
+//!   is transitive within a step (a chain of up links is a multi-hop route) and carried over
+//!   time by mobile relays: a relay that touched the base at step 100 and meets the explorer at
+//!   step 150 brings the explorer the base's state of step 100.
+
+use std::collections::BTreeMap;
+
+use proto::grid::{Cell, KnownPart, Occ, Rect};
+use proto::msg::{RobotId, Step};
+
+use crate::score::connectivity::UpLinks;
+
+/// The cells a robot knows (the evaluator's notion of coverage: reachable, and free or occupied
+/// in its planning grid), kept over the rectangle of its grid's known part — it knows none
+/// beyond — so that taking a robot's grid costs that part, not the map.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Known {
+    /// The grid's width (cells are numbered row-major over the whole grid).
+    width: u32,
+    rect: Option<Rect>,
+    /// Per cell of `rect`, row-major from its bottom row.
+    flags: Vec<bool>,
+    count: usize,
+}
+
+impl Known {
+    /// The flags of row `y` over the columns of `over` (which holds `self.rect`), as a row of
+    /// `over.width()` flags; `None` when the row knows nothing (outside the rectangle).
+    fn row(&self, y: i32, over: Rect) -> Option<Vec<bool>> {
+        let r = self.rect.filter(|r| (r.min.y..=r.max.y).contains(&y))?;
+        let w = r.width() as usize;
+        let k = (y - r.min.y) as usize * w;
+        let mut row = vec![false; over.width() as usize];
+        let at = (r.min.x - over.min.x) as usize;
+        row[at..at + w].copy_from_slice(&self.flags[k..k + w]);
+        Some(row)
+    }
+
+    /// How many cells are known.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    /// One flag per cell of a grid `width` cells wide, every cell (for tests and small teams).
+    pub fn from_flags(width: u32, flags: &[bool]) -> Known {
+        let height = flags.len().div_ceil(width.max(1) as usize) as i32;
+        let rect = (width > 0 && height > 0).then(|| Rect {
+            min: Cell::new(0, 0),
+            max: Cell::new(width as i32 - 1, height - 1),
+        });
+        let mut all = flags.to_vec();
+        all.resize(rect.map_or(0, |r| r.area()), false);
+        Known {
+            width,
+            rect,
+            count: all.iter().filter(|&&k| k).count(),
+            flags: all,
+        }
+    }
+}
+
+/// The cells robot `grid` knows: reachable (`reachable[i]`, row-major over the truth) and free or
+/// occupied in its grid. A grid of another size knows nothing beyond the overlap.
+pub fn known_cells(grid: &KnownPart, width: u32, reachable: &[bool]) -> Known {
+    let mut flags = Vec::new();
+    if let Some(r) = grid.rect() {
+        flags.reserve(r.area());
+        for y in r.min.y..=r.max.y {
+            // The row of `reachable` under the rectangle's row (false beyond its end).
+            let start = (y as usize * width as usize + r.min.x as usize).min(reachable.len());
+            let end = (start + r.width() as usize).min(reachable.len());
+            let under = reachable[start..end]
+                .iter()
+                .chain(std::iter::repeat(&false));
+            let inside = (r.min.x..=r.max.x).map(|x| x < width as i32);
+            for ((&seen, &reach), inside) in grid.row(y).iter().zip(under).zip(inside) {
+                flags.push(seen != Occ::Unknown && reach && inside);
+            }
+        }
+    }
+    Known {
+        width,
+        rect: grid.rect(),
+        count: flags.iter().filter(|&&k| k).count(),
+        flags,
+    }
+}
+
+/// What every robot of a team knows, kept up to date one robot's grid at a time.
+#[derive(Clone, Debug, Default)]
+pub struct SharedKnowledge {
+    /// Per robot of the team (ids `0..team`): the cells it knows (none until its first grid).
+    known: Vec<Known>,
+    /// Per cell, how many robots know it.
+    holders: Vec<u16>,
+    /// Cells every robot knows: |K_1 ∩ … ∩ K_N|.
+    common: usize,
+    /// Cells some robot knows: |K_1 ∪ … ∪ K_N|.
+    anyone: usize,
+}
+
+impl SharedKnowledge {
+    /// A team of `team` robots (ids `0..team`) over `cells` cells, none known yet.
+    pub fn new(team: u16, cells: usize) -> SharedKnowledge {
+        SharedKnowledge {
+            known: vec![Known::default(); usize::from(team)],
+            holders: vec![0; cells],
+            common: 0,
+            anyone: 0,
+        }
+    }
+
+    fn team(&self) -> usize {
+        self.known.len()
+    }
+
+    /// Robot `robot` now knows `known` (as [`known_cells`] gives), instead of what it knew: one
+    /// pass over the cells either knows about. A robot outside the team (the base station) is
+    /// ignored; cells beyond `cells` (a grid of another size) are left out.
+    pub fn update(&mut self, robot: RobotId, known: Known) {
+        let team = self.team();
+        let Some(before) = self.known.get_mut(usize::from(robot)) else {
+            return;
+        };
+        let before = std::mem::take(before);
+        let width = known.width.max(before.width) as usize;
+        let region = Rect::union_of(before.rect, known.rect);
+        if let Some(r) = region {
+            for y in r.min.y..=r.max.y {
+                let (was_row, now_row) = (before.row(y, r), known.row(y, r));
+                if was_row.is_none() && now_row.is_none() {
+                    continue;
+                }
+                for (k, x) in (r.min.x..=r.max.x).enumerate() {
+                    let was = was_row.as_ref().is_some_and(|f| f[k]);
+                    let now = now_row.as_ref().is_some_and(|f| f[k]);
+                    if was != now {
+                        self.changed(y as usize * width + x as usize, now, team);
+                    }
+                }
+            }
+        }
+        self.known[usize::from(robot)] = known;
+    }
+
+    /// Cell `i` gained (`now`) or lost a holder.
+    fn changed(&mut self, i: usize, now: bool, team: usize) {
+        let Some(h) = self.holders.get_mut(i) else {
+            return;
+        };
+        let everyone_before = usize::from(*h) == team;
+        if now {
+            *h += 1;
+        } else {
+            *h -= 1;
+        }
+        let everyone_now = usize::from(*h) == team;
+        match (everyone_before, everyone_now) {
+            (false, true) => self.common += 1,
+            (true, false) => self.common -= 1,
+            _ => {}
+        }
+        // A cell joins the union with its first holder and leaves it with its last.
+        match (now, *h) {
+            (true, 1) => self.anyone += 1,
+            (false, 0) => self.anyone -= 1,
+            _ => {}
+        }
+    }
+
+    /// |K_1 ∪ … ∪ K_N|: the cells at least one robot of the team knows.
+    pub fn known_by_anyone(&self) -> usize {
+        self.anyone
+    }
+
+    /// Whether `robot` is one of the team (the base station is not).
+    pub fn is_member(&self, robot: RobotId) -> bool {
+        usize::from(robot) < self.team()
+    }
+
+    /// |K_1 ∩ … ∩ K_N| / |K_robot| × 100: the share of what `robot` knows that every robot
+    /// knows; 100 when it knows nothing (nothing of it is unshared). `None` outside the team.
+    pub fn share_pct(&self, robot: RobotId) -> Option<f64> {
+        let count = self.known.get(usize::from(robot))?.count;
+        Some(if count == 0 {
+            100.0
+        } else {
+            100.0 * self.common as f64 / count as f64
+        })
+    }
+}
+
+impl SharedKnowledge {
+    /// The team of one step's known sets over `cells` cells: robot i knows `known[i]`.
+    pub fn of(known: &[Known], cells: usize) -> SharedKnowledge {
+        let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
+        let mut s = SharedKnowledge::new(team, cells);
+        for (r, k) in (0..team).zip(known) {
+            s.update(r, k.clone());
+        }
+        s
+    }
+}
+
+/// Each robot's share of its known space that every robot knows (Fig. 5c), for one step's known
+/// sets (robot i knows `known[i]`).
+pub fn shared_pcts(known: &[Known], cells: usize) -> Vec<f64> {
+    let s = SharedKnowledge::of(known, cells);
+    let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
+    (0..team).filter_map(|r| s.share_pct(r)).collect()
+}
+
+/// Per step `0..=last`, every node's steps since its last contact with the base station
+/// (Fig. 5d): `[s][node]`.
+///
+/// Every node had contact at step 0 (the run starts at the base). At step s the base station's
+/// own contact is s; the nodes that links up at s connect, directly or through others, share
+/// the latest contact any of them has. A step without links carries nothing. Node ids from
+/// `nodes` on (and a `base` outside them) are ignored.
+pub fn steps_since_base(nodes: usize, base: RobotId, up: &UpLinks, last: Step) -> Vec<Vec<Step>> {
+    let mut contact: Vec<Step> = vec![0; nodes];
+    let mut out = Vec::with_capacity(last as usize + 1);
+    for s in 0..=last {
+        if let Some(c) = contact.get_mut(usize::from(base)) {
+            *c = s;
+        }
+        let links = up.get(&s).map_or(&[][..], Vec::as_slice);
+        carry_contact(&mut contact, links);
+        out.push(contact.iter().map(|&c| s - c).collect());
+    }
+    out
+}
+
+/// Every node takes the latest contact of the component the links put it in.
+fn carry_contact(contact: &mut [Step], links: &[(RobotId, RobotId)]) {
+    let roots = crate::score::connectivity::components(contact.len(), links);
+    let mut latest: BTreeMap<usize, Step> = BTreeMap::new();
+    for (&root, &c) in roots.iter().zip(contact.iter()) {
+        let l = latest.entry(root).or_insert(c);
+        *l = (*l).max(c);
+    }
+    for (c, root) in contact.iter_mut().zip(&roots) {
+        if let Some(&l) = latest.get(root) {
+            *c = l;
+        }
+    }
+}
+
+/// The mean over steps of each step's mean of `values` (step, value): every step weighs the
+/// same however many robots reported it. `None` without values.
+pub fn mean_of_step_means(values: impl IntoIterator<Item = (Step, f64)>) -> Option<f64> {
+    let mut by_step: BTreeMap<Step, (f64, u32)> = BTreeMap::new();
+    for (s, v) in values {
+        let e = by_step.entry(s).or_default();
+        *e = (e.0 + v, e.1 + 1);
+    }
+    let n = by_step.len();
+    (n > 0).then(|| {
+        by_step
+            .values()
+            .map(|&(sum, k)| sum / f64::from(k))
+            .sum::<f64>()
+            / n as f64
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use proto::grid::Grid;
+
+    /// Known sets of hand-drawn grids over an all-reachable 4×1 world.
+    fn known(pics: &[&str]) -> Vec<Known> {
+        pics.iter()
+            .map(|p| known_cells(&KnownPart::of(&Grid::from_ascii(p)), 4, &[true; 4]))
+            .collect()
+    }
+
+    fn flags(f: &[bool]) -> Known {
+        Known::from_flags(4, f)
+    }
+
+    #[test]
+    fn disjoint_knowledge_is_not_shared() {
+        assert_eq!(shared_pcts(&known(&["..??", "??.#"]), 4), [0.0, 0.0]);
+    }
+
+    #[test]
+    fn overlapping_knowledge_is_shared_in_part() {
+        // Robot 0 knows 3 cells, robot 1 knows 2, both know 1 (occupied counts as known).
+        assert_eq!(
+            shared_pcts(&known(&["..#?", "??#."]), 4),
+            [100.0 / 3.0, 50.0]
+        );
+    }
+
+    #[test]
+    fn identical_knowledge_is_all_shared() {
+        assert_eq!(shared_pcts(&known(&[".#.?", ".#.?"]), 4), [100.0, 100.0]);
+    }
+
+    #[test]
+    fn a_robot_that_knows_nothing_has_nothing_unshared() {
+        assert_eq!(shared_pcts(&known(&["????", "...."]), 4), [100.0, 0.0]);
+    }
+
+    #[test]
+    fn a_cell_is_in_the_union_once_and_leaves_it_with_its_last_holder() {
+        let mut s = SharedKnowledge::new(3, 4);
+        s.update(0, flags(&[true, true, false, false]));
+        s.update(1, flags(&[true, false, true, false]));
+        assert_eq!(s.known_by_anyone(), 3, "cell 0 counts once");
+        s.update(0, flags(&[false, false, false, false]));
+        assert_eq!(
+            s.known_by_anyone(),
+            2,
+            "cell 0 still has robot 1, cell 1 had only robot 0"
+        );
+        s.update(1, flags(&[false; 4]));
+        assert_eq!(s.known_by_anyone(), 0);
+        s.update(3, flags(&[true; 4]));
+        assert_eq!(s.known_by_anyone(), 0, "the base station is no member");
+        assert!(s.is_member(2) && !s.is_member(3));
+    }
+
+    #[test]
+    fn unreachable_cells_are_not_known() {
+        let k = known_cells(
+            &KnownPart::of(&Grid::from_ascii("..#.")),
+            4,
+            &[true, false, true, false],
+        );
+        assert_eq!(k, flags(&[true, false, true, false]));
+    }
+
+    #[test]
+    fn a_new_grid_replaces_what_a_robot_knew_and_the_base_station_is_no_member() {
+        let mut s = SharedKnowledge::new(2, 4);
+        s.update(0, flags(&[true, true, false, false]));
+        s.update(1, flags(&[true, false, false, false]));
+        assert_eq!(s.share_pct(0), Some(50.0));
+        s.update(1, flags(&[true, true, true, false]));
+        assert_eq!(
+            (s.share_pct(0), s.share_pct(1)),
+            (Some(100.0), Some(200.0 / 3.0))
+        );
+        s.update(0, flags(&[false, false, false, true]));
+        assert_eq!(s.share_pct(0), Some(0.0));
+        s.update(2, flags(&[true; 4]));
+        assert_eq!(s.share_pct(2), None);
+    }
+
+    /// (step, [(a, b)]) links up, as `links.csv` would list them.
+    fn up(links: &[(Step, &[(RobotId, RobotId)])]) -> UpLinks {
+        links.iter().map(|&(s, l)| (s, l.to_vec())).collect()
+    }
+
+    #[test]
+    fn direct_contact_resets_the_count() {
+        // Robot 0 and the base (node 1) linked at steps 2 and 5 only.
+        let since = steps_since_base(2, 1, &up(&[(2, &[(0, 1)]), (5, &[(0, 1)])]), 6);
+        let robot: Vec<Step> = since.iter().map(|n| n[0]).collect();
+        assert_eq!(robot, [0, 1, 0, 1, 2, 0, 1]);
+        assert!(
+            since.iter().all(|n| n[1] == 0),
+            "the base is always in touch"
+        );
+    }
+
+    #[test]
+    fn a_relay_carries_the_contact_it_had() {
+        // Explorer 0, relay 1, base 2: the relay meets the base at step 3, the explorer at 6.
+        let since = steps_since_base(3, 2, &up(&[(3, &[(1, 2)]), (6, &[(0, 1)])]), 7);
+        let explorer: Vec<Step> = since.iter().map(|n| n[0]).collect();
+        let relay: Vec<Step> = since.iter().map(|n| n[1]).collect();
+        assert_eq!(
+            explorer,
+            [0, 1, 2, 3, 4, 5, 3, 4],
+            "contact of step 3, from the relay"
+        );
+        assert_eq!(relay, [0, 1, 2, 0, 1, 2, 3, 4]);
+    }
+
+    #[test]
+    fn a_chain_of_links_is_contact_within_the_step() {
+        let since = steps_since_base(3, 2, &up(&[(4, &[(0, 1), (1, 2)])]), 4);
+        assert_eq!(since[4], [0, 0, 0]);
+        assert_eq!(since[3], [3, 3, 0]);
+    }
+
+    #[test]
+    fn a_robot_never_in_touch_counts_from_the_start_and_links_down_carry_nothing() {
+        // Robots 0 and 1 meet at steps 1 and 3 but never the base (node 2).
+        let since = steps_since_base(3, 2, &up(&[(1, &[(0, 1)]), (3, &[(0, 1)])]), 4);
+        assert_eq!(
+            since.iter().map(|n| n[0]).collect::<Vec<_>>(),
+            [0, 1, 2, 3, 4]
+        );
+        // Links to nodes that do not exist are ignored.
+        assert_eq!(steps_since_base(1, 0, &up(&[(0, &[(0, 9)])]), 0), [[0]]);
+    }
+
+    #[test]
+    fn step_means_weigh_every_step_the_same() {
+        assert_eq!(
+            mean_of_step_means([(0, 10.0), (0, 30.0), (1, 40.0)]),
+            Some(30.0)
+        );
+        assert_eq!(mean_of_step_means([]), None);
+    }
+
+    /// Fig. 5a counted the plain way: the cells some set holds.
+    fn naive_union(known: &[Vec<bool>]) -> usize {
+        (0..known[0].len())
+            .filter(|&i| known.iter().any(|k| k[i]))
+            .count()
+    }
+
+    /// Fig. 5c counted the plain way: the intersection of every set, over each set.
+    fn naive(known: &[Vec<bool>]) -> Vec<f64> {
+        let common = (0..known[0].len())
+            .filter(|&i| known.iter().all(|k| k[i]))
+            .count();
+        known
+            .iter()
+            .map(|k| match k.iter().filter(|&&x| x).count() {
+                0 => 100.0,
+                n => 100.0 * common as f64 / n as f64,
+            })
+            .collect()
+    }
+
+    fn arb_links(nodes: u16) -> impl Strategy<Value = UpLinks> {
+        proptest::collection::btree_map(
+            0..40u32,
+            proptest::collection::vec((0..nodes, 0..nodes), 0..4),
+            0..20,
+        )
+    }
+
+    proptest! {
+        #[test]
+        fn contact_is_within_the_run_and_the_base_component_is_in_touch(
+            links in arb_links(5),
+            base in 0..5u16,
+        ) {
+            let since = steps_since_base(5, base, &links, 40);
+            for (s, nodes) in since.iter().enumerate() {
+                let s = s as Step;
+                prop_assert!(nodes.iter().all(|&n| n <= s));
+                prop_assert_eq!(nodes[usize::from(base)], 0);
+                let roots = crate::score::connectivity::components(5, links.get(&s).map_or(&[][..], Vec::as_slice));
+                for (n, root) in roots.iter().enumerate() {
+                    if *root == roots[usize::from(base)] {
+                        prop_assert_eq!(nodes[n], 0, "node {} linked to the base at {}", n, s);
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn shares_are_percentages_the_union_holds_every_set_and_all_agree_when_all_know_the_same(
+            known in proptest::collection::vec(proptest::collection::vec(any::<bool>(), 12), 1..5),
+        ) {
+            let ks: Vec<Known> = known.iter().map(|k| Known::from_flags(4, k)).collect();
+            let pcts = shared_pcts(&ks, 12);
+            for &p in &pcts {
+                prop_assert!((0.0..=100.0).contains(&p), "{}", p);
+            }
+            prop_assert_eq!(pcts, naive(&known));
+            let union = SharedKnowledge::of(&ks, 12).known_by_anyone();
+            prop_assert_eq!(union, naive_union(&known));
+            for k in &known {
+                prop_assert!(union >= k.iter().filter(|&&x| x).count());
+            }
+            let same = vec![ks[0].clone(); known.len()];
+            let pcts = shared_pcts(&same, 12);
+            prop_assert!(pcts.iter().all(|&p| p == 100.0), "{:?}", pcts);
+            let one = known[0].iter().filter(|&&x| x).count();
+            prop_assert_eq!(SharedKnowledge::of(&same, 12).known_by_anyone(), one);
+        }
+
+        /// Robots' grids taken over their known parts only keep the same counts as grids
+        /// taken cell by cell.
+        #[test]
+        fn known_parts_count_as_every_cell(
+            grids in proptest::collection::vec(
+                proptest::collection::vec((0i32..20, 0i32..15, 0u8..3), 0..30), 1..8),
+            reachable in proptest::collection::vec(any::<bool>(), 300),
+        ) {
+            let (w, h) = (20u32, 15u32);
+            let mut parts = SharedKnowledge::new(3, 300);
+            let mut every = SharedKnowledge::new(3, 300);
+            for (k, sets) in grids.iter().enumerate() {
+                let mut g = Grid::new(w, h, Occ::Unknown);
+                for &(x, y, v) in sets {
+                    g.set(Cell::new(x, y), [Occ::Unknown, Occ::Free, Occ::Occupied][usize::from(v)]);
+                }
+                let robot = (k % 3) as RobotId;
+                let part = known_cells(&KnownPart::of(&g), w, &reachable);
+                let flags: Vec<bool> = (0..g.len())
+                    .map(|i| reachable[i] && g.cells()[i] != Occ::Unknown)
+                    .collect();
+                prop_assert_eq!(part.count(), flags.iter().filter(|&&f| f).count());
+                parts.update(robot, part);
+                every.update(robot, Known::from_flags(w, &flags));
+                prop_assert_eq!(parts.known_by_anyone(), every.known_by_anyone());
+                for r in 0..3 {
+                    prop_assert_eq!(parts.share_pct(r), every.share_pct(r));
+                }
+            }
+        }
+
+        #[test]
+        fn updating_in_place_agrees_with_counting_afresh(
+            first in proptest::collection::vec(proptest::collection::vec(any::<bool>(), 8), 3),
+            then in proptest::collection::vec(any::<bool>(), 8),
+            who in 0..3u16,
+        ) {
+            let mut s = SharedKnowledge::new(3, 8);
+            for (r, k) in (0..3).zip(&first) {
+                s.update(r, Known::from_flags(4, k));
+            }
+            s.update(who, Known::from_flags(4, &then));
+            let mut now = first.clone();
+            now[usize::from(who)] = then;
+            prop_assert_eq!((0..3).filter_map(|r| s.share_pct(r)).collect::<Vec<_>>(), naive(&now));
+            prop_assert_eq!(s.known_by_anyone(), naive_union(&now));
+        }
+    }
+}
