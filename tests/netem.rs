@@ -88,7 +88,7 @@ fn no_link_is_up_while_its_robots_are_out_of_range() {
 
 /// The row of the step in which a link goes down may still count bytes written just before the
 /// cut; every later down step must show none. (Writes race the link's kill signal, polled first,
-/// in `netem::shaping::sink`.)
+/// in `netem::shaping::pipeline::sink`.)
 #[test]
 fn no_byte_crosses_a_link_that_is_down() {
     let dir = TempDir::new("down-bytes");

@@ -59,6 +59,10 @@ fn the_live_viewer_serves_the_run_and_cuts_a_link_through_netem() {
         (info["live"].as_bool(), info["robots"].as_u64()),
         (Some(true), Some(3))
     );
+    // The page draws robots in the colours of every picture, plot and MCAP file (it once had
+    // a palette of its own: robot 1 was blue in truth.png and green on the page).
+    let palette: Vec<String> = swarm::rundir::render::palette_css();
+    assert_eq!(info["palette"], serde_json::json!(palette));
     for path in [
         "/api/robot/9",
         "/api/robot/x",

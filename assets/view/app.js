@@ -7,8 +7,8 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-const COLOURS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6",
-  "#9a6324", "#469990", "#800000", "#808000", "#000075"];
+// The robots' colours: the palette of every picture, plot and MCAP file, from /api/info.
+let COLOURS = ["#000000"];
 const LINK_STYLE = {
   up: { colour: "rgba(30,150,60,0.85)", dash: [] },
   down: { colour: "rgba(140,140,140,0.5)", dash: [4, 4] },
@@ -337,6 +337,7 @@ async function seek(step) {
 
 async function main() {
   state.info = await getJson("/api/info");
+  if (state.info.palette && state.info.palette.length) COLOURS = state.info.palette;
   const c = $("map"), m = state.info.map;
   // Fit the canvas to the map's aspect.
   const aspect = (m.width) / (m.height);

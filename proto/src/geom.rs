@@ -49,6 +49,15 @@ impl MapInfo {
     }
 
     /// The metric centre of a cell.
+    /// A metric point in cell units: cell `(x, y)` covers `[x, x+1) × [y, y+1)`. The one
+    /// conversion the world's motion check and the robots' planner share.
+    pub fn in_cells(&self, x_m: f64, y_m: f64) -> (f64, f64) {
+        (
+            (x_m - self.origin_x_m) / self.resolution_m,
+            (y_m - self.origin_y_m) / self.resolution_m,
+        )
+    }
+
     pub fn centre_of(&self, c: Cell) -> (f64, f64) {
         (
             self.origin_x_m + (f64::from(c.x) + 0.5) * self.resolution_m,

@@ -82,16 +82,31 @@ pub fn count_walls(
     b: (f64, f64),
     wall: impl Fn(Occ) -> bool,
 ) -> u32 {
+    walls_along(map, grid, a, b, wall)
+        .last()
+        .map_or(0, |&(_, walls)| walls)
+}
+
+/// The cells the segment `a`–`b` (metres) crosses on `grid`, in order, each with the number of
+/// walls crossed up to and including it: [`count_walls`] step by step, for a caller that wants
+/// the signal along the way (a robot's estimate of its reach). The parts of the segment outside
+/// the map are left out.
+pub fn walls_along(
+    map: &MapInfo,
+    grid: &Grid,
+    a: (f64, f64),
+    b: (f64, f64),
+    wall: impl Fn(Occ) -> bool,
+) -> Vec<(Cell, u32)> {
     let res = map.resolution_m;
     if res.is_nan() || res <= 0.0 || grid.is_empty() {
-        return 0;
+        return Vec::new();
     }
     // Cell coordinates: cell (i, j) covers [i, i+1) × [j, j+1).
-    let to_cell = |p: (f64, f64)| ((p.0 - map.origin_x_m) / res, (p.1 - map.origin_y_m) / res);
-    let (p0, p1) = (to_cell(a), to_cell(b));
+    let (p0, p1) = (map.in_cells(a.0, a.1), map.in_cells(b.0, b.1));
     let (w, h) = (f64::from(grid.width()), f64::from(grid.height()));
     let Some((t0, t1)) = clip(p0, p1, (0.0, 0.0), (w, h)) else {
-        return 0;
+        return Vec::new();
     };
     let (dx, dy) = (p1.0 - p0.0, p1.1 - p0.1);
     let (p0, p1) = (
@@ -107,14 +122,17 @@ pub fn count_walls(
     let cells = Traversal::between(p0, start, p1, end, Corners::Thin).map(|x| x.cell);
     let mut walls = 0;
     let mut in_wall = false;
-    for cell in std::iter::once(start).chain(cells) {
-        let solid = wall(grid.get(cell));
-        if solid && !in_wall {
-            walls += 1;
-        }
-        in_wall = solid;
-    }
-    walls
+    std::iter::once(start)
+        .chain(cells)
+        .map(|cell| {
+            let solid = wall(grid.get(cell));
+            if solid && !in_wall {
+                walls += 1;
+            }
+            in_wall = solid;
+            (cell, walls)
+        })
+        .collect()
 }
 
 #[cfg(test)]

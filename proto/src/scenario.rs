@@ -692,17 +692,72 @@ pub enum ScenarioError {
     BadOverride(String),
 }
 
-/// Names of the world kinds generated from the seed rather than loaded from a file.
-pub const GENERATED_WORLDS: [&str; 8] = [
-    "unstructured",
-    "mixed",
-    "office",
-    "corridor",
-    "two-corridors",
-    "empty",
-    "random",
-    "library",
-];
+/// The worlds generated from the seed rather than loaded from a file (`world.map`): the one list
+/// that validation, the world-server's generator, error messages and the docs use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum GeneratedWorld {
+    /// Rooms and clutter without a plan.
+    Unstructured,
+    /// Offices and unstructured parts side by side.
+    Mixed,
+    /// Rooms along corridors.
+    Office,
+    /// Simmons et al. (2000), environment A: an office along one corridor.
+    Corridor,
+    /// Environment B: an office along two parallel corridors.
+    TwoCorridors,
+    /// Environment C: one obstacle-free room.
+    Empty,
+    /// Environments D/E: 15 % of the floor covered by random obstacles.
+    Random,
+    /// de Hoog et al. (2010)'s library floor: a hall of shelf rows ringed by rooms.
+    Library,
+}
+
+impl GeneratedWorld {
+    /// Every generated world, in the order the docs list them.
+    pub const ALL: [GeneratedWorld; 8] = [
+        GeneratedWorld::Unstructured,
+        GeneratedWorld::Mixed,
+        GeneratedWorld::Office,
+        GeneratedWorld::Corridor,
+        GeneratedWorld::TwoCorridors,
+        GeneratedWorld::Empty,
+        GeneratedWorld::Random,
+        GeneratedWorld::Library,
+    ];
+
+    /// The name `world.map` takes.
+    pub const fn name(self) -> &'static str {
+        match self {
+            GeneratedWorld::Unstructured => "unstructured",
+            GeneratedWorld::Mixed => "mixed",
+            GeneratedWorld::Office => "office",
+            GeneratedWorld::Corridor => "corridor",
+            GeneratedWorld::TwoCorridors => "two-corridors",
+            GeneratedWorld::Empty => "empty",
+            GeneratedWorld::Random => "random",
+            GeneratedWorld::Library => "library",
+        }
+    }
+
+    /// Every name, `|`-separated (for error messages).
+    pub fn names() -> String {
+        GeneratedWorld::ALL.map(GeneratedWorld::name).join("|")
+    }
+}
+
+impl std::str::FromStr for GeneratedWorld {
+    type Err = String;
+
+    /// A generated world by its name; the error names them all.
+    fn from_str(s: &str) -> Result<GeneratedWorld, String> {
+        GeneratedWorld::ALL
+            .into_iter()
+            .find(|w| w.name() == s)
+            .ok_or_else(|| format!("{s:?} is no generated world ({})", GeneratedWorld::names()))
+    }
+}
 
 /// The fewest steps of a derived step limit (the fixed default before limits were derived).
 pub const DERIVED_MAX_STEPS_MIN: u32 = 3000;
@@ -808,7 +863,10 @@ impl Scenario {
             return Err(invalid(
                 "world.map",
                 "\"\"",
-                "a map YAML path, a map name from configs/maps, or unstructured|mixed|office",
+                &format!(
+                    "a map YAML path, a map name from configs/maps, or a generated world: {}",
+                    GeneratedWorld::names()
+                ),
             ));
         }
         if !(0.01..=2.0).contains(&s.world.resolution_m) {
@@ -1194,7 +1252,7 @@ impl Scenario {
 
     /// The world is generated from the seed (not loaded from a file).
     pub fn world_is_generated(&self) -> bool {
-        GENERATED_WORLDS.contains(&self.world.map.as_str())
+        self.world.map.parse::<GeneratedWorld>().is_ok()
     }
 
     pub fn laser(&self) -> crate::geom::LaserSpec {
@@ -1372,6 +1430,17 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_generated_world_parses_back_from_its_name() {
+        for w in GeneratedWorld::ALL {
+            assert_eq!(w.name().parse::<GeneratedWorld>(), Ok(w));
+        }
+        let Err(e) = "maze".parse::<GeneratedWorld>() else {
+            panic!("maze is no generated world");
+        };
+        assert!(e.contains("two-corridors") && e.contains("library"), "{e}");
+    }
 
     fn err(text: &str, overrides: &[&str]) -> String {
         let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();

@@ -227,6 +227,39 @@ pub fn clip(a: (f64, f64), b: (f64, f64), lo: (f64, f64), hi: (f64, f64)) -> Opt
     (t0 <= t1).then_some((t0, t1))
 }
 
+/// The cells a point moving along the closed segment `a`–`b` (in cell units) sweeps: every cell
+/// whose closed square meets the segment, column by column (within each column's slice of the
+/// segment, all rows its y-extent touches). A segment through a corner therefore yields all
+/// four cells around it, one along a grid line the cells on both sides, and one ending on a
+/// cell's border that cell too. Non-finite input gives no cells.
+///
+/// This is the walk of *motion*: the world-server refuses a move that sweeps a cell that is not
+/// free, and a robot's planner checks its waypoints with the same walk, so that it never plans
+/// a move the world refuses. Beams (the laser, scan integration) and radio paths take the
+/// [`Traversal`] instead, where a cell is the half-open square `[x, x+1) × [y, y+1)`.
+pub fn swept(a: (f64, f64), b: (f64, f64)) -> Vec<Cell> {
+    if ![a.0, a.1, b.0, b.1].iter().all(|v| v.is_finite()) {
+        return Vec::new();
+    }
+    let (x_lo, x_hi) = (a.0.min(b.0), a.0.max(b.0));
+    // The y of the segment at abscissa x (the segment is not vertical where this is used).
+    let y_at = |x: f64| a.1 + (x - a.0) * (b.1 - a.1) / (b.0 - a.0);
+    let mut cells = Vec::new();
+    for cx in (x_lo.ceil() as i32 - 1)..=(x_hi.floor() as i32) {
+        let (s0, s1) = (x_lo.max(f64::from(cx)), x_hi.min(f64::from(cx) + 1.0));
+        let (y0, y1) = if a.0 == b.0 {
+            (a.1, b.1)
+        } else {
+            (y_at(s0), y_at(s1))
+        };
+        let (y_lo, y_hi) = (y0.min(y1), y0.max(y1));
+        for cy in (y_lo.ceil() as i32 - 1)..=(y_hi.floor() as i32) {
+            cells.push(Cell::new(cx, cy));
+        }
+    }
+    cells
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -252,6 +285,62 @@ mod tests {
 
     fn neighbours(a: Cell, b: Cell) -> bool {
         a.x.abs_diff(b.x) + a.y.abs_diff(b.y) == 1
+    }
+
+    #[test]
+    fn swept_cells() {
+        let sorted = |mut v: Vec<Cell>| {
+            v.sort();
+            v
+        };
+        let c = Cell::new;
+        assert_eq!(
+            swept((0.5, 0.5), (2.5, 0.5)),
+            vec![c(0, 0), c(1, 0), c(2, 0)]
+        );
+        assert_eq!(
+            swept((0.5, 2.5), (0.5, 0.5)),
+            vec![c(0, 0), c(0, 1), c(0, 2)]
+        );
+        assert_eq!(
+            sorted(swept((0.5, 0.5), (1.5, 1.5))),
+            vec![c(0, 0), c(0, 1), c(1, 0), c(1, 1)]
+        );
+        assert_eq!(
+            swept((0.5, 1.0), (1.5, 1.0)),
+            vec![c(0, 0), c(0, 1), c(1, 0), c(1, 1)],
+            "along a grid line"
+        );
+        // Slope 1/3 passes exactly through the corner (2, 1).
+        assert_eq!(
+            swept((0.5, 0.5), (3.5, 1.5)),
+            vec![c(0, 0), c(1, 0), c(1, 1), c(2, 0), c(2, 1), c(3, 1)]
+        );
+        assert_eq!(
+            swept((0.5, 0.5), (3.5, 1.7)),
+            vec![c(0, 0), c(1, 0), c(1, 1), c(2, 1), c(3, 1)]
+        );
+        assert_eq!(swept((0.2, 0.3), (0.2, 0.3)), vec![c(0, 0)]);
+        assert!(swept((f64::NAN, 0.0), (1.0, 1.0)).is_empty());
+    }
+
+    proptest! {
+        #[test]
+        fn swept_contains_every_point_of_the_segment(
+            ax in -20.0f64..20.0, ay in -20.0f64..20.0, bx in -20.0f64..20.0, by in -20.0f64..20.0,
+        ) {
+            let cells = swept((ax, ay), (bx, by));
+            for k in 0..=100 {
+                let s = f64::from(k) / 100.0;
+                let (x, y) = (ax + s * (bx - ax), ay + s * (by - ay));
+                let c = Cell::new(x.floor() as i32, y.floor() as i32);
+                prop_assert!(cells.contains(&c), "point ({}, {}) in {:?} missing", x, y, c);
+            }
+            // Every cell returned is within the segment's bounding box grown by one cell.
+            let (lo_x, hi_x) = (ax.min(bx).floor() as i32 - 1, ax.max(bx).floor() as i32 + 1);
+            prop_assert!(cells.iter().all(|c| (lo_x..=hi_x).contains(&c.x)));
+        }
+
     }
 
     #[test]

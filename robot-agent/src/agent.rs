@@ -210,13 +210,17 @@ impl Agent {
             return waypoint;
         }
         let max_cells = w.max_speed_m_per_s * w.step_seconds / w.map.resolution_m;
-        if let Some(aside) = self.right_of_way.give_way(g, me, &self.heard, max_cells) {
+        let at = (self.pose.x, self.pose.y);
+        if let Some(aside) = self
+            .right_of_way
+            .give_way(g, &w.map, at, me, &self.heard, max_cells)
+        {
             self.idle = false;
             return aside.map(|n| w.map.centre_of(n));
         }
         self.idle = self.target.is_none();
         let path = plan::path_to(&costs, self.target?)?;
-        let next = plan::next_waypoint(free, &path, max_cells)?;
+        let next = plan::next_waypoint(free, &w.map, at, &path, max_cells)?;
         (next != me).then(|| w.map.centre_of(next))
     }
 

@@ -11,6 +11,7 @@ use proto::geom::MapInfo;
 use proto::grid::{Grid, Occ};
 
 /// Colours of robots' trajectories, reused cyclically.
+/// ColorBrewer's Set1 (with teal for its grey): eight colours told apart on a white map.
 const PALETTE: [[u8; 3]; 8] = [
     [228, 26, 28],
     [55, 126, 184],
@@ -22,8 +23,17 @@ const PALETTE: [[u8; 3]; 8] = [
     [0, 160, 160],
 ];
 
+/// Robot `i`'s colour: the one palette of every picture, plot, MCAP file and the viewer's page.
 pub fn robot_colour(i: usize) -> [u8; 3] {
     PALETTE[i % PALETTE.len()]
+}
+
+/// The palette as CSS colours (`#rrggbb`), robot 0 first: what the viewer's page draws with.
+pub fn palette_css() -> Vec<String> {
+    PALETTE
+        .iter()
+        .map(|[r, g, b]| format!("#{r:02x}{g:02x}{b:02x}"))
+        .collect()
 }
 
 /// An RGB image under construction.

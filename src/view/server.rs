@@ -324,6 +324,7 @@ async fn info(State(app): Shared) -> Response {
         "step_seconds": t.header.step_seconds,
         "first_step": first,
         "last_step": last,
+        "palette": crate::rundir::render::palette_css(),
     }))
 }
 

@@ -14,58 +14,20 @@
 //! than a robot's passage), and free cells outside the largest component become occupied.
 //! The same seed always gives the same map (`ChaCha8Rng`, no other source of randomness).
 
-use std::str::FromStr;
-
 use proto::geom::MapInfo;
 use proto::grid::{Cell, Grid, Occ, MAX_CELLS};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use proto::scenario::GeneratedWorld;
+
 use crate::map::TruthMap;
 
 mod library;
 
-/// Which kind of world to generate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum GenKind {
-    Unstructured,
-    Mixed,
-    Office,
-    /// Simmons et al. (2000), environment A: an office along one corridor.
-    Corridor,
-    /// Environment B: an office along two parallel corridors.
-    TwoCorridors,
-    /// Environment C: one obstacle-free room.
-    Empty,
-    /// Environments D/E: 15 % of the floor covered by random obstacles.
-    Random,
-    /// de Hoog et al. (2010)'s library floor: a hall of shelf rows ringed by rooms.
-    Library,
-}
-
-impl FromStr for GenKind {
-    type Err = GenError;
-
-    /// The scenario names `unstructured`, `mixed`, `office`, `corridor`, `two-corridors`,
-    /// `empty`, `random` and `library`.
-    fn from_str(s: &str) -> Result<GenKind, GenError> {
-        match s {
-            "unstructured" => Ok(GenKind::Unstructured),
-            "mixed" => Ok(GenKind::Mixed),
-            "office" => Ok(GenKind::Office),
-            "corridor" => Ok(GenKind::Corridor),
-            "two-corridors" => Ok(GenKind::TwoCorridors),
-            "empty" => Ok(GenKind::Empty),
-            "random" => Ok(GenKind::Random),
-            "library" => Ok(GenKind::Library),
-            other => Err(GenError::UnknownKind(other.into())),
-        }
-    }
-}
-
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum GenError {
-    #[error("unknown map kind {0:?} (expected unstructured, mixed, office, corridor, two-corridors, empty, random or library)")]
+    #[error("{0}")]
     UnknownKind(String),
     #[error("resolution {resolution_m} m must be a positive finite number")]
     BadResolution { resolution_m: f64 },
@@ -151,7 +113,7 @@ fn between(rng: &mut ChaCha8Rng, lo: i32, hi: i32) -> i32 {
 
 /// Generates a `width_m × height_m` map of `kind` at `resolution_m`, origin (0, 0).
 pub fn generate(
-    kind: GenKind,
+    kind: GeneratedWorld,
     width_m: f64,
     height_m: f64,
     resolution_m: f64,
@@ -196,27 +158,27 @@ pub fn generate(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let interior = Rect::new(p.wall, p.wall, w - p.wall, h - p.wall);
     match kind {
-        GenKind::Unstructured => {
+        GeneratedWorld::Unstructured => {
             fill(&mut g, interior, Occ::Free);
             let cover = rng.gen_range(0.10..0.20);
             scatter(&mut g, &mut rng, &p, interior, None, cover);
         }
-        GenKind::Office => {
+        GeneratedWorld::Office => {
             office(&mut g, &mut rng, &p, interior, None);
         }
-        GenKind::Corridor => {
+        GeneratedWorld::Corridor => {
             office(&mut g, &mut rng, &p, interior, Some(1));
         }
-        GenKind::TwoCorridors => {
+        GeneratedWorld::TwoCorridors => {
             office(&mut g, &mut rng, &p, interior, Some(2));
         }
-        GenKind::Empty => fill(&mut g, interior, Occ::Free),
-        GenKind::Random => {
+        GeneratedWorld::Empty => fill(&mut g, interior, Occ::Free),
+        GeneratedWorld::Random => {
             fill(&mut g, interior, Occ::Free);
             scatter(&mut g, &mut rng, &p, interior, None, RANDOM_COVER);
         }
-        GenKind::Library => library::library(&mut g, &mut rng, &p, interior),
-        GenKind::Mixed => {
+        GeneratedWorld::Library => library::library(&mut g, &mut rng, &p, interior),
+        GeneratedWorld::Mixed => {
             fill(&mut g, interior, Occ::Free);
             let house = building(&mut g, &mut rng, &p, interior);
             let cover = rng.gen_range(0.06..0.12);
@@ -565,16 +527,7 @@ mod tests {
     use crate::reachable::largest_free_component;
     use proptest::prelude::*;
 
-    const KINDS: [GenKind; 8] = [
-        GenKind::Unstructured,
-        GenKind::Mixed,
-        GenKind::Office,
-        GenKind::Corridor,
-        GenKind::TwoCorridors,
-        GenKind::Empty,
-        GenKind::Random,
-        GenKind::Library,
-    ];
+    const KINDS: [GeneratedWorld; 8] = GeneratedWorld::ALL;
 
     /// The guarantees of every generated map: closed, ternary-free of unknown, one free region.
     fn check_invariants(map: &TruthMap) -> Result<(), String> {
@@ -621,7 +574,7 @@ mod tests {
                 generate(kind, 30.0, 20.0, 0.1, 42).as_ref(),
                 "{kind:?}"
             );
-            if kind == GenKind::Empty {
+            if kind == GeneratedWorld::Empty {
                 continue; // one room: nothing to draw
             }
             assert_ne!(
@@ -647,7 +600,11 @@ mod tests {
                 .iter()
                 .fold((1.0f64, 0.0f64), |(lo, hi), &f| (lo.min(f), hi.max(f)));
             // One empty room is all floor (its own test checks it exactly).
-            let hi_max = if kind == GenKind::Empty { 1.0 } else { 0.95 };
+            let hi_max = if kind == GeneratedWorld::Empty {
+                1.0
+            } else {
+                0.95
+            };
             assert!(
                 lo > 0.45 && hi < hi_max,
                 "{kind:?}: free fraction {lo:.3}..{hi:.3}"
@@ -669,7 +626,11 @@ mod tests {
     fn offices_mixed_maps_and_libraries_have_rooms_behind_doors() {
         // Doors are 1 m wide, rooms at least 3 m: opening the free space by a 1.2 m square closes
         // every door and leaves the rooms as separate regions.
-        for kind in [GenKind::Office, GenKind::Mixed, GenKind::Library] {
+        for kind in [
+            GeneratedWorld::Office,
+            GeneratedWorld::Mixed,
+            GeneratedWorld::Library,
+        ] {
             for seed in 0..5 {
                 let mut g = generate(kind, 40.0, 30.0, 0.2, seed)
                     .expect("valid size")
@@ -702,14 +663,14 @@ mod tests {
             rows
         };
         for seed in 0..5 {
-            let one = generate(GenKind::Corridor, 25.0, 20.0, 0.2, seed).expect("size");
+            let one = generate(GeneratedWorld::Corridor, 25.0, 20.0, 0.2, seed).expect("size");
             assert_eq!(corridor_rows(&one.grid), 1, "seed {seed}");
-            let two = generate(GenKind::TwoCorridors, 25.0, 20.0, 0.2, seed).expect("size");
+            let two = generate(GeneratedWorld::TwoCorridors, 25.0, 20.0, 0.2, seed).expect("size");
             assert_eq!(corridor_rows(&two.grid), 2, "seed {seed}");
-            let empty = generate(GenKind::Empty, 20.0, 20.0, 0.2, seed).expect("size");
+            let empty = generate(GeneratedWorld::Empty, 20.0, 20.0, 0.2, seed).expect("size");
             let inner = (empty.grid.width() - 2) * (empty.grid.height() - 2);
             assert_eq!(empty.grid.count(Occ::Free), inner as usize, "one free room");
-            let random = generate(GenKind::Random, 20.0, 20.0, 0.2, seed).expect("size");
+            let random = generate(GeneratedWorld::Random, 20.0, 20.0, 0.2, seed).expect("size");
             let cover = 1.0 - random.grid.count(Occ::Free) as f64 / f64::from(inner);
             assert!((0.10..0.20).contains(&cover), "seed {seed}: cover {cover}");
         }
@@ -726,7 +687,7 @@ mod tests {
                 .count()
         };
         for seed in 0..10 {
-            let g = generate(GenKind::Library, 40.0, 30.0, 0.2, seed)
+            let g = generate(GeneratedWorld::Library, 40.0, 30.0, 0.2, seed)
                 .expect("valid size")
                 .grid;
             let (w, h) = (g.width() as i32, g.height() as i32);
@@ -755,38 +716,34 @@ mod tests {
     }
 
     #[test]
-    fn kinds_parse_and_bad_sizes_are_errors() {
-        assert_eq!("office".parse(), Ok(GenKind::Office));
-        assert_eq!("mixed".parse(), Ok(GenKind::Mixed));
-        assert_eq!("unstructured".parse(), Ok(GenKind::Unstructured));
-        assert_eq!("two-corridors".parse(), Ok(GenKind::TwoCorridors));
-        assert_eq!("library".parse(), Ok(GenKind::Library));
-        assert_eq!(
-            "maze".parse::<GenKind>(),
-            Err(GenError::UnknownKind("maze".into()))
-        );
+    fn every_generated_world_generates_and_bad_sizes_are_errors() {
+        // The one list of names (proto) and the generator agree: each world generates.
+        for w in GeneratedWorld::ALL {
+            let m = generate(w, 30.0, 20.0, 0.2, 1).unwrap_or_else(|e| panic!("{w:?}: {e}"));
+            assert!(m.grid.count(Occ::Free) > 0, "{w:?}");
+        }
         assert!(matches!(
-            generate(GenKind::Office, 10.0, 10.0, 0.0, 0),
+            generate(GeneratedWorld::Office, 10.0, 10.0, 0.0, 0),
             Err(GenError::BadResolution { .. })
         ));
         assert!(matches!(
-            generate(GenKind::Office, 10.0, 10.0, f64::NAN, 0),
+            generate(GeneratedWorld::Office, 10.0, 10.0, f64::NAN, 0),
             Err(GenError::BadResolution { .. })
         ));
         assert!(matches!(
-            generate(GenKind::Office, 2.0, 10.0, 0.1, 0),
+            generate(GeneratedWorld::Office, 2.0, 10.0, 0.1, 0),
             Err(GenError::TooSmall { .. })
         ));
         assert!(matches!(
-            generate(GenKind::Office, f64::NAN, 10.0, 0.1, 0),
+            generate(GeneratedWorld::Office, f64::NAN, 10.0, 0.1, 0),
             Err(GenError::TooSmall { .. })
         ));
         assert!(matches!(
-            generate(GenKind::Office, 3.0, 3.0, 1.5, 0),
+            generate(GeneratedWorld::Office, 3.0, 3.0, 1.5, 0),
             Err(GenError::TooSmall { .. })
         ));
         assert!(matches!(
-            generate(GenKind::Office, 1e6, 1e6, 0.1, 0),
+            generate(GeneratedWorld::Office, 1e6, 1e6, 0.1, 0),
             Err(GenError::TooLarge { .. })
         ));
     }

@@ -4,10 +4,11 @@
 //! straight segment; the world-server moves it there or rejects the move "into obstacles or other
 //! robots, and say why in the robot's next scan message" ([`MoveOutcome`]). A waypoint beyond
 //! the step length is not an error: the robot goes as far as it may in that direction, which is
-//! what a speed limit means. The segment test is a *supercover*: every cell the closed segment
-//! touches must be free, including both side cells where it passes exactly through a corner, so a
-//! robot never slips through a diagonal gap between two blocked cells (the same rule the laser
-//! uses, [`crate::laser`], and the reason free space is 4-connected in [`crate::reachable`]).
+//! what a speed limit means. The segment test is [`proto::traverse::swept`]: every cell the closed
+//! segment touches must be free, including both side cells where it passes exactly through a
+//! corner, so a robot never slips through a diagonal gap between two blocked cells (the reason
+//! free space is 4-connected in [`crate::reachable`]). The robots' planner checks its waypoints
+//! with the same walk (`robot_agent::nav::plan::next_waypoint`).
 //! Robots are points for the map and discs of `robot_radius_m` for each other; the world-server
 //! looks for the robots a move ends near in a [`Crowd`] (buckets of the collision distance), so a
 //! step of n moves costs O(n), not O(n²) — what a move costs grows with its length and the
@@ -18,6 +19,7 @@ use std::collections::HashMap;
 use proto::geom::{MapInfo, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{MoveOutcome, RobotId};
+use proto::traverse::swept;
 
 /// The robots a move is checked against.
 pub trait Others {
@@ -185,7 +187,7 @@ pub fn validate_move_among(
     if !grid.contains(info.cell_of(end.0, end.1)) {
         return Err(MoveOutcome::OutOfMap);
     }
-    if supercover_m(info, (from.x, from.y), end)
+    if swept_m(info, (from.x, from.y), end)
         .into_iter()
         .any(|c| grid.get(c) != Occ::Free)
     {
@@ -205,42 +207,10 @@ pub fn validate_move_among(
     })
 }
 
-/// The cells the closed segment between two metric points touches (see [`supercover`]).
-pub fn supercover_m(info: &MapInfo, a: (f64, f64), b: (f64, f64)) -> Vec<Cell> {
-    let to_cells = |(x, y): (f64, f64)| {
-        (
-            (x - info.origin_x_m) / info.resolution_m,
-            (y - info.origin_y_m) / info.resolution_m,
-        )
-    };
-    supercover(to_cells(a), to_cells(b))
-}
-
-/// Every cell whose closed square meets the closed segment `a`–`b` (in cell units), column by
-/// column: within each column's slice of the segment, all rows its y-extent touches. A segment
-/// through a corner therefore yields all four cells around it, and one along a grid line yields
-/// the cells on both sides. Non-finite input gives no cells.
-pub fn supercover(a: (f64, f64), b: (f64, f64)) -> Vec<Cell> {
-    if ![a.0, a.1, b.0, b.1].iter().all(|v| v.is_finite()) {
-        return Vec::new();
-    }
-    let (x_lo, x_hi) = (a.0.min(b.0), a.0.max(b.0));
-    // The y of the segment at abscissa x (the segment is not vertical where this is used).
-    let y_at = |x: f64| a.1 + (x - a.0) * (b.1 - a.1) / (b.0 - a.0);
-    let mut cells = Vec::new();
-    for cx in (x_lo.ceil() as i32 - 1)..=(x_hi.floor() as i32) {
-        let (s0, s1) = (x_lo.max(f64::from(cx)), x_hi.min(f64::from(cx) + 1.0));
-        let (y0, y1) = if a.0 == b.0 {
-            (a.1, b.1)
-        } else {
-            (y_at(s0), y_at(s1))
-        };
-        let (y_lo, y_hi) = (y0.min(y1), y0.max(y1));
-        for cy in (y_lo.ceil() as i32 - 1)..=(y_hi.floor() as i32) {
-            cells.push(Cell::new(cx, cy));
-        }
-    }
-    cells
+/// The cells a move between two metric points sweeps ([`proto::traverse::swept`], the walk the
+/// planner checks its waypoints with).
+pub fn swept_m(info: &MapInfo, a: (f64, f64), b: (f64, f64)) -> Vec<Cell> {
+    swept(info.in_cells(a.0, a.1), info.in_cells(b.0, b.1))
 }
 
 #[cfg(test)]
@@ -388,60 +358,7 @@ mod tests {
         );
     }
 
-    #[test]
-    fn supercover_cells() {
-        let sorted = |mut v: Vec<Cell>| {
-            v.sort();
-            v
-        };
-        let c = Cell::new;
-        assert_eq!(
-            supercover((0.5, 0.5), (2.5, 0.5)),
-            vec![c(0, 0), c(1, 0), c(2, 0)]
-        );
-        assert_eq!(
-            supercover((0.5, 2.5), (0.5, 0.5)),
-            vec![c(0, 0), c(0, 1), c(0, 2)]
-        );
-        assert_eq!(
-            sorted(supercover((0.5, 0.5), (1.5, 1.5))),
-            vec![c(0, 0), c(0, 1), c(1, 0), c(1, 1)]
-        );
-        assert_eq!(
-            supercover((0.5, 1.0), (1.5, 1.0)),
-            vec![c(0, 0), c(0, 1), c(1, 0), c(1, 1)],
-            "along a grid line"
-        );
-        // Slope 1/3 passes exactly through the corner (2, 1).
-        assert_eq!(
-            supercover((0.5, 0.5), (3.5, 1.5)),
-            vec![c(0, 0), c(1, 0), c(1, 1), c(2, 0), c(2, 1), c(3, 1)]
-        );
-        assert_eq!(
-            supercover((0.5, 0.5), (3.5, 1.7)),
-            vec![c(0, 0), c(1, 0), c(1, 1), c(2, 1), c(3, 1)]
-        );
-        assert_eq!(supercover((0.2, 0.3), (0.2, 0.3)), vec![c(0, 0)]);
-        assert!(supercover((f64::NAN, 0.0), (1.0, 1.0)).is_empty());
-    }
-
     proptest! {
-        #[test]
-        fn supercover_contains_every_point_of_the_segment(
-            ax in -20.0f64..20.0, ay in -20.0f64..20.0, bx in -20.0f64..20.0, by in -20.0f64..20.0,
-        ) {
-            let cells = supercover((ax, ay), (bx, by));
-            for k in 0..=100 {
-                let s = f64::from(k) / 100.0;
-                let (x, y) = (ax + s * (bx - ax), ay + s * (by - ay));
-                let c = Cell::new(x.floor() as i32, y.floor() as i32);
-                prop_assert!(cells.contains(&c), "point ({}, {}) in {:?} missing", x, y, c);
-            }
-            // Every cell returned is within the segment's bounding box grown by one cell.
-            let (lo_x, hi_x) = (ax.min(bx).floor() as i32 - 1, ax.max(bx).floor() as i32 + 1);
-            prop_assert!(cells.iter().all(|c| (lo_x..=hi_x).contains(&c.x)));
-        }
-
         /// The crowd finds the robot the whole team's slice finds, whoever moves, dies or
         /// stands on a bucket's edge (positions on a 0.05 m lattice meet edges often).
         #[test]

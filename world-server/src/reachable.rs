@@ -476,9 +476,10 @@ mod tests {
 
     #[test]
     fn spawn_in_a_generated_office_stays_in_one_region() {
-        use crate::generate::{generate, GenKind};
+        use crate::generate::generate;
+        use proto::scenario::GeneratedWorld;
         for seed in 0..10 {
-            let map = generate(GenKind::Office, 30.0, 20.0, 0.1, seed).expect("valid size");
+            let map = generate(GeneratedWorld::Office, 30.0, 20.0, 0.1, seed).expect("valid size");
             let cells =
                 spawn_cluster(&map.grid, &map.info, 8, 1.0, 0.6, seed).expect("room for eight");
             let region = reachable_free(&map.grid, &cells[..1]);

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use proto::grid::Occ;
+use proto::scenario::GeneratedWorld;
 use proto::scenario::Scenario;
 
 use crate::map::load_ros_map;
@@ -85,18 +86,31 @@ pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<PathBuf> {
         PathBuf::from("configs/maps"),
         PathBuf::from(SHIPPED_MAPS),
     ];
-    dirs.iter()
-        .map(|d| d.join(&file))
-        .find(|p| p.is_file())
-        .with_context(|| {
-            format!(
-                "world.map = {name:?}: no such map file, and no {file} in {}",
-                dirs.iter()
-                    .map(|d| d.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
+    if let Some(found) = dirs.iter().map(|d| d.join(&file)).find(|p| p.is_file()) {
+        return Ok(found);
+    }
+    // Not found: name what there is, so that a typo is one look away from its fix.
+    let mut maps: Vec<String> = dirs
+        .iter()
+        .filter_map(|d| std::fs::read_dir(d).ok())
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.strip_suffix(".yaml").map(str::to_string)
         })
+        .collect();
+    maps.sort();
+    maps.dedup();
+    bail!(
+        "world.map = {name:?}: no such map file, and no {file} in {}; maps: {}; generated worlds: {}",
+        dirs.iter()
+            .map(|d| d.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+        if maps.is_empty() { "none found".to_string() } else { maps.join("|") },
+        GeneratedWorld::names()
+    )
 }
 
 /// The diagonal of the environment's rectangle: a generated world's extent, or the bounding box
@@ -126,6 +140,17 @@ pub fn environment_diagonal_m(s: &Scenario, map_file: Option<&Path>) -> anyhow::
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A mistyped `world.map` once got an error that named no shipped map and no generated world.
+    #[test]
+    fn a_mistyped_map_name_gets_the_maps_and_worlds_it_could_be() {
+        let Err(e) = locate_map("intel_lba", Path::new(".")) else {
+            panic!("intel_lba is no map");
+        };
+        let e = e.to_string();
+        assert!(e.contains("intel_lab") && e.contains("aces3_austin"), "{e}");
+        assert!(e.contains("two-corridors") && e.contains("library"), "{e}");
+    }
 
     #[test]
     fn the_default_resolves_to_an_absolute_map_and_a_range_from_the_diagonal() {

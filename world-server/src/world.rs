@@ -14,10 +14,11 @@ use proto::scenario::Scenario;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::generate::{generate, GenError, GenKind};
+use crate::generate::{generate, GenError};
 use crate::map::{load_ros_map, resample, MapError};
 use crate::motion::Crowd;
 use crate::reachable::{reachable_free, spawn_cluster, SpawnError};
+use proto::scenario::GeneratedWorld;
 
 /// Why a world could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -81,7 +82,7 @@ impl World {
     pub fn build(s: &Scenario, map_file: Option<&Path>) -> Result<World, WorldError> {
         let truth = match s.world.map.as_str() {
             name if s.world_is_generated() => {
-                let kind: GenKind = name.parse()?;
+                let kind: GeneratedWorld = name.parse().map_err(GenError::UnknownKind)?;
                 generate(
                     kind,
                     s.world.width_m,

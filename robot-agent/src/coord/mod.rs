@@ -5,8 +5,8 @@
 //! This module holds what every strategy shares — the utility and discount arithmetic below,
 //! the table of other robots' announced targets ([`Heard`]) and the interface
 //! ([`Coordinator`]) — and one file per strategy holds its state and its messages:
-//! [`decentralized`], [`burgard`], [`uncoordinated`], [`bids`] (with [`executive`] and
-//! [`relay`]), [`roles`] (with [`hierarchy`]), [`pack`]; [`team`] is the team table `burgard` and
+//! [`decentralized`], [`burgard`], [`uncoordinated`], [`bids`] (with [`bids::executive`] and
+//! [`bids::relay`]), [`roles`] (with [`roles::hierarchy`]), [`pack`]; [`team`] is the team table `burgard` and
 //! `pack` share. [`new`] registers them by `coordination.strategy`.
 //!
 //! * Utility (thesis eq. 4.4, Burgard eq. 1): every frontier cell starts at U = 1; a target t'

@@ -8,7 +8,7 @@
 //! here it is a Dijkstra over free cells, 8-connected with Euclidean step costs (1 and √2). A
 //! diagonal step needs both orthogonal neighbours free: the robot never cuts a wall's corner, and a
 //! diagonal step's straight segment (which passes through the shared corner) touches only free
-//! cells — the same supercover test the world-server applies to a move.
+//! cells — the same walk ([`proto::traverse::swept`]) the world-server applies to a move.
 //!
 //! The path to a target follows the Dijkstra predecessors; [`next_waypoint`] then shortcuts it to
 //! the farthest path cell that one move can reach along a verified straight segment.
@@ -18,7 +18,8 @@ use std::collections::BinaryHeap;
 
 use proto::grid::{Cell, Grid, Occ, Rect};
 
-use crate::mapping::grid::supercover;
+use proto::geom::MapInfo;
+use proto::traverse::swept;
 
 /// Costs that differ by less than this count as equal when frontiers are ranked, so that the
 /// tie-break by position is not decided by the rounding of sums of 1 and √2.
@@ -335,8 +336,11 @@ pub fn path_to(costs: &CostMap, target: Cell) -> Option<Vec<Cell>> {
 }
 
 /// The farthest cell along `path` within `max_cells` (Euclidean, from the path's first cell) that
-/// the robot can reach on one straight segment: the segment between the two cell centres touches
-/// only free cells (its supercover; the first cell, where the robot stands, is exempt).
+/// the robot, standing at `from_m` (metres, in the path's first cell) on `map`, can reach on one
+/// straight move to the cell's centre: the cells the move sweeps ([`proto::traverse::swept`],
+/// the world-server's own check of a move) are free, the robot's own cell exempt. The world's
+/// walk, from where the robot really stands, so the planner never picks a move the world
+/// refuses on the same map.
 ///
 /// Only the leading part of the path up to the first cell beyond `max_cells` is considered, so the
 /// waypoint never skips a stretch of the path the robot has not reached. When even the path's
@@ -344,20 +348,27 @@ pub fn path_to(costs: &CostMap, target: Cell) -> Option<Vec<Cell>> {
 /// cell), that cell: the world clips the move to the step, and the robot covers part of the way
 /// (without it a robot whose step is under √2 cells never took a diagonal first move, and one
 /// under a cell never moved). `None` when the path has fewer than two cells.
-pub fn next_waypoint(g: &Grid, path: &[Cell], max_cells: f64) -> Option<Cell> {
+pub fn next_waypoint(
+    g: &Grid,
+    map: &MapInfo,
+    from_m: (f64, f64),
+    path: &[Cell],
+    max_cells: f64,
+) -> Option<Cell> {
     let (&first, rest) = path.split_first()?;
     let &second = rest.first()?;
     if f64::from(second.x - first.x).hypot(f64::from(second.y - first.y)) > max_cells {
         return Some(second);
     }
-    let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
+    let from = map.in_cells(from_m.0, from_m.1);
     let reach = rest.iter().take_while(|&&c| {
         let (dx, dy) = (f64::from(c.x - first.x), f64::from(c.y - first.y));
         dx.hypot(dy) <= max_cells
     });
     let candidates: Vec<Cell> = reach.copied().collect();
     candidates.into_iter().rev().find(|&c| {
-        supercover(centre(first), centre(c))
+        let (x, y) = map.centre_of(c);
+        swept(from, map.in_cells(x, y))
             .into_iter()
             .all(|s| s == first || g.get(s) == Occ::Free)
     })
@@ -563,7 +574,13 @@ mod tests {
         let map = costs(&g, start);
         let path = path_to(&map, target.expect("map has a target")).expect("target is reachable");
         let want = marked(expected, &['W']).first().copied();
-        assert_eq!(next_waypoint(&g, &path, max_cells), want, "path {path:?}");
+        let info = MapInfo::at_origin(g.width(), g.height(), 1.0);
+        let from = info.centre_of(start);
+        assert_eq!(
+            next_waypoint(&g, &info, from, &path, max_cells),
+            want,
+            "path {path:?}"
+        );
     }
 
     #[test]
@@ -863,6 +880,51 @@ mod tests {
             }
         }
 
+        /// The planner and the world once walked a move's segment two ways (the world swept closed
+        /// squares from where the robot stood, the planner a half-open supercover between cell
+        /// centres): the planner could pick a waypoint the world refuses. Now, on the world's own
+        /// map, from anywhere in its cell (not only the centre), on maps of any scale and origin,
+        /// the robot's waypoint is a move the world-server does not refuse as blocked.
+        #[test]
+        fn the_world_never_refuses_a_waypoint_the_planner_picks(
+            g in arb_grid(),
+            sx in 0i32..14, sy in 0i32..14,
+            off in (0.01f64..0.99, 0.01f64..0.99),
+            pick in any::<prop::sample::Index>(),
+            max_cells in 0.5f64..12.0,
+            resolution_m in prop::sample::select(vec![0.05, 0.1, 0.192, 0.2, 0.25, 1.0]),
+            origin_m in (-20.0f64..20.0, -20.0f64..20.0),
+        ) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            prop_assume!(g.get(start) == Occ::Free);
+            let info = MapInfo {
+                width: g.width(),
+                height: g.height(),
+                resolution_m,
+                origin_x_m: origin_m.0,
+                origin_y_m: origin_m.1,
+            };
+            let from_m = (
+                info.origin_x_m + (f64::from(start.x) + off.0) * resolution_m,
+                info.origin_y_m + (f64::from(start.y) + off.1) * resolution_m,
+            );
+            prop_assume!(info.cell_of(from_m.0, from_m.1) == start);
+            let map = costs(&g, start);
+            let reachable: Vec<Cell> = (0..g.len()).map(|i| g.cell_of(i)).filter(|&c| map.cost(c).is_some()).collect();
+            let target = reachable[pick.index(reachable.len())];
+            let path = path_to(&map, target).expect("reachable cells have paths");
+            if let Some(w) = next_waypoint(&g, &info, from_m, &path, max_cells) {
+                let pose = proto::geom::Pose { x: from_m.0, y: from_m.1, theta: 0.0 };
+                let moved = world_server::motion::validate_move(
+                    &g, &info, pose, info.centre_of(w), max_cells * resolution_m, &[], 0.2,
+                );
+                prop_assert!(
+                    !matches!(moved, Err(proto::msg::MoveOutcome::Blocked)),
+                    "the world refuses the move from {:?} to {:?} ({:?})", from_m, w, path
+                );
+            }
+        }
+
         #[test]
         fn giving_way_keeps_clear(
             g in arb_grid(),
@@ -910,14 +972,15 @@ mod tests {
             }
             prop_assert!((total - map.cost(target).unwrap_or(f64::NAN)).abs() < 1e-9);
 
-            let waypoint = next_waypoint(&g, &path, max_cells);
+            let info = MapInfo::at_origin(g.width(), g.height(), 1.0);
+            let waypoint = next_waypoint(&g, &info, info.centre_of(start), &path, max_cells);
             let first_step = path.get(1).map(|b| f64::from(b.x - start.x).hypot(f64::from(b.y - start.y)));
             if let (Some(w), Some(step)) = (waypoint, first_step.filter(|&d| d > max_cells)) {
                 prop_assert_eq!(Some(w), path.get(1).copied(), "a first step of {} > {} cells", step, max_cells);
             } else if let Some(w) = waypoint {
                 prop_assert!(path[1..].contains(&w));
                 prop_assert!(f64::from(w.x - start.x).hypot(f64::from(w.y - start.y)) <= max_cells);
-                let line = supercover(
+                let line = swept(
                     (f64::from(start.x) + 0.5, f64::from(start.y) + 0.5),
                     (f64::from(w.x) + 0.5, f64::from(w.y) + 0.5),
                 );

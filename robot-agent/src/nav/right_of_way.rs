@@ -150,6 +150,8 @@ impl RightOfWay {
     pub fn give_way(
         &self,
         g: &Grid,
+        map: &MapInfo,
+        at_m: (f64, f64),
         me: Cell,
         heard: &Heard,
         max_cells: f64,
@@ -161,7 +163,7 @@ impl RightOfWay {
             Heading::To(c) => Some(c),
         };
         let (blocked, path) = plan::give_way(g, me, b.at, theirs, self.clearance_cells)?;
-        let next = plan::next_waypoint(&blocked, &path, max_cells);
+        let next = plan::next_waypoint(&blocked, map, at_m, &path, max_cells);
         Some(next.filter(|&n| n != me))
     }
 }
@@ -225,7 +227,7 @@ mod tests {
         r1.on_move(0, collision(0, other, &info), &info);
         heard.on_target(1, &target(0, Some(Cell::new(0, 4))));
         let aside = r1
-            .give_way(&g, me, &heard, 2.0)
+            .give_way(&g, &info, info.centre_of(me), me, &heard, 2.0)
             .flatten()
             .expect("a way aside");
         let from_other = |c: Cell| f64::from(c.x - other.x).hypot(f64::from(c.y - other.y));
@@ -238,12 +240,18 @@ mod tests {
         let mut r1 = RightOfWay::new(1, 0.2, 0.2);
         r1.on_move(0, collision(2, other, &info), &info);
         heard.on_target(1, &target(2, Some(Cell::new(0, 4))));
-        assert_eq!(r1.give_way(&g, me, &heard, 2.0), None);
+        assert_eq!(
+            r1.give_way(&g, &info, info.centre_of(me), me, &heard, 2.0),
+            None
+        );
         // An idle robot is planned around, not given way to.
         let mut r1 = RightOfWay::new(1, 0.2, 0.2);
         r1.on_move(0, collision(0, other, &info), &info);
         heard.on_target(1, &target(0, None));
-        assert_eq!(r1.give_way(&g, me, &heard, 2.0), None);
+        assert_eq!(
+            r1.give_way(&g, &info, info.centre_of(me), me, &heard, 2.0),
+            None
+        );
         let detour = r1
             .detour(&g, me, &heard)
             .expect("an idle robot is planned around");

@@ -10,10 +10,8 @@
 
 use proto::geom::MapInfo;
 use proto::grid::{Cell, Grid, Occ};
-use proto::pathloss::{count_walls, PathLoss};
+use proto::pathloss::{count_walls, walls_along, PathLoss};
 use proto::scenario::{RadioModel, Scenario};
-
-use crate::mapping::grid::supercover;
 
 /// Directions [`Reach::estimate`] casts.
 const REACH_RAYS: usize = 16;
@@ -63,6 +61,7 @@ impl Reach {
                 res_m,
             } => (model, *range_cells, *res_m),
         };
+        let cells = MapInfo::at_origin(g.width(), g.height(), 1.0);
         let from = (f64::from(p.x) + 0.5, f64::from(p.y) + 0.5);
         let mut total = 0.0;
         for k in 0..REACH_RAYS {
@@ -71,11 +70,9 @@ impl Reach {
                 from.0 + range_cells * a.cos(),
                 from.1 + range_cells * a.sin(),
             );
-            let (mut walls, mut in_wall, mut heard) = (0u32, false, 0.0f64);
-            for c in supercover(from, to) {
-                let solid = g.get(c) == Occ::Occupied;
-                walls += u32::from(solid && !in_wall);
-                in_wall = solid;
+            // The walls counted as [`Reach::linked`] and netem count them.
+            let mut heard = 0.0f64;
+            for (c, walls) in walls_along(&cells, g, from, to, |o| o == Occ::Occupied) {
                 let d = f64::from(c.x - p.x).hypot(f64::from(c.y - p.y));
                 if model.signal_dbm(d * res_m, walls) >= model.threshold_dbm {
                     heard = heard.max(d);
