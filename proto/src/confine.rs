@@ -13,8 +13,8 @@
 //! declaration with a wildcard is allowed only if a granted key includes it: robot 1 cannot
 //! subscribe `sim/robot/*/scan` any more than `sim/robot/3/scan`.
 
+use crate::ids::RobotId;
 use crate::keys;
-use crate::msg::RobotId;
 
 /// A process of a run, as the sim plane's router knows it (its user name).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

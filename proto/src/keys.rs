@@ -3,7 +3,7 @@
 //! Sim plane: `sim/...` (not range-limited, not counted as radio traffic). Radio plane:
 //! `radio/...` (only over netem's per-pair links).
 
-use crate::msg::RobotId;
+use crate::ids::RobotId;
 
 /// Queryable of the world-server: replies [`crate::msg::WorldInfo`].
 pub const WORLD_INFO: &str = "sim/world/info";

@@ -12,10 +12,12 @@ pub mod confine;
 pub mod exit;
 pub mod geom;
 pub mod grid;
+pub mod ids;
 pub mod keys;
 pub mod msg;
 #[cfg(feature = "node")]
 pub mod node;
 pub mod pathloss;
+pub mod process;
 pub mod scenario;
 pub mod traverse;

@@ -16,8 +16,7 @@ use crate::grid::Cell;
 /// Bumped whenever any message below changes shape.
 pub const PROTOCOL_VERSION: u16 = 11;
 
-pub type RobotId = u16;
-pub type Step = u32;
+pub use crate::ids::{RobotId, Step};
 
 /// Reply to the `sim/world/info` query: everything a robot may know about the world before it
 /// explores it (extent and resolution of the grid, its sensor, the clock).
@@ -530,15 +529,15 @@ pub enum Control {
 
 /// netem → launcher on [`crate::keys::PROCESS_ORDERS`]: a process fault asked for at runtime
 /// through netem's API (`POST /processes/<name>`), carried out by the launcher at its next step
-/// like a scheduled one ([`crate::scenario::ProcessAction`], whose TOML form does not fit the
+/// like a scheduled one ([`crate::process::ProcessAction`], whose TOML form does not fit the
 /// wire: this is the same action, externally tagged).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ProcessOrder {
-    pub process: crate::scenario::Process,
+    pub process: crate::process::Process,
     pub order: Order,
 }
 
-/// What a [`ProcessOrder`] does; see [`crate::scenario::ProcessAction`].
+/// What a [`ProcessOrder`] does; see [`crate::process::ProcessAction`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Order {
     Kill { restart_after: Option<u32> },
@@ -547,9 +546,9 @@ pub enum Order {
     Thaw,
 }
 
-impl From<&crate::scenario::ProcessAction> for ProcessOrder {
-    fn from(a: &crate::scenario::ProcessAction) -> ProcessOrder {
-        use crate::scenario::ProcessAction as A;
+impl From<&crate::process::ProcessAction> for ProcessOrder {
+    fn from(a: &crate::process::ProcessAction) -> ProcessOrder {
+        use crate::process::ProcessAction as A;
         let order = match *a {
             A::Kill { restart_after, .. } => Order::Kill { restart_after },
             A::Restart { .. } => Order::Restart,
@@ -563,9 +562,9 @@ impl From<&crate::scenario::ProcessAction> for ProcessOrder {
     }
 }
 
-impl From<ProcessOrder> for crate::scenario::ProcessAction {
-    fn from(o: ProcessOrder) -> crate::scenario::ProcessAction {
-        use crate::scenario::ProcessAction as A;
+impl From<ProcessOrder> for crate::process::ProcessAction {
+    fn from(o: ProcessOrder) -> crate::process::ProcessAction {
+        use crate::process::ProcessAction as A;
         let process = o.process;
         match o.order {
             Order::Kill { restart_after } => A::Kill {
@@ -981,7 +980,7 @@ mod tests {
             robot: 1,
             waypoint: None,
         });
-        use crate::scenario::{Process, ProcessAction};
+        use crate::process::{Process, ProcessAction};
         for action in [
             ProcessAction::Kill {
                 process: Process::Robot(2),

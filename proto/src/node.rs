@@ -444,18 +444,12 @@ fn addressed_only(me: crate::msg::RobotId, team: u16) -> String {
     )
 }
 
-/// zenoh's own lease, which a sim-plane session keeps in realtime runs (wall milliseconds).
-pub const SIM_LEASE_MS: u64 = 10_000;
+pub use crate::scenario::{LOCKSTEP_RADIO_LEASE_MS, SIM_LEASE_MS};
 
 /// Largest zenoh batch on the radio plane: at 1 000 bytes/s one batch crosses in half a second.
 pub const RADIO_BATCH_BYTES: u16 = 512;
 /// Radio link lease (wall milliseconds); 4 keep-alives per lease.
 pub const RADIO_LEASE_MS: u64 = 10_000;
-/// Lockstep: a lease of an hour, so that no keep-alive is due while a run lasts (markers cross
-/// every link every step). The cost: a peer that hangs without closing its connection is not
-/// detected by the lease; one that exits or whose link netem cuts is, at once (the connection
-/// closes).
-pub const LOCKSTEP_RADIO_LEASE_MS: u64 = 3_600_000;
 
 #[cfg(test)]
 mod tests {

@@ -11,6 +11,17 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::process::{Process, ProcessAction, ProcessKind, MAX_ROBOTS, PROCESS_FAULT_KINDS};
+
+/// zenoh's own lease, which a sim-plane session keeps in realtime runs (wall milliseconds).
+pub const SIM_LEASE_MS: u64 = 10_000;
+
+/// Lockstep: a lease of an hour, so that no keep-alive is due while a run lasts (markers cross
+/// every link every step). The cost: a peer that hangs without closing its connection is not
+/// detected by the lease; one that exits or whose link netem cuts is, at once (the connection
+/// closes).
+pub const LOCKSTEP_RADIO_LEASE_MS: u64 = 3_600_000;
+
 /// A whole run's configuration.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -60,131 +71,6 @@ impl Default for Supervise {
             restart: vec![ProcessKind::Robot, ProcessKind::Netem],
             delay_steps: 1,
             max_restarts: 3,
-        }
-    }
-}
-
-/// A kind of process of a run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum ProcessKind {
-    Robot,
-    Netem,
-    BaseStation,
-    WorldServer,
-}
-
-/// One process of a run, named as its log file in `logs/` is: `robot-<id>`, `netem`,
-/// `world-server`, `base-station`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Process {
-    Robot(u16),
-    Netem,
-    BaseStation,
-    WorldServer,
-}
-
-impl Process {
-    pub fn kind(self) -> ProcessKind {
-        match self {
-            Process::Robot(_) => ProcessKind::Robot,
-            Process::Netem => ProcessKind::Netem,
-            Process::BaseStation => ProcessKind::BaseStation,
-            Process::WorldServer => ProcessKind::WorldServer,
-        }
-    }
-}
-
-impl std::fmt::Display for Process {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Process::Robot(i) => write!(f, "robot-{i}"),
-            Process::Netem => f.write_str("netem"),
-            Process::BaseStation => f.write_str("base-station"),
-            Process::WorldServer => f.write_str("world-server"),
-        }
-    }
-}
-
-impl std::str::FromStr for Process {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Process, String> {
-        match s {
-            "netem" => Ok(Process::Netem),
-            "base-station" => Ok(Process::BaseStation),
-            "world-server" => Ok(Process::WorldServer),
-            _ => s
-                .strip_prefix("robot-")
-                .and_then(|i| i.parse().ok())
-                .map(Process::Robot)
-                .ok_or_else(|| {
-                    format!("{s:?} is no process: robot-<id>, netem, base-station or world-server")
-                }),
-        }
-    }
-}
-
-impl Serialize for Process {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.collect_str(self)
-    }
-}
-
-impl<'de> Deserialize<'de> for Process {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Process, D::Error> {
-        String::deserialize(d)?
-            .parse()
-            .map_err(serde::de::Error::custom)
-    }
-}
-
-/// The largest team (`robots.count`). What bounds it is netem's one proxy port per pair of
-/// radio nodes: 200 robots and a base station are 20 100 pairs, and with every process's own
-/// port they fit between port 10 000 and Linux's default ephemeral range (32 768), where the
-/// launcher picks ports. What grows with the square of the team, and what bounds it, is in
-/// ARCHITECTURE.md ("Team size").
-pub const MAX_ROBOTS: u16 = 200;
-
-/// The `[[faults]]` kinds that act on processes (the launcher's); every other kind is a link
-/// fault (netem's).
-pub const PROCESS_FAULT_KINDS: [&str; 4] = ["kill", "restart", "freeze", "thaw"];
-
-/// What a process fault does.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum ProcessAction {
-    /// SIGKILL; started again (same id, next life) after `restart_after` steps if given.
-    Kill {
-        process: Process,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
-        restart_after: Option<u32>,
-    },
-    /// SIGKILL and started again at once (same ports; a robot in its next life).
-    Restart { process: Process },
-    /// SIGSTOP: the process stays, silent (a robot misses its steps and is declared dead after
-    /// `clock.dead_after` of them).
-    Freeze { process: Process },
-    /// SIGCONT: a frozen process goes on (a robot declared dead meanwhile rejoins).
-    Thaw { process: Process },
-}
-
-impl ProcessAction {
-    pub fn process(&self) -> Process {
-        match self {
-            ProcessAction::Kill { process, .. }
-            | ProcessAction::Restart { process }
-            | ProcessAction::Freeze { process }
-            | ProcessAction::Thaw { process } => *process,
-        }
-    }
-
-    /// The kind's name in `[[faults]]`.
-    pub fn name(&self) -> &'static str {
-        match self {
-            ProcessAction::Kill { .. } => "kill",
-            ProcessAction::Restart { .. } => "restart",
-            ProcessAction::Freeze { .. } => "freeze",
-            ProcessAction::Thaw { .. } => "thaw",
         }
     }
 }
@@ -791,13 +677,12 @@ impl Scenario {
     }
 
     /// The lease of every sim-plane session (wall milliseconds): zenoh's own, 10 s
-    /// ([`crate::node::SIM_LEASE_MS`]); in lockstep at least as long as the world takes to
+    /// ([`SIM_LEASE_MS`]); in lockstep at least as long as the world takes to
     /// declare a silent robot dead (`dead_after` step timeouts), at most an hour. A process
     /// starved of CPU on a loaded machine (128 robots on two cores: for more than 10 s) is then
     /// judged by the world's step clock rather than dropped by zenoh first; one that exits or
     /// is killed closes its connection and is noticed at once whatever the lease.
     pub fn sim_lease_ms(&self) -> u64 {
-        use crate::node::{LOCKSTEP_RADIO_LEASE_MS, SIM_LEASE_MS};
         match self.clock.mode {
             ClockMode::Lockstep => self
                 .clock
@@ -1454,16 +1339,16 @@ mod tests {
     fn the_sim_lease_outlasts_the_worlds_verdict_in_lockstep_within_bounds() {
         let mut s = Scenario::default();
         // The default: 5 step timeouts of 2 s, zenoh's own 10 s.
-        assert_eq!(s.sim_lease_ms(), crate::node::SIM_LEASE_MS);
+        assert_eq!(s.sim_lease_ms(), SIM_LEASE_MS);
         s.clock.step_timeout_ms = 600_000;
         assert_eq!(s.sim_lease_ms(), 3_000_000);
         s.clock.step_timeout_ms = u64::MAX;
-        assert_eq!(s.sim_lease_ms(), crate::node::LOCKSTEP_RADIO_LEASE_MS);
+        assert_eq!(s.sim_lease_ms(), LOCKSTEP_RADIO_LEASE_MS);
         s.clock.step_timeout_ms = 1;
-        assert_eq!(s.sim_lease_ms(), crate::node::SIM_LEASE_MS);
+        assert_eq!(s.sim_lease_ms(), SIM_LEASE_MS);
         s.clock.step_timeout_ms = 600_000;
         s.clock.mode = ClockMode::Realtime;
-        assert_eq!(s.sim_lease_ms(), crate::node::SIM_LEASE_MS);
+        assert_eq!(s.sim_lease_ms(), SIM_LEASE_MS);
     }
 
     #[test]
