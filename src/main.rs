@@ -3,6 +3,7 @@
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use proto::node::{entry, outcome};
 
 /// swarm-explore: a team of robots explores an unknown world over a weak radio. Every robot is
 /// its own OS process speaking zenoh; a world-server simulates the world.
@@ -65,163 +66,26 @@ enum Command {
     OnHost(swarm::process::remote::OnHostArgs),
 }
 
+/// One line a subcommand: the library does the work, [`entry`] and [`outcome`] turn its result
+/// into the exit code (an error printed once, as `swarm <sub>: …`).
 fn main() -> ExitCode {
+    use swarm::{cmd, process::remote, run, sweep, view};
     match Cli::parse().command {
-        Command::Run(args) => run(args),
-        Command::Replay(args) => replay(&args),
-        Command::Sweep(args) => match swarm::sweep::runner::sweep(&args) {
-            Ok(dir) => {
-                println!("sweep written to {}", dir.display());
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("swarm sweep: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
-        Command::Chaos(args) => match swarm::cmd::chaos::chaos(&args) {
-            Ok((report, dir)) => {
-                println!("{}", swarm::cmd::chaos::summary_line(&report, &dir));
-                if report.pass {
-                    ExitCode::SUCCESS
-                } else {
-                    ExitCode::from(2)
-                }
-            }
-            Err(e) => {
-                eprintln!("swarm chaos: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
-        Command::View(args) => {
-            proto::node::init_logging();
-            let result = tokio::runtime::Runtime::new()
-                .map_err(anyhow::Error::from)
-                .and_then(|rt| rt.block_on(swarm::view::server::replay(&args)));
-            match result {
-                Ok(()) => ExitCode::SUCCESS,
-                Err(e) => {
-                    eprintln!("swarm view: {e:#}");
-                    ExitCode::FAILURE
-                }
-            }
+        Command::Run(args) => entry("swarm", run::launch::command(args)),
+        Command::Replay(args) => outcome("swarm", cmd::replay::command(&args)),
+        Command::Sweep(args) => outcome("swarm sweep", sweep::runner::command(&args)),
+        Command::Chaos(args) => outcome("swarm chaos", cmd::chaos::command(&args)),
+        Command::View(args) => entry("swarm view", view::server::command(args)),
+        Command::ExportMcap(args) => {
+            outcome("swarm export-mcap", view::export_mcap::command(&args))
         }
-        Command::ExportMcap(args) => match swarm::view::export_mcap::export(&args) {
-            Ok((path, counts)) => {
-                println!("written {}", path.display());
-                for (topic, n) in counts {
-                    println!("  {topic}: {n} messages");
-                }
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("swarm export-mcap: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
         Command::WorldServer(args) => world_server::cli::main(args),
         Command::RobotAgent(args) => robot_agent::cli::main(args),
         Command::BaseStation(args) => robot_agent::cli::base_main(args),
-        Command::Netem(swarm::cmd::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),
-        Command::HostInfo(args) => match swarm::process::remote::host_info(&args) {
-            Ok(info) => {
-                println!("{}", serde_json::to_string(&info).unwrap_or_default());
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("swarm host-info: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
-        Command::HostFiles(args) => {
-            match swarm::process::remote::host_files(&args, std::io::stdin()) {
-                Ok(_) => ExitCode::SUCCESS,
-                Err(e) => {
-                    eprintln!("swarm host-files: {e:#}");
-                    ExitCode::FAILURE
-                }
-            }
-        }
-        Command::OnHost(args) => match swarm::process::remote::on_host(&args) {
-            Ok(code) => ExitCode::from(u8::try_from(code).unwrap_or(1)),
-            Err(e) => {
-                eprintln!("swarm on-host: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
-        Command::Netem(cmd) => match swarm::cmd::netemctl::control(&cmd) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("swarm netem: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
-    }
-}
-
-fn replay(args: &swarm::cmd::replay::ReplayArgs) -> ExitCode {
-    proto::node::init_logging();
-    match swarm::cmd::replay::replay(args) {
-        Ok((dir, s)) => {
-            println!(
-                "replay of {}: {} steps, coverage {:.1}%, {} ops, {} bytes, e_avg {}",
-                s.map,
-                s.steps,
-                s.coverage_pct,
-                s.ops,
-                s.bytes,
-                s.approx_error_avg.map_or("-".into(), |e| format!("{e:.4}"))
-            );
-            for (name, t) in &s.by_type {
-                let mean = t.mean_bytes.map_or("-".into(), |m| format!("{m:.2}"));
-                println!(
-                    "  {name:>4}: {:>8} ops, mean {mean} bytes (thesis {})",
-                    t.count, t.thesis_bytes
-                );
-            }
-            println!("written to {}", dir.display());
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("swarm: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
-}
-
-fn run(args: swarm::run::RunArgs) -> ExitCode {
-    proto::node::init_logging();
-    let runtime = match tokio::runtime::Runtime::new() {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("swarm: cannot start the runtime: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
-    match runtime.block_on(swarm::run::run(args)) {
-        Ok(out) => {
-            let s = &out.summary;
-            let steps = s.exploration_steps.map_or("-".into(), |v| v.to_string());
-            println!(
-                "{}: {} after {} steps ({} robots); exploration steps {steps}; best coverage {:.1}%; {:.1} s wall; radio payload {} bytes; run directory {}",
-                if s.complete { "complete" } else { "INCOMPLETE" },
-                s.exit_reason,
-                s.steps,
-                s.robots,
-                s.best_coverage_pct,
-                s.wall_seconds,
-                s.bytes_payload_total,
-                out.dir.display()
-            );
-            if s.complete {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::from(2)
-            }
-        }
-        Err(e) => {
-            eprintln!("swarm: {e:#}");
-            ExitCode::FAILURE
-        }
+        Command::Netem(cmd::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),
+        Command::Netem(c) => outcome("swarm netem", cmd::netemctl::command(&c)),
+        Command::HostInfo(args) => outcome("swarm host-info", remote::host_info_command(&args)),
+        Command::HostFiles(args) => outcome("swarm host-files", remote::host_files_command(&args)),
+        Command::OnHost(args) => outcome("swarm on-host", remote::on_host_command(&args)),
     }
 }

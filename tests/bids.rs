@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::time::Duration;
 
-use crate::support::{csv, num, stderr, summary, swarm_run, TempDir};
+use crate::support::{csv, num, stderr, summary_typed, swarm_run, TempDir};
 
 /// A small generated office, 3 robots and a base station in their spawn area, every link up
 /// unless a fault cuts it (`always`), so that what the test sees is the faults' doing.
@@ -55,12 +55,12 @@ fn sent(run: &Path, node: u32, kind: &str) -> f64 {
 fn bids_reach_the_base_station_and_assignments_come_back_over_netem() {
     let dir = TempDir::new("bids");
     let run = run(&dir, "");
-    let s = summary(&run);
-    assert_eq!(s["complete"], true, "{s}");
-    assert_eq!(s["deterministic"], true, "{}", s["nondeterministic"]);
-    let by_type = &s["bytes_by_type"];
-    assert!(by_type["bid"].as_f64().unwrap_or(0.0) > 0.0, "{by_type}");
-    assert!(by_type["task"].as_f64().unwrap_or(0.0) > 0.0, "{by_type}");
+    let s = summary_typed(&run);
+    assert!(s.complete, "{s:?}");
+    assert!(s.deterministic, "{:?}", s.nondeterministic);
+    let by_type = &s.bytes_by_type;
+    assert!(by_type["bid"] > 0, "{by_type:?}");
+    assert!(by_type["task"] > 0, "{by_type:?}");
     // The base station sends tasks and never bids; each robot bids.
     assert!(sent(&run, 3, "task") > 0.0);
     assert_eq!(sent(&run, 3, "bid"), 0.0);
@@ -103,9 +103,9 @@ fn cut_off_from_the_base_robots_decide_alone_and_follow_it_again_once_it_is_back
              [[faults]]\nstep = {heal}\nkind = \"heal\"\n"
         ),
     );
-    let s = summary(&run);
-    assert_eq!(s["complete"], true, "{s}");
-    assert_eq!(s["deterministic"], true, "{}", s["nondeterministic"]);
+    let s = summary_typed(&run);
+    assert!(s.complete, "{s:?}");
+    assert!(s.deterministic, "{:?}", s.nondeterministic);
     let rows = metrics(&run);
     let robot_rows = |from: f64, to: f64| {
         rows.iter()

@@ -5,7 +5,9 @@
 use std::process::{Command, Output};
 use std::time::Duration;
 
-use crate::support::{stderr, Launcher, TempDir, SWARM};
+use swarm::process::supervise::EventKind;
+
+use crate::support::{stderr, summary_typed, Launcher, TempDir, SWARM};
 
 /// `swarm chaos` on a small office with three robots, writing into `dir`.
 fn chaos(dir: &TempDir, flags: &[&str], broken: bool) -> (Output, serde_json::Value) {
@@ -67,6 +69,14 @@ fn a_random_campaign_of_process_and_link_faults_passes_the_checker() {
     for name in ["completes", "logs", "panics", "orphans", "memory"] {
         assert_eq!(check(&report, name)["pass"], true, "{name}: {report}");
     }
+    // What the checker judged: the run's summary, typed, as `completes` quotes it.
+    let s = summary_typed(&dir.path().join("chaos/run"));
+    assert!(s.complete, "{s:?}");
+    assert_eq!(
+        check(&report, "completes")["detail"],
+        format!("complete: {} after {} steps", s.exit_reason, s.steps).as_str(),
+        "{report}"
+    );
     // The schedule is the seed's: the same flags give the same faults (whether the run got
     // to each depends on how long it went on, which the faults' timing changes).
     let again = TempDir::new("chaos-again");
@@ -108,6 +118,15 @@ fn the_checker_fails_a_recovery_that_forgets_a_restarted_robots_first_life() {
     assert_eq!(out.status.code(), Some(2), "{}\n{report}", stderr(&out));
     let logs = check(&report, "logs");
     assert_eq!(logs["pass"], false, "{report}");
+    // The faults were carried out: a robot killed and started again in its next life.
+    let s = summary_typed(&dir.path().join("chaos/run"));
+    assert!(
+        s.process_events
+            .iter()
+            .any(|e| e.event == EventKind::Started && e.life > 0),
+        "{:?}",
+        s.process_events
+    );
     assert!(
         logs["detail"]
             .as_str()

@@ -17,7 +17,7 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 use zenoh::Session;
 
-use crate::support::{kill, run_args, summary, wait_file, Launcher, TempDir, SWARM};
+use crate::support::{kill, run_args, summary_typed, wait_file, Launcher, TempDir, SWARM};
 
 type Sub = Subscriber<FifoChannelHandler<Sample>>;
 
@@ -179,8 +179,8 @@ async fn a_rogue_with_robot_1s_login_cannot_see_or_move_robot_3_nor_stop_the_run
     drop((rogue, observer));
     kill(pid, 15);
     launcher.wait_output(Duration::from_secs(60));
-    let s = summary(&run);
-    assert_eq!(s["exit_reason"], "terminated", "{s}");
+    let s = summary_typed(&run);
+    assert_eq!(s.exit_reason, proto::exit::ExitReason::Terminated, "{s:?}");
     let world_log = std::fs::read_to_string(run.join("logs/world-server.log")).unwrap_or_default();
     assert!(
         !world_log.contains("panicked"),

@@ -10,7 +10,9 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use crate::support::{summary, swarm_run, Launcher, TempDir, SWARM};
+use swarm::rundir::summary::Summary;
+
+use crate::support::{summary_typed, swarm_run, Launcher, TempDir, SWARM};
 
 /// The robots' tables and grids, compared file by file: the first difference, named by file and
 /// line.
@@ -84,13 +86,13 @@ impl Drop for Hog {
     }
 }
 
-fn run_dir(out: &std::process::Output, dir: &Path) -> serde_json::Value {
+fn run_dir(out: &std::process::Output, dir: &Path) -> Summary {
     assert!(
         out.status.code().is_some_and(|c| c == 0),
         "the run failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
-    summary(dir)
+    summary_typed(dir)
 }
 
 /// Runs `scenario` with `sets` three times — alone, under a CPU hog, beside another run — and
@@ -107,7 +109,7 @@ fn same_run_three_ways(
         .collect();
     let (out, alone) = swarm_run(&dirs[0], scenario, sets, limit);
     let first = run_dir(&out, &alone);
-    assert_eq!(first["deterministic"], true, "{first}");
+    assert!(first.deterministic, "{first:?}");
     check(&alone);
     let hogged = {
         let _hog = Hog::start();
@@ -136,16 +138,16 @@ fn same_run_three_ways(
         ("under a CPU hog", &hogged),
         ("beside another run", &beside),
     ] {
-        let s = summary(d);
+        let s = summary_typed(d);
         if let Some(diff) = first_difference(&alone, d) {
             panic!(
-                "{name}: the run {how} differs from the run alone (digests {} vs {}):\n{diff}\n{s}",
-                first["run_digest"], s["run_digest"]
+                "{name}: the run {how} differs from the run alone (digests {} vs {}):\n{diff}\n{s:?}",
+                first.run_digest, s.run_digest
             );
         }
-        assert_eq!(s["deterministic"], true, "{how}: {s}");
+        assert!(s.deterministic, "{how}: {s:?}");
         assert_eq!(
-            s["run_digest"], first["run_digest"],
+            s.run_digest, first.run_digest,
             "{name} {how}: the same files, yet another digest"
         );
     }

@@ -12,7 +12,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::capture::{compare, dropped, link_totals, segments, Capture};
-use crate::support::{run_args, stderr, summary, Launcher, TempDir, SWARM};
+use crate::support::{run_args, stderr, summary_typed, Launcher, TempDir, SWARM};
 
 /// Namespaces made by one test: `<tag>-h0` … (the hosts) and `<tag>-sw` (their switch).
 struct Lab {
@@ -323,10 +323,10 @@ fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run
     cmd.arg("--hosts").arg(&hosts);
     let out = Launcher::spawn(cmd).wait_output(Duration::from_secs(600));
     let said = capture.stop(&pcap);
-    let s = summary(&spread);
-    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
-    assert_eq!(s["complete"], true, "{s}");
-    assert_eq!(s["robots_alive_at_end"], 8, "{s}");
+    let s = summary_typed(&spread);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s:?}", stderr(&out));
+    assert!(s.complete, "{s:?}");
+    assert_eq!(s.robots_alive_at_end, 8, "{s:?}");
     // The sim plane's router listened on h0's address, not loopback.
     let endpoint = std::fs::read_to_string(spread.join("sim.endpoint")).unwrap_or_default();
     assert!(endpoint.contains(&address(0)), "{endpoint}");
@@ -373,12 +373,12 @@ fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run
     let mut cmd = lab.exec(0, SWARM);
     run_args(&mut cmd, &single, &sets);
     let out = Launcher::spawn(cmd).wait_output(Duration::from_secs(600));
-    let one = summary(&single);
-    assert_eq!(out.status.code(), Some(0), "{}\n{one}", stderr(&out));
-    assert_eq!(s["deterministic"], true, "{s}");
-    assert_eq!(one["deterministic"], true, "{one}");
+    let one = summary_typed(&single);
+    assert_eq!(out.status.code(), Some(0), "{}\n{one:?}", stderr(&out));
+    assert!(s.deterministic, "{s:?}");
+    assert!(one.deterministic, "{one:?}");
     assert_eq!(
-        s["run_digest"], one["run_digest"],
+        s.run_digest, one.run_digest,
         "the spread run differs from the run on one host"
     );
     // Nothing of either run is left on any host (h3 runs only its sshd).
@@ -469,21 +469,14 @@ fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_proces
     assert!(lab.kill_host(3) >= 5, "h3's sshd, sessions and robots");
     drop(sshd);
     let out = launcher.wait_output(Duration::from_secs(600));
-    let s = summary(&run);
+    let s = summary_typed(&run);
     assert!(
         matches!(out.status.code(), Some(0 | 2)),
-        "{}\n{s}",
+        "{}\n{s:?}",
         stderr(&out)
     );
     crate::support::assert_killed_and_supervised(&s, &["robot-1", "robot-4", "robot-7"]);
-    let alive: Vec<u64> = s["nodes_alive_at_end"]
-        .as_array()
-        .cloned()
-        .unwrap_or_default()
-        .iter()
-        .filter_map(serde_json::Value::as_u64)
-        .collect();
-    assert_eq!(alive, [0, 1, 3, 4, 6, 7], "{s}");
+    assert_eq!(s.nodes_alive_at_end, [0, 1, 3, 4, 6, 7], "{s:?}");
     assert_eq!(
         lab.leftover(&[]),
         Vec::<(usize, u32)>::new(),
@@ -685,24 +678,20 @@ fn thirty_two_robots_over_four_namespaces_complete_as_on_one_host() {
             cmd.arg("--hosts").arg(&hosts);
         }
         let o = Launcher::spawn(cmd).wait_output(Duration::from_secs(1800));
-        let s = summary(&out);
-        assert_eq!(o.status.code(), Some(0), "{name}: {}\n{s}", stderr(&o));
-        assert_eq!(s["robots_alive_at_end"], 32, "{s}");
+        let s = summary_typed(&out);
+        assert_eq!(o.status.code(), Some(0), "{name}: {}\n{s:?}", stderr(&o));
+        assert_eq!(s.robots_alive_at_end, 32, "{s:?}");
         eprintln!(
-            "{name}: {} steps, {:.1} s wall, {} bytes on the wire, deterministic {} {}, digest {}",
-            s["steps"],
-            s["wall_seconds"].as_f64().unwrap_or(0.0),
-            s["bytes_wire_total"],
-            s["deterministic"],
-            s["nondeterministic"],
-            s["run_digest"]
+            "{name}: {} steps, {:.1} s wall, {:?} bytes on the wire, deterministic {} {:?}, digest {}",
+            s.steps,
+            s.wall_seconds,
+            s.bytes_wire_total,
+            s.deterministic,
+            s.nondeterministic,
+            s.run_digest
         );
-        assert_eq!(
-            s["deterministic"], true,
-            "{name}: {}",
-            s["nondeterministic"]
-        );
-        digests.push(s["run_digest"].clone());
+        assert!(s.deterministic, "{name}: {:?}", s.nondeterministic);
+        digests.push(s.run_digest.clone());
     }
     if digests[0] != digests[1] {
         // Kept for a look at which table differs (`cmp`), as the lab's files go with the test.

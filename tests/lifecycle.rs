@@ -5,7 +5,9 @@
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use crate::support::{descendants, kill, running, stderr, summary, Launcher, TempDir, SWARM};
+use proto::exit::ExitReason;
+
+use crate::support::{descendants, kill, running, stderr, summary_typed, Launcher, TempDir, SWARM};
 
 /// Starts a run in realtime mode (200 ms per step), so that it lasts long enough to be
 /// interfered with: about 60 steps, some 12 s, where the kills below land after 2–3 s even on
@@ -85,18 +87,10 @@ fn a_robot_killed_mid_run_is_reported_and_nothing_is_left() {
         err.contains("SIGKILL"),
         "the launcher reports the killed robot: {err}"
     );
-    let s = summary(&dir.path().join("run"));
-    assert!(
-        s["failed_processes"]
-            .as_array()
-            .is_some_and(|f| f.len() == 1),
-        "{s}"
-    );
-    assert_eq!(
-        s["complete"], true,
-        "the other robots finish the exploration: {s}"
-    );
-    assert_eq!(s["robots_alive_at_end"], 2, "{s}");
+    let s = summary_typed(&dir.path().join("run"));
+    assert_eq!(s.failed_processes.len(), 1, "{s:?}");
+    assert!(s.complete, "the other robots finish the exploration: {s:?}");
+    assert_eq!(s.robots_alive_at_end, 2, "{s:?}");
     wait_gone(&kids);
 }
 
@@ -144,18 +138,14 @@ fn killing_the_world_server_is_the_reported_cause() {
         "an incomplete run: {}",
         stderr(&out)
     );
-    let s = summary(&dir.path().join("run"));
-    assert_eq!(s["exit_reason"], "world-server-exited", "{s}");
-    assert_eq!(s["complete"], false, "{s}");
-    let failed = s["failed_processes"]
-        .as_array()
-        .cloned()
-        .unwrap_or_default();
+    let s = summary_typed(&dir.path().join("run"));
+    assert_eq!(s.exit_reason, ExitReason::WorldServerExited, "{s:?}");
+    assert!(!s.complete, "{s:?}");
     assert!(
-        failed.iter().any(|f| f
-            .as_str()
-            .is_some_and(|f| f.starts_with("world-server") && f.contains("SIGKILL"))),
-        "{s}"
+        s.failed_processes
+            .iter()
+            .any(|f| f.starts_with("world-server") && f.contains("SIGKILL")),
+        "{s:?}"
     );
     wait_gone(&kids);
 }
@@ -200,9 +190,9 @@ fn robots_and_netem_killed_from_outside_are_started_again_by_supervision() {
     let mut all = first;
     all.extend([robot2, netem2]);
     let out = l.wait_output(Duration::from_secs(300));
-    let s = summary(&dir.path().join("run"));
-    assert_eq!(s["complete"], true, "{}\n{s}", stderr(&out));
-    assert_eq!(s["robots_alive_at_end"], 3, "{s}");
+    let s = summary_typed(&dir.path().join("run"));
+    assert!(s.complete, "{}\n{s:?}", stderr(&out));
+    assert_eq!(s.robots_alive_at_end, 3, "{s:?}");
     crate::support::assert_killed_and_supervised(&s, &["robot-1", "netem"]);
     wait_gone(&all);
 }

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use crate::support::{csv, num, stderr, summary, swarm_run, Launcher, TempDir, SWARM};
+use crate::support::{csv, num, stderr, summary_typed, swarm_run, Launcher, TempDir, SWARM};
 
 /// An 8-robot run with a 6 m disk range; returns its run directory (kept by `dir`).
 fn ranged_run(dir: &TempDir) -> std::path::PathBuf {
@@ -27,10 +27,10 @@ fn ranged_run(dir: &TempDir) -> std::path::PathBuf {
         "{}",
         stderr(&out)
     );
-    let s = summary(&run);
+    let s = summary_typed(&run);
     assert!(
-        s["bytes_wire_total"].as_u64().unwrap_or(0) > 0,
-        "bytes crossed netem: {s}"
+        s.bytes_wire_total.is_some_and(|b| b > 0),
+        "bytes crossed netem: {s:?}"
     );
     run
 }
@@ -77,12 +77,11 @@ fn no_link_is_up_while_its_robots_are_out_of_range() {
     );
     // Links that come back into range reconnect within two steps (the robots' zenoh retry
     // period is tuned for it, proto::node::radio_peer).
-    let r = &summary(&run)["reconnect"];
-    let events = r["events"].as_u64().unwrap_or(0);
-    assert!(events >= 5, "too few reconnections to judge: {r}");
+    let r = summary_typed(&run).reconnect;
+    assert!(r.events >= 5, "too few reconnections to judge: {r:?}");
     assert!(
-        r["max_steps"].as_u64().is_some_and(|m| m <= 2),
-        "a link needed more than 2 steps to reconnect: {r}"
+        r.max_steps.is_some_and(|m| m <= 2),
+        "a link needed more than 2 steps to reconnect: {r:?}"
     );
 }
 
@@ -265,11 +264,10 @@ fn curl_cuts_and_restores_a_link_during_a_run() {
     let (ok, metrics) = curl(&[&format!("http://{addr}/metrics")]);
     assert!(ok && metrics.contains("r0-r1"), "{metrics}");
     let out = l.wait_output(Duration::from_secs(300));
-    let s = summary(&run);
-    assert_eq!(
-        s["complete"],
-        true,
-        "the run completes after the cut and restore: {s}\n{}",
+    let s = summary_typed(&run);
+    assert!(
+        s.complete,
+        "the run completes after the cut and restore: {s:?}\n{}",
         stderr(&out)
     );
     let links = csv(&run.join("links.csv"));
@@ -416,12 +414,9 @@ fn a_run_survives_every_fault_type_and_each_shows_its_effect() {
         "{}",
         stderr(&out)
     );
-    let s = summary(&run);
-    assert_eq!(s["failed_processes"], serde_json::json!([]), "{s}");
-    assert!(
-        s["steps"].as_u64().unwrap_or(0) >= 280,
-        "the run ended early: {s}"
-    );
+    let s = summary_typed(&run);
+    assert!(s.failed_processes.is_empty(), "{s:?}");
+    assert!(s.steps >= 280, "the run ended early: {s:?}");
 
     let links = csv(&run.join("links.csv"));
     let row = |step: u64, a: u64, b: u64| {
@@ -535,7 +530,7 @@ fn a_run_survives_every_fault_type_and_each_shows_its_effect() {
     // Flipped bits on 0-3 either break zenoh's framing (the session closes and reconnects:
     // a fourth connection after the first, the partition and the reset) or reach the robots'
     // decoders, which count and drop what they cannot decode.
-    let decode_errors = s["radio_decode_errors"].as_u64().unwrap_or(0);
+    let decode_errors = s.radio_decode_errors;
     assert!(
         established(0.0, 3.0) >= 4.0 || decode_errors > 0,
         "corruption left no trace: {decode_errors} decode errors, {totals:?}"

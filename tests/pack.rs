@@ -6,7 +6,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::time::Duration;
 
-use crate::support::{csv, stderr, summary, swarm_run, TempDir};
+use crate::support::{csv, stderr, summary_typed, swarm_run, TempDir};
 
 /// Simmons et al.'s `random` world (scattered obstacles, like Rooker and Birk's Fig. 4), five
 /// robots, a 6 m disk radio.
@@ -76,24 +76,21 @@ fn a_pack_stays_in_touch_where_nearest_frontier_robots_drift_apart() {
     );
     // 0: explored, 2: the step limit came first.
     assert!(matches!(out.status.code(), Some(0 | 2)), "{}", stderr(&out));
-    let s = summary(&run);
-    assert_eq!(s["deterministic"], true, "{}", s["nondeterministic"]);
+    let s = summary_typed(&run);
+    assert!(s.deterministic, "{:?}", s.nondeterministic);
     let pack = levels(&csv(&run.join("links.csv")), 5);
     assert!(pack.len() >= 190, "{} steps of links", pack.len());
     let broken: Vec<(&u32, &f64)> = pack.iter().filter(|(_, &l)| l < 100.0).collect();
     assert!(broken.is_empty(), "the pack lost touch at {broken:?}");
-    assert_eq!(s["comm_level_pct"]["min"], 100.0, "{}", s["comm_level_pct"]);
+    let level = s.comm_level_pct.expect("comm_level_pct");
+    assert_eq!(level.min, 100.0, "{level:?}");
     // It explores: the team knows a good part of the world, and it moved as a pack.
-    let coverage = s["best_coverage_pct"].as_f64().unwrap_or(0.0);
+    let coverage = s.best_coverage_pct;
     assert!(coverage > 35.0, "the pack explored {coverage:.1} %");
     // The leader's moves crossed the radio as their own package type.
-    let moved = s["bytes_by_type"]["move"].as_f64().unwrap_or(0.0);
-    assert!(moved > 0.0, "{}", s["bytes_by_type"]);
-    assert!(
-        s["link_judgement"]["judgements"].as_f64().unwrap_or(0.0) > 0.0,
-        "{}",
-        s["link_judgement"]
-    );
+    assert!(s.bytes_by_type["move"] > 0, "{:?}", s.bytes_by_type);
+    let judged = s.link_judgement.as_ref().expect("link_judgement of pack");
+    assert!(judged.judgements > 0, "{judged:?}");
 
     let dir = TempDir::new("pack-uncoordinated");
     let (out, run) = swarm_run(
@@ -104,17 +101,14 @@ fn a_pack_stays_in_touch_where_nearest_frontier_robots_drift_apart() {
     );
     // 0: explored, 2: the step limit came first.
     assert!(matches!(out.status.code(), Some(0 | 2)), "{}", stderr(&out));
-    let s = summary(&run);
+    let s = summary_typed(&run);
     let alone = levels(&csv(&run.join("links.csv")), 5);
     let lowest = alone.values().copied().fold(f64::INFINITY, f64::min);
     assert!(
         lowest < 50.0,
         "nearest-frontier robots kept {lowest:.0} % at least"
     );
-    assert_eq!(
-        s["comm_level_pct"]["min"], lowest,
-        "{}",
-        s["comm_level_pct"]
-    );
-    assert!(s["link_judgement"].is_null(), "{}", s["link_judgement"]);
+    let level = s.comm_level_pct.expect("comm_level_pct");
+    assert_eq!(level.min, lowest, "{level:?}");
+    assert!(s.link_judgement.is_none(), "{:?}", s.link_judgement);
 }

@@ -5,7 +5,9 @@ use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use crate::support::{csv, num, pgm, stderr, summary, swarm_run, TempDir};
+use swarm::rundir::summary::Summary;
+
+use crate::support::{csv, num, pgm, stderr, summary_typed, swarm_run, TempDir};
 
 /// The shipped transitivity scenario.
 const RELAY: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/scenarios/relay.toml");
@@ -72,7 +74,7 @@ fn run_text(dir: &TempDir, name: &str, text: &str) -> PathBuf {
 /// is run once more, and both outcomes are reported: one CI run (2 cores, tests in parallel) saw
 /// an office run with 3 robots end incomplete, which 3 reruns by hand did not reproduce (open,
 /// see issue #6's note).
-fn wire_bytes(sets: &[&str]) -> (u64, serde_json::Value) {
+fn wire_bytes(sets: &[&str]) -> (u64, Summary) {
     let dir = TempDir::new("poly-bytes");
     let again = TempDir::new("poly-bytes-again");
     let (mut out, mut run) = swarm_run(&dir, None, sets, Duration::from_secs(300));
@@ -87,7 +89,7 @@ fn wire_bytes(sets: &[&str]) -> (u64, serde_json::Value) {
         "{sets:?}: {} {said}",
         stderr(&out)
     );
-    let s = summary(&run);
+    let s = summary_typed(&run);
     // traffic_by_type.csv's per-step rows add up to the summary's totals per class.
     let mut table =
         csv::Reader::from_path(run.join("traffic_by_type.csv")).expect("traffic_by_type.csv");
@@ -107,27 +109,25 @@ fn wire_bytes(sets: &[&str]) -> (u64, serde_json::Value) {
         }
     }
     for (i, class) in head.iter().enumerate().skip(2) {
-        assert_eq!(
-            sums[i],
-            s["bytes_by_type"][class].as_u64().unwrap_or(u64::MAX),
-            "{class}"
-        );
+        assert_eq!(sums[i], s.bytes_by_type[class], "{class}");
     }
-    (s["bytes_wire_total"].as_u64().unwrap_or(0), s)
+    (s.bytes_wire_total.expect("bytes_wire_total"), s)
 }
 
 #[test]
 fn the_default_scenario_completes_with_the_polygon_exchange() {
     let (wire, s) = wire_bytes(&["exchange.mode=polygon"]);
-    assert!(s["complete"].as_bool() == Some(true), "{s}");
-    let by = &s["bytes_by_type"];
-    assert_eq!(by["scan"], 0, "{s}");
+    assert!(s.complete, "{s:?}");
+    let by = &s.bytes_by_type;
+    assert_eq!(by["scan"], 0, "{s:?}");
     for t in ["ins", "rep", "em", "save", "conn"] {
-        assert!(by[t].as_u64().unwrap_or(0) > 0, "no {t} bytes: {s}");
+        assert!(by[t] > 0, "no {t} bytes: {s:?}");
     }
-    let e = s["approx_error_avg"].as_f64().unwrap_or(-1.0);
-    assert!((0.0..0.5).contains(&e), "e_avg {e}: {s}");
-    assert_eq!(s["radio_decode_errors"], 0, "{s}");
+    let e = s
+        .approx_error_avg
+        .expect("approx_error_avg, polygon exchange");
+    assert!((0.0..0.5).contains(&e), "e_avg {e}: {s:?}");
+    assert_eq!(s.radio_decode_errors, 0, "{s:?}");
     assert!(wire > 0);
 }
 
@@ -164,11 +164,18 @@ fn a_robot_learns_the_map_of_a_robot_it_never_meets_through_a_third() {
             (0.0, 0.0),
             "bytes crossed the cut link: {row:?}"
         );
-        let s = summary(&run);
-        let held = |robot: &str, owner: &str| s["logs_held"][robot][owner].as_u64().unwrap_or(0);
+        let s = summary_typed(&run);
+        // A robot's entry lists the owners it holds ops of.
+        let held = |robot: &str, owner: &str| {
+            s.logs_held
+                .get(robot)
+                .and_then(|h| h.get(owner))
+                .copied()
+                .unwrap_or_else(|| panic!("robot {robot} holds none of {owner}'s log: {s:?}"))
+        };
         let own0 = held("0", "0");
-        assert!(own0 > 50, "robot 0 logged only {own0} ops: {s}");
-        assert!(held("0", "2") > 0, "robot 0 never got robot 2's log: {s}");
+        assert!(own0 > 50, "robot 0 logged only {own0} ops: {s:?}");
+        assert!(held("0", "2") > 0, "robot 0 never got robot 2's log: {s:?}");
         // Robot 2 shows robot 0 up to a save point (every view is one, checked against
         // saves.csv).
         let (views, _) = views_are_atomic(&run);
@@ -176,7 +183,7 @@ fn a_robot_learns_the_map_of_a_robot_it_never_meets_through_a_third() {
             .iter()
             .filter(|v| v["robot"] == "2" && v["owner"] == "0")
             .max_by_key(|v| num(v, "step") as u64)
-            .unwrap_or_else(|| panic!("robot 2 never showed robot 0: {s}"));
+            .unwrap_or_else(|| panic!("robot 2 never showed robot 0: {s:?}"));
         let shown = num(last, "shown");
         assert!(
             shown > own0 as f64 / 2.0,
@@ -329,7 +336,7 @@ fn logs_converge_over_the_network_once_links_are_back() {
     }
     let run = run_text(&dir, "converge", &text);
     let (views, _) = views_are_atomic(&run);
-    let last_step = summary(&run)["steps"].as_f64().unwrap_or(0.0);
+    let last_step = f64::from(summary_typed(&run).steps);
     // Per owner, its log length at each step (saves.csv).
     let mut saves: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
     for r in csv(&run.join("saves.csv")) {
@@ -388,11 +395,11 @@ fn polygons_against_raw_scans(map: &str, robots: u32) {
     let (poly, p) = wire_bytes(&with(&[unlimited, "exchange.mode=polygon"]));
     let ratio = poly as f64 / raw as f64;
     eprintln!(
-        "{map}, {robots}: wire bytes polygon {poly} ({} steps), raw scans {raw} ({} steps), ratio {ratio:.3}",
-        p["exploration_steps"], r["exploration_steps"]
+        "{map}, {robots}: wire bytes polygon {poly} ({:?} steps), raw scans {raw} ({:?} steps), ratio {ratio:.3}",
+        p.exploration_steps, r.exploration_steps
     );
-    assert!(p["complete"].as_bool() == Some(true), "{p}");
-    assert!(r["complete"].as_bool() == Some(true), "{r}");
+    assert!(p.complete, "{p:?}");
+    assert!(r.complete, "{r:?}");
     assert!(
         ratio <= 0.25,
         "polygon {poly} vs raw scans {raw}: ratio {ratio:.3}"
@@ -402,7 +409,7 @@ fn polygons_against_raw_scans(map: &str, robots: u32) {
     let sets = with(&["radio.bandwidth_bytes_per_s=1000", "exchange.mode=polygon"]);
     let (out, run) = swarm_run(&dir, None, &sets, Duration::from_secs(300));
     assert!(out.status.code() == Some(0), "{sets:?}: {}", stderr(&out));
-    let s = summary(&run);
+    let s = summary_typed(&run);
     let links = csv(&run.join("links.csv"));
     // Per link and direction, with step markers (docs/guide/netem.md, "A links.csv row"): the robots pace a
     // link to its rate on the wire, with bursts of up to 4 steps' budget after idle steps (and
@@ -438,13 +445,13 @@ fn polygons_against_raw_scans(map: &str, robots: u32) {
         .iter()
         .map(|l| num(l, "queued_bytes"))
         .fold(0.0, f64::max);
-    let backlog = s["backlog_max_bytes"].as_f64().unwrap_or(f64::MAX);
+    let backlog = s.backlog_max_bytes as f64;
     eprintln!(
-        "{map}, {robots} at 1000 B/s: {} steps, {} wire bytes, e_avg {}, netem queue max {queued} B, \
+        "{map}, {robots} at 1000 B/s: {:?} steps, {:?} wire bytes, e_avg {:?}, netem queue max {queued} B, \
          robot backlog max {backlog} B, mean {}",
-        s["exploration_steps"], s["bytes_wire_total"], s["approx_error_avg"], s["backlog_mean_bytes"]
+        s.exploration_steps, s.bytes_wire_total, s.approx_error_avg, s.backlog_mean_bytes
     );
-    assert!(s["complete"].as_bool() == Some(true), "{s}");
+    assert!(s.complete, "{s:?}");
     assert!(queued <= 16_384.0, "netem held {queued} bytes on a link");
     assert!(
         backlog <= 32_768.0,

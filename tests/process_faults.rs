@@ -9,8 +9,12 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
+use proto::exit::ExitReason;
+use swarm::process::supervise::EventKind;
+use swarm::rundir::summary::{LostLog, Summary};
+
 use crate::support::{
-    csv, num, run_args, stderr, summary, swarm_run, wait_file, Launcher, TempDir, SWARM,
+    csv, num, run_args, stderr, summary_typed, swarm_run, wait_file, Launcher, TempDir, SWARM,
 };
 
 /// A 5-robot intel_lab run (the embedded default scenario) with `faults` appended.
@@ -26,19 +30,10 @@ fn run_with(
     (dir, out, run)
 }
 
-fn events(s: &serde_json::Value) -> Vec<(u64, String, String)> {
-    s["process_events"]
-        .as_array()
-        .cloned()
-        .unwrap_or_default()
+fn events(s: &Summary) -> Vec<(u32, String, EventKind)> {
+    s.process_events
         .iter()
-        .map(|e| {
-            (
-                e["step"].as_u64().unwrap_or(u64::MAX),
-                e["process"].as_str().unwrap_or_default().to_string(),
-                e["event"].as_str().unwrap_or_default().to_string(),
-            )
-        })
+        .map(|e| (e.step, e.process.to_string(), e.event))
         .collect()
 }
 
@@ -49,40 +44,44 @@ fn a_robot_killed_and_started_again_rejoins_with_its_first_life_held_by_the_team
         "[[faults]]\nstep = 30\nkind = \"kill\"\nprocess = \"robot-2\"\nrestart_after = 3\n",
         &[],
     );
-    let s = summary(&run);
-    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
-    assert_eq!(s["complete"], true, "{s}");
-    assert_eq!(s["robots_alive_at_end"], 5, "{s}");
+    let s = summary_typed(&run);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s:?}", stderr(&out));
+    assert!(s.complete, "{s:?}");
+    assert_eq!(s.robots_alive_at_end, 5, "{s:?}");
     assert_eq!(
         events(&s),
         vec![
-            (30, "robot-2".into(), "killed".into()),
-            (33, "robot-2".into(), "started".into())
+            (30, "robot-2".into(), EventKind::Killed),
+            (33, "robot-2".into(), EventKind::Started)
         ]
     );
     // Its first life's log (owner 2) against what the team holds at the end.
-    let lost = &s["lost_logs"][0];
-    assert_eq!(
-        (lost["robot"].as_u64(), lost["life"].as_u64()),
-        (Some(2), Some(0)),
-        "{s}"
-    );
-    let written = lost["ops_written"].as_u64().unwrap_or(0);
-    let held = lost["ops_held"].as_u64().unwrap_or(0);
-    assert!(written > 0, "{s}");
-    assert_eq!(lost["ops_lost"].as_u64(), Some(written - held), "{s}");
+    let [LostLog {
+        robot: 2,
+        life: 0,
+        ops_written: written,
+        ops_held: held,
+        ops_lost: lost,
+        ..
+    }] = s.lost_logs[..]
+    else {
+        panic!("one lost log, robot 2's first life: {:?}", s.lost_logs);
+    };
+    assert!(written > 0, "{s:?}");
+    assert_eq!(lost, written - held, "{s:?}");
     // The restarted robot took its first life back from its peers, and writes its second
-    // life's log (owner 2 + 1024), which the others hold too.
-    let logs = &s["logs_held"];
+    // life's log (owner 2 + 1024), which the others hold too. (A robot's entry lists the
+    // owners it holds ops of.)
+    let held_of = |robot: &str, owner: &str| s.logs_held.get(robot).and_then(|h| h.get(owner));
     assert_eq!(
-        logs["2"]["2"].as_u64(),
-        Some(held),
-        "robot 2 holds its first life: {s}"
+        held_of("2", "2"),
+        Some(&held),
+        "robot 2 holds its first life: {s:?}"
     );
     for r in ["0", "1", "3", "4"] {
         assert!(
-            logs[r]["1026"].as_u64().unwrap_or(0) > 0,
-            "robot {r} lacks robot 2's second life: {s}"
+            held_of(r, "1026").is_some_and(|&n| n > 0),
+            "robot {r} lacks robot 2's second life: {s:?}"
         );
     }
     // Robot 2 has no telemetry while it is dead, and has it again once it rejoined.
@@ -106,15 +105,15 @@ fn netem_restarted_mid_run_brings_every_link_back_and_the_run_completes() {
         "[[faults]]\nstep = 30\nkind = \"restart\"\nprocess = \"netem\"\n",
         &[],
     );
-    let s = summary(&run);
-    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
-    assert_eq!(s["complete"], true, "{s}");
-    assert_eq!(s["failed_processes"], serde_json::json!([]), "{s}");
+    let s = summary_typed(&run);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s:?}", stderr(&out));
+    assert!(s.complete, "{s:?}");
+    assert!(s.failed_processes.is_empty(), "{s:?}");
     assert_eq!(
         events(&s),
         vec![
-            (30, "netem".into(), "killed".into()),
-            (30, "netem".into(), "started".into())
+            (30, "netem".into(), EventKind::Killed),
+            (30, "netem".into(), EventKind::Started)
         ]
     );
     // Within 2 steps of the new netem's first step, links are up and connected again.
@@ -134,10 +133,8 @@ fn netem_restarted_mid_run_brings_every_link_back_and_the_run_completes() {
         .filter(|l| num(l, "step") as u64 == 28)
         .map(|l| num(l, "bytes_total"))
         .sum();
-    assert!(
-        s["bytes_wire_total"].as_f64().unwrap_or(0.0) > before,
-        "{s}"
-    );
+    let wire = s.bytes_wire_total.expect("bytes_wire_total");
+    assert!(wire as f64 > before, "{s:?}");
 }
 
 #[test]
@@ -149,10 +146,10 @@ fn a_frozen_robot_is_declared_dead_and_rejoins_when_thawed() {
          [[faults]]\nstep = 50\nkind = \"thaw\"\nprocess = \"robot-1\"\n",
         &[],
     );
-    let s = summary(&run);
-    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
-    assert_eq!(s["complete"], true, "{s}");
-    assert_eq!(s["robots_alive_at_end"], 5, "{s}");
+    let s = summary_typed(&run);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s:?}", stderr(&out));
+    assert!(s.complete, "{s:?}");
+    assert_eq!(s.robots_alive_at_end, 5, "{s:?}");
     // Dead after clock.dead_after (5) missed steps: off the air and without telemetry until
     // the thaw; back after it.
     let links = csv(&run.join("links.csv"));
@@ -185,9 +182,9 @@ fn the_world_server_killed_ends_the_run_with_its_reason_and_every_file_written()
         "[[faults]]\nstep = 30\nkind = \"kill\"\nprocess = \"world-server\"\n",
         &[],
     );
-    let s = summary(&run);
-    assert_eq!(out.status.code(), Some(2), "{}\n{s}", stderr(&out));
-    assert_eq!(s["exit_reason"], "world-server-exited", "{s}");
+    let s = summary_typed(&run);
+    assert_eq!(out.status.code(), Some(2), "{}\n{s:?}", stderr(&out));
+    assert_eq!(s.exit_reason, ExitReason::WorldServerExited, "{s:?}");
     for f in [
         "metrics.csv",
         "links.csv",
@@ -242,15 +239,10 @@ fn process_faults_naming_no_process_of_the_run_are_refused_in_one_line() {
 }
 
 /// Events of `summary.json` as (step, process, event, cause).
-fn caused(s: &serde_json::Value) -> Vec<(u64, String, String, String)> {
-    let events = s["process_events"].as_array().cloned().unwrap_or_default();
-    events
+fn caused(s: &Summary) -> Vec<(u32, String, EventKind, String)> {
+    s.process_events
         .iter()
-        .map(|e| {
-            let text = |k: &str| e[k].as_str().unwrap_or_default().to_string();
-            let step = e["step"].as_u64().unwrap_or(u64::MAX);
-            (step, text("process"), text("event"), text("cause"))
-        })
+        .map(|e| (e.step, e.process.to_string(), e.event, e.cause.clone()))
         .collect()
 }
 
@@ -293,23 +285,26 @@ fn process_faults_asked_through_netems_api_are_carried_out_at_the_next_step() {
     let thaw = netem_cli(&run, &["thaw", "robot-1"]);
     assert!(thaw.status.success(), "{}", stderr(&thaw));
     let out = launcher.wait_output(Duration::from_secs(300));
-    let s = summary(&run);
-    assert_eq!(out.status.code(), Some(0), "{}\n{s}", stderr(&out));
-    assert_eq!(s["complete"], true, "{s}");
-    assert_eq!(s["robots_alive_at_end"], 5, "{s}");
+    let s = summary_typed(&run);
+    assert_eq!(out.status.code(), Some(0), "{}\n{s:?}", stderr(&out));
+    assert!(s.complete, "{s:?}");
+    assert_eq!(s.robots_alive_at_end, 5, "{s:?}");
     let ev = caused(&s);
-    let at = |p: &str, e: &str| {
+    let at = |p: &str, e: EventKind| {
         ev.iter()
             .find(|x| x.1 == p && x.2 == e)
             .map(|x| (x.0, x.3.clone()))
             .unwrap_or_else(|| panic!("no {e} of {p}: {ev:?}"))
     };
-    let (killed, cause) = at("robot-2", "killed");
+    let (killed, cause) = at("robot-2", EventKind::Killed);
     assert_eq!(cause, "api");
-    assert_eq!(at("robot-2", "started"), (killed + 3, "api".to_string()));
-    let (frozen, cause) = at("robot-1", "frozen");
+    assert_eq!(
+        at("robot-2", EventKind::Started),
+        (killed + 3, "api".to_string())
+    );
+    let (frozen, cause) = at("robot-1", EventKind::Frozen);
     assert_eq!(cause, "api");
-    let (thawed, cause) = at("robot-1", "thawed");
+    let (thawed, cause) = at("robot-1", EventKind::Thawed);
     assert_eq!(cause, "api");
     assert!(thawed > frozen, "{ev:?}");
     assert_eq!(ev.len(), 4, "nothing else done: {ev:?}");
@@ -319,7 +314,7 @@ fn process_faults_asked_through_netems_api_are_carried_out_at_the_next_step() {
         assert!(
             metrics
                 .iter()
-                .any(|r| num(r, "robot") == robot && num(r, "step") as u64 > since),
+                .any(|r| num(r, "robot") == robot && num(r, "step") as u32 > since),
             "robot {robot} never reported after step {since}"
         );
     }

@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use crate::support::{csv, num, stderr, summary, swarm_run, TempDir};
+use crate::support::{csv, num, stderr, summary_typed, swarm_run, TempDir};
 
 /// A 60 m corridor (Simmons et al.'s environment A), a relay (robot 0) and an explorer (robot 1)
 /// with static roles, the path loss model with walls, and the explorer–base station link cut
@@ -40,9 +40,9 @@ fn a_relay_carries_the_explorers_map_to_a_base_station_it_never_reached() {
     std::fs::write(&scenario, SCENARIO).expect("write scenario");
     let (out, run) = swarm_run(&dir, scenario.to_str(), &[], Duration::from_secs(400));
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
-    let s = summary(&run);
-    assert_eq!(s["complete"], true, "{s}");
-    assert_eq!(s["deterministic"], true, "{}", s["nondeterministic"]);
+    let s = summary_typed(&run);
+    assert!(s.complete, "{s:?}");
+    assert!(s.deterministic, "{:?}", s.nondeterministic);
     // No explorer–base station link in any step; the relay's came and went.
     let links = csv(&run.join("links.csv"));
     let up = |a: &str, b: &str| {
@@ -94,10 +94,13 @@ fn a_relay_carries_the_explorers_map_to_a_base_station_it_never_reached() {
         own > 0.0 && held >= 0.5 * own,
         "base holds {held} of the explorer's {own} ops"
     );
-    let awareness = &s["awareness"];
-    let known = awareness["base_known_pct"].as_f64().unwrap_or(0.0);
+    let awareness = s
+        .awareness
+        .as_ref()
+        .expect("awareness, with a base station");
+    let known = awareness.base_known_pct.expect("base_known_pct");
     assert!(known >= 70.0, "the base station knows {known:.1} %");
     // Roles crossed the radio as their own package type.
-    let by_type = &s["bytes_by_type"];
-    assert!(by_type["role"].as_f64().unwrap_or(0.0) > 0.0, "{by_type}");
+    let by_type = &s.bytes_by_type;
+    assert!(by_type["role"] > 0, "{by_type:?}");
 }

@@ -2,10 +2,13 @@
 
 use std::time::Duration;
 
-use crate::support::{stderr, summary, swarm_run, TempDir};
+use proto::exit::ExitReason;
+use swarm::rundir::summary::Summary;
+
+use crate::support::{stderr, summary_typed, swarm_run, TempDir};
 
 /// Runs a small scenario and checks it completes within `max_steps`.
-fn completes(name: &str, sets: &[&str], max_steps: u64) -> serde_json::Value {
+fn completes(name: &str, sets: &[&str], max_steps: u32) -> Summary {
     let dir = TempDir::new(name);
     let steps = format!("max_steps={max_steps}");
     let mut all: Vec<&str> = sets.to_vec();
@@ -13,17 +16,15 @@ fn completes(name: &str, sets: &[&str], max_steps: u64) -> serde_json::Value {
     // Tests run side by side on two cores: a robot may be slow, but it is not dead.
     all.push("clock.step_timeout_ms=10000");
     let (out, run) = swarm_run(&dir, None, &all, Duration::from_secs(300));
-    let s = summary(&run);
+    let s = summary_typed(&run);
     assert!(
         out.status.success(),
-        "{name}: swarm run failed: {}\nsummary: {s}",
+        "{name}: swarm run failed: {}\nsummary: {s:?}",
         stderr(&out)
     );
-    assert_eq!(s["complete"], true, "{name}: {s}");
-    assert_eq!(s["exit_reason"], "explored", "{name}: {s}");
-    let steps = s["exploration_steps"]
-        .as_u64()
-        .expect("exploration_steps is set");
+    assert!(s.complete, "{name}: {s:?}");
+    assert_eq!(s.exit_reason, ExitReason::Explored, "{name}: {s:?}");
+    let steps = s.exploration_steps.expect("exploration_steps is set");
     assert!(steps <= max_steps, "{name}: {steps} steps");
     for f in [
         "scenario.toml",
@@ -65,12 +66,9 @@ fn three_robots_explore_a_small_office_and_share_scans() {
         ],
         400,
     );
-    assert!(
-        s["bytes_payload_total"].as_u64().unwrap_or(0) > 0,
-        "robots exchanged scans: {s}"
-    );
-    assert!(s["bytes_by_type"]["scan"].as_u64().unwrap_or(0) > 0, "{s}");
-    assert!(s["bytes_by_type"]["conn"].as_u64().unwrap_or(0) > 0, "{s}");
+    assert!(s.bytes_payload_total > 0, "robots exchanged scans: {s:?}");
+    assert!(s.bytes_by_type["scan"] > 0, "{s:?}");
+    assert!(s.bytes_by_type["conn"] > 0, "{s:?}");
 }
 
 /// The second baseline: robots share the cells each scan changed (`grid-snapshots`).
@@ -88,11 +86,11 @@ fn three_robots_explore_a_small_office_sharing_grid_patches() {
         ],
         400,
     );
-    let by = &s["bytes_by_type"];
-    assert!(by["cells"].as_u64().unwrap_or(0) > 0, "{s}");
-    assert_eq!(by["scan"], 0, "{s}");
-    assert_eq!(by["ins"], 0, "{s}");
-    assert_eq!(s["radio_decode_errors"], 0, "{s}");
+    let by = &s.bytes_by_type;
+    assert!(by["cells"] > 0, "{s:?}");
+    assert_eq!(by["scan"], 0, "{s:?}");
+    assert_eq!(by["ins"], 0, "{s:?}");
+    assert_eq!(s.radio_decode_errors, 0, "{s:?}");
 }
 
 /// Burgard et al.'s team assignment over the radio: the sub-team tables travel (as `targ`).
@@ -110,7 +108,7 @@ fn three_robots_coordinated_by_burgard_assignment_explore_a_small_office() {
         ],
         400,
     );
-    assert!(s["bytes_by_type"]["targ"].as_u64().unwrap_or(0) > 0, "{s}");
+    assert!(s.bytes_by_type["targ"] > 0, "{s:?}");
 }
 
 #[test]

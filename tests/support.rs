@@ -5,6 +5,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use swarm::process::supervise::EventKind;
+use swarm::rundir::summary::{read_summary, Summary};
+
 pub const SWARM: &str = env!("CARGO_BIN_EXE_swarm");
 
 /// A fresh directory under the system temp dir, removed on drop.
@@ -181,31 +184,28 @@ pub fn running(pid: u32) -> bool {
 
 /// Asserts that `summary.json` records each of `processes` as killed by SIGKILL and started
 /// again by supervision.
-pub fn assert_killed_and_supervised(s: &serde_json::Value, processes: &[&str]) {
-    let events: Vec<(String, String, String)> = s["process_events"]
-        .as_array()
-        .cloned()
-        .unwrap_or_default()
-        .iter()
-        .map(|e| {
-            let f = |k: &str| e[k].as_str().unwrap_or_default().to_string();
-            (f("process"), f("event"), f("cause"))
-        })
-        .collect();
+pub fn assert_killed_and_supervised(s: &Summary, processes: &[&str]) {
+    let events = &s.process_events;
     for &p in processes {
-        let seen = |event: &str, cause: &dyn Fn(&str) -> bool| {
+        let seen = |event: EventKind, cause: &dyn Fn(&str) -> bool| {
             events
                 .iter()
-                .any(|e| e.0 == p && e.1 == event && cause(&e.2))
+                .any(|e| e.process.to_string() == p && e.event == event && cause(&e.cause))
         };
-        assert!(seen("died", &|c| c.contains("SIGKILL")), "{p}: {events:?}");
-        assert!(seen("started", &|c| c == "supervised"), "{p}: {events:?}");
+        assert!(
+            seen(EventKind::Died, &|c| c.contains("SIGKILL")),
+            "{p}: {events:?}"
+        );
+        assert!(
+            seen(EventKind::Started, &|c| c == "supervised"),
+            "{p}: {events:?}"
+        );
     }
 }
 
-pub fn summary(run: &Path) -> serde_json::Value {
-    let text = std::fs::read_to_string(run.join("summary.json")).expect("summary.json exists");
-    serde_json::from_str(&text).expect("summary.json is JSON")
+/// `summary.json`, typed: a field missing, renamed or mistyped fails here, naming it.
+pub fn summary_typed(run: &Path) -> Summary {
+    read_summary(run).unwrap_or_else(|e| panic!("{e:#}"))
 }
 
 pub fn stderr(o: &Output) -> String {

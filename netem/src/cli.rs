@@ -8,7 +8,7 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 use proto::msg::RobotId;
-use proto::node::{close_quickly, init_logging, zerr, ScenarioArgs, ZenohArgs};
+use proto::node::{close_quickly, entry, zerr, ScenarioArgs, ZenohArgs};
 use proto::scenario::Scenario;
 use serde::{Deserialize, Serialize};
 
@@ -238,21 +238,10 @@ fn descriptors(pairs: usize) {
 
 /// The whole process: one tokio runtime, logging, exit code.
 pub fn main(args: Args) -> ExitCode {
-    init_logging();
-    let runtime = match tokio::runtime::Runtime::new() {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("netem: cannot start the runtime: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
-    match runtime.block_on(run(args)) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("netem: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    entry("netem", async {
+        run(args).await?;
+        anyhow::Ok(ExitCode::SUCCESS)
+    })
 }
 
 #[cfg(test)]

@@ -45,6 +45,16 @@ impl Cell {
         Cell { x, y }
     }
 
+    /// The cell's centre in cell units (cell `(x, y)` covers `[x, x+1) × [y, y+1)`).
+    pub fn centre(self) -> (f64, f64) {
+        (f64::from(self.x) + 0.5, f64::from(self.y) + 0.5)
+    }
+
+    /// The Euclidean distance between two cells' centres, in cells.
+    pub fn dist(self, other: Cell) -> f64 {
+        f64::from(self.x - other.x).hypot(f64::from(self.y - other.y))
+    }
+
     /// The four 4-neighbours: right, up, left, down.
     pub fn neighbours4(self) -> [Cell; 4] {
         let Cell { x, y } = self;

@@ -220,6 +220,31 @@ pub async fn close_quickly(session: zenoh::Session) {
     }
 }
 
+/// The one entry of every process of swarm-explore: logs to stderr ([`init_logging`]), runs `body`
+/// on one tokio runtime and turns its outcome into the exit code ([`outcome`]).
+pub fn entry<E: std::fmt::Display>(
+    name: &str,
+    body: impl std::future::Future<Output = Result<std::process::ExitCode, E>>,
+) -> std::process::ExitCode {
+    init_logging();
+    match tokio::runtime::Runtime::new() {
+        Ok(runtime) => outcome(name, runtime.block_on(body)),
+        Err(e) => outcome(name, Err(format!("cannot start the runtime: {e}"))),
+    }
+}
+
+/// A command's result as its exit code: an error is printed once, as `{name}: {error:#}` (the
+/// whole chain of an `anyhow` error), with exit code 1.
+pub fn outcome<E: std::fmt::Display>(
+    name: &str,
+    result: Result<std::process::ExitCode, E>,
+) -> std::process::ExitCode {
+    result.unwrap_or_else(|e| {
+        eprintln!("{name}: {e:#}");
+        std::process::ExitCode::FAILURE
+    })
+}
+
 /// Logs to stderr; `RUST_LOG` overrides the default (`warn`, zenoh's own messages from `error`).
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()

@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 use proto::msg::RobotId;
-use proto::node::{close_quickly, init_logging, radio_peer, zerr, ScenarioArgs, ZenohArgs};
+use proto::node::{close_quickly, entry, radio_peer, zerr, ScenarioArgs, ZenohArgs};
 use proto::scenario::Scenario;
 
 use crate::node::{run_robot, world_info, End};
@@ -198,29 +198,19 @@ pub fn base_main(args: BaseArgs) -> ExitCode {
 }
 
 fn process(name: &str, role: Role, args: NodeArgs) -> ExitCode {
-    init_logging();
-    let runtime = match tokio::runtime::Runtime::new() {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("{name}: cannot start the runtime: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
-    match runtime.block_on(run(role, args)) {
-        Ok(End::Stopped) => ExitCode::SUCCESS,
-        Ok(End::WorldGone) => {
-            eprintln!("{name}: the world-server is gone; exiting");
-            ExitCode::SUCCESS
-        }
-        Ok(End::WorldSilent) => {
-            eprintln!("{name}: no scan from the world-server for too long; exiting");
-            ExitCode::FAILURE
-        }
-        Err(e) => {
-            eprintln!("{name}: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    entry(name, async {
+        anyhow::Ok(match run(role, args).await? {
+            End::Stopped => ExitCode::SUCCESS,
+            End::WorldGone => {
+                eprintln!("{name}: the world-server is gone; exiting");
+                ExitCode::SUCCESS
+            }
+            End::WorldSilent => {
+                eprintln!("{name}: no scan from the world-server for too long; exiting");
+                ExitCode::FAILURE
+            }
+        })
+    })
 }
 
 #[cfg(test)]

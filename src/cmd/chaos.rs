@@ -25,13 +25,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use proto::msg::owner_life;
-use proto::scenario::Scenario;
+use proto::scenario::{Process, Scenario};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use serde_json::Value;
 
 use crate::process::children::ProcessRow;
+use crate::process::supervise::EventKind;
+use crate::rundir::summary::{read_summary, Summary};
 
 /// Flags of `swarm chaos`.
 #[derive(clap::Args, Debug, Clone)]
@@ -324,43 +325,39 @@ fn check(name: &'static str, problems: Vec<String>, ok: String) -> Check {
 /// at least as much of its own log as anyone else ever did. What is gone of an ended life's log
 /// is lost with its holders: only with the writer (`lost_logs`), or with every node that had it
 /// (counted here; a second fault took the last copy).
-pub fn check_logs(summary: &Value) -> Check {
-    let robots = summary["robots"].as_u64().unwrap_or(0);
-    let alive: Vec<String> = summary["nodes_alive_at_end"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(Value::as_u64)
-                .map(|n| n.to_string())
-                .collect()
-        })
-        .unwrap_or_default();
-    let held = |node: &str, owner: &str| summary["logs_held"][node][owner].as_u64().unwrap_or(0);
-    let name = |robot: u16| {
-        if u64::from(robot) == robots {
-            "base-station".to_string()
+pub fn check_logs(summary: &Summary) -> Check {
+    let alive: Vec<String> = summary
+        .nodes_alive_at_end
+        .iter()
+        .map(|n| n.to_string())
+        .collect();
+    // A node's entry lists the owners it holds ops of: an owner it does not list, it holds none of.
+    let held = |node: &str, owner: &str| {
+        summary
+            .logs_held
+            .get(node)
+            .and_then(|h| h.get(owner))
+            .map_or(0, |&n| u64::from(n))
+    };
+    let process = |robot: u16| {
+        if robot == summary.robots {
+            Process::BaseStation
         } else {
-            format!("robot-{robot}")
+            Process::Robot(robot)
         }
     };
     // Each process's life after its last start.
-    let mut current: BTreeMap<String, u64> = BTreeMap::new();
-    for e in summary["process_events"].as_array().into_iter().flatten() {
-        if e["event"] == "started" {
-            if let (Some(p), Some(l)) = (e["process"].as_str(), e["life"].as_u64()) {
-                current.insert(p.to_string(), l);
-            }
+    let mut current: BTreeMap<Process, u16> = BTreeMap::new();
+    for e in &summary.process_events {
+        if e.event == EventKind::Started {
+            current.insert(e.process, e.life);
         }
     }
     let mut problems = Vec::new();
     // No live node forgets.
     for node in &alive {
-        for (owner, most) in summary["logs_held_max"][node]
-            .as_object()
-            .into_iter()
-            .flatten()
-        {
-            let (most, now) = (most.as_u64().unwrap_or(0), held(node, owner));
+        for (owner, &most) in summary.logs_held_max.get(node).into_iter().flatten() {
+            let (most, now) = (u64::from(most), held(node, owner));
             if now < most {
                 problems.push(format!(
                     "node {node} held {most} ops of log {owner} and holds {now}"
@@ -370,24 +367,22 @@ pub fn check_logs(summary: &Value) -> Check {
     }
     // A live writer holds its whole log; of ended lives, count what went with every holder.
     let (mut owners, mut with_holders) = (0, 0);
-    for (owner, others) in summary["logs_held_by_others"]
-        .as_object()
-        .into_iter()
-        .flatten()
-    {
-        let (Ok(o), Some(others)) = (owner.parse::<u16>(), others.as_u64()) else {
+    for (owner, &others) in &summary.logs_held_by_others {
+        let Ok(o) = owner.parse::<u16>() else {
+            problems.push(format!("logs_held_by_others: {owner:?} is not a log owner"));
             continue;
         };
+        let others = u64::from(others);
         owners += 1;
         let (robot, life) = owner_life(o);
         let writer_alive = alive.contains(&robot.to_string())
-            && current.get(&name(robot)).copied().unwrap_or(0) == u64::from(life);
+            && current.get(&process(robot)).copied().unwrap_or(0) == life;
         if writer_alive {
             let own = held(&robot.to_string(), owner);
             if own < others {
                 problems.push(format!(
                     "{} (life {life}) holds {own} ops of its own log, others held {others}",
-                    name(robot)
+                    process(robot)
                 ));
             }
         } else {
@@ -395,17 +390,16 @@ pub fn check_logs(summary: &Value) -> Check {
             with_holders += others.saturating_sub(end);
         }
     }
-    for l in summary["lost_logs"].as_array().into_iter().flatten() {
-        let field = |k: &str| l[k].as_u64().unwrap_or(0);
-        if field("ops_lost") != field("ops_written").saturating_sub(field("ops_held")) {
+    for l in &summary.lost_logs {
+        if l.ops_lost != l.ops_written.saturating_sub(l.ops_held) {
+            let l = serde_json::to_string(l).unwrap_or_default();
             problems.push(format!("lost_logs does not add up: {l}"));
         }
     }
-    let with_writers: u64 = summary["lost_logs"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .map(|l| l["ops_lost"].as_u64().unwrap_or(0))
+    let with_writers: u64 = summary
+        .lost_logs
+        .iter()
+        .map(|l| u64::from(l.ops_lost))
         .sum();
     check(
         "logs",
@@ -420,19 +414,16 @@ pub fn check_logs(summary: &Value) -> Check {
 
 /// Every check of a finished run in `run` (its `summary.json`, `processes.csv`, `logs/`).
 pub fn check_run(run: &Path, max_rss_kb: u64) -> anyhow::Result<Vec<Check>> {
-    let summary: Value = serde_json::from_str(
-        &std::fs::read_to_string(run.join("summary.json")).context("reading summary.json")?,
-    )
-    .context("parsing summary.json")?;
-    let complete = summary["complete"] == true;
+    let summary = read_summary(run)?;
+    let complete = summary.complete;
     let mut checks = vec![Check {
         name: "completes",
         pass: complete,
         detail: format!(
             "{}: {} after {} steps",
             if complete { "complete" } else { "incomplete" },
-            summary["exit_reason"].as_str().unwrap_or("?"),
-            summary["steps"]
+            summary.exit_reason,
+            summary.steps
         ),
     }];
     checks.push(check_logs(&summary));
@@ -622,9 +613,7 @@ fn resolved_name(s: &Scenario) -> String {
 }
 
 fn read_steps(run: &Path) -> Option<u32> {
-    let text = std::fs::read_to_string(run.join("summary.json")).ok()?;
-    let v: Value = serde_json::from_str(&text).ok()?;
-    v["steps"].as_u64().and_then(|s| u32::try_from(s).ok())
+    read_summary(run).ok().map(|s| s.steps)
 }
 
 /// The one line `swarm chaos` prints.
@@ -655,10 +644,23 @@ pub fn summary_line(r: &Report, dir: &Path) -> String {
     )
 }
 
+/// `swarm chaos`: the campaign's one-line verdict; exit code 0 when every check passed, 2 when one
+/// failed.
+pub fn command(args: &ChaosArgs) -> anyhow::Result<std::process::ExitCode> {
+    let (report, dir) = chaos(args)?;
+    println!("{}", summary_line(&report, &dir));
+    Ok(if report.pass {
+        std::process::ExitCode::SUCCESS
+    } else {
+        std::process::ExitCode::from(2)
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use serde_json::json;
+    use crate::process::supervise::Event;
+    use crate::rundir::summary::LostLog;
 
     fn scenario() -> Scenario {
         let mut s = Scenario::default();
@@ -692,30 +694,70 @@ mod tests {
         )));
     }
 
+    fn owners(held: &[(&str, u32)]) -> BTreeMap<String, u32> {
+        held.iter().map(|&(o, n)| (o.to_string(), n)).collect()
+    }
+
     /// Robot 2 was restarted into life 1; its first life (owner 2) had 100 ops, of which the
     /// others held 90.
-    fn summary(held_at_end_of_owner_2: u64, robot_2_own: u64) -> Value {
-        json!({
-            "robots": 3,
-            "nodes_alive_at_end": [0, 1, 2],
-            "process_events": [
-                {"step": 30, "process": "robot-2", "event": "killed", "cause": "fault", "life": 0},
-                {"step": 33, "process": "robot-2", "event": "started", "cause": "fault", "life": 1}
+    fn summary(held_at_end_of_owner_2: u32, robot_2_own: u32) -> Summary {
+        let event = |step, event, life| Event {
+            step,
+            process: Process::Robot(2),
+            event,
+            cause: "fault".into(),
+            life,
+        };
+        let most = owners(&[("0", 50), ("1", 40), ("2", 90), ("1026", 20)]);
+        Summary {
+            robots: 3,
+            nodes_alive_at_end: vec![0, 1, 2],
+            process_events: vec![
+                event(30, EventKind::Killed, 0),
+                event(33, EventKind::Started, 1),
             ],
-            "logs_held_by_others": {"0": 50, "1": 40, "2": 90, "1026": 20},
-            "logs_held_max": {
-                "0": {"0": 50, "1": 40, "2": 90, "1026": 20},
-                "1": {"0": 50, "1": 40, "2": 90, "1026": 20},
-                "2": {"0": 50, "1": 40, "2": 90, "1026": 25}
-            },
-            "logs_held": {
-                "0": {"0": 50, "1": 40, "2": held_at_end_of_owner_2, "1026": 20},
-                "1": {"0": 50, "1": 40, "2": 90, "1026": 20},
-                "2": {"0": 50, "1": 40, "2": 90, "1026": robot_2_own}
-            },
-            "lost_logs": [{"robot": 2, "life": 0, "ops_written": 100, "ops_held": 90, "ops_lost": 10,
-                           "bytes_written": 400, "bytes_lost": 40}]
-        })
+            logs_held_by_others: most.clone(),
+            logs_held_max: BTreeMap::from([
+                ("0".to_string(), most.clone()),
+                ("1".to_string(), most.clone()),
+                (
+                    "2".to_string(),
+                    owners(&[("0", 50), ("1", 40), ("2", 90), ("1026", 25)]),
+                ),
+            ]),
+            logs_held: BTreeMap::from([
+                (
+                    "0".to_string(),
+                    owners(&[
+                        ("0", 50),
+                        ("1", 40),
+                        ("2", held_at_end_of_owner_2),
+                        ("1026", 20),
+                    ]),
+                ),
+                ("1".to_string(), most),
+                (
+                    "2".to_string(),
+                    owners(&[("0", 50), ("1", 40), ("2", 90), ("1026", robot_2_own)]),
+                ),
+            ]),
+            lost_logs: vec![LostLog {
+                robot: 2,
+                life: 0,
+                ops_written: 100,
+                ops_held: 90,
+                ops_lost: 10,
+                bytes_written: Some(400),
+                bytes_lost: Some(40),
+            }],
+            ..Summary::default()
+        }
+    }
+
+    fn set(s: &mut BTreeMap<String, BTreeMap<String, u32>>, node: &str, owner: &str, n: u32) {
+        s.entry(node.to_string())
+            .or_default()
+            .insert(owner.to_string(), n);
     }
 
     #[test]
@@ -725,11 +767,11 @@ mod tests {
         assert!(c.detail.contains("10 ops are gone"), "{c:?}");
         // Robot 1 and every other holder of robot 2's first life died: lost with its holders.
         let mut s = summary(90, 25);
-        s["nodes_alive_at_end"] = json!([0, 2]);
-        s["logs_held"]["0"]["2"] = json!(60);
-        s["logs_held_max"]["0"]["2"] = json!(60);
-        s["logs_held"]["2"]["2"] = json!(60);
-        s["logs_held_max"]["2"]["2"] = json!(60);
+        s.nodes_alive_at_end = vec![0, 2];
+        set(&mut s.logs_held, "0", "2", 60);
+        set(&mut s.logs_held_max, "0", "2", 60);
+        set(&mut s.logs_held, "2", "2", 60);
+        set(&mut s.logs_held_max, "2", "2", 60);
         let c = check_logs(&s);
         assert!(
             c.pass && c.detail.contains("30 of them held by others"),
@@ -748,7 +790,7 @@ mod tests {
         // A restarted robot whose log is behind what others hold of it (it reused its old
         // owner, forgetting what it had written).
         let mut s = summary(90, 10);
-        s["logs_held_max"]["2"]["1026"] = json!(10);
+        set(&mut s.logs_held_max, "2", "1026", 10);
         let c = check_logs(&s);
         assert!(
             !c.pass && c.detail.contains("robot-2 (life 1) holds 10"),
@@ -756,7 +798,61 @@ mod tests {
         );
         // lost_logs that do not add up.
         let mut s = summary(90, 25);
-        s["lost_logs"][0]["ops_lost"] = json!(3);
-        assert!(!check_logs(&s).pass);
+        s.lost_logs[0].ops_lost = 3;
+        let c = check_logs(&s);
+        assert!(
+            !c.pass
+                && c.detail
+                    .contains(r#"lost_logs does not add up: {"robot":2"#),
+            "{c:?}"
+        );
+    }
+
+    /// The checker once read `summary.json` as untyped JSON, a number it did not find as 0: a
+    /// renamed field would have passed the `logs` check on nothing. Now the summary does not read.
+    #[test]
+    fn a_summary_with_a_renamed_or_missing_field_is_an_error_not_zero() {
+        let dir = std::env::temp_dir().join(format!("swarm-chaos-schema-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let good = serde_json::to_value(summary(0, 25)).unwrap_or_default();
+        let check_with = |edit: &dyn Fn(&mut serde_json::Map<String, serde_json::Value>)| {
+            let mut v = good.clone();
+            if let Some(m) = v.as_object_mut() {
+                edit(m);
+            }
+            std::fs::write(dir.join("summary.json"), v.to_string())
+                .unwrap_or_else(|e| panic!("{e}"));
+            check_run(&dir, u64::MAX).map_err(|e| format!("{e:#}"))
+        };
+        let renamed = check_with(&|m| {
+            let held = m.remove("logs_held").unwrap_or_default();
+            m.insert("logs_kept".into(), held);
+        });
+        let missing_option = check_with(&|m| {
+            m.remove("awareness");
+        });
+        let wrong_type = check_with(&|m| {
+            m.insert("robots".into(), "three".into());
+        });
+        let round_trip = read_summary(&dir.join("nowhere")).map_err(|e| format!("{e:#}"));
+        std::fs::write(dir.join("summary.json"), good.to_string())
+            .unwrap_or_else(|e| panic!("{e}"));
+        let back = read_summary(&dir).ok();
+        let _ = std::fs::remove_dir_all(&dir);
+        for (what, r, field) in [
+            ("renamed", renamed, "logs_kept"),
+            ("missing", missing_option, "awareness"),
+            ("mistyped", wrong_type, "three"),
+        ] {
+            let e = r.expect_err(what);
+            assert!(
+                e.contains("summary.json") && e.contains(field),
+                "{what}: {e}"
+            );
+        }
+        assert!(round_trip.is_err_and(|e| e.contains("summary.json")));
+        // The failing summary itself reads back whole, and the check fails it as before.
+        assert_eq!(back, Some(summary(0, 25)));
+        assert!(!check_logs(&summary(0, 25)).pass);
     }
 }

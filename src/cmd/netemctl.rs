@@ -285,3 +285,9 @@ pub fn control(cmd: &NetemCommand) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+/// `swarm netem <order>`: one order to a running netem.
+pub fn command(cmd: &NetemCommand) -> anyhow::Result<std::process::ExitCode> {
+    control(cmd)?;
+    Ok(std::process::ExitCode::SUCCESS)
+}

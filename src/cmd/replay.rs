@@ -124,6 +124,30 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
     Ok((dir, summary))
 }
 
+/// `swarm replay`: runs the replay and prints what it measured.
+pub fn command(args: &ReplayArgs) -> anyhow::Result<std::process::ExitCode> {
+    proto::node::init_logging();
+    let (dir, s) = replay(args)?;
+    println!(
+        "replay of {}: {} steps, coverage {:.1}%, {} ops, {} bytes, e_avg {}",
+        s.map,
+        s.steps,
+        s.coverage_pct,
+        s.ops,
+        s.bytes,
+        s.approx_error_avg.map_or("-".into(), |e| format!("{e:.4}"))
+    );
+    for (name, t) in &s.by_type {
+        let mean = t.mean_bytes.map_or("-".into(), |m| format!("{m:.2}"));
+        println!(
+            "  {name:>4}: {:>8} ops, mean {mean} bytes (thesis {})",
+            t.count, t.thesis_bytes
+        );
+    }
+    println!("written to {}", dir.display());
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
 /// A row of `replay.csv`: the mapping pipeline after one step.
 #[derive(Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct ReplayCsv {

@@ -58,6 +58,12 @@ pub fn host_info(args: &HostInfoArgs) -> anyhow::Result<HostInfo> {
     })
 }
 
+/// `swarm host-info`: the host's answer as one JSON line.
+pub fn host_info_command(args: &HostInfoArgs) -> anyhow::Result<std::process::ExitCode> {
+    println!("{}", serde_json::to_string(&host_info(args)?)?);
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
 /// The command that runs `swarm argv…` on `host`: (program, its arguments). `exe` is the
 /// launcher's own binary (what a local host, and a prefix host without `swarm`, run).
 pub fn command(host: &Host, exe: &Path, argv: &[String]) -> (String, Vec<String>) {
@@ -316,6 +322,12 @@ pub fn host_files(args: &HostFilesArgs, input: impl std::io::Read) -> anyhow::Re
     Ok(files.len())
 }
 
+/// `swarm host-files`: the run's files from stdin.
+pub fn host_files_command(args: &HostFilesArgs) -> anyhow::Result<std::process::ExitCode> {
+    host_files(args, std::io::stdin())?;
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
 /// Copies `files` of the run directory `local_dir` to `host`'s copy of it ([`remote_dir`]).
 pub fn send_files(
     host: &Host,
@@ -402,6 +414,13 @@ pub fn on_host(args: &OnHostArgs) -> anyhow::Result<i32> {
     Ok(status
         .code()
         .unwrap_or_else(|| 128 + status.signal().unwrap_or(0)))
+}
+
+/// `swarm on-host`: the leashed process's exit code as this one's.
+pub fn on_host_command(args: &OnHostArgs) -> anyhow::Result<std::process::ExitCode> {
+    Ok(std::process::ExitCode::from(
+        u8::try_from(on_host(args)?).unwrap_or(1),
+    ))
 }
 
 #[cfg(test)]

@@ -25,7 +25,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use proto::exit::ExitReason;
 use proto::msg::{Step, MAX_LIVES};
 use proto::scenario::{Process, ProcessAction, ProcessFault, Supervise};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// What the launcher is to do to a process now.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -41,18 +41,70 @@ pub enum Action {
 }
 
 /// One thing that happened to a process, for `summary.json`.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Event {
     /// The world's step when it happened.
     pub step: Step,
     pub process: Process,
-    /// `killed`, `started`, `frozen`, `thawed`, `died` (unexpectedly), `not-restarted`.
-    pub event: &'static str,
+    pub event: EventKind,
     /// Why: `fault` (the scenario's `[[faults]]`), `api` (netem's API), `supervised`, or how
     /// it died.
     pub cause: String,
     /// The process's life after the event (a robot's life names the log it writes).
     pub life: u16,
+}
+
+/// What happened to a process: `event` in `summary.json`'s `process_events`, serialized as
+/// [`EventKind::as_str`] (docs/run-directory.md lists these names; they do not change).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EventKind {
+    /// Killed (SIGKILL) by a process fault.
+    Killed,
+    /// A kill asked for a process that was not running: nothing was done.
+    NotKilled,
+    /// Started in its next life (`life`).
+    Started,
+    /// A start that could not be: the process had its most lives or restarts.
+    NotRestarted,
+    /// SIGSTOP.
+    Frozen,
+    /// SIGCONT.
+    Thawed,
+    /// Died without the launcher killing it (`cause`: its exit status).
+    Died,
+}
+
+impl EventKind {
+    pub const ALL: [EventKind; 7] = [
+        EventKind::Killed,
+        EventKind::NotKilled,
+        EventKind::Started,
+        EventKind::NotRestarted,
+        EventKind::Frozen,
+        EventKind::Thawed,
+        EventKind::Died,
+    ];
+
+    /// The name in `summary.json` (the serde name).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            EventKind::Killed => "killed",
+            EventKind::NotKilled => "not-killed",
+            EventKind::Started => "started",
+            EventKind::NotRestarted => "not-restarted",
+            EventKind::Frozen => "frozen",
+            EventKind::Thawed => "thawed",
+            EventKind::Died => "died",
+        }
+    }
+}
+
+impl std::fmt::Display for EventKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
 }
 
 /// The launcher's bookkeeping of process faults and restarts.
@@ -109,7 +161,7 @@ impl Supervisor {
         self.frozen.iter().copied()
     }
 
-    fn event(&mut self, process: Process, event: &'static str, cause: impl Into<String>) {
+    fn event(&mut self, process: Process, event: EventKind, cause: impl Into<String>) {
         self.events.push(Event {
             step: self.step,
             process,
@@ -132,12 +184,12 @@ impl Supervisor {
                 self.lives.insert(process, life);
                 self.down.remove(&process);
                 self.frozen.remove(&process);
-                self.event(process, "started", cause);
+                self.event(process, EventKind::Started, cause);
                 out.push(Action::Start(process, life));
             }
             None => self.event(
                 process,
-                "not-restarted",
+                EventKind::NotRestarted,
                 format!("{cause}: it had its most lives ({MAX_LIVES})"),
             ),
         }
@@ -188,11 +240,15 @@ impl Supervisor {
         match action {
             ProcessAction::Kill { restart_after, .. } => {
                 if !self.down.insert(p) {
-                    self.event(p, "not-killed", format!("{cause}: it was not running"));
+                    self.event(
+                        p,
+                        EventKind::NotKilled,
+                        format!("{cause}: it was not running"),
+                    );
                     return;
                 }
                 self.frozen.remove(&p);
-                self.event(p, "killed", cause);
+                self.event(p, EventKind::Killed, cause);
                 out.push(Action::Kill(p));
                 if let Some(k) = restart_after {
                     self.due.push((step.saturating_add(k), p, cause));
@@ -200,20 +256,20 @@ impl Supervisor {
             }
             ProcessAction::Restart { .. } => {
                 if self.down.insert(p) {
-                    self.event(p, "killed", cause);
+                    self.event(p, EventKind::Killed, cause);
                     out.push(Action::Kill(p));
                 }
                 self.start(p, cause, out);
             }
             ProcessAction::Freeze { .. } => {
                 if !self.down.contains(&p) && self.frozen.insert(p) {
-                    self.event(p, "frozen", cause);
+                    self.event(p, EventKind::Frozen, cause);
                     out.push(Action::Freeze(p));
                 }
             }
             ProcessAction::Thaw { .. } => {
                 if self.frozen.remove(&p) {
-                    self.event(p, "thawed", cause);
+                    self.event(p, EventKind::Thawed, cause);
                     out.push(Action::Thaw(p));
                 }
             }
@@ -226,7 +282,7 @@ impl Supervisor {
     pub fn died(&mut self, process: Process, how: &str) -> Option<ExitReason> {
         self.down.insert(process);
         self.frozen.remove(&process);
-        self.event(process, "died", how);
+        self.event(process, EventKind::Died, how);
         let supervised = self.policy.restart.contains(&process.kind());
         let used = self.restarts.get(&process).copied().unwrap_or(0);
         if supervised && used < self.policy.max_restarts && self.next_life(process).is_some() {
@@ -238,7 +294,7 @@ impl Supervisor {
         if supervised {
             self.event(
                 process,
-                "not-restarted",
+                EventKind::NotRestarted,
                 format!(
                     "supervised: it had its {} restarts (supervise.max_restarts)",
                     self.policy.max_restarts
@@ -319,12 +375,12 @@ mod tests {
         assert_eq!(
             kinds,
             vec![
-                (5, "killed"),
-                (6, "frozen"),
-                (8, "started"),
-                (9, "thawed"),
-                (9, "killed"),
-                (9, "started")
+                (5, EventKind::Killed),
+                (6, EventKind::Frozen),
+                (8, EventKind::Started),
+                (9, EventKind::Thawed),
+                (9, EventKind::Killed),
+                (9, EventKind::Started)
             ]
         );
     }
@@ -346,7 +402,10 @@ mod tests {
         assert_eq!(s.died(Process::Robot(0), "exit code 101"), None);
         assert!(!s.restarting(Process::Robot(0)));
         assert!(s.on_step(20).is_empty());
-        assert_eq!(s.events.last().map(|e| e.event), Some("not-restarted"));
+        assert_eq!(
+            s.events.last().map(|e| e.event),
+            Some(EventKind::NotRestarted)
+        );
         // netem is not covered by this policy; the world-server never is.
         assert_eq!(
             s.died(Process::Netem, "signal 9"),
@@ -384,12 +443,49 @@ mod tests {
         assert_eq!(
             causes,
             vec![
-                (6, r2, "killed", "api"),
-                (7, r1, "frozen", "fault"),
-                (7, r1, "thawed", "api"),
-                (8, r2, "started", "api"),
+                (6, r2, EventKind::Killed, "api"),
+                (7, r1, EventKind::Frozen, "fault"),
+                (7, r1, EventKind::Thawed, "api"),
+                (8, r2, EventKind::Started, "api"),
             ]
         );
+    }
+
+    /// `process_events` in `summary.json` reads as it did when `event` was a `&'static str`:
+    /// the same names, byte for byte, and they read back.
+    #[test]
+    fn events_serialize_to_the_documented_names_and_read_back() {
+        let old = [
+            (EventKind::Killed, "killed"),
+            (EventKind::NotKilled, "not-killed"),
+            (EventKind::Started, "started"),
+            (EventKind::NotRestarted, "not-restarted"),
+            (EventKind::Frozen, "frozen"),
+            (EventKind::Thawed, "thawed"),
+            (EventKind::Died, "died"),
+        ];
+        assert_eq!(old.map(|(k, _)| k), EventKind::ALL);
+        for (kind, name) in old {
+            let e = Event {
+                step: 30,
+                process: Process::Robot(2),
+                event: kind,
+                cause: "fault".into(),
+                life: 1,
+            };
+            let text = serde_json::to_string(&e).unwrap_or_default();
+            assert_eq!(
+                text,
+                format!(
+                    r#"{{"step":30,"process":"robot-2","event":"{name}","cause":"fault","life":1}}"#
+                )
+            );
+            assert_eq!(kind.as_str(), name);
+            assert_eq!(kind.to_string(), name);
+            assert_eq!(serde_json::from_str::<Event>(&text).ok(), Some(e));
+        }
+        let unknown = r#"{"step":1,"process":"netem","event":"exploded","cause":"x","life":0}"#;
+        assert!(serde_json::from_str::<Event>(unknown).is_err());
     }
 
     #[test]

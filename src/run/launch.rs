@@ -117,3 +117,27 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         summary,
     })
 }
+
+/// `swarm run`: one run, its one-line summary on stdout; exit code 0 when the exploration
+/// completed, 2 when the run ended incomplete.
+pub async fn command(args: RunArgs) -> anyhow::Result<std::process::ExitCode> {
+    let out = run(args).await?;
+    let s = &out.summary;
+    let steps = s.exploration_steps.map_or("-".into(), |v| v.to_string());
+    println!(
+        "{}: {} after {} steps ({} robots); exploration steps {steps}; best coverage {:.1}%; {:.1} s wall; radio payload {} bytes; run directory {}",
+        if s.complete { "complete" } else { "INCOMPLETE" },
+        s.exit_reason,
+        s.steps,
+        s.robots,
+        s.best_coverage_pct,
+        s.wall_seconds,
+        s.bytes_payload_total,
+        out.dir.display()
+    );
+    Ok(if s.complete {
+        std::process::ExitCode::SUCCESS
+    } else {
+        std::process::ExitCode::from(2)
+    })
+}

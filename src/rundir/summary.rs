@@ -14,8 +14,10 @@ use crate::score::evaluate::THRESHOLDS;
 /// Version of the run-directory schema, written into `summary.json`.
 pub const SCHEMA_VERSION: u32 = 6;
 
-/// `summary.json`.
-#[derive(Debug, Serialize)]
+/// `summary.json`. Read back with [`read_summary`]: a field missing or renamed (an `Option` one
+/// too: it is written as `null`, never left out) or one the type does not know is an error.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Summary {
     pub schema_version: u32,
     pub complete: bool,
@@ -24,20 +26,24 @@ pub struct Summary {
     pub robots_alive_at_end: usize,
     pub steps: u32,
     pub wall_seconds: f64,
+    #[serde(deserialize_with = "required")]
     pub exploration_steps: Option<u32>,
     pub coverage_steps: BTreeMap<String, Option<u32>>,
     pub best_coverage_pct: f64,
     pub reachable_cells: usize,
     /// Bytes netem forwarded between robots (both directions, all links): the radio plane's
     /// real TCP payload, zenoh's framing included.
+    #[serde(deserialize_with = "required")]
     pub bytes_wire_total: Option<u64>,
     pub bytes_payload_total: u64,
     pub bytes_by_type: BTreeMap<String, u64>,
     /// Thesis eq. 6.1, the mean over the robots of their own approximation's e_avg; `null`
     /// unless `exchange.mode = "polygon"`.
+    #[serde(deserialize_with = "required")]
     pub approx_error_avg: Option<f64>,
     /// Thesis Tables 6.2–6.6: each package type's share of the polygon exchange's payload bytes,
     /// in percent, with the vertex / object / overhead sums; `null` without polygon traffic.
+    #[serde(deserialize_with = "required")]
     pub traffic_shares_pct: Option<BTreeMap<String, f64>>,
     /// Per robot, the splitting frequency s it ended with (polygon exchange; thesis §5.3).
     pub splits_per_step_final: BTreeMap<String, Option<f64>>,
@@ -53,11 +59,14 @@ pub struct Summary {
     /// How many steps links needed to reconnect after coming back into range or being restored.
     pub reconnect: ReconnectSummary,
     /// Team awareness (de Hoog et al. 2010, Fig. 5); `null` without a base station.
+    #[serde(deserialize_with = "required")]
     pub awareness: Option<AwarenessSummary>,
     /// Rooker and Birk 2005, Fig. 6: the communication level over the steps (`metrics.csv`'s
     /// `comm_level_pct`), its lowest and its mean.
+    #[serde(deserialize_with = "required")]
     pub comm_level_pct: Option<CommLevel>,
     /// `pack`: the leaders' judgements of their links against netem's; `null` for the others.
+    #[serde(deserialize_with = "required")]
     pub link_judgement: Option<crate::score::connectivity::LinkJudgement>,
     pub failed_processes: Vec<String>,
     /// What was done to the processes — the scenario's process faults and supervised restarts —
@@ -89,36 +98,47 @@ pub struct Summary {
 /// what is beyond the longest one is lost). Bytes are the ops' compact encoding (polygon
 /// exchange; `null` for the other modes).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct LostLog {
     pub robot: RobotId,
     pub life: u16,
     pub ops_written: u32,
     pub ops_held: u32,
     pub ops_lost: u32,
+    #[serde(deserialize_with = "required")]
     pub bytes_written: Option<u64>,
+    #[serde(deserialize_with = "required")]
     pub bytes_lost: Option<u64>,
 }
 
 /// `awareness` in `summary.json`: the team-awareness metrics of de Hoog, Cameron and Visser
 /// (TAROS 2010, Fig. 5), over the run. Step means weigh every step the same.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct AwarenessSummary {
     /// Fig. 5b: the share of the reachable free cells the base station knew at its last step.
+    #[serde(deserialize_with = "required")]
     pub base_known_pct: Option<f64>,
     /// Its mean over the steps.
+    #[serde(deserialize_with = "required")]
     pub base_known_pct_mean: Option<f64>,
     /// Fig. 5c: the mean over steps of the robots' mean `shared_pct`.
+    #[serde(deserialize_with = "required")]
     pub shared_pct_mean: Option<f64>,
     /// Fig. 5d: the mean over steps of the robots' mean `steps_since_base`, and its largest
     /// value.
+    #[serde(deserialize_with = "required")]
     pub steps_since_base_mean: Option<f64>,
+    #[serde(deserialize_with = "required")]
     pub steps_since_base_max: Option<Step>,
     /// Fig. 5a: the mean over steps of `team_pct` (what the team knows together).
+    #[serde(deserialize_with = "required")]
     pub team_pct_mean: Option<f64>,
 }
 
 /// `comm_level_pct` in `summary.json`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CommLevel {
     pub min: f64,
     pub mean: f64,
@@ -229,6 +249,157 @@ pub fn write_summary(dir: &Path, s: &Summary) -> anyhow::Result<()> {
     std::fs::write(dir.join("summary.json"), text + "\n").context("writing summary.json")
 }
 
+/// Reads `dir`'s `summary.json` as a [`Summary`]; errors name the file (and serde's message
+/// the field: a missing, renamed or unknown one is an error, never a default).
+pub fn read_summary(dir: &Path) -> anyhow::Result<Summary> {
+    let path = dir.join("summary.json");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("reading {}", path.display()))
+}
+
+/// Deserializes an `Option` field that must be present (`null` when empty): without this, serde
+/// reads a missing `Option` field as `None`, and a renamed one would go unnoticed.
+fn required<'de, D, T>(d: D) -> Result<Option<T>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    Option::<T>::deserialize(d)
+}
+
+/// An empty run's summary (no step, nothing sent, every optional field `null`): what tests
+/// start from.
+impl Default for Summary {
+    fn default() -> Summary {
+        Summary {
+            schema_version: SCHEMA_VERSION,
+            complete: false,
+            exit_reason: ExitReason::MaxSteps,
+            robots: 0,
+            robots_alive_at_end: 0,
+            steps: 0,
+            wall_seconds: 0.0,
+            exploration_steps: None,
+            coverage_steps: BTreeMap::new(),
+            best_coverage_pct: 0.0,
+            reachable_cells: 0,
+            bytes_wire_total: None,
+            bytes_payload_total: 0,
+            bytes_by_type: BTreeMap::new(),
+            approx_error_avg: None,
+            traffic_shares_pct: None,
+            splits_per_step_final: BTreeMap::new(),
+            backlog_max_bytes: 0,
+            backlog_mean_bytes: 0.0,
+            logs_held: BTreeMap::new(),
+            collisions: 0,
+            distance_m: Vec::new(),
+            radio_decode_errors: 0,
+            reconnect: ReconnectSummary::default(),
+            awareness: None,
+            comm_level_pct: None,
+            link_judgement: None,
+            failed_processes: Vec::new(),
+            process_events: Vec::new(),
+            lost_logs: Vec::new(),
+            logs_held_by_others: BTreeMap::new(),
+            logs_held_max: BTreeMap::new(),
+            nodes_alive_at_end: Vec::new(),
+            deterministic: false,
+            nondeterministic: Vec::new(),
+            run_digest: String::new(),
+        }
+    }
+}
+
+/// A summary with every optional field present and every map holding its keys: the fixed ones
+/// (coverage thresholds, traffic types, share groups) as they are, the per-run ones (a node, an
+/// owner, a step) as placeholders in angle brackets. What [`number_paths`] walks.
+fn exemplar() -> Summary {
+    let one = |k: &str| BTreeMap::from([(k.to_string(), 0)]);
+    let by_type = bytes_by_type(&[]);
+    let all_sent: BTreeMap<String, u64> = by_type.keys().map(|k| (k.clone(), 1)).collect();
+    Summary {
+        exploration_steps: Some(0),
+        coverage_steps: coverage_steps(&THRESHOLDS.iter().map(|&t| (t, 0)).collect()),
+        bytes_wire_total: Some(0),
+        bytes_by_type: by_type,
+        approx_error_avg: Some(0.0),
+        traffic_shares_pct: traffic_shares(&all_sent),
+        splits_per_step_final: BTreeMap::from([("<robot>".to_string(), Some(0.0))]),
+        logs_held: BTreeMap::from([("<node>".to_string(), one("<owner>"))]),
+        reconnect: ReconnectSummary {
+            mean_steps: Some(0.0),
+            max_steps: Some(0),
+            histogram: BTreeMap::from([("<steps>".to_string(), 0)]),
+            ..ReconnectSummary::default()
+        },
+        awareness: Some(AwarenessSummary {
+            base_known_pct: Some(0.0),
+            base_known_pct_mean: Some(0.0),
+            shared_pct_mean: Some(0.0),
+            steps_since_base_mean: Some(0.0),
+            steps_since_base_max: Some(0),
+            team_pct_mean: Some(0.0),
+        }),
+        comm_level_pct: Some(CommLevel::default()),
+        link_judgement: Some(crate::score::connectivity::LinkJudgement::default()),
+        logs_held_by_others: one("<owner>"),
+        logs_held_max: BTreeMap::from([("<node>".to_string(), one("<owner>"))]),
+        ..Summary::default()
+    }
+}
+
+/// The dotted paths of `summary.json`'s numbers (`steps`, `awareness.team_pct_mean`,
+/// `coverage_steps.90`, `logs_held.<node>.<owner>`), sorted: what an
+/// experiment file may name as a field. A segment in angle brackets stands for any key.
+pub fn number_paths() -> Vec<String> {
+    fn walk(v: &serde_json::Value, at: &str, out: &mut Vec<String>) {
+        match v {
+            serde_json::Value::Number(_) | serde_json::Value::Null => out.push(at.to_string()),
+            serde_json::Value::Object(m) => {
+                for (k, v) in m {
+                    let path = if at.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{at}.{k}")
+                    };
+                    walk(v, &path, out);
+                }
+            }
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    if let Ok(v) = serde_json::to_value(exemplar()) {
+        walk(&v, "", &mut out);
+    }
+    out
+}
+
+/// Whether `path` names a number of `summary.json` ([`number_paths`]); an error that names it
+/// and lists the paths there are otherwise.
+pub fn check_number_path(path: &str) -> anyhow::Result<()> {
+    let paths = number_paths();
+    let matches = |pattern: &str| {
+        let (mut p, mut q) = (pattern.split('.'), path.split('.'));
+        loop {
+            match (p.next(), q.next()) {
+                (None, None) => return true,
+                (Some(a), Some(b)) if a == b || (a.starts_with('<') && !b.is_empty()) => {}
+                _ => return false,
+            }
+        }
+    };
+    anyhow::ensure!(
+        paths.iter().any(|p| matches(p)),
+        "summary field {path:?} is not a number in summary.json; the fields are: {}",
+        paths.join(", ")
+    );
+    Ok(())
+}
+
 /// Reconnection after a link re-enters range (or is restored): for every time a link that had
 /// been connected went down and came back up, the steps from its first step up again to the
 /// first step whose end finds a connection through netem open (0: reconnected within the step).
@@ -242,11 +413,14 @@ pub struct Reconnects {
 }
 
 /// `reconnect` in `summary.json`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ReconnectSummary {
     /// Down-then-up events that reconnected.
     pub events: usize,
+    #[serde(deserialize_with = "required")]
     pub mean_steps: Option<f64>,
+    #[serde(deserialize_with = "required")]
     pub max_steps: Option<Step>,
     /// Steps → events, e.g. {"0": 40, "1": 3}.
     pub histogram: BTreeMap<String, usize>,
@@ -271,6 +445,120 @@ impl From<&Reconnects> for ReconnectSummary {
                 .collect(),
             lost_before_reconnect: r.lost_before_reconnect,
             pending_at_end: r.pending_at_end,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::process::supervise::{Event, EventKind};
+    use proto::scenario::Process;
+
+    fn nulls(v: &serde_json::Value, at: &str, out: &mut Vec<String>) {
+        match v {
+            serde_json::Value::Null => out.push(at.to_string()),
+            serde_json::Value::Object(m) => m
+                .iter()
+                .for_each(|(k, v)| nulls(v, &format!("{at}.{k}"), out)),
+            serde_json::Value::Array(a) => a.iter().for_each(|v| nulls(v, &format!("{at}[]"), out)),
+            _ => {}
+        }
+    }
+
+    /// [`number_paths`] sees every field only if the exemplar fills every optional one: a new
+    /// `Option` field must be given a value there.
+    #[test]
+    fn the_exemplar_fills_every_optional_field() {
+        let mut found = Vec::new();
+        nulls(
+            &serde_json::to_value(exemplar()).unwrap_or_default(),
+            "",
+            &mut found,
+        );
+        assert!(found.is_empty(), "null in the exemplar: {found:?}");
+        let paths = number_paths();
+        for p in [
+            "steps",
+            "coverage_steps.90",
+            "awareness.team_pct_mean",
+            "reconnect.events",
+        ] {
+            assert!(paths.iter().any(|x| x == p), "{p}: {paths:?}");
+        }
+        assert!(!paths.iter().any(|x| x == "complete" || x == "run_digest"));
+    }
+
+    #[test]
+    fn a_summary_reads_back_as_it_was_written() {
+        let mut s = exemplar();
+        s.process_events.push(Event {
+            step: 3,
+            process: Process::Netem,
+            event: EventKind::NotRestarted,
+            cause: "supervised: it had its 1 restarts".into(),
+            life: 1,
+        });
+        s.lost_logs.push(LostLog {
+            robot: 1,
+            life: 0,
+            ops_written: 10,
+            ops_held: 8,
+            ops_lost: 2,
+            bytes_written: None,
+            bytes_lost: None,
+        });
+        s.nodes_alive_at_end = vec![0, 2];
+        s.run_digest = "ab".into();
+        let dir = std::env::temp_dir().join(format!("swarm-summary-rt-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let back = write_summary(&dir, &s).and_then(|()| read_summary(&dir));
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(back.map_err(|e| format!("{e:#}")), Ok(s.clone()));
+        assert_eq!(
+            serde_json::from_value::<Summary>(
+                serde_json::to_value(Summary::default()).unwrap_or_default()
+            )
+            .ok(),
+            Some(Summary::default())
+        );
+    }
+
+    type Edit = dyn Fn(&mut serde_json::Value);
+
+    /// Every field must be there, `null` for an empty optional one; a field the type does not
+    /// know is refused too (a renamed field is both).
+    #[test]
+    fn a_field_missing_or_unknown_does_not_read() {
+        let good = serde_json::to_value(exemplar()).unwrap_or_default();
+        let read = |edit: &Edit| {
+            let mut v = good.clone();
+            edit(&mut v);
+            serde_json::from_value::<Summary>(v).map_err(|e| e.to_string())
+        };
+        assert!(read(&|_| {}).is_ok());
+        let cases: [(&str, &Edit); 5] = [
+            ("exploration_steps", &|v| {
+                v.as_object_mut().map(|m| m.remove("exploration_steps"));
+            }),
+            ("collisions", &|v| {
+                v.as_object_mut().map(|m| m.remove("collisions"));
+            }),
+            ("team_pct_mean", &|v| {
+                v["awareness"]
+                    .as_object_mut()
+                    .map(|m| m.remove("team_pct_mean"));
+            }),
+            ("bytes_lost_total", &|v| v["bytes_lost_total"] = 3.into()),
+            ("max_steps", &|v| {
+                v["reconnect"]
+                    .as_object_mut()
+                    .map(|m| m.remove("max_steps"));
+            }),
+        ];
+        for (field, edit) in cases {
+            let e = read(edit).expect_err(field);
+            assert!(e.contains(field), "{field}: {e}");
         }
     }
 }

@@ -5,7 +5,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use proto::msg::{Judged, RobotId, Step};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// The links up at each step, as node pairs (from `links.csv`'s `up`).
 pub type UpLinks = BTreeMap<Step, Vec<(RobotId, RobotId)>>;
@@ -52,7 +52,8 @@ pub fn comm_level_pct(robots: usize, nodes: usize, links: &[(RobotId, RobotId)])
 
 /// `link_judgement` in `summary.json`: how the `pack` leaders' expectations of their links
 /// compared with netem's verdicts at the steps they were made for.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct LinkJudgement {
     /// Robot pairs judged (each judgement: every pair of its group).
     pub pairs: u64,

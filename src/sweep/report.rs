@@ -21,7 +21,7 @@ use serde::Deserialize;
 use crate::rundir::tables::{header, read_rows, LinkCsv, MetricsCsv};
 use crate::sweep::curve::{mean_over_runs, read_series, CurveSpec};
 use crate::sweep::plot::{draw, short_number, Chart, Line, Mean, XAxis};
-use crate::sweep::results::{Point, Results};
+use crate::sweep::results::{check_field, Point, Results};
 use proto::msg::Step;
 
 #[derive(Clone, Debug, Deserialize)]
@@ -78,8 +78,8 @@ pub struct Spec {
     pub tables: Vec<TableSpec>,
 }
 
-/// Checks that every key a spec names is a grid key, and every curve's column a `metrics.csv`
-/// column.
+/// Checks that every key a spec names is a grid key, every summary field (`plot.y`,
+/// `table.columns`) a number of `summary.json`, and every curve's column a `metrics.csv` column.
 pub fn check(spec: &Spec, keys: &[String]) -> anyhow::Result<()> {
     let known = |k: &String, what: &str| {
         anyhow::ensure!(
@@ -91,6 +91,7 @@ pub fn check(spec: &Spec, keys: &[String]) -> anyhow::Result<()> {
     };
     for p in &spec.plots {
         known(&p.x, "plot.x")?;
+        check_field("plot.y", &p.y)?;
         if let Some(s) = &p.series {
             known(s, "plot.series")?;
         }
@@ -115,6 +116,9 @@ pub fn check(spec: &Spec, keys: &[String]) -> anyhow::Result<()> {
     for t in &spec.tables {
         for k in t.rows.iter().chain(&t.average_over) {
             known(k, "table.rows / average_over")?;
+        }
+        for c in &t.columns {
+            check_field("table.columns", c)?;
         }
     }
     Ok(())
@@ -308,7 +312,7 @@ fn timeline(r: &Results, spec: &TimelineSpec, dir: &Path) -> anyhow::Result<Vec<
             let run = r
                 .runs
                 .iter()
-                .filter(|run| run.summary.is_some())
+                .filter(|run| run.summary().is_some())
                 .find(|run| {
                     let p = &r.points[run.point];
                     matches(p, &facet)
@@ -377,7 +381,7 @@ fn curve(r: &Results, spec: &CurveSpec, dir: &Path) -> anyhow::Result<Vec<(Strin
             };
             // One point's runs at a time, each already reduced to a value per step.
             let runs = (r.runs.iter())
-                .filter(|run| run.summary.is_some() && which(&r.points[run.point]))
+                .filter(|run| run.summary().is_some() && which(&r.points[run.point]))
                 .map(|run| {
                     let metrics = run.dir.join("metrics.csv");
                     read_series(&metrics, &spec.column, spec.rows, run.base_station())
@@ -446,7 +450,7 @@ fn table(r: &Results, spec: &TableSpec) -> String {
         let runs = r
             .runs
             .iter()
-            .filter(|run| run.summary.is_some() && matches(&r.points[run.point], &row))
+            .filter(|run| run.summary().is_some() && matches(&r.points[run.point], &row))
             .count();
         let mut cells: Vec<String> = row.iter().map(|(k, v)| label(k, v)).collect();
         cells.push(runs.to_string());
@@ -487,7 +491,7 @@ pub fn write(r: &Results, spec: &Spec, out: &Path) -> anyhow::Result<()> {
     let dir = out.join("plots");
     std::fs::create_dir_all(&dir).context("creating plots/")?;
     let mut md = format!("# Sweep `{}`\n\n", spec.name);
-    let failed = r.runs.iter().filter(|x| x.summary.is_none()).count();
+    let failed = r.runs.iter().filter(|x| x.summary().is_none()).count();
     let complete = r.runs.iter().filter(|x| x.complete()).count();
     let _ = writeln!(
         md,
@@ -622,20 +626,19 @@ mod tests {
             let run = dir.join(format!("run{i}"));
             std::fs::create_dir_all(&run).unwrap_or_else(|e| panic!("{e}"));
             std::fs::write(run.join("metrics.csv"), table).unwrap_or_else(|e| panic!("{e}"));
-            runs.push(crate::sweep::results::Run {
-                point: p,
-                seed,
-                dir: run,
-                summary: Some(serde_json::json!({"robots": 1, "awareness": null})),
-            });
+            let summary = crate::rundir::summary::Summary {
+                robots: 1,
+                ..Default::default()
+            };
+            runs.push(crate::sweep::results::Run::new(p, seed, run, Some(summary)));
         }
         // A failed run (no summary) and its missing table are left out.
-        runs.push(crate::sweep::results::Run {
-            point: 1,
-            seed: 2,
-            dir: dir.join("failed"),
-            summary: None,
-        });
+        runs.push(crate::sweep::results::Run::new(
+            1,
+            2,
+            dir.join("failed"),
+            None,
+        ));
         let r = Results {
             points: vec![point("a"), point("b")],
             fields: Vec::new(),

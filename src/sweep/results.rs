@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
+use crate::rundir::summary::{read_summary, Summary};
+
 /// The summary fields every sweep reports per run and aggregates per point. The `awareness`
 /// ones (de Hoog et al. 2010, Fig. 5) are empty in runs without a base station,
 /// `link_judgement` in runs of strategies other than `pack`.
@@ -101,11 +103,19 @@ fn t95(df: usize) -> f64 {
     T.get(df.saturating_sub(1)).copied().unwrap_or(1.96)
 }
 
-/// A summary field by dotted path (`traffic_shares_pct.vertex`), as a number.
+/// A summary field by dotted path (`traffic_shares_pct.vertex`), as a number: a path lookup in
+/// the JSON form of the typed [`Summary`] (`null` and what is not there are `None`; which paths
+/// there are is checked when the experiment is loaded, [`check_field`]).
 pub fn field(summary: &serde_json::Value, path: &str) -> Option<f64> {
     path.split('.')
         .try_fold(summary, |v, k| v.get(k))
         .and_then(serde_json::Value::as_f64)
+}
+
+/// `path`, named by an experiment file as `what` (`fields`, `plot.y`, `table.columns`), is a
+/// number of `summary.json`; else an error naming it and listing the fields there are.
+pub fn check_field(what: &str, path: &str) -> anyhow::Result<()> {
+    crate::rundir::summary::check_number_path(path).with_context(|| what.to_string())
 }
 
 /// One run of a sweep: where it is, and its summary once it has finished.
@@ -113,36 +123,48 @@ pub struct Run {
     pub point: usize,
     pub seed: u32,
     pub dir: PathBuf,
-    pub summary: Option<serde_json::Value>,
+    summary: Option<Summary>,
+    /// `summary` as JSON, for [`field`].
+    json: Option<serde_json::Value>,
 }
 
 impl Run {
-    pub fn load(point: usize, seed: u32, dir: PathBuf) -> Run {
-        let summary = std::fs::read_to_string(dir.join("summary.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str(&t).ok());
+    /// A run and its summary (`None`: it failed).
+    pub fn new(point: usize, seed: u32, dir: PathBuf, summary: Option<Summary>) -> Run {
+        let json = summary.as_ref().and_then(|s| serde_json::to_value(s).ok());
         Run {
             point,
             seed,
             dir,
             summary,
+            json,
         }
+    }
+
+    /// The run in `dir`: without a `summary.json` it failed; one that does not read is an error.
+    pub fn load(point: usize, seed: u32, dir: PathBuf) -> anyhow::Result<Run> {
+        let summary = if dir.join("summary.json").exists() {
+            Some(read_summary(&dir)?)
+        } else {
+            None
+        };
+        Ok(Run::new(point, seed, dir, summary))
+    }
+
+    /// Its summary; `None` if it failed.
+    pub fn summary(&self) -> Option<&Summary> {
+        self.summary.as_ref()
     }
 
     /// The base station's node id (`robots.count`) if the run had one: its summary's
     /// `awareness` is `null` without.
     pub fn base_station(&self) -> Option<proto::msg::RobotId> {
         let s = self.summary.as_ref()?;
-        if s["awareness"].is_null() {
-            return None;
-        }
-        s["robots"].as_u64().and_then(|r| r.try_into().ok())
+        s.awareness.as_ref().map(|_| s.robots)
     }
 
     pub fn complete(&self) -> bool {
-        self.summary
-            .as_ref()
-            .is_some_and(|s| s["complete"].as_bool() == Some(true))
+        self.summary.as_ref().is_some_and(|s| s.complete)
     }
 
     /// A field of this run, as the sweep counts it: exploration time only for complete runs.
@@ -150,7 +172,7 @@ impl Run {
         if f == "exploration_steps" && !self.complete() {
             return None;
         }
-        field(self.summary.as_ref()?, f)
+        field(self.json.as_ref()?, f)
     }
 }
 
@@ -221,10 +243,11 @@ impl Results {
         rec.extend([
             "ok".to_string(),
             r.complete().to_string(),
-            s["exit_reason"].as_str().unwrap_or("").to_string(),
+            s.exit_reason.to_string(),
         ]);
         for f in &self.fields {
-            rec.push(field(s, f).map_or(String::new(), |v| v.to_string()));
+            let v = r.json.as_ref().and_then(|j| field(j, f));
+            rec.push(v.map_or(String::new(), |v| v.to_string()));
         }
         rec
     }
@@ -302,30 +325,73 @@ mod tests {
 
     #[test]
     fn exploration_time_counts_complete_runs_only() {
-        let run = |complete: bool| Run {
-            point: 0,
-            seed: 1,
-            dir: PathBuf::new(),
-            summary: Some(
-                serde_json::json!({"complete": complete, "exploration_steps": 10, "steps": 20}),
-            ),
+        let run = |complete: bool| {
+            let s = Summary {
+                complete,
+                exploration_steps: Some(10),
+                steps: 20,
+                ..Summary::default()
+            };
+            Run::new(0, 1, PathBuf::new(), Some(s))
         };
         assert_eq!(run(true).value("exploration_steps"), Some(10.0));
         assert_eq!(run(false).value("exploration_steps"), None);
         assert_eq!(run(false).value("steps"), Some(20.0));
+        assert_eq!(run(true).value("approx_error_avg"), None, "null");
+        assert_eq!(Run::new(0, 1, PathBuf::new(), None).value("steps"), None);
     }
 
     #[test]
     fn the_base_station_is_node_robots_count_when_the_run_had_awareness() {
-        let run = |summary: serde_json::Value| Run {
-            point: 0,
-            seed: 1,
-            dir: PathBuf::new(),
-            summary: Some(summary),
+        let run = |awareness| {
+            let s = Summary {
+                robots: 3,
+                awareness,
+                ..Summary::default()
+            };
+            Run::new(0, 1, PathBuf::new(), Some(s))
         };
-        let with = run(serde_json::json!({"robots": 3, "awareness": {"base_known_pct": 50.0}}));
+        let with = run(Some(crate::rundir::summary::AwarenessSummary {
+            base_known_pct: Some(50.0),
+            ..Default::default()
+        }));
         assert_eq!(with.base_station(), Some(3));
-        let without = run(serde_json::json!({"robots": 3, "awareness": null}));
-        assert_eq!(without.base_station(), None);
+        assert_eq!(with.value("awareness.base_known_pct"), Some(50.0));
+        assert_eq!(run(None).base_station(), None);
+    }
+
+    #[test]
+    fn the_standard_fields_are_numbers_of_the_summary_and_others_are_refused() {
+        for f in FIELDS {
+            check_field("FIELDS", f).unwrap_or_else(|e| panic!("{e:#}"));
+        }
+        for f in [
+            "coverage_steps.90",
+            "traffic_shares_pct.vertex",
+            "bytes_by_type.move",
+            "link_judgement.wrong_up",
+            "logs_held.3.1026",
+            "reconnect.histogram.0",
+        ] {
+            check_field("fields", f).unwrap_or_else(|e| panic!("{e:#}"));
+        }
+        for (f, why) in [
+            ("exploration_step", "a typo"),
+            ("awareness.team_pct", "not in awareness"),
+            ("coverage_steps.80", "not a threshold"),
+            ("bytes_by_type.nope", "not a traffic type"),
+            ("exit_reason", "not a number"),
+            ("awareness", "an object"),
+            ("steps.x", "below a number"),
+            ("logs_held.3", "an object"),
+        ] {
+            let e = check_field("fields", f).map_err(|e| format!("{e:#}"));
+            assert!(
+                e.as_ref().is_err_and(|e| e.contains(&format!("{f:?}"))
+                    && e.contains("awareness.team_pct_mean")
+                    && e.contains("coverage_steps.90")),
+                "{f} ({why}): {e:?}"
+            );
+        }
     }
 }

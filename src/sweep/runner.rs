@@ -57,9 +57,10 @@ use anyhow::{bail, Context};
 use serde::Deserialize;
 
 use crate::run::progress::Progress;
+use crate::rundir::summary::read_summary;
 use crate::sweep::curve::CurveSpec;
 use crate::sweep::report::{PlotSpec, Spec, TableSpec, TimelineSpec};
-use crate::sweep::results::{points, Point, Results, Run, FIELDS};
+use crate::sweep::results::{check_field, points, Point, Results, Run, FIELDS};
 use proto::exit::ExitReason;
 use world_server::scenario::resolve;
 
@@ -325,11 +326,15 @@ fn check_points(
 
 /// A run is finished when it wrote its summary, unless it was interrupted (Ctrl-C reaches the
 /// runs too, and each writes an `interrupted` summary): that one runs again.
+/// A summary that does not read (another schema) counts as not finished: the run is run again.
 fn finished(dir: &Path) -> bool {
-    std::fs::read_to_string(dir.join("summary.json"))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|s| s["exit_reason"] != ExitReason::Interrupted.as_str())
+    read_summary(dir).is_ok_and(|s| s.exit_reason != ExitReason::Interrupted)
+}
+
+/// Every summary field the experiment names besides the standard ones (`fields`) is a number of
+/// `summary.json` (`plot.y` and `table.columns` are checked with the report's spec).
+fn check_fields(fields: &[String]) -> anyhow::Result<()> {
+    fields.iter().try_for_each(|f| check_field("fields", f))
 }
 
 /// A sweep made ready: the experiment read, its variant chosen and checked, the output
@@ -368,7 +373,9 @@ impl Plan {
             curves: exp.curve.clone(),
             tables: exp.table.clone(),
         };
-        crate::sweep::report::check(&spec, &grid.keys().cloned().collect::<Vec<_>>())?;
+        check_fields(&exp.fields).with_context(|| format!("experiment {file}"))?;
+        crate::sweep::report::check(&spec, &grid.keys().cloned().collect::<Vec<_>>())
+            .with_context(|| format!("experiment {file}"))?;
         let full: BTreeMap<String, Vec<String>> = (exp.grid.iter())
             .map(|(k, vs)| (k.clone(), vs.iter().map(value_text).collect()))
             .collect();
@@ -501,7 +508,7 @@ impl Plan {
             runs: jobs
                 .into_iter()
                 .map(|(point, seed, dir)| Run::load(point, seed, dir))
-                .collect(),
+                .collect::<anyhow::Result<_>>()?,
         };
         results.write_tables(&self.out)?;
         crate::sweep::report::write(&results, &self.spec, &self.out)?;
@@ -518,6 +525,13 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
     });
     plan.run(&jobs, parallel)?;
     plan.write_results(jobs)
+}
+
+/// `swarm sweep`: runs the experiment and says where it is written.
+pub fn command(args: &SweepArgs) -> anyhow::Result<std::process::ExitCode> {
+    let dir = sweep(args)?;
+    println!("sweep written to {}", dir.display());
+    Ok(std::process::ExitCode::SUCCESS)
 }
 
 #[cfg(test)]
@@ -565,13 +579,61 @@ mod tests {
                     ..Spec::default()
                 };
                 let keys: Vec<String> = grid.keys().cloned().collect();
-                crate::sweep::report::check(&spec, &keys)
+                check_fields(&exp.fields)
+                    .and_then(|()| crate::sweep::report::check(&spec, &keys))
                     .and_then(|()| check_points(None, &sets, &points(&grid), &exp.with))
                     .unwrap_or_else(|err| panic!("{} (quick {quick}): {err}", e.path().display()));
             }
             n += 1;
         }
         assert!(n >= 6, "{n} experiment files");
+    }
+
+    #[test]
+    fn a_field_the_summary_does_not_have_is_refused_when_the_experiment_loads() {
+        let dir = std::env::temp_dir().join(format!("swarm-sweep-fields-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let load = |body: &str| {
+            let file = dir.join("x.toml");
+            std::fs::write(&file, format!("name = \"x\"\n{body}"))
+                .unwrap_or_else(|e| panic!("{e}"));
+            let args = SweepArgs {
+                experiment: file,
+                out: Some(dir.join("out")),
+                jobs: None,
+                seeds: None,
+                quick: false,
+                only: Vec::new(),
+            };
+            Plan::load(&args).map(|_| ()).map_err(|e| format!("{e:#}"))
+        };
+        let ok = load("fields = [\"traffic_shares_pct.vertex\", \"coverage_steps.90\"]\n");
+        let field = load("fields = [\"traffic_share_pct.vertex\"]\n");
+        let y = load(
+            "[grid]\n\"robots.count\" = [2]\n[[plot]]\nname = \"p\"\ntitle = \"P\"\n\
+             x = \"robots.count\"\ny = \"exploration_step\"\n",
+        );
+        let column = load(
+            "[grid]\n\"robots.count\" = [2]\n[[table]]\ntitle = \"T\"\n\
+             rows = [\"robots.count\"]\ncolumns = [\"awareness.team_pct\"]\n",
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(ok.is_ok(), "{ok:?}");
+        for (r, what, name) in [
+            (field, "fields", "traffic_share_pct.vertex"),
+            (y, "plot.y", "exploration_step"),
+            (column, "table.columns", "awareness.team_pct"),
+        ] {
+            let e = r.expect_err(name);
+            assert!(
+                e.contains("x.toml")
+                    && e.contains(what)
+                    && e.contains(&format!("{name:?}"))
+                    && e.contains("awareness.team_pct_mean")
+                    && e.contains("wall_seconds"),
+                "{name}: {e}"
+            );
+        }
     }
 
     #[test]

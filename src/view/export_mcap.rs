@@ -58,6 +58,16 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<(PathBuf, Counts)> {
     Ok((out, counts))
 }
 
+/// `swarm export-mcap`: writes the file and prints it with the messages per topic.
+pub fn command(args: &ExportArgs) -> anyhow::Result<std::process::ExitCode> {
+    let (path, counts) = export(args)?;
+    println!("written {}", path.display());
+    for (topic, n) in counts {
+        println!("  {topic}: {n} messages");
+    }
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
 /// A JSON schema of ours for a Foxglove type: Foxglove recognises the type by its name; the
 /// schema says what the fields are for any other reader.
 fn schema(title: &str, properties: Value) -> Vec<u8> {

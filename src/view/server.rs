@@ -294,6 +294,12 @@ pub async fn replay(args: &ViewArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `swarm view`: serves the replay until Ctrl-C.
+pub async fn command(args: ViewArgs) -> anyhow::Result<std::process::ExitCode> {
+    replay(&args).await?;
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
 fn truth_png(h: &Header) -> anyhow::Result<Vec<u8>> {
     let g = Grid::from_rle(&h.truth)
         .unwrap_or_else(|_| Grid::new(h.map.width, h.map.height, Occ::Unknown));

@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 use proto::confine::Principal;
-use proto::node::{close_quickly, init_logging, zerr, ScenarioArgs, ZenohArgs};
+use proto::node::{close_quickly, entry, zerr, ScenarioArgs, ZenohArgs};
 use proto::scenario::Scenario;
 
 use crate::scenario::resolve;
@@ -83,24 +83,11 @@ async fn run(args: Args) -> anyhow::Result<End> {
 
 /// The whole process: one tokio runtime, logging, exit code.
 pub fn main(args: Args) -> ExitCode {
-    init_logging();
-    let runtime = match tokio::runtime::Runtime::new() {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("world-server: cannot start the runtime: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
-    match runtime.block_on(run(args)) {
-        Ok(end) => {
-            tracing::info!("world-server ended: {end:?}");
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("world-server: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    entry("world-server", async {
+        let end = run(args).await?;
+        tracing::info!("world-server ended: {end:?}");
+        anyhow::Ok(ExitCode::SUCCESS)
+    })
 }
 
 #[cfg(test)]

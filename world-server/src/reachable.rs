@@ -402,7 +402,7 @@ mod tests {
         for (k, a) in cells.iter().enumerate() {
             assert_eq!(region.get(*a), Occ::Free, "all in the same free region");
             for b in &cells[k + 1..] {
-                let d = (f64::from(a.x - b.x).hypot(f64::from(a.y - b.y))) * 0.5;
+                let d = a.dist(*b) * 0.5;
                 assert!(d >= 1.0 - 1e-9, "{a:?} and {b:?} are {d} m apart");
             }
         }

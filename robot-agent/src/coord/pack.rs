@@ -167,7 +167,7 @@ impl Scoring<'_> {
     fn possible(&self, from: &[Cell], to: &[Cell], i: usize) -> bool {
         let (a, b) = (from[i], to[i]);
         if a != b {
-            let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
+            let centre = Cell::centre;
             let clear = supercover(centre(a), centre(b))
                 .into_iter()
                 .all(|c| c == a || self.grid.get(c) == Occ::Free);
@@ -175,9 +175,7 @@ impl Scoring<'_> {
                 return false;
             }
         }
-        let near = |c: Cell| {
-            f64::from(c.x - b.x).hypot(f64::from(c.y - b.y)) < self.collide_cells.max(1e-9)
-        };
+        let near = |c: Cell| c.dist(b) < self.collide_cells.max(1e-9);
         let teammates = to
             .iter()
             .enumerate()
@@ -404,7 +402,7 @@ impl Pack {
             step.moves.iter().find(|m| m.robot == self.me).copied()
         }?;
         // Its own map must not say the way is blocked (the world checks the truth anyway).
-        let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
+        let centre = Cell::centre;
         let blocked = supercover(centre(m.from), centre(m.to))
             .into_iter()
             .any(|c| s.grid.get(c) == Occ::Occupied);

@@ -68,7 +68,7 @@ pub fn coverage_probability(d: f64, max_range: f64) -> f64 {
 
 /// No occupied cell lies on the straight segment between the centres of `a` and `b`.
 pub fn line_of_sight(g: &Grid, a: Cell, b: Cell) -> bool {
-    let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
+    let centre = Cell::centre;
     supercover(centre(a), centre(b))
         .into_iter()
         .all(|c| g.get(c) != Occ::Occupied)
@@ -77,7 +77,7 @@ pub fn line_of_sight(g: &Grid, a: Cell, b: Cell) -> bool {
 /// How much another robot's target `other` lowers the utility of frontier `t`, weighted by
 /// `weight` (the decay of an old target).
 pub fn discount(g: &Grid, t: Cell, other: Cell, max_range: f64, weight: f64) -> f64 {
-    let d = f64::from(t.x - other.x).hypot(f64::from(t.y - other.y));
+    let d = t.dist(other);
     let p = coverage_probability(d, max_range);
     if p > 0.0 && line_of_sight(g, t, other) {
         weight * p

@@ -357,7 +357,7 @@ pub fn next_waypoint(
 ) -> Option<Cell> {
     let (&first, rest) = path.split_first()?;
     let &second = rest.first()?;
-    if f64::from(second.x - first.x).hypot(f64::from(second.y - first.y)) > max_cells {
+    if second.dist(first) > max_cells {
         return Some(second);
     }
     let from = map.in_cells(from_m.0, from_m.1);
@@ -940,7 +940,7 @@ mod tests {
                     prop_assert!(moves(&blocked, pair[0]).any(|(n, _)| n == pair[1]));
                 }
                 let aside = *path.last().unwrap_or(&me);
-                let far = |a: Cell, b: Cell| f64::from(a.x - b.x).hypot(f64::from(a.y - b.y)) >= clearance;
+                let far = |a: Cell, b: Cell| a.dist(b) >= clearance;
                 prop_assert!(far(aside, other), "{:?} is too near the other robot", aside);
                 if let Some(way) = known.then(|| path_to(&costs(&g, other), target)).flatten() {
                     prop_assert!(way.iter().all(|&w| far(aside, w)), "{:?} is in the way", aside);
@@ -974,15 +974,15 @@ mod tests {
 
             let info = MapInfo::at_origin(g.width(), g.height(), 1.0);
             let waypoint = next_waypoint(&g, &info, info.centre_of(start), &path, max_cells);
-            let first_step = path.get(1).map(|b| f64::from(b.x - start.x).hypot(f64::from(b.y - start.y)));
+            let first_step = path.get(1).map(|b| b.dist(start));
             if let (Some(w), Some(step)) = (waypoint, first_step.filter(|&d| d > max_cells)) {
                 prop_assert_eq!(Some(w), path.get(1).copied(), "a first step of {} > {} cells", step, max_cells);
             } else if let Some(w) = waypoint {
                 prop_assert!(path[1..].contains(&w));
-                prop_assert!(f64::from(w.x - start.x).hypot(f64::from(w.y - start.y)) <= max_cells);
+                prop_assert!(w.dist(start) <= max_cells);
                 let line = swept(
-                    (f64::from(start.x) + 0.5, f64::from(start.y) + 0.5),
-                    (f64::from(w.x) + 0.5, f64::from(w.y) + 0.5),
+                    start.centre(),
+                    w.centre(),
                 );
                 for c in line {
                     prop_assert!(c == start || g.get(c) == Occ::Free, "{:?} on the segment is not free", c);

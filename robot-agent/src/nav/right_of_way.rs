@@ -230,7 +230,7 @@ mod tests {
             .give_way(&g, &info, info.centre_of(me), me, &heard, 2.0)
             .flatten()
             .expect("a way aside");
-        let from_other = |c: Cell| f64::from(c.x - other.x).hypot(f64::from(c.y - other.y));
+        let from_other = |c: Cell| c.dist(other);
         assert!(
             from_other(aside) > from_other(me),
             "{aside:?} is not away from {other:?}"

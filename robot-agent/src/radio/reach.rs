@@ -62,7 +62,7 @@ impl Reach {
             } => (model, *range_cells, *res_m),
         };
         let cells = MapInfo::at_origin(g.width(), g.height(), 1.0);
-        let from = (f64::from(p.x) + 0.5, f64::from(p.y) + 0.5);
+        let from = p.centre();
         let mut total = 0.0;
         for k in 0..REACH_RAYS {
             let a = std::f64::consts::TAU * k as f64 / REACH_RAYS as f64;
@@ -73,7 +73,7 @@ impl Reach {
             // The walls counted as [`Reach::linked`] and netem count them.
             let mut heard = 0.0f64;
             for (c, walls) in walls_along(&cells, g, from, to, |o| o == Occ::Occupied) {
-                let d = f64::from(c.x - p.x).hypot(f64::from(c.y - p.y));
+                let d = c.dist(p);
                 if model.signal_dbm(d * res_m, walls) >= model.threshold_dbm {
                     heard = heard.max(d);
                 }
@@ -88,13 +88,13 @@ impl Reach {
     /// `g` (cells known occupied; unknown space is not counted). The distance counts `slack`
     /// cells more than between the centres (robots stand anywhere in their cells).
     pub fn linked(&self, g: &Grid, a: Cell, b: Cell, slack: f64) -> bool {
-        let d = f64::from(a.x - b.x).hypot(f64::from(a.y - b.y)) + slack.max(0.0);
+        let d = a.dist(b) + slack.max(0.0);
         match self {
             Reach::Unlimited => true,
             Reach::Disk { range_cells } => d <= *range_cells,
             Reach::PathLoss { model, res_m, .. } => {
                 let cells = MapInfo::at_origin(g.width(), g.height(), 1.0);
-                let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
+                let centre = Cell::centre;
                 let walls = count_walls(&cells, g, centre(a), centre(b), |o| o == Occ::Occupied);
                 model.signal_dbm(d * res_m, walls) >= model.threshold_dbm
             }

@@ -205,7 +205,7 @@ mod tests {
     };
 
     fn dist(a: Cell, b: Cell) -> f64 {
-        f64::from(a.x - b.x).hypot(f64::from(a.y - b.y))
+        a.dist(b)
     }
 
     /// The qualifying cells of [`information_gain`] by a flood fill over the whole grid, the

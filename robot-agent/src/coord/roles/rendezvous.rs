@@ -41,7 +41,7 @@ pub fn choose(
     k: usize,
     reach: impl Fn(Cell) -> f64,
 ) -> Option<Cell> {
-    let dist = |c: Cell| f64::from(c.x - toward.x).hypot(f64::from(c.y - toward.y));
+    let dist = |c: Cell| c.dist(toward);
     let mut near: Vec<(Cell, u8)> = points.to_vec();
     near.sort_by(|a, b| {
         dist(a.0)
@@ -80,7 +80,7 @@ pub fn trip_steps(cells: f64, cells_per_step: f64) -> Step {
 fn cost_or_straight(costs: &CostMap, to: Cell) -> f64 {
     costs.cost(to).unwrap_or_else(|| {
         let s = costs.start();
-        f64::from(s.x - to.x).hypot(f64::from(s.y - to.y))
+        s.dist(to)
     })
 }
 

@@ -98,7 +98,7 @@ pub fn thin(g: &Grid) -> Grid {
 
 /// Algorithm 1 on a skeleton: (cell, T) of every rendezvous point, junctions first.
 pub fn rendezvous_points(skeleton: &Grid, fill: f64, prune: f64) -> Vec<(Cell, u8)> {
-    let dist = |a: Cell, b: Cell| f64::from(a.x - b.x).hypot(f64::from(a.y - b.y));
+    let dist = |a: Cell, b: Cell| a.dist(b);
     let cells = free_cells(skeleton);
     let mut points: Vec<(Cell, u8)> = cells
         .iter()
@@ -272,7 +272,7 @@ mod tests {
         let m = Grid::from_ascii(&pic);
         let points = rendezvous_points(&m, 4.0, 3.0);
         assert_eq!(points.first(), Some(&(Cell::new(10, 3), 3)));
-        let dist = |a: Cell, b: Cell| f64::from(a.x - b.x).hypot(f64::from(a.y - b.y));
+        let dist = |a: Cell, b: Cell| a.dist(b);
         for (i, &(a, _)) in points.iter().enumerate() {
             for &(b, _) in &points[i + 1..] {
                 assert!(dist(a, b) >= 3.0, "{a:?} {b:?}");
