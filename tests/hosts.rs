@@ -456,7 +456,13 @@ fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_proces
     } = ssh_lab("drop", "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }");
     let run = dir.path().join("run");
     let mut cmd = lab.exec(0, SWARM);
-    run_args(&mut cmd, &run, &["robots.count=8"]);
+    // Robots at a fifth of the default speed: the run lasts several times the seconds the kills
+    // below wait (at the default speed an 8-robot run could end before h3 was killed).
+    run_args(
+        &mut cmd,
+        &run,
+        &["robots.count=8", "robots.speed_m_per_s=0.1"],
+    );
     cmd.arg("--hosts").arg(&hosts);
     let launcher = Launcher::spawn(cmd);
     // h2 runs robots 1, 4, 7; h3 its sshd and, for robots 2 and 5, a session, `swarm on-host`
