@@ -456,6 +456,34 @@ pub fn write_pgm(path: &Path, grid: &proto::grid::Grid) -> anyhow::Result<()> {
 mod tests {
     use super::*;
 
+    /// docs/run-directory.md is the reference users script against: every column of every table
+    /// and every field of summary.json (its top level) is named there, in backticks.
+    #[test]
+    fn every_column_and_summary_field_is_in_the_run_directory_reference() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/run-directory.md");
+        let doc = std::fs::read_to_string(path).expect("docs/run-directory.md");
+        let mut names = Vec::new();
+        for header in [
+            header::<MetricsCsv>(),
+            header::<SaveCsv>(),
+            header::<ViewCsv>(),
+            header::<LinkCsv>(),
+        ] {
+            names.extend(header.expect("a header"));
+        }
+        let summary = serde_json::to_value(crate::rundir::summary::Summary::default())
+            .expect("summary serializes");
+        names.extend(summary.as_object().expect("an object").keys().cloned());
+        let missing: Vec<&String> = names
+            .iter()
+            .filter(|n| !doc.contains(&format!("`{n}`")))
+            .collect();
+        assert!(
+            missing.is_empty(),
+            "not in docs/run-directory.md: {missing:?}"
+        );
+    }
+
     fn state(up: bool, connected: bool) -> LinkState {
         LinkState {
             a: 0,
