@@ -84,30 +84,51 @@ pub fn count_walls(
 ) -> u32 {
     walls_along(map, grid, a, b, wall)
         .last()
-        .map_or(0, |&(_, walls)| walls)
+        .map_or(0, |(_, walls)| walls)
 }
 
 /// The cells the segment `a`–`b` (metres) crosses on `grid`, in order, each with the number of
 /// walls crossed up to and including it: [`count_walls`] step by step, for a caller that wants
 /// the signal along the way (a robot's estimate of its reach). The parts of the segment outside
-/// the map are left out.
-pub fn walls_along(
+/// the map are left out. Lazy: netem counts every link's walls every step.
+pub fn walls_along<'a>(
+    map: &MapInfo,
+    grid: &'a Grid,
+    a: (f64, f64),
+    b: (f64, f64),
+    wall: impl Fn(Occ) -> bool + 'a,
+) -> impl Iterator<Item = (Cell, u32)> + 'a {
+    let (mut walls, mut in_wall) = (0, false);
+    crossed(map, grid, a, b)
+        .into_iter()
+        .flatten()
+        .map(move |cell| {
+            let solid = wall(grid.get(cell));
+            if solid && !in_wall {
+                walls += 1;
+            }
+            in_wall = solid;
+            (cell, walls)
+        })
+}
+
+/// The cells of `grid` the segment `a`–`b` (metres) crosses, by the plain traversal: a wall is
+/// counted where the line enters it, and a line through a corner between two wall cells crosses
+/// one of them. `None` when no part of the segment lies on the map.
+fn crossed(
     map: &MapInfo,
     grid: &Grid,
     a: (f64, f64),
     b: (f64, f64),
-    wall: impl Fn(Occ) -> bool,
-) -> Vec<(Cell, u32)> {
+) -> Option<impl Iterator<Item = Cell>> {
     let res = map.resolution_m;
     if res.is_nan() || res <= 0.0 || grid.is_empty() {
-        return Vec::new();
+        return None;
     }
     // Cell coordinates: cell (i, j) covers [i, i+1) × [j, j+1).
     let (p0, p1) = (map.in_cells(a.0, a.1), map.in_cells(b.0, b.1));
     let (w, h) = (f64::from(grid.width()), f64::from(grid.height()));
-    let Some((t0, t1)) = clip(p0, p1, (0.0, 0.0), (w, h)) else {
-        return Vec::new();
-    };
+    let (t0, t1) = clip(p0, p1, (0.0, 0.0), (w, h))?;
     let (dx, dy) = (p1.0 - p0.0, p1.1 - p0.1);
     let (p0, p1) = (
         (p0.0 + t0 * dx, p0.1 + t0 * dy),
@@ -117,22 +138,8 @@ pub fn walls_along(
     let last = |v: f64, n: f64| (v.floor() as i64).clamp(0, n as i64 - 1) as i32;
     let start = Cell::new(last(p0.0, w), last(p0.1, h));
     let end = Cell::new(last(p1.0, w), last(p1.1, h));
-    // The plain traversal: a wall is counted where the line enters it, and a line through a
-    // corner between two wall cells crosses one of them.
     let cells = Traversal::between(p0, start, p1, end, Corners::Thin).map(|x| x.cell);
-    let mut walls = 0;
-    let mut in_wall = false;
-    std::iter::once(start)
-        .chain(cells)
-        .map(|cell| {
-            let solid = wall(grid.get(cell));
-            if solid && !in_wall {
-                walls += 1;
-            }
-            in_wall = solid;
-            (cell, walls)
-        })
-        .collect()
+    Some(std::iter::once(start).chain(cells))
 }
 
 #[cfg(test)]
