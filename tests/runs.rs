@@ -115,3 +115,28 @@ fn three_robots_coordinated_by_burgard_assignment_explore_a_small_office() {
 fn eight_robots_explore_a_small_real_map() {
     completes("eight", &["world.map=fr101", "robots.count=8"], 400);
 }
+
+/// The maps that trip a robot's notion of what it can reach are explored completely by 5 robots
+/// at 1 kB/s, 10 m range, polygon exchange: raw SLAM output with laser-ray streaks and
+/// single-cell holes (`intel_gmapping_raw`), and one-cell doors, zigzags, staircases and streaks
+/// (`narrow_gaps`) — see tests/fixtures/maps/SOURCES.md.
+#[test]
+fn maps_with_ray_streaks_and_narrow_gaps_are_explored_completely() {
+    let fixture = |name: &str| {
+        let yaml = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/maps")
+            .join(name);
+        format!("world.map={}", yaml.display())
+    };
+    for (name, max_steps) in [("narrow_gaps.yaml", 400), ("intel_gmapping_raw.yaml", 900)] {
+        let map = fixture(name);
+        let sets = [
+            map.as_str(),
+            "robots.count=5",
+            "radio.model=disk",
+            "radio.range_m=10",
+        ];
+        let s = completes(name, &sets, max_steps);
+        assert_eq!(s.robots, 5, "{name}");
+    }
+}

@@ -12,8 +12,14 @@ pub enum ExitReason {
     Explored,
     /// The step limit (`max_steps`) was reached.
     MaxSteps,
-    /// Every live robot saw no reachable frontier for a few steps in a row.
+    /// Every live robot saw no reachable frontier for a few steps in a row, and no robot's
+    /// planning grid held a frontier inside the world's reachable area: nothing the robots could
+    /// reach was left to explore.
     NoFrontiers,
+    /// Every live robot saw no reachable frontier for a few steps in a row while some robot's
+    /// planning grid still held a frontier inside the world's reachable area: the robots gave
+    /// up space they could have reached (their maps closed a way that is open).
+    Stalled,
     AllRobotsDead,
     /// The world-server process exited (it is the sim plane: nothing goes on without it).
     WorldServerExited,
@@ -28,10 +34,11 @@ pub enum ExitReason {
 }
 
 impl ExitReason {
-    pub const ALL: [ExitReason; 9] = [
+    pub const ALL: [ExitReason; 10] = [
         ExitReason::Explored,
         ExitReason::MaxSteps,
         ExitReason::NoFrontiers,
+        ExitReason::Stalled,
         ExitReason::AllRobotsDead,
         ExitReason::WorldServerExited,
         ExitReason::NetemExited,
@@ -46,6 +53,7 @@ impl ExitReason {
             ExitReason::Explored => "explored",
             ExitReason::MaxSteps => "max-steps",
             ExitReason::NoFrontiers => "no-frontiers",
+            ExitReason::Stalled => "stalled",
             ExitReason::AllRobotsDead => "all-robots-dead",
             ExitReason::WorldServerExited => "world-server-exited",
             ExitReason::NetemExited => "netem-exited",

@@ -268,10 +268,39 @@ impl Grid {
     /// (`robot_agent::nav::plan::is_frontier`); this is the one test of the cell itself, for the
     /// planner and the viewer alike.
     pub fn is_frontier(&self, c: Cell) -> bool {
-        self.get(c) == Occ::Free
-            && c.neighbours4()
-                .iter()
-                .any(|&n| self.contains(n) && self.get(n) == Occ::Unknown)
+        frontier(c, |n| self.contains(n), |n| self.get(n))
+    }
+
+    /// Which cells a robot standing on any of `seeds` can reach (row-major, one flag per cell):
+    /// the free cells 4-connected to a free seed (seeds that are not free reach nothing).
+    ///
+    /// The one rule of reachability. Robots move along straight segments and the world refuses a
+    /// move that sweeps a cell that is not free ([`crate::traverse::swept`]), so no move
+    /// squeezes through the corner between two blocked cells: 4-connectivity. The evaluator's
+    /// reachable area is this rule on the truth from the spawn cells; a robot's planner
+    /// (8-connected, a diagonal step only between two free orthogonal neighbours) reaches
+    /// exactly this set on its planning grid, which its property tests check.
+    pub fn reachable(&self, seeds: &[Cell]) -> Vec<bool> {
+        let mut seen = vec![false; self.len()];
+        let mut stack = Vec::new();
+        let visit = |c: Cell, seen: &mut Vec<bool>, stack: &mut Vec<Cell>| {
+            if let Some(i) = self
+                .index(c)
+                .filter(|&i| self.cells[i] == Occ::Free && !seen[i])
+            {
+                seen[i] = true;
+                stack.push(c);
+            }
+        };
+        for &s in seeds {
+            visit(s, &mut seen, &mut stack);
+        }
+        while let Some(c) = stack.pop() {
+            for n in c.neighbours4() {
+                visit(n, &mut seen, &mut stack);
+            }
+        }
+        seen
     }
 
     /// Sets `c` (ignored outside the grid).
@@ -430,6 +459,15 @@ impl Grid {
     }
 }
 
+/// The frontier test of [`Grid::is_frontier`] over any reading of a grid: `c` is free and a
+/// 4-neighbour inside the grid is unknown.
+fn frontier(c: Cell, inside: impl Fn(Cell) -> bool, get: impl Fn(Cell) -> Occ) -> bool {
+    get(c) == Occ::Free
+        && c.neighbours4()
+            .iter()
+            .any(|&n| inside(n) && get(n) == Occ::Unknown)
+}
+
 /// The known part of a grid as its run-length encoding gives it, decoded in proportion to that
 /// part (and to the number of runs), not to the grid's area: the grid's size, the rectangle
 /// outside which every cell is unknown, and the cells inside it.
@@ -553,6 +591,14 @@ impl KnownPart {
             }
             _ => Occ::Unknown,
         }
+    }
+
+    /// [`Grid::is_frontier`] of the decoded grid, without decoding it.
+    pub fn is_frontier(&self, c: Cell) -> bool {
+        let inside = |n: Cell| {
+            n.x >= 0 && n.y >= 0 && (n.x as u32) < self.width && (n.y as u32) < self.height
+        };
+        frontier(c, inside, |n| self.get(n))
     }
 
     /// Row `y` of the rectangle, from its left column (empty outside it).

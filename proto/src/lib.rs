@@ -11,6 +11,7 @@ pub mod budget;
 pub mod confine;
 pub mod exit;
 pub mod geom;
+pub mod graph;
 pub mod grid;
 pub mod ids;
 pub mod keys;

@@ -24,8 +24,9 @@ use crate::rundir::steplog::StepLogWriter;
 use crate::rundir::tables::LinkLog;
 use crate::score::evaluate::Evaluator;
 
-/// Steps every robot must be idle in a row before the run ends with `no-frontiers` (data still
-/// in flight on the radio may give an idle robot new frontiers).
+/// Steps every robot must be idle in a row before the run ends with `no-frontiers` or `stalled`
+/// ([`Evaluator::idle_end`]; data still in flight on the radio may give an idle robot new
+/// frontiers).
 const IDLE_STEPS: u32 = 5;
 
 /// How long the launcher waits, once the last step is known, for the rest of that step's reports
@@ -237,7 +238,16 @@ impl Record {
         }
         let since = *self.idle_since.get_or_insert(step);
         if step >= since + IDLE_STEPS {
-            self.end = Some((step, ExitReason::NoFrontiers));
+            let (reason, left) = self.eval.idle_end(&alive);
+            if let Some((robot, c)) = left {
+                eprintln!(
+                    "every robot is idle, but robot {robot}'s planning grid still holds a \
+                     frontier at cell ({}, {}) inside the world's reachable area: the run \
+                     stalled",
+                    c.x, c.y
+                );
+            }
+            self.end = Some((step, reason));
         }
     }
 

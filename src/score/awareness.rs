@@ -249,7 +249,7 @@ pub fn steps_since_base(nodes: usize, base: RobotId, up: &UpLinks, last: Step) -
 
 /// Every node takes the latest contact of the component the links put it in.
 fn carry_contact(contact: &mut [Step], links: &[(RobotId, RobotId)]) {
-    let roots = crate::score::connectivity::components(contact.len(), links);
+    let roots = proto::graph::components(contact.len(), links);
     let mut latest: BTreeMap<usize, Step> = BTreeMap::new();
     for (&root, &c) in roots.iter().zip(contact.iter()) {
         let l = latest.entry(root).or_insert(c);
@@ -466,7 +466,7 @@ mod tests {
                 let s = s as Step;
                 prop_assert!(nodes.iter().all(|&n| n <= s));
                 prop_assert_eq!(nodes[usize::from(base)], 0);
-                let roots = crate::score::connectivity::components(5, links.get(&s).map_or(&[][..], Vec::as_slice));
+                let roots = proto::graph::components(5, links.get(&s).map_or(&[][..], Vec::as_slice));
                 for (n, root) in roots.iter().enumerate() {
                     if *root == roots[usize::from(base)] {
                         prop_assert_eq!(nodes[n], 0, "node {} linked to the base at {}", n, s);

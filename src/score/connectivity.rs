@@ -4,33 +4,12 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
+use proto::graph::components;
 use proto::msg::{Judged, RobotId, Step};
 use serde::{Deserialize, Serialize};
 
 /// The links up at each step, as node pairs (from `links.csv`'s `up`).
 pub type UpLinks = BTreeMap<Step, Vec<(RobotId, RobotId)>>;
-
-/// The connected components of `nodes` nodes under `links` (union–find): each node's
-/// component's representative.
-pub fn components(nodes: usize, links: &[(RobotId, RobotId)]) -> Vec<usize> {
-    fn find(parent: &mut [usize], mut x: usize) -> usize {
-        while parent[x] != x {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        x
-    }
-    let mut parent: Vec<usize> = (0..nodes).collect();
-    for &(a, b) in links {
-        let (a, b) = (usize::from(a), usize::from(b));
-        if a >= nodes || b >= nodes {
-            continue;
-        }
-        let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
-        parent[ra.max(rb)] = ra.min(rb);
-    }
-    (0..nodes).map(|x| find(&mut parent, x)).collect()
-}
 
 /// The communication level: the percentage of pairs of robots `0..robots` that can reach each
 /// other over `links`, directly or through others (any of `nodes` nodes: the base station may
@@ -100,8 +79,7 @@ pub fn check_judgements(judged: &[Judged], up: &UpLinks, last: Step) -> Option<L
                     Some((ia as RobotId, ib as RobotId))
                 })
                 .collect();
-            let roots = components(j.group.len(), &local);
-            roots.iter().all(|&r| r == roots[0])
+            proto::graph::connected(j.group.len(), &local)
         };
         if !j.group.is_empty() && connected(&expected) && !connected(&actual) {
             out.split_unforeseen += 1;

@@ -11,7 +11,8 @@
 
 use std::collections::BTreeMap;
 
-use proto::grid::{Grid, KnownPart, Occ};
+use proto::exit::ExitReason;
+use proto::grid::{Cell, Grid, KnownPart, Occ};
 use proto::msg::{Judged, RobotId, Step, Telemetry, View};
 
 use crate::score::awareness::{known_cells, SharedKnowledge};
@@ -240,6 +241,29 @@ impl Evaluator {
             }
         }
     }
+
+    /// A frontier of `robot`'s last planning grid that lies inside the world's reachable area
+    /// (the first in row-major order), if any: space the robot could reach and has not seen.
+    pub fn reachable_frontier(&self, robot: RobotId) -> Option<Cell> {
+        let (grid, _) = self.last.get(&robot)?;
+        let reachable = |c: Cell| self.truth.index(c).is_some_and(|i| self.reachable[i]);
+        grid.cells()
+            .map(|(c, _)| c)
+            .find(|&c| reachable(c) && grid.is_frontier(c))
+    }
+
+    /// Why a run ends whose live robots `alive` have all been idle long enough: `no-frontiers`
+    /// only when no planning grid of theirs holds a frontier inside the world's reachable area,
+    /// else `stalled` — with the robot and the frontier cell that decided it.
+    pub fn idle_end(&self, alive: &[RobotId]) -> (ExitReason, Option<(RobotId, Cell)>) {
+        let left = alive
+            .iter()
+            .find_map(|&id| self.reachable_frontier(id).map(|c| (id, c)));
+        match left {
+            Some(_) => (ExitReason::Stalled, left),
+            None => (ExitReason::NoFrontiers, None),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -366,6 +390,44 @@ mod tests {
             (Some(100.0), Some(100.0))
         );
         assert_eq!(ev.rows[0].team_pct, Some(75.0), "earlier rows stay");
+    }
+
+    /// The end rule: a run whose robots are all idle ends `no-frontiers` only when no planning
+    /// grid holds a frontier inside the world's reachable area; a frontier outside it (a cell
+    /// the truth has blocked, or free but cut off) does not count.
+    #[test]
+    fn no_frontiers_only_when_no_planning_grid_holds_a_frontier_inside_the_reachable_area() {
+        let truth = Grid::from_ascii("#######\n#...#.#\n#.#.#.#\n#######\n");
+        let reachable = Grid::from_ascii("???????\n?...???\n?.?.???\n???????\n");
+        let mut ev = Evaluator::new(truth, &reachable, 99.0);
+        // Robot 0 knows its room; robot 1 believes the wall cell (1, 3) free beside unknown
+        // space and sees the cut-off cell (5, 2) free beside unknown: neither is reachable.
+        ev.add(telemetry(
+            0,
+            3,
+            &Grid::from_ascii("#####??\n#...#??\n#.#.#??\n#####??\n"),
+        ));
+        ev.add(telemetry(
+            1,
+            3,
+            &Grid::from_ascii("?.?????\n?????.?\n???????\n???????\n"),
+        ));
+        assert_eq!(ev.reachable_frontier(0), None);
+        assert_eq!(ev.reachable_frontier(1), None);
+        assert_eq!(ev.idle_end(&[0, 1]), (ExitReason::NoFrontiers, None));
+        // Robot 1 now holds a reachable free cell beside unknown space: the robots stalled.
+        ev.add(telemetry(
+            1,
+            4,
+            &Grid::from_ascii("???????\n???????\n?.?????\n???????\n"),
+        ));
+        assert_eq!(ev.reachable_frontier(1), Some(Cell::new(1, 1)));
+        assert_eq!(
+            ev.idle_end(&[0, 1]),
+            (ExitReason::Stalled, Some((1, Cell::new(1, 1))))
+        );
+        // Only the live robots' grids count.
+        assert_eq!(ev.idle_end(&[0]), (ExitReason::NoFrontiers, None));
     }
 
     #[test]

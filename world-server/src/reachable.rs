@@ -3,12 +3,11 @@
 //!
 //! docs/design.md §3 spawns robots by default "as a cluster in one free area, all in the same
 //! connected free region", and §6 measures exploration against "the truth's reachable free
-//! cells" — the free cells 4-connected to the robots. Both need the same flood fill, so it lives
-//! here; map generation ([`crate::generate`]) uses it too, to guarantee one free region.
-//! Connectivity is 4-connectivity throughout, because robots move along segments that may not
-//! squeeze through a diagonal gap between two blocked cells (see [`crate::motion`]).
-
-use std::collections::VecDeque;
+//! cells" — the cells the robots can reach by the one rule of reachability
+//! ([`proto::grid::Grid::reachable`]: free cells 4-connected to the robots, because robots move
+//! along segments that may not squeeze through a diagonal gap between two blocked cells, see
+//! [`crate::motion`]). Map generation ([`crate::generate`]) uses the largest such region, to
+//! guarantee one free region.
 
 use proto::geom::MapInfo;
 use proto::grid::{Cell, Grid, Occ};
@@ -39,38 +38,12 @@ pub enum SpawnError {
     },
 }
 
-/// Marks the free cells 4-connected to any of `seeds` (seeds that are not free are ignored).
-fn flood(grid: &Grid, seeds: &[Cell]) -> Vec<bool> {
-    let mut seen = vec![false; grid.len()];
-    let mut queue = VecDeque::new();
-    for &s in seeds {
-        if let Some(i) = grid
-            .index(s)
-            .filter(|&i| grid.cells()[i] == Occ::Free && !seen[i])
-        {
-            seen[i] = true;
-            queue.push_back(s);
-        }
-    }
-    while let Some(c) = queue.pop_front() {
-        for n in c.neighbours4() {
-            if let Some(i) = grid
-                .index(n)
-                .filter(|&i| grid.cells()[i] == Occ::Free && !seen[i])
-            {
-                seen[i] = true;
-                queue.push_back(n);
-            }
-        }
-    }
-    seen
-}
-
-/// A grid of the same size whose free cells are the free cells 4-connected to any seed; every
-/// other cell is unknown.
+/// A grid of the same size whose free cells are the cells reachable from any seed
+/// ([`Grid::reachable`], the one rule the robots' planner follows too); every other cell is
+/// unknown.
 pub fn reachable_free(grid: &Grid, seeds: &[Cell]) -> Grid {
     let mut out = Grid::new(grid.width(), grid.height(), Occ::Unknown);
-    for (o, reached) in out.cells_mut().iter_mut().zip(flood(grid, seeds)) {
+    for (o, reached) in out.cells_mut().iter_mut().zip(grid.reachable(seeds)) {
         if reached {
             *o = Occ::Free;
         }

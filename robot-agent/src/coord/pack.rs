@@ -34,15 +34,15 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Cell, Grid};
 use proto::msg::{Judged, Move, Pack as PackMsg, Plan, RobotId, Step, StepMoves, WorldInfo};
 use proto::scenario::Scenario;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::coord::team::{self, Table};
+use crate::coord::utility;
 use crate::coord::{Addressed, CoordMsg, Coordinator, Situation, Status, Steer, To};
-use crate::mapping::grid::supercover;
 use crate::nav::plan::{self, CostMap};
 use crate::radio::reach::Reach;
 
@@ -166,14 +166,8 @@ impl Scoring<'_> {
     /// it (the world applies moves in id order) and of robots outside the group.
     fn possible(&self, from: &[Cell], to: &[Cell], i: usize) -> bool {
         let (a, b) = (from[i], to[i]);
-        if a != b {
-            let centre = Cell::centre;
-            let clear = supercover(centre(a), centre(b))
-                .into_iter()
-                .all(|c| c == a || self.grid.get(c) == Occ::Free);
-            if !clear {
-                return false;
-            }
+        if a != b && !plan::move_is_free(self.grid, a.centre(), b.centre(), a) {
+            return false;
         }
         let near = |c: Cell| c.dist(b) < self.collide_cells.max(1e-9);
         let teammates = to
@@ -187,24 +181,10 @@ impl Scoring<'_> {
         !(teammates || (a != b && (later || strangers)))
     }
 
-    /// Whether robots at `at` can all talk, directly or through others (breadth first from the
-    /// first, as the paper's check from a temporary base station).
+    /// Whether robots at `at` can all talk, directly or through others (the paper checks from a
+    /// temporary base station; one component is the same).
     pub fn connected(&self, at: &[Cell]) -> bool {
-        if at.is_empty() {
-            return true;
-        }
-        let mut reached = vec![false; at.len()];
-        reached[0] = true;
-        let mut stack = vec![0];
-        while let Some(k) = stack.pop() {
-            for j in 0..at.len() {
-                if !reached[j] && self.reach.linked(self.grid, at[k], at[j], self.slack) {
-                    reached[j] = true;
-                    stack.push(j);
-                }
-            }
-        }
-        reached.iter().all(|&r| r)
+        proto::graph::connected(at.len(), &self.links(at))
     }
 
     /// U(cfg_c) = δ + Σ U(P_i(t+1)).
@@ -402,11 +382,8 @@ impl Pack {
             step.moves.iter().find(|m| m.robot == self.me).copied()
         }?;
         // Its own map must not say the way is blocked (the world checks the truth anyway).
-        let centre = Cell::centre;
-        let blocked = supercover(centre(m.from), centre(m.to))
-            .into_iter()
-            .any(|c| s.grid.get(c) == Occ::Occupied);
-        (m.from == s.me && !blocked).then_some(m.to)
+        let open = utility::line_of_sight(s.grid, m.from, m.to);
+        (m.from == s.me && open).then_some(m.to)
     }
 }
 
@@ -487,6 +464,7 @@ impl Coordinator for Pack {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use proto::grid::Occ;
 
     const UTILITIES: Utilities = Utilities {
         frontier: 1.0,

@@ -366,12 +366,21 @@ pub fn next_waypoint(
         dx.hypot(dy) <= max_cells
     });
     let candidates: Vec<Cell> = reach.copied().collect();
+    // The waypoint crosses the wire in metres: check the move the world will check, to the
+    // centre as the world converts it back (at a corner crossing the last bit decides).
     candidates.into_iter().rev().find(|&c| {
         let (x, y) = map.centre_of(c);
-        swept(from, map.in_cells(x, y))
-            .into_iter()
-            .all(|s| s == first || g.get(s) == Occ::Free)
+        move_is_free(g, from, map.in_cells(x, y), first)
     })
+}
+
+/// Whether a straight move from `from` to `to` (cell units) sweeps only free cells of `g`
+/// ([`proto::traverse::swept`], the world-server's check of a move), the robot's own cell
+/// `exempt`. The one test of a move every planner and strategy applies.
+pub fn move_is_free(g: &Grid, from: (f64, f64), to: (f64, f64), exempt: Cell) -> bool {
+    swept(from, to)
+        .into_iter()
+        .all(|s| s == exempt || g.get(s) == Occ::Free)
 }
 
 /// Where a robot that must give way goes (robots are discs to each other, and a narrow passage
@@ -864,6 +873,20 @@ mod tests {
                     (None, Some(a)) => prop_assert!(reach.is_some_and(|r| a > r), "{:?} at {} lost", c, a),
                     (None, None) => {}
                 }
+            }
+        }
+
+        /// The planner reaches exactly the cells of the one rule of reachability
+        /// ([`Grid::reachable`], the evaluator's reachable area) from a free start.
+        #[test]
+        fn the_planner_reaches_what_the_one_rule_of_reachability_reaches(
+            g in arb_grid(), sx in 0i32..14, sy in 0i32..14
+        ) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            prop_assume!(g.get(start) == Occ::Free);
+            let (map, rule) = (costs(&g, start), g.reachable(&[start]));
+            for (i, &reached) in rule.iter().enumerate() {
+                prop_assert_eq!(map.cost(g.cell_of(i)).is_some(), reached, "{:?}", g.cell_of(i));
             }
         }
 
