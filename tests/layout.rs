@@ -45,7 +45,6 @@ const LONG_FUNCTIONS: &[&str] = &[
     "world-server/src/reachable.rs::spawn_cluster",
     "world-server/src/server.rs::serve",
     "netem/src/link.rs::run_connection",
-    "netem/src/netem.rs::validate",
     "netem/src/netem.rs::start",
     "netem/src/netem.rs::apply",
 ];

@@ -152,7 +152,7 @@ pub struct Attributes {
 }
 
 /// Longest latency, jitter or timeout a toxic may ask for: one simulated day.
-pub const MAX_TOXIC_MS: u64 = 24 * 3600 * 1000;
+pub const MAX_TOXIC_MS: u64 = proto::scenario::MAX_DELAY_MS;
 const MAX_NAME_LEN: usize = 64;
 
 impl TryFrom<ToxicWire> for Toxic {
@@ -576,7 +576,7 @@ pub fn timers(toxics: &[ActiveToxic], conn: u64) -> Vec<(u64, Kill, u64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clock::SimClock;
+    use proto::clock::SimClock;
 
     fn parse(json: &str) -> Result<Toxic, String> {
         serde_json::from_str::<Toxic>(json).map_err(|e| e.to_string())

@@ -23,8 +23,6 @@
 pub mod accounting;
 /// Command line and process entry.
 pub mod cli;
-/// The simulated clock (lockstep or realtime × speed-up) that all shaping runs on.
-pub mod clock;
 /// The fault vocabulary: cut, partition, reset, and toxiproxy's toxics; folding them into shapes.
 pub mod faults;
 /// The file descriptors netem holds (two per pair) and raising the limit on them.

@@ -33,11 +33,11 @@ use tokio::sync::watch;
 use tokio::task::{AbortHandle, JoinHandle};
 
 use crate::accounting::{Buffer, Dir, DirCounters, DirSnapshot};
-use crate::clock::{SimClock, SimTime};
 use crate::faults::{self, ActiveToxic, BaseShape, Kill, Toxic};
 use crate::radio::Verdict;
 use crate::shaping::pipeline::{self, PipeEnd};
 use crate::shaping::DirShape;
+use proto::clock::{SimClock, SimTime};
 
 /// Most simultaneous connections per pair (zenoh opens one; a few more cover reconnect races).
 pub const MAX_CONNECTIONS: usize = 8;

@@ -20,8 +20,8 @@ use prometheus_client::registry::Registry;
 use proto::msg::Step;
 
 use crate::accounting::Dir;
-use crate::clock::SimTime;
 use crate::link::LinkSnapshot;
+use proto::clock::SimTime;
 
 /// The content type of [`render`]'s output.
 pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";

@@ -26,11 +26,11 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use crate::accounting::Dir;
-use crate::clock::{SimClock, SimTime};
 use crate::faults::{self, ActiveToxic, BaseShape, Fault, Pair, ScheduledFault, Toxic, ToxicKind};
 use crate::link::{DownReason, Link, LinkParams, LinkSnapshot, LinkState, MAX_TOXICS};
 use crate::radio::{Model, PathLoss, Radio};
 use crate::shaping::Budget;
+use proto::clock::{SimClock, SimTime};
 
 /// One robot pair: robot `a` (the lower id) connects to `listen`; netem forwards to `target`,
 /// robot `b`'s radio listener.
@@ -239,44 +239,9 @@ fn validate(cfg: &NetemConfig) -> Result<(), NetemError> {
             cfg.speedup
         ));
     }
-    let e = &cfg.radio;
-    for (k, v) in [("latency_ms", e.latency_ms), ("jitter_ms", e.jitter_ms)] {
-        if !(v.is_finite() && (0.0..=faults::MAX_TOXIC_MS as f64).contains(&v)) {
-            return bad(format!(
-                "{k} = {v} must be in [0, {}]",
-                faults::MAX_TOXIC_MS
-            ));
-        }
-    }
-    if cfg.netem.buffer_bytes == 0 {
-        return bad("buffer_bytes must be at least 1".into());
-    }
-    if cfg.radio.model != RadioModel::Always
-        && !(cfg.radio.range_m.is_finite() && cfg.radio.range_m > 0.0)
-    {
-        return bad(format!(
-            "radio.range_m = {} must be a positive number",
-            cfg.radio.range_m
-        ));
-    }
-    if cfg.radio.model == RadioModel::Pathloss {
-        let finite = [
-            e.pathloss_ref_dbm,
-            e.pathloss_exponent,
-            e.pathloss_wall_attenuation_db,
-        ]
-        .iter()
-        .all(|v| v.is_finite());
-        if !finite
-            || e.pathloss_ref_distance_m.is_nan()
-            || e.pathloss_ref_distance_m <= 0.0
-            || e.pathloss_threshold_dbm.is_some_and(|t| !t.is_finite())
-        {
-            return bad(
-                "path loss parameters must be finite, with a positive reference distance".into(),
-            );
-        }
-    }
+    let scenario = |e: proto::scenario::ScenarioError| NetemError::Config(e.to_string());
+    cfg.radio.validate().map_err(scenario)?;
+    cfg.netem.validate().map_err(scenario)?;
     let mut seen = HashMap::new();
     for p in &cfg.pairs {
         if p.a >= p.b {

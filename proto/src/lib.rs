@@ -8,6 +8,8 @@
 
 #[cfg(feature = "budget")]
 pub mod budget;
+#[cfg(feature = "budget")]
+pub mod clock;
 pub mod confine;
 pub mod exit;
 pub mod geom;

@@ -116,6 +116,14 @@ impl Clock {
     pub fn marked(&self) -> bool {
         self.mode == ClockMode::Lockstep && self.markers
     }
+
+    /// The `[clock]` part of [`Scenario::validate`].
+    pub fn validate(&self) -> Result<(), ScenarioError> {
+        positive("clock.step_seconds", self.step_seconds)?;
+        positive("clock.speedup", self.speedup)?;
+        at_least("clock.step_timeout_ms", self.step_timeout_ms as f64, 1.0)?;
+        at_least("clock.dead_after", f64::from(self.dead_after), 1.0)
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -178,6 +186,69 @@ pub struct Netem {
     pub connect_timeout_ms: u64,
     /// Guard the HTTP API with a bearer token (`swarm run` makes one per run: `netem.token`).
     pub api_token: bool,
+}
+
+/// The longest latency, jitter or injected delay accepted anywhere (a day), in milliseconds.
+pub const MAX_DELAY_MS: u64 = 24 * 3600 * 1000;
+
+impl Radio {
+    /// The `[radio]` part of [`Scenario::validate`], which netem applies to the radio it is
+    /// given as well: one set of bounds.
+    pub fn validate(&self) -> Result<(), ScenarioError> {
+        positive("radio.range_m", self.range_m)?;
+        if let Some(p) = self.range_pct_of_diagonal {
+            positive("radio.range_pct_of_diagonal", p)?;
+        }
+        for (key, v) in [
+            ("radio.latency_ms", self.latency_ms),
+            ("radio.jitter_ms", self.jitter_ms),
+        ] {
+            if !(v.is_finite() && (0.0..=MAX_DELAY_MS as f64).contains(&v)) {
+                return Err(invalid(
+                    key,
+                    v,
+                    &format!("must be in [0, {MAX_DELAY_MS}] ms"),
+                ));
+            }
+        }
+        positive(
+            "radio.pathloss_ref_distance_m",
+            self.pathloss_ref_distance_m,
+        )?;
+        positive("radio.pathloss_exponent", self.pathloss_exponent)?;
+        at_least(
+            "radio.pathloss_wall_attenuation_db",
+            self.pathloss_wall_attenuation_db,
+            0.0,
+        )?;
+        if !self.pathloss_ref_dbm.is_finite() {
+            return Err(invalid(
+                "radio.pathloss_ref_dbm",
+                self.pathloss_ref_dbm,
+                "must be a finite number",
+            ));
+        }
+        if let Some(t) = self.pathloss_threshold_dbm.filter(|t| !t.is_finite()) {
+            return Err(invalid(
+                "radio.pathloss_threshold_dbm",
+                t,
+                "must be a finite number",
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Netem {
+    /// The `[netem]` part of [`Scenario::validate`] (netem applies it too).
+    pub fn validate(&self) -> Result<(), ScenarioError> {
+        at_least("netem.buffer_bytes", f64::from(self.buffer_bytes), 1024.0)?;
+        at_least(
+            "netem.connect_timeout_ms",
+            self.connect_timeout_ms as f64,
+            1.0,
+        )
+    }
 }
 
 impl Default for Netem {
@@ -734,10 +805,7 @@ impl Scenario {
     /// Range checks that the types alone cannot express.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         let s = self;
-        positive("clock.step_seconds", s.clock.step_seconds)?;
-        positive("clock.speedup", s.clock.speedup)?;
-        at_least("clock.step_timeout_ms", s.clock.step_timeout_ms as f64, 1.0)?;
-        at_least("clock.dead_after", f64::from(s.clock.dead_after), 1.0)?;
+        s.clock.validate()?;
         if let Some(m) = s.max_steps {
             at_least("max_steps", f64::from(m), 1.0)?;
         }
@@ -803,46 +871,8 @@ impl Scenario {
         }
         positive("sensor.max_range_m", s.sensor.max_range_m)?;
         at_least("sensor.noise_std_m", s.sensor.noise_std_m, 0.0)?;
-        positive("radio.range_m", s.radio.range_m)?;
-        if let Some(p) = s.radio.range_pct_of_diagonal {
-            positive("radio.range_pct_of_diagonal", p)?;
-        }
-        at_least("radio.latency_ms", s.radio.latency_ms, 0.0)?;
-        at_least("radio.jitter_ms", s.radio.jitter_ms, 0.0)?;
-        positive(
-            "radio.pathloss_ref_distance_m",
-            s.radio.pathloss_ref_distance_m,
-        )?;
-        positive("radio.pathloss_exponent", s.radio.pathloss_exponent)?;
-        at_least(
-            "radio.pathloss_wall_attenuation_db",
-            s.radio.pathloss_wall_attenuation_db,
-            0.0,
-        )?;
-        if !s.radio.pathloss_ref_dbm.is_finite() {
-            return Err(invalid(
-                "radio.pathloss_ref_dbm",
-                s.radio.pathloss_ref_dbm,
-                "must be a finite number",
-            ));
-        }
-        if let Some(t) = s.radio.pathloss_threshold_dbm.filter(|t| !t.is_finite()) {
-            return Err(invalid(
-                "radio.pathloss_threshold_dbm",
-                t,
-                "must be a finite number",
-            ));
-        }
-        at_least(
-            "netem.buffer_bytes",
-            f64::from(s.netem.buffer_bytes),
-            1024.0,
-        )?;
-        at_least(
-            "netem.connect_timeout_ms",
-            s.netem.connect_timeout_ms as f64,
-            1.0,
-        )?;
+        s.radio.validate()?;
+        s.netem.validate()?;
         if s.supervise.restart.contains(&ProcessKind::WorldServer) {
             return Err(invalid(
                 "supervise.restart",

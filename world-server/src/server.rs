@@ -34,16 +34,16 @@ pub enum End {
     Ended { step: Step, reason: ExitReason },
 }
 
-/// The step clock's pause: what the launcher's [`Control::Pause`], [`Control::Resume`] and
+/// The step gate (the step clock's pause): what the launcher's [`Control::Pause`], [`Control::Resume`] and
 /// [`Control::Step`] leave it at. A pause never cuts a step short; it holds the next one.
 #[derive(Debug, Default)]
-struct Clock {
+struct StepGate {
     paused: bool,
     /// Paused, with one step let through.
     one_step: bool,
 }
 
-impl Clock {
+impl StepGate {
     fn order(&mut self, c: Control) {
         match c {
             Control::Pause => (self.paused, self.one_step) = (true, false),
@@ -169,7 +169,7 @@ pub async fn serve(
     let n = world.nodes();
     let mut bad = BadInput::default();
 
-    let mut clock = Clock::default();
+    let mut clock = StepGate::default();
     // Wait for every node's sim-plane token: a node declares it once its subscribers are up.
     let mut present = HashSet::new();
     let deadline = Instant::now() + opts.startup_timeout;
@@ -322,7 +322,7 @@ mod tests {
 
     #[test]
     fn a_pause_holds_steps_a_step_lets_one_through_and_resume_all() {
-        let mut c = Clock::default();
+        let mut c = StepGate::default();
         assert!(c.may_step() && c.may_step());
         c.order(Control::Step);
         assert!(c.may_step(), "a step order while running changes nothing");

@@ -3,9 +3,9 @@
 
 use tokio::sync::{mpsc, watch};
 
-use crate::clock::SimClock;
 use crate::shaping::budget::{take_all, Credits};
 use crate::shaping::chunk::{Chunk, DirShape};
+use proto::clock::SimClock;
 /// The bandwidth effect: splits each chunk into the pieces its budgets grant, stamping each
 /// piece with the simulated time it was granted.
 pub async fn bandwidth(
@@ -55,9 +55,9 @@ pub async fn bandwidth(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clock::SimTime;
     use crate::shaping::budget::Budget;
     use crate::shaping::harness::{read_for, run};
+    use proto::clock::SimTime;
     use std::sync::Arc;
     use std::time::Duration;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};

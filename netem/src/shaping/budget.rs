@@ -20,7 +20,7 @@ use std::sync::{Arc, Mutex};
 
 use proto::budget::{ByteBudget, ByteRate, Take};
 
-use crate::clock::{SimClock, SimTime};
+use proto::clock::{SimClock, SimTime};
 
 /// Smallest piece the stage waits for when it has more to send (bytes): keeps realtime links
 /// from trickling out one byte per governor period.

@@ -5,8 +5,8 @@
 use std::sync::Arc;
 
 use crate::accounting::Reservation;
-use crate::clock::SimTime;
 use crate::shaping::budget::Budget;
+use proto::clock::SimTime;
 
 /// Largest read from a socket, in bytes.
 pub const CHUNK_MAX: usize = 64 * 1024;

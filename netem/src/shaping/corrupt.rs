@@ -61,7 +61,7 @@ pub async fn corrupt_effect(
     input: mpsc::Receiver<Chunk>,
     output: mpsc::Sender<Chunk>,
     shape: watch::Receiver<DirShape>,
-    _clock: crate::clock::SimClock,
+    _clock: proto::clock::SimClock,
 ) {
     corrupt(input, output, shape, Rng::new(42)).await;
 }
@@ -69,8 +69,8 @@ pub async fn corrupt_effect(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clock::SimClock;
     use crate::shaping::harness::{read_for, run};
+    use proto::clock::SimClock;
     use std::time::Duration;
     use tokio::io::AsyncWriteExt;
 

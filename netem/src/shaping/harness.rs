@@ -11,7 +11,7 @@ use tokio::io::AsyncReadExt;
 use tokio::sync::{mpsc, watch};
 
 use crate::accounting::Buffer;
-use crate::clock::SimClock;
+use proto::clock::SimClock;
 use std::time::Duration;
 use tokio::io::DuplexStream;
 use tokio::task::JoinHandle;

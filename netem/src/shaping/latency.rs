@@ -11,8 +11,8 @@
 
 use tokio::sync::{mpsc, watch};
 
-use crate::clock::{SimClock, SimTime};
 use crate::shaping::chunk::{Chunk, DirShape, Rng};
+use proto::clock::{SimClock, SimTime};
 
 /// The delay of one piece: `latency ± U(jitter)`, never negative.
 pub fn delay_ns(latency_ns: u64, jitter_ns: u64, rng: &mut Rng) -> u64 {

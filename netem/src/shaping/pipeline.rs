@@ -23,9 +23,9 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, watch};
 
 use crate::accounting::Buffer;
-use crate::clock::SimClock;
 use crate::shaping::chunk::{Chunk, DirShape, Rng, CHUNK_MAX, IN_FLIGHT_CHUNKS};
 use crate::shaping::{bandwidth, corrupt, latency};
+use proto::clock::SimClock;
 
 /// How the reading end of a pipeline finished.
 #[derive(Debug, PartialEq, Eq)]
@@ -455,9 +455,9 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clock::SimTime;
     use crate::shaping::chunk::Limit;
     use crate::shaping::harness::*;
+    use proto::clock::SimTime;
     use std::time::Duration;
 
     #[tokio::test]

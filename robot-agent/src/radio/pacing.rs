@@ -10,27 +10,10 @@
 //! lost or granted twice.
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
 
-use proto::budget::{ByteBudget, ByteRate, SimNow, Take};
+use proto::budget::{ByteBudget, ByteRate, Take};
+use proto::clock::{SimClock, SimTime};
 use proto::msg::{RobotId, Step};
-
-/// The robot's simulated time: the step it is at times the step length.
-#[derive(Clone, Debug, Default)]
-pub struct SimClock(Arc<AtomicU64>);
-
-impl SimClock {
-    pub fn set_ns(&self, ns: u64) {
-        self.0.store(ns, Ordering::Relaxed);
-    }
-}
-
-impl SimNow for SimClock {
-    fn now_ns(&self) -> u64 {
-        self.0.load(Ordering::Relaxed)
-    }
-}
 
 /// A link's metering: its rate, burst and how much a fresh budget is drained by at once (so
 /// that it starts with one step's budget rather than a whole burst: a fresh connection is not
@@ -91,7 +74,7 @@ impl Pacer {
             burst_bytes,
             step_seconds,
             step_ns: (step_seconds.max(0.0) * 1e9).round() as u64,
-            clock: SimClock::default(),
+            clock: SimClock::lockstep(),
             rates: HashMap::new(),
             links: HashMap::new(),
         }
@@ -100,7 +83,7 @@ impl Pacer {
     /// Simulated time moves on to `step`.
     pub fn at_step(&self, step: Step) {
         self.clock
-            .set_ns(u64::from(step).saturating_mul(self.step_ns));
+            .advance_to(SimTime(u64::from(step).saturating_mul(self.step_ns)));
     }
 
     /// `peer`'s link now has `rate_bytes_per_s` (`None`: unlimited), with a burst of as many

@@ -1,18 +1,18 @@
-//! The simulated clock that every shaping decision is made on (docs/design.md §2, §5).
+//! The simulated clock that every byte budget is metered on (docs/design.md §2, §5): netem's
+//! shaping and each robot's pacing read the same kind of clock.
 //!
 //! Bandwidth is specified in bytes per *simulated* second, latency in simulated milliseconds, so
 //! that the bytes that can cross a link per step do not depend on how fast the machine runs the
 //! simulation. Two modes, as in the world-server:
 //!
-//! * **lockstep**: simulated time is `step × step_seconds` and moves only when the embedder calls
-//!   `SimClock::advance_to` (netem does it in `Netem::on_step`). Between two steps time stands
-//!   still, however long the step takes on the wall clock; a waiter for a later instant sleeps on
-//!   a `tokio::sync::watch` of the time until a step reaches it.
+//! * **lockstep**: simulated time is `step × step_seconds` and moves only when the owner calls
+//!   [`SimClock::advance_to`] (netem in `Netem::on_step`, a robot's pacer at each step). Between
+//!   two steps time stands still, however long the step takes on the wall clock; a waiter for a
+//!   later instant sleeps on a `tokio::sync::watch` of the time until a step reaches it.
 //! * **realtime**: simulated time is the wall time since the clock was made, times `speedup`; a
 //!   waiter sleeps the corresponding wall duration (tokio's clock, so paused-time tests work).
 //!
-//! The byte budgets of `shaping/bandwidth.rs` ([`proto::budget`]) read this clock through
-//! [`proto::budget::SimNow`].
+//! The byte budgets ([`crate::budget`]) read this clock through [`crate::budget::SimNow`].
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -45,7 +45,7 @@ impl SimTime {
     }
 }
 
-/// A cheaply clonable handle on the one simulated clock of a netem instance.
+/// A cheaply clonable handle on one simulated clock (netem's, or a robot's pacer's).
 #[derive(Clone, Debug)]
 pub struct SimClock {
     inner: Arc<Inner>,
@@ -67,7 +67,7 @@ enum Mode {
     },
 }
 
-impl proto::budget::SimNow for SimClock {
+impl crate::budget::SimNow for SimClock {
     fn now_ns(&self) -> u64 {
         self.now().0
     }
