@@ -36,9 +36,9 @@ use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
+use crate::control::{lock, NetemError, Shared};
 use crate::faults::{Fault, Toxic, ToxicWire};
 use crate::link::{stopped, Link};
-use crate::netem::{NetemError, Shared};
 
 /// The largest request body the API reads; a larger one is `413`.
 pub const MAX_BODY_BYTES: usize = 64 * 1024;
@@ -382,7 +382,7 @@ fn process_action(process: Process, body: &[u8]) -> Result<ProcessAction, Refusa
 /// handed on to the launcher, which carries it out at its next step (`202`: accepted, not yet
 /// done — `summary.json`'s `process_events` says when it was, with cause `api`).
 async fn process_fault(State(sh): Sh, Path(name): Path<String>, body: Bytes) -> Response {
-    let desk = crate::netem::lock(&sh.process_desk);
+    let desk = lock(&sh.process_desk);
     let Some(desk) = desk.as_ref() else {
         return error(
             StatusCode::NOT_IMPLEMENTED,
@@ -509,7 +509,8 @@ mod tests {
     }
 
     mod api {
-        use crate::netem::{start, Netem, NetemConfig, PairSpec, PROCESS_ORDERS_QUEUED};
+        use crate::control::PROCESS_ORDERS_QUEUED;
+        use crate::netem::{start, Netem, NetemConfig, PairSpec};
         use proptest::prelude::*;
         use proto::scenario::{Medium, Radio, RadioModel};
         use std::net::SocketAddr;

@@ -23,6 +23,8 @@
 pub mod accounting;
 /// Command line and process entry.
 pub mod cli;
+/// The state the handle, the HTTP API and the tasks share; applying faults to links.
+pub mod control;
 /// The fault vocabulary: cut, partition, reset, and toxiproxy's toxics; folding them into shapes.
 pub mod faults;
 /// The file descriptors netem holds (two per pair) and raising the limit on them.
@@ -42,6 +44,10 @@ pub mod node;
 pub mod radio;
 /// The per-direction pipeline of network effects (corrupt, bandwidth, latency) and its harness.
 pub mod shaping;
+/// One link's row of links.csv: its state and counters at the end of a step.
+pub mod telemetry;
 
+pub use crate::control::NetemError;
 pub use crate::faults::{Fault, Pair, ScheduledFault, Stream, Toxic, ToxicKind};
-pub use crate::netem::{start, LinkTelemetry, Netem, NetemConfig, NetemError, PairSpec};
+pub use crate::netem::{start, Netem, NetemConfig, PairSpec};
+pub use crate::telemetry::LinkTelemetry;

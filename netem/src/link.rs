@@ -486,6 +486,7 @@ impl Link {
         }
     }
 
+    /// One accepted connection: reaches robot b, then forwards and supervises both directions.
     async fn run_connection(
         self: &Arc<Self>,
         mut client: TcpStream,
@@ -501,33 +502,12 @@ impl Link {
         let _through = Through::new(&self.through);
         let _ = client.set_nodelay(true);
         let _ = server.set_nodelay(true);
-        let (client_r, client_w) = client.into_split();
-        // What the robot sent while the link was down goes first.
-        let client_r = tokio::io::AsyncReadExt::chain(std::io::Cursor::new(held), client_r);
-        let (server_r, server_w) = server.into_split();
         let mut toxics_rx = self.toxics.subscribe();
         let toxics = Arc::clone(&toxics_rx.borrow_and_update());
         let shapes = Dir::BOTH.map(|d| watch::Sender::new(self.shape(&toxics, id, d)));
         let (dir_kill, dir_kill_rx) = watch::channel(None);
-        let seed = self.params.seed ^ id.wrapping_mul(0xA076_1D64_78BD_642F);
-        let mut up = tokio::spawn(direction(
-            client_r,
-            server_w,
-            Buffer::new(self.params.buffer_bytes, Arc::clone(&self.counters[0])),
-            shapes[0].subscribe(),
-            self.clock.clone(),
-            seed,
-            [kill.clone(), dir_kill_rx.clone()],
-        ));
-        let mut down = tokio::spawn(direction(
-            server_r,
-            client_w,
-            Buffer::new(self.params.buffer_bytes, Arc::clone(&self.counters[1])),
-            shapes[1].subscribe(),
-            self.clock.clone(),
-            seed.rotate_left(17),
-            [kill.clone(), dir_kill_rx],
-        ));
+        let kills = [kill.clone(), dir_kill_rx];
+        let [mut up, mut down] = self.spawn_directions(client, server, held, id, &shapes, kills);
         let mut timers = Timers::default();
         timers.update(&toxics, id, self.clock.now());
         let (mut up_done, mut down_done) = (false, false);
@@ -573,6 +553,42 @@ impl Link {
                 }
             }
         }
+    }
+
+    /// Spawns connection `id`'s two directions: a→b (the `held` bytes first) and b→a.
+    fn spawn_directions(
+        &self,
+        client: TcpStream,
+        server: TcpStream,
+        held: Vec<u8>,
+        id: u64,
+        shapes: &[watch::Sender<DirShape>; 2],
+        kills: [watch::Receiver<Option<Kill>>; 2],
+    ) -> [JoinHandle<Option<PipeEnd>>; 2] {
+        let (client_r, client_w) = client.into_split();
+        // What the robot sent while the link was down goes first.
+        let client_r = tokio::io::AsyncReadExt::chain(std::io::Cursor::new(held), client_r);
+        let (server_r, server_w) = server.into_split();
+        let seed = self.params.seed ^ id.wrapping_mul(0xA076_1D64_78BD_642F);
+        let up = tokio::spawn(direction(
+            client_r,
+            server_w,
+            Buffer::new(self.params.buffer_bytes, Arc::clone(&self.counters[0])),
+            shapes[0].subscribe(),
+            self.clock.clone(),
+            seed,
+            kills.clone(),
+        ));
+        let down = tokio::spawn(direction(
+            server_r,
+            client_w,
+            Buffer::new(self.params.buffer_bytes, Arc::clone(&self.counters[1])),
+            shapes[1].subscribe(),
+            self.clock.clone(),
+            seed.rotate_left(17),
+            kills,
+        ));
+        [up, down]
     }
 
     fn shape(&self, toxics: &[ActiveToxic], conn: u64, dir: Dir) -> DirShape {

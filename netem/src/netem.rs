@@ -1,6 +1,6 @@
 //! The netem instance: configuration, start, the per-step entry point, telemetry, runtime control
-//! and shutdown (docs/design.md §5). No zenoh here: the binary reads poses from the sim plane and calls
-//! `Netem::on_step`; this library moves bytes.
+//! (applying faults through [`crate::control`]) and shutdown (docs/design.md §5). No zenoh here:
+//! the binary reads poses from the sim plane and calls `Netem::on_step`; this library moves bytes.
 //!
 //! `start` binds every pair's listener (and the HTTP API), so a port conflict is an error at
 //! start-up, not a silent dead link later. Each step the embedder calls `Netem::on_step` with
@@ -10,8 +10,8 @@
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::atomic::AtomicU64;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use proto::geom::{MapInfo, Pose};
@@ -20,16 +20,19 @@ use proto::msg::{LinkPlan, ProcessOrder, RobotId, Step};
 use proto::scenario::{
     ClockMode, Medium, Netem as ScenarioNetem, Radio as ScenarioRadio, RadioModel,
 };
-use serde::Serialize;
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use crate::accounting::Dir;
-use crate::faults::{self, ActiveToxic, BaseShape, Fault, Pair, ScheduledFault, Toxic, ToxicKind};
-use crate::link::{DownReason, Link, LinkParams, LinkSnapshot, LinkState, MAX_TOXICS};
+use crate::control::{
+    burst_seconds, lock, NetemError, ProcessDesk, Shared, StepState, PROCESS_ORDERS_QUEUED,
+};
+use crate::faults::{self, BaseShape, Fault, Pair, ScheduledFault};
+use crate::link::{Link, LinkParams, LinkSnapshot, LinkState};
 use crate::radio::{Model, PathLoss, Radio};
 use crate::shaping::Budget;
+use crate::telemetry::{telemetry_row, LinkTelemetry};
 use proto::clock::{SimClock, SimTime};
 
 /// One robot pair: robot `a` (the lower id) connects to `listen`; netem forwards to `target`,
@@ -57,7 +60,8 @@ pub struct NetemConfig {
     pub step_seconds: f64,
     pub mode: ClockMode,
     /// Lockstep with step markers (`clock.markers`): the robots pace and wait for each step's
-    /// traffic, and links let a larger burst through ([`LOCKSTEP_BURST_STEPS`]).
+    /// traffic, and links let a larger burst through
+    /// ([`LOCKSTEP_BURST_STEPS`](crate::control::LOCKSTEP_BURST_STEPS)).
     pub markers: bool,
     /// Realtime only: simulated seconds per wall second.
     pub speedup: f64,
@@ -114,108 +118,6 @@ impl NetemConfig {
             api_token: None,
         })
     }
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum NetemError {
-    #[error("invalid netem configuration: {0}")]
-    Config(String),
-    #[error("cannot listen on {addr} for {what}: {source}")]
-    Bind {
-        what: String,
-        addr: SocketAddr,
-        source: std::io::Error,
-    },
-    #[error("no link {0} (links are named r<a>-r<b>)")]
-    UnknownLink(String),
-    #[error("robot {0} is in no link")]
-    UnknownRobot(RobotId),
-    #[error("link {link} has no toxic {name}")]
-    UnknownToxic { link: String, name: String },
-    #[error("toxic {name} already exists on link {link}")]
-    ToxicExists { link: String, name: String },
-    #[error("invalid toxic: {0}")]
-    InvalidToxic(String),
-    #[error("link {0} already has the most toxics allowed ({MAX_TOXICS})")]
-    TooManyToxics(String),
-    #[error("faults[{index}]: {reason}")]
-    BadFault { index: usize, reason: String },
-}
-
-/// One link at the end of one step (a row of links.csv).
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct LinkTelemetry {
-    /// The last step given to [`Netem::on_step`] (`None` before the first).
-    pub step: Option<Step>,
-    pub a: RobotId,
-    pub b: RobotId,
-    pub up: bool,
-    /// `disabled`, `dead`, `out_of_range` or `no_pose` when down.
-    pub down_reason: Option<DownReason>,
-    /// `None` until both poses are known.
-    pub distance_m: Option<f64>,
-    pub signal_dbm: Option<f64>,
-    pub walls: Option<u32>,
-    /// Bytes delivered since the previous [`Netem::telemetry`] call.
-    pub bytes_a_to_b: u64,
-    pub bytes_b_to_a: u64,
-    pub bytes_a_to_b_total: u64,
-    pub bytes_b_to_a_total: u64,
-    pub chunks_a_to_b_total: u64,
-    pub chunks_b_to_a_total: u64,
-    /// Bytes held inside netem now, both directions.
-    pub queued_bytes: u64,
-    pub queued_a_to_b: u64,
-    pub queued_b_to_a: u64,
-    /// Bytes read and then dropped by cuts, resets and limit_data, both directions.
-    pub lost_bytes_total: u64,
-    pub connections: usize,
-    pub connects_total: u64,
-    /// Connections that reached robot b's radio listener.
-    pub established_total: u64,
-    pub refused_total: u64,
-    pub toxics: usize,
-    /// Up but held (a blackhole).
-    pub held: bool,
-}
-
-/// The state shared by the handle, the HTTP API and the tasks.
-pub(crate) struct Shared {
-    pub(crate) clock: SimClock,
-    pub(crate) links: Vec<Arc<Link>>,
-    by_pair: HashMap<Pair, usize>,
-    radio: Radio,
-    step_seconds: f64,
-    /// See [`NetemConfig::markers`].
-    markers: bool,
-    steps: Mutex<StepState>,
-    toxic_ids: AtomicU64,
-    shutdown: watch::Sender<bool>,
-    /// See [`NetemConfig::api_token`].
-    pub(crate) api_token: Option<String>,
-    /// Where the API's process faults go, once [`Netem::process_orders`] was called.
-    pub(crate) process_desk: Mutex<Option<ProcessDesk>>,
-}
-
-/// The API's process faults: checked against the run's scenario, queued for the sim plane.
-pub(crate) struct ProcessDesk {
-    pub(crate) scenario: proto::scenario::Scenario,
-    pub(crate) orders: mpsc::Sender<ProcessOrder>,
-}
-
-/// Process faults the API holds for the sim plane at most (more are refused with 503).
-pub(crate) const PROCESS_ORDERS_QUEUED: usize = 64;
-
-struct StepState {
-    step: Option<Step>,
-    poses: HashMap<RobotId, (Pose, bool)>,
-    /// Sorted by step; `next` is the first not yet applied.
-    faults: Vec<ScheduledFault>,
-    next: usize,
-}
-
-pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 /// A running netem.
@@ -296,25 +198,6 @@ fn radio_model(cfg: &NetemConfig) -> Model {
 /// How long [`Netem::shutdown`] waits for connections to end by themselves before it resets them.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(1);
 
-/// Lockstep: how many steps of a link's rate may cross at once. The robots pace what they offer
-/// (bursts of a few steps, never more than the rate on average); netem lets a larger burst
-/// through, so that a step's data and the step's marker behind them never wait for a later step
-/// (which, with the clock standing still until every robot is done, would only end at the
-/// world's step timeout). Over time the rate is still netem's to enforce.
-pub const LOCKSTEP_BURST_STEPS: f64 = 12.0;
-/// Lockstep: the smallest burst in bytes (a few zenoh frames around one large message).
-pub const LOCKSTEP_BURST_MIN_BYTES: f64 = 4096.0;
-
-/// The burst of a budget of `rate` bytes per second, in simulated seconds: one step (a link never
-/// saves up more), or [`LOCKSTEP_BURST_STEPS`] steps with step markers.
-fn burst_seconds(rate: u64, step_seconds: f64, markers: bool) -> f64 {
-    if markers {
-        (step_seconds * LOCKSTEP_BURST_STEPS).max(LOCKSTEP_BURST_MIN_BYTES / rate.max(1) as f64)
-    } else {
-        step_seconds
-    }
-}
-
 /// Binds every listener (and the HTTP API), spawns the tasks. Needs a tokio runtime.
 pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     validate(&cfg)?;
@@ -325,56 +208,13 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     if cfg.radio.model == RadioModel::Pathloss && cfg.truth.is_none() {
         tracing::warn!("path loss without a truth map: walls are not counted");
     }
-    let radio = Radio::new(radio_model(&cfg), cfg.truth.map(Arc::new));
     let rate = cfg.radio.bandwidth_bytes_per_s;
-    let burst = |rate| burst_seconds(rate, cfg.step_seconds, cfg.markers);
-    let medium = (rate > 0 && cfg.radio.medium == Medium::Shared)
-        .then(|| Budget::new(rate, burst(rate), true, clock.clone()));
-    let ns = |ms: f64| (ms * 1e6).round() as u64;
     let (shutdown, shutdown_rx) = watch::channel(false);
-    let mut links = Vec::new();
-    let mut listeners = Vec::new();
-    for (i, p) in cfg.pairs.iter().enumerate() {
-        let base = |_| BaseShape {
-            budget: (rate > 0 && cfg.radio.medium == Medium::PerLink)
-                .then(|| Budget::new(rate, burst(rate), false, clock.clone())),
-            medium: medium.clone(),
-            latency_ns: ns(cfg.radio.latency_ms),
-            jitter_ns: ns(cfg.radio.jitter_ms),
-        };
-        let listener = TcpListener::bind(p.listen)
-            .await
-            .map_err(|source| NetemError::Bind {
-                what: format!("link {}", faults::link_name(p.a, p.b)),
-                addr: p.listen,
-                source,
-            })?;
-        let listen = listener.local_addr().unwrap_or(p.listen);
-        let params = LinkParams {
-            a: p.a,
-            b: p.b,
-            target: p.target,
-            base: [0, 1].map(base),
-            buffer_bytes: cfg.netem.buffer_bytes as usize,
-            connect_timeout: Duration::from_millis(cfg.netem.connect_timeout_ms.max(1)),
-            seed: cfg.seed ^ (i as u64).wrapping_mul(0x2545_F491_4F6C_DD1D),
-            markers: cfg.markers,
-        };
-        let state = LinkState {
-            enabled: true,
-            alive: true,
-            radio: None,
-            always: cfg.radio.model == RadioModel::Always,
-        };
-        links.push(Link::new(
-            params,
-            listen,
-            clock.clone(),
-            state,
-            shutdown_rx.clone(),
-        ));
-        listeners.push(listener);
-    }
+    let (links, listeners): (Vec<_>, Vec<_>) = bind_links(&cfg, &clock, &shutdown_rx)
+        .await?
+        .into_iter()
+        .unzip();
+    let radio = Radio::new(radio_model(&cfg), cfg.truth.map(Arc::new));
     let mut faults = cfg.faults;
     faults.sort_by_key(|f| f.step);
     // Faults scheduled for step 0 hold from the start, before any robot can connect.
@@ -416,19 +256,9 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         .collect();
     let mut http_addr = None;
     if let Some(addr) = cfg.http {
-        let listener = TcpListener::bind(addr)
-            .await
-            .map_err(|source| NetemError::Bind {
-                what: "the HTTP API".into(),
-                addr,
-                source,
-            })?;
-        http_addr = Some(listener.local_addr().unwrap_or(addr));
-        tasks.push(crate::http::serve(
-            Arc::clone(&shared),
-            listener,
-            shutdown_rx,
-        ));
+        let (bound, task) = serve_http(addr, &shared, shutdown_rx).await?;
+        http_addr = Some(bound);
+        tasks.push(task);
     }
     tracing::info!(links = shared.links.len(), model = ?shared.radio.kind(), rate, "netem started");
     Ok(Netem {
@@ -438,182 +268,74 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     })
 }
 
-impl Shared {
-    fn link(&self, pair: Pair) -> Result<&Arc<Link>, NetemError> {
-        let key = (pair.0.min(pair.1), pair.0.max(pair.1));
-        self.by_pair
-            .get(&key)
-            .map(|&i| &self.links[i])
-            .ok_or_else(|| NetemError::UnknownLink(faults::link_name(pair.0, pair.1)))
-    }
-
-    pub(crate) fn link_by_name(&self, name: &str) -> Result<&Arc<Link>, NetemError> {
-        faults::parse_link_name(name)
-            .and_then(|p| self.by_pair.get(&p))
-            .map(|&i| &self.links[i])
-            .ok_or_else(|| NetemError::UnknownLink(name.to_string()))
-    }
-
-    fn links_of(&self, pair: Option<Pair>) -> Result<Vec<&Arc<Link>>, NetemError> {
-        match pair {
-            Some(p) => Ok(vec![self.link(p)?]),
-            None => Ok(self.links.iter().collect()),
-        }
-    }
-
-    pub(crate) fn step(&self) -> Option<Step> {
-        lock(&self.steps).step
-    }
-
-    fn install(&self, toxic: &Toxic) -> ActiveToxic {
-        let budget = |d: Dir| match toxic.kind {
-            ToxicKind::Bandwidth { rate_bytes_per_s }
-                if rate_bytes_per_s > 0 && toxic.stream.applies(d) =>
-            {
-                Some(Budget::new(
-                    rate_bytes_per_s,
-                    burst_seconds(rate_bytes_per_s, self.step_seconds, self.markers),
-                    false,
-                    self.clock.clone(),
-                ))
-            }
-            _ => None,
+/// Binds each pair's listener and makes its link, shaped by the scenario's `[radio]`.
+async fn bind_links(
+    cfg: &NetemConfig,
+    clock: &SimClock,
+    shutdown: &watch::Receiver<bool>,
+) -> Result<Vec<(Arc<Link>, TcpListener)>, NetemError> {
+    let rate = cfg.radio.bandwidth_bytes_per_s;
+    let burst = |rate| burst_seconds(rate, cfg.step_seconds, cfg.markers);
+    let medium = (rate > 0 && cfg.radio.medium == Medium::Shared)
+        .then(|| Budget::new(rate, burst(rate), true, clock.clone()));
+    let ns = |ms: f64| (ms * 1e6).round() as u64;
+    let mut links = Vec::new();
+    for (i, p) in cfg.pairs.iter().enumerate() {
+        let base = |_| BaseShape {
+            budget: (rate > 0 && cfg.radio.medium == Medium::PerLink)
+                .then(|| Budget::new(rate, burst(rate), false, clock.clone())),
+            medium: medium.clone(),
+            latency_ns: ns(cfg.radio.latency_ms),
+            jitter_ns: ns(cfg.radio.jitter_ms),
         };
-        ActiveToxic {
-            toxic: toxic.clone(),
-            id: self.toxic_ids.fetch_add(1, Relaxed),
-            budgets: Dir::BOTH.map(budget),
-        }
+        let listener = TcpListener::bind(p.listen)
+            .await
+            .map_err(|source| NetemError::Bind {
+                what: format!("link {}", faults::link_name(p.a, p.b)),
+                addr: p.listen,
+                source,
+            })?;
+        let listen = listener.local_addr().unwrap_or(p.listen);
+        let params = LinkParams {
+            a: p.a,
+            b: p.b,
+            target: p.target,
+            base: [0, 1].map(base),
+            buffer_bytes: cfg.netem.buffer_bytes as usize,
+            connect_timeout: Duration::from_millis(cfg.netem.connect_timeout_ms.max(1)),
+            seed: cfg.seed ^ (i as u64).wrapping_mul(0x2545_F491_4F6C_DD1D),
+            markers: cfg.markers,
+        };
+        let state = LinkState {
+            enabled: true,
+            alive: true,
+            radio: None,
+            always: cfg.radio.model == RadioModel::Always,
+        };
+        let link = Link::new(params, listen, clock.clone(), state, shutdown.clone());
+        links.push((link, listener));
     }
+    Ok(links)
+}
 
-    /// Adds (or with `replace`, adds or replaces) a toxic on one link.
-    fn put_toxic(&self, link: &Link, toxic: &Toxic, replace: bool) -> Result<(), NetemError> {
-        let mut list: Vec<ActiveToxic> = link.toxics().as_ref().clone();
-        match list.iter().position(|t| t.toxic.name == toxic.name) {
-            Some(_) if !replace => {
-                return Err(NetemError::ToxicExists {
-                    link: link.name.clone(),
-                    name: toxic.name.clone(),
-                })
-            }
-            Some(i) => list[i] = self.install(toxic),
-            None if list.len() >= MAX_TOXICS => {
-                return Err(NetemError::TooManyToxics(link.name.clone()))
-            }
-            None => list.push(self.install(toxic)),
-        }
-        link.set_toxics(list);
-        Ok(())
-    }
-
-    pub(crate) fn apply(&self, fault: &Fault) -> Result<(), NetemError> {
-        tracing::info!(?fault, "applying fault");
-        match fault {
-            Fault::Cut { pair } => {
-                self.link(*pair)?.update(|s| s.enabled = false);
-            }
-            Fault::Restore { pair } => {
-                self.link(*pair)?.update(|s| s.enabled = true);
-            }
-            Fault::Partition { groups } => {
-                let mut group_of = HashMap::new();
-                for (g, members) in groups.iter().enumerate() {
-                    for r in members {
-                        if !self
-                            .links
-                            .iter()
-                            .any(|l| l.params.a == *r || l.params.b == *r)
-                        {
-                            return Err(NetemError::UnknownRobot(*r));
-                        }
-                        group_of.insert(*r, g);
-                    }
-                }
-                for l in &self.links {
-                    if let (Some(ga), Some(gb)) =
-                        (group_of.get(&l.params.a), group_of.get(&l.params.b))
-                    {
-                        if ga != gb {
-                            l.update(|s| s.enabled = false);
-                        }
-                    }
-                }
-            }
-            Fault::Heal => {
-                for l in &self.links {
-                    l.update(|s| s.enabled = true);
-                }
-            }
-            Fault::Reset { pair } => {
-                for l in self.links_of(*pair)? {
-                    l.reset_connections();
-                }
-            }
-            Fault::AddToxic { pair, toxic } | Fault::SetToxic { pair, toxic } => {
-                let replace = matches!(fault, Fault::SetToxic { .. });
-                let links = self.links_of(*pair)?;
-                if !replace {
-                    for l in &links {
-                        if l.toxics().iter().any(|t| t.toxic.name == toxic.name) {
-                            return Err(NetemError::ToxicExists {
-                                link: l.name.clone(),
-                                name: toxic.name.clone(),
-                            });
-                        }
-                    }
-                }
-                for l in links {
-                    self.put_toxic(l, toxic, replace)?;
-                }
-            }
-            Fault::RemoveToxic { pair, name } => {
-                let links = self.links_of(*pair)?;
-                let mut found = false;
-                for l in &links {
-                    let list = l.toxics();
-                    if list.iter().any(|t| &t.toxic.name == name) {
-                        found = true;
-                        l.set_toxics(
-                            list.iter()
-                                .filter(|t| &t.toxic.name != name)
-                                .cloned()
-                                .collect(),
-                        );
-                    }
-                }
-                if !found {
-                    return Err(NetemError::UnknownToxic {
-                        link: pair.map_or_else(|| "(any)".into(), |p| faults::link_name(p.0, p.1)),
-                        name: name.clone(),
-                    });
-                }
-            }
-            Fault::ResetAll => {
-                for l in &self.links {
-                    l.set_toxics(Vec::new());
-                    l.update(|s| s.enabled = true);
-                }
-            }
-        }
-        Ok(())
-    }
-
-    pub(crate) fn snapshots(&self) -> Vec<LinkSnapshot> {
-        self.links.iter().map(|l| l.snapshot()).collect()
-    }
-
-    pub(crate) fn now(&self) -> SimTime {
-        self.clock.now()
-    }
-
-    /// The telemetry rows without resetting the per-step counters (their byte fields read 0).
-    pub(crate) fn rows(&self) -> Vec<LinkTelemetry> {
-        let step = self.step();
-        self.snapshots()
-            .iter()
-            .map(|s| telemetry_row(step, s, [0, 0]))
-            .collect()
-    }
+/// Binds the HTTP API at `addr` and serves it until netem stops: the address bound, the task.
+async fn serve_http(
+    addr: SocketAddr,
+    shared: &Arc<Shared>,
+    shutdown: watch::Receiver<bool>,
+) -> Result<(SocketAddr, JoinHandle<()>), NetemError> {
+    let listener = TcpListener::bind(addr)
+        .await
+        .map_err(|source| NetemError::Bind {
+            what: "the HTTP API".into(),
+            addr,
+            source,
+        })?;
+    let bound = listener.local_addr().unwrap_or(addr);
+    Ok((
+        bound,
+        crate::http::serve(Arc::clone(shared), listener, shutdown),
+    ))
 }
 
 impl Netem {
@@ -837,40 +559,12 @@ impl Drop for Netem {
     }
 }
 
-fn telemetry_row(step: Option<Step>, s: &LinkSnapshot, step_bytes: [u64; 2]) -> LinkTelemetry {
-    let [ab, ba] = s.dirs;
-    LinkTelemetry {
-        step,
-        a: s.a,
-        b: s.b,
-        up: s.up,
-        down_reason: s.down_reason,
-        distance_m: s.verdict.map(|v| v.distance_m),
-        signal_dbm: s.verdict.and_then(|v| v.signal_dbm),
-        walls: s.verdict.and_then(|v| v.walls),
-        bytes_a_to_b: step_bytes[0],
-        bytes_b_to_a: step_bytes[1],
-        bytes_a_to_b_total: ab.bytes_total,
-        bytes_b_to_a_total: ba.bytes_total,
-        chunks_a_to_b_total: ab.chunks_total,
-        chunks_b_to_a_total: ba.chunks_total,
-        queued_bytes: ab.queued_bytes + ba.queued_bytes,
-        queued_a_to_b: ab.queued_bytes,
-        queued_b_to_a: ba.queued_bytes,
-        lost_bytes_total: ab.lost_bytes_total + ba.lost_bytes_total,
-        connections: s.connections,
-        connects_total: s.connects_total,
-        established_total: s.established_total,
-        refused_total: s.refused_total,
-        toxics: s.toxics.len(),
-        held: s.held,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::faults::{Toxic, ToxicKind};
     use crate::link::tests::ends_within;
+    use crate::link::DownReason;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
     use tokio::sync::mpsc;

@@ -18,7 +18,8 @@ use zenoh::sample::SampleKind;
 use zenoh::Session;
 
 use crate::link::DownReason;
-use crate::netem::{LinkTelemetry, Netem};
+use crate::netem::Netem;
+use crate::telemetry::LinkTelemetry;
 
 /// The truth map (for path-loss wall counts), asked of the world-server.
 pub async fn fetch_truth(

@@ -96,30 +96,7 @@ pub fn grants(p: Principal) -> Vec<Grant> {
     use Flow::{Egress, Ingress};
     let mut g = vec![grant(Egress, INTEREST, &["sim/**"])];
     match p {
-        Principal::Robot(i) | Principal::BaseStation(i) => {
-            let (cmd, telemetry, scan, plan, alive, held) = (
-                keys::cmd(i),
-                keys::telemetry(i),
-                keys::scan(i),
-                keys::plan(i),
-                keys::sim_alive(i),
-                keys::held(i),
-            );
-            g.extend([
-                grant(Ingress, PUT, &[&cmd, &telemetry]),
-                grant(Ingress, SUBSCRIBE, &[&scan, &plan, keys::CONTROL]),
-                grant(Ingress, TOKEN, &[&alive]),
-                grant(Ingress, WATCH, &[keys::WORLD_ALIVE, keys::NETEM_ALIVE]),
-                grant(Ingress, QUERY, &[keys::WORLD_INFO]),
-                // What it holds, for a viewer that asks.
-                grant(Ingress, ANSWER, &[&held]),
-                grant(Ingress, REPLY, &[&held]),
-                grant(Egress, QUERY, &[&held]),
-                grant(Egress, PUT, &[&scan, &plan, keys::CONTROL]),
-                grant(Egress, TOKEN, &[keys::WORLD_ALIVE, keys::NETEM_ALIVE]),
-                grant(Egress, REPLY, &[keys::WORLD_INFO]),
-            ]);
-        }
+        Principal::Robot(i) | Principal::BaseStation(i) => g.extend(robot_grants(i)),
         Principal::Netem => g.extend([
             grant(
                 Ingress,
@@ -177,6 +154,34 @@ pub fn grants(p: Principal) -> Vec<Grant> {
         ]),
     }
     g
+}
+
+/// What robot (or base station) `i` may do on the sim plane beyond asking who is interested:
+/// its own command, telemetry, scans, link plan, liveliness and held logs.
+fn robot_grants(i: RobotId) -> [Grant; 11] {
+    use Flow::{Egress, Ingress};
+    let (cmd, telemetry, scan, plan, alive, held) = (
+        keys::cmd(i),
+        keys::telemetry(i),
+        keys::scan(i),
+        keys::plan(i),
+        keys::sim_alive(i),
+        keys::held(i),
+    );
+    [
+        grant(Ingress, PUT, &[&cmd, &telemetry]),
+        grant(Ingress, SUBSCRIBE, &[&scan, &plan, keys::CONTROL]),
+        grant(Ingress, TOKEN, &[&alive]),
+        grant(Ingress, WATCH, &[keys::WORLD_ALIVE, keys::NETEM_ALIVE]),
+        grant(Ingress, QUERY, &[keys::WORLD_INFO]),
+        // What it holds, for a viewer that asks.
+        grant(Ingress, ANSWER, &[&held]),
+        grant(Ingress, REPLY, &[&held]),
+        grant(Egress, QUERY, &[&held]),
+        grant(Egress, PUT, &[&scan, &plan, keys::CONTROL]),
+        grant(Egress, TOKEN, &[keys::WORLD_ALIVE, keys::NETEM_ALIVE]),
+        grant(Egress, REPLY, &[keys::WORLD_INFO]),
+    ]
 }
 
 /// zenoh's `access_control` configuration (JSON5) for the principals of a run: default deny,

@@ -812,6 +812,29 @@ impl Scenario {
         if !(s.done_pct > 0.0 && s.done_pct <= 100.0) {
             return Err(invalid("done_pct", s.done_pct, "must be in (0, 100]"));
         }
+        s.validate_world()?;
+        s.validate_robots()?;
+        s.validate_sensor()?;
+        s.radio.validate()?;
+        s.netem.validate()?;
+        s.validate_supervise()?;
+        s.process_faults()?;
+        at_least(
+            "exchange.hello_every_steps",
+            f64::from(s.exchange.hello_every_steps),
+            1.0,
+        )?;
+        s.validate_bandwidth()?;
+        s.validate_coordination()?;
+        s.validate_bids()?;
+        s.validate_roles()?;
+        s.validate_pack()?;
+        s.validate_base_station()
+    }
+
+    /// `[world]`: a map named, a resolution and an extent in range.
+    fn validate_world(&self) -> Result<(), ScenarioError> {
+        let s = self;
         if s.world.map.trim().is_empty() {
             return Err(invalid(
                 "world.map",
@@ -837,6 +860,12 @@ impl Scenario {
                 return Err(invalid(key, v, "must be in [5, 500] metres"));
             }
         }
+        Ok(())
+    }
+
+    /// `[robots]`: a team size in range, robots that fit and start apart.
+    fn validate_robots(&self) -> Result<(), ScenarioError> {
+        let s = self;
         if !(1..=MAX_ROBOTS).contains(&s.robots.count) {
             return Err(invalid(
                 "robots.count",
@@ -855,6 +884,12 @@ impl Scenario {
                 "must be at least 2 × robots.radius_m, or robots would start in collision",
             ));
         }
+        Ok(())
+    }
+
+    /// `[sensor]`: beams, field of view, range and noise in range.
+    fn validate_sensor(&self) -> Result<(), ScenarioError> {
+        let s = self;
         if !(1..=4096).contains(&s.sensor.beams) {
             return Err(invalid(
                 "sensor.beams",
@@ -871,8 +906,12 @@ impl Scenario {
         }
         positive("sensor.max_range_m", s.sensor.max_range_m)?;
         at_least("sensor.noise_std_m", s.sensor.noise_std_m, 0.0)?;
-        s.radio.validate()?;
-        s.netem.validate()?;
+        Ok(())
+    }
+
+    /// `[supervise]`: the world-server is never restarted, and restarts fit the log owners.
+    fn validate_supervise(&self) -> Result<(), ScenarioError> {
+        let s = self;
         if s.supervise.restart.contains(&ProcessKind::WorldServer) {
             return Err(invalid(
                 "supervise.restart",
@@ -890,12 +929,12 @@ impl Scenario {
                 ),
             ));
         }
-        s.process_faults()?;
-        at_least(
-            "exchange.hello_every_steps",
-            f64::from(s.exchange.hello_every_steps),
-            1.0,
-        )?;
+        Ok(())
+    }
+
+    /// `[bandwidth]`: the splitting frequency's bounds (thesis eq. 5.5) in order.
+    fn validate_bandwidth(&self) -> Result<(), ScenarioError> {
+        let s = self;
         let b = &s.bandwidth;
         if !(b.usage > 0.0 && b.usage <= 1.0) {
             return Err(invalid("bandwidth.usage", b.usage, "must be in (0, 1]"));
@@ -919,6 +958,12 @@ impl Scenario {
             ));
         }
         positive("bandwidth.split_bytes_prior", b.split_bytes_prior)?;
+        Ok(())
+    }
+
+    /// `[coordination]`: the utility's weights, and `bandwidth.p_comm` in (0, 1].
+    fn validate_coordination(&self) -> Result<(), ScenarioError> {
+        let s = self;
         let c = &s.coordination;
         at_least("coordination.beta", c.beta, 0.0)?;
         at_least(
@@ -933,12 +978,15 @@ impl Scenario {
             f64::from(c.replan_every_steps),
             1.0,
         )?;
-        if let Some(p) = b.p_comm.filter(|p| !(*p > 0.0 && *p <= 1.0)) {
+        if let Some(p) = s.bandwidth.p_comm.filter(|p| !(*p > 0.0 && *p <= 1.0)) {
             return Err(invalid("bandwidth.p_comm", p, "must be in (0, 1]"));
         }
-        s.validate_bids()?;
-        s.validate_roles()?;
-        s.validate_pack()?;
+        Ok(())
+    }
+
+    /// `[base_station]`: a finite pose, and a base station where a strategy needs one.
+    fn validate_base_station(&self) -> Result<(), ScenarioError> {
+        let s = self;
         if let Some([x, y]) = s.base_station.pose {
             if !(x.is_finite() && y.is_finite()) {
                 return Err(invalid(

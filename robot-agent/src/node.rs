@@ -9,7 +9,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::Duration;
 
 use proto::keys;
-use proto::msg::{decode, encode, Cmd, Control, LinkPlan, RobotId, Scan, WorldInfo};
+use proto::msg::{decode, encode, Cmd, Control, LinkPlan, RobotId, Scan, Step, WorldInfo};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
 use zenoh::handlers::FifoChannelHandler;
@@ -392,7 +392,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
     let mut ls = Lockstep::default();
     // Answers produced while taking a step's arrivals: sent with the next step's traffic.
     let mut answers = Vec::new();
-    'steps: loop {
+    loop {
         let t = loop {
             if let Some(t) = ls.ready() {
                 break t;
@@ -404,47 +404,11 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         let Some((scan, plan)) = ls.start(p.id, t) else {
             continue;
         };
-        let linked = plan.neighbours(p.id);
-        for &peer in &linked {
-            let link = plan.link(p.id, peer);
-            agent.set_rate(peer, link.and_then(|l| l.rate_from(p.id)));
-            agent.set_credit(peer, link.and_then(|l| l.credit_from(p.id)));
-        }
-        let (greetings, gone) = agent.set_neighbours(&linked);
-        // A held link keeps its session; a link that is down lost it.
-        let cut: Vec<RobotId> = gone
-            .into_iter()
-            .filter(|&peer| plan.link(p.id, peer).is_none())
-            .collect();
-        ls.cut(&cut);
-        // zenoh's list of sessions is asked for only while a link is not seen up.
-        let mut poll = SESSION_POLL;
-        let poll_max = session_poll_max(p.peers.len() + 1);
-        while !ls.linked(&linked) {
-            ls.on_sessions(p.sessions().await);
-            if ls.linked(&linked) {
-                break;
-            }
-            if ls.newer_than(t) {
-                // The world went on while a link's session did not form (the peer was frozen
-                // or hung before its first session came up). A late command, moving nowhere,
-                // tells the world this robot lives (else the whole team would miss its steps
-                // with the one that hangs, and be declared dead with it).
-                let late = Cmd {
-                    step: t,
-                    robot: p.id,
-                    waypoint: None,
-                };
-                put_sim(p.sim, keys::cmd(p.id), encode(&late)).await?;
-                continue 'steps;
-            }
-            // zenoh tells no event when a session forms: look again soon.
-            if let Ok(e) = tokio::time::timeout(poll, p.subs.next(p.idle)).await {
-                if let Some(end) = note(&mut ls, &mut agent, e) {
-                    return Ok(end);
-                }
-            }
-            poll = (poll * 2).min(poll_max);
+        let (linked, greetings) = take_links(&mut agent, &mut ls, &plan, p.id);
+        match await_sessions(&mut agent, &mut ls, p, t, &linked).await? {
+            Wait::Done => {}
+            Wait::Skipped => continue,
+            Wait::Ended(end) => return Ok(end),
         }
         let cmd = agent.on_scan(&scan);
         let mut out = std::mem::take(&mut answers);
@@ -459,21 +423,10 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
                 .collect::<Vec<_>>()
         );
         send_radio(p.radio, &p.radio_keys, out, true).await;
-        while !ls.marked(t, &linked) {
-            if ls.newer_than(t) {
-                // The world went on without this step (a neighbour's marker never came: it is
-                // frozen or hung). The command, late, still tells the world this robot lives.
-                put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
-                continue 'steps;
-            }
-            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
-                return Ok(end);
-            }
-        }
-        tracing::debug!("step {t}: marked by {linked:?}");
-        let missing = ls.unmarked(t, &linked);
-        if !missing.is_empty() {
-            tracing::warn!("step {t}: no marker from {missing:?}: their sessions were lost");
+        match await_marks(&mut agent, &mut ls, p, t, &linked, &cmd).await? {
+            Wait::Done => {}
+            Wait::Skipped => continue,
+            Wait::Ended(end) => return Ok(end),
         }
         for m in ls.take(p.id, t, &plan) {
             answers.extend(agent.take(m));
@@ -481,6 +434,108 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
         put_sim(p.sim, keys::telemetry(p.id), encode(&agent.telemetry())).await?;
     }
+}
+
+/// What waiting within a lockstep step came to.
+enum Wait {
+    /// What was waited for is there.
+    Done,
+    /// The world went on without this step; the robot told it it lives (a late command).
+    Skipped,
+    /// The robot ends.
+    Ended(End),
+}
+
+/// The step's links as netem's `plan` gives them to robot `me`: their rates and credits, the
+/// neighbours greeted and the ones gone forgotten (a held link keeps its session, a link that is
+/// down lost it). Returns the linked peers and the greetings to send.
+fn take_links(
+    agent: &mut Agent,
+    ls: &mut Lockstep,
+    plan: &LinkPlan,
+    me: RobotId,
+) -> (Vec<RobotId>, Vec<Outgoing>) {
+    let linked = plan.neighbours(me);
+    for &peer in &linked {
+        let link = plan.link(me, peer);
+        agent.set_rate(peer, link.and_then(|l| l.rate_from(me)));
+        agent.set_credit(peer, link.and_then(|l| l.credit_from(me)));
+    }
+    let (greetings, gone) = agent.set_neighbours(&linked);
+    let cut: Vec<RobotId> = gone
+        .into_iter()
+        .filter(|&peer| plan.link(me, peer).is_none())
+        .collect();
+    ls.cut(&cut);
+    (linked, greetings)
+}
+
+/// Waits until every `linked` peer's radio session is up. zenoh's list of sessions is asked for
+/// only while a link is not seen up, and zenoh tells no event when a session forms: look again
+/// soon, then less often.
+async fn await_sessions(
+    agent: &mut Agent,
+    ls: &mut Lockstep,
+    p: &Planes<'_>,
+    t: Step,
+    linked: &[RobotId],
+) -> Result<Wait, ZenohError> {
+    let mut poll = SESSION_POLL;
+    let poll_max = session_poll_max(p.peers.len() + 1);
+    while !ls.linked(linked) {
+        ls.on_sessions(p.sessions().await);
+        if ls.linked(linked) {
+            break;
+        }
+        if ls.newer_than(t) {
+            // The world went on while a link's session did not form (the peer was frozen or
+            // hung before its first session came up). A late command, moving nowhere, tells the
+            // world this robot lives (else the whole team would miss its steps with the one
+            // that hangs, and be declared dead with it).
+            let late = Cmd {
+                step: t,
+                robot: p.id,
+                waypoint: None,
+            };
+            put_sim(p.sim, keys::cmd(p.id), encode(&late)).await?;
+            return Ok(Wait::Skipped);
+        }
+        if let Ok(e) = tokio::time::timeout(poll, p.subs.next(p.idle)).await {
+            if let Some(end) = note(ls, agent, e) {
+                return Ok(Wait::Ended(end));
+            }
+        }
+        poll = (poll * 2).min(poll_max);
+    }
+    Ok(Wait::Done)
+}
+
+/// Waits for step `t`'s marker from every `linked` peer.
+async fn await_marks(
+    agent: &mut Agent,
+    ls: &mut Lockstep,
+    p: &Planes<'_>,
+    t: Step,
+    linked: &[RobotId],
+    cmd: &Cmd,
+) -> Result<Wait, ZenohError> {
+    while !ls.marked(t, linked) {
+        if ls.newer_than(t) {
+            // The world went on without this step (a neighbour's marker never came: it is
+            // frozen or hung). The command, late, still tells the world this robot lives.
+            put_sim(p.sim, keys::cmd(p.id), encode(cmd)).await?;
+            return Ok(Wait::Skipped);
+        }
+        if let Some(end) = note(ls, agent, p.subs.next(p.idle).await) {
+            return Ok(Wait::Ended(end));
+        }
+    }
+    tracing::debug!("step {t}: marked by {linked:?}");
+    let missing = ls.unmarked(t, linked);
+    if !missing.is_empty() {
+        tracing::warn!("step {t}: no marker from {missing:?}: their sessions were lost");
+    }
+    Ok(Wait::Done)
 }
 
 /// Notes an event in the lockstep bookkeeping (a radio payload counted and decoded once, by

@@ -153,21 +153,7 @@ pub fn schedule(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let nodes = s.nodes();
     let robots = s.robots.count;
-    let kinds: Vec<FaultKind> = (if kinds.is_empty() {
-        &FaultKind::ALL[..]
-    } else {
-        kinds
-    })
-    .iter()
-    .copied()
-    .filter(|k| {
-        nodes >= 2
-            || matches!(
-                k,
-                FaultKind::Kill | FaultKind::Restart | FaultKind::Freeze | FaultKind::Netem
-            )
-    })
-    .collect();
+    let kinds = usable_kinds(kinds, nodes);
     if kinds.is_empty() || robots == 0 {
         return Vec::new();
     }
@@ -175,122 +161,10 @@ pub fn schedule(
     let mut out = Vec::with_capacity(n);
     for i in 0..n {
         let kind = kinds[rng.gen_range(0..kinds.len())];
-        let step = rng.gen_range(5..=within);
-        let robot = rng.gen_range(0..robots);
-        let process = toml::Value::String(format!("robot-{robot}"));
-        let lasting = rng.gen_range(5..=30u32);
-        let (a, b) = {
-            let a = rng.gen_range(0..nodes.max(2));
-            let mut b = rng.gen_range(0..nodes.max(2) - 1);
-            if b >= a {
-                b += 1;
-            }
-            (a.min(b), a.max(b))
-        };
-        let name = format!("chaos-{i}");
-        let (what, tables) = match kind {
-            FaultKind::Kill => {
-                let k = rng.gen_range(1..=5u32);
-                (
-                    format!("kill robot-{robot}, back {k} steps later"),
-                    vec![table(
-                        step,
-                        "kill",
-                        &[("process", process), ("restart_after", i64::from(k).into())],
-                    )],
-                )
-            }
-            FaultKind::Restart => (
-                format!("restart robot-{robot}"),
-                vec![table(step, "restart", &[("process", process)])],
-            ),
-            FaultKind::Freeze => {
-                let d = rng.gen_range(3..=12u32);
-                (
-                    format!("freeze robot-{robot} for {d} steps"),
-                    vec![
-                        table(step, "freeze", &[("process", process.clone())]),
-                        table(step + d, "thaw", &[("process", process)]),
-                    ],
-                )
-            }
-            FaultKind::Netem => (
-                "restart netem".into(),
-                vec![table(step, "restart", &[("process", "netem".into())])],
-            ),
-            FaultKind::Cut => (
-                format!("cut {a}-{b} for {lasting} steps"),
-                vec![
-                    table(step, "cut", &[("pair", pair_value(a, b))]),
-                    table(step + lasting, "restore", &[("pair", pair_value(a, b))]),
-                ],
-            ),
-            FaultKind::Partition => {
-                let mut groups: [Vec<u16>; 2] = [Vec::new(), Vec::new()];
-                for node in 0..nodes {
-                    groups[usize::from(rng.gen_bool(0.5))].push(node);
-                }
-                let what = format!(
-                    "partition {:?} | {:?} for {lasting} steps",
-                    groups[0], groups[1]
-                );
-                let groups = toml::Value::Array(
-                    groups
-                        .iter()
-                        .map(|g| {
-                            toml::Value::Array(g.iter().map(|&n| i64::from(n).into()).collect())
-                        })
-                        .collect(),
-                );
-                (
-                    what,
-                    vec![
-                        table(step, "partition", &[("groups", groups)]),
-                        table(step + lasting, "heal", &[]),
-                    ],
-                )
-            }
-            FaultKind::Latency | FaultKind::Bandwidth => {
-                let (toxic, attr, what) = if kind == FaultKind::Latency {
-                    let ms = rng.gen_range(100..=1000i64);
-                    (
-                        "latency",
-                        ("latency", ms),
-                        format!("latency {ms} ms on {a}-{b} for {lasting} steps"),
-                    )
-                } else {
-                    let rate = rng.gen_range(100..=500i64);
-                    (
-                        "bandwidth",
-                        ("rate_bytes_per_s", rate),
-                        format!("bandwidth {rate} B/s on {a}-{b} for {lasting} steps"),
-                    )
-                };
-                let mut attributes = toml::Table::new();
-                attributes.insert(attr.0.into(), attr.1.into());
-                (
-                    what,
-                    vec![
-                        table(
-                            step,
-                            "set_toxic",
-                            &[
-                                ("pair", pair_value(a, b)),
-                                ("toxic", toxic_value(&name, toxic, attributes)),
-                            ],
-                        ),
-                        table(
-                            step + lasting,
-                            "remove_toxic",
-                            &[("pair", pair_value(a, b)), ("name", name.as_str().into())],
-                        ),
-                    ],
-                )
-            }
-            FaultKind::Reset => ("reset every link".into(), vec![table(step, "reset", &[])]),
-        };
+        let d = Drawn::draw(i, &mut rng, within, robots, nodes);
+        let (what, tables) = fault_tables(kind, &d, nodes, &mut rng);
         out.push(Planned {
-            step,
+            step: d.step,
             kind,
             what,
             tables,
@@ -298,6 +172,172 @@ pub fn schedule(
     }
     out.sort_by_key(|p| p.step);
     out
+}
+
+/// The kinds asked for (every kind when none is), without the link faults when there is no
+/// link (fewer than two nodes).
+fn usable_kinds(kinds: &[FaultKind], nodes: u16) -> Vec<FaultKind> {
+    let asked = if kinds.is_empty() {
+        &FaultKind::ALL[..]
+    } else {
+        kinds
+    };
+    let process = |k: &FaultKind| {
+        matches!(
+            k,
+            FaultKind::Kill | FaultKind::Restart | FaultKind::Freeze | FaultKind::Netem
+        )
+    };
+    asked
+        .iter()
+        .copied()
+        .filter(|k| nodes >= 2 || process(k))
+        .collect()
+}
+
+/// What every fault of a schedule draws, in this order, whatever its kind: the step, a robot,
+/// a duration and a node pair.
+struct Drawn {
+    name: String,
+    step: u32,
+    robot: u16,
+    process: toml::Value,
+    lasting: u32,
+    a: u16,
+    b: u16,
+}
+
+impl Drawn {
+    fn draw(i: usize, rng: &mut ChaCha8Rng, within: u32, robots: u16, nodes: u16) -> Drawn {
+        let step = rng.gen_range(5..=within);
+        let robot = rng.gen_range(0..robots);
+        let lasting = rng.gen_range(5..=30u32);
+        let a = rng.gen_range(0..nodes.max(2));
+        let mut b = rng.gen_range(0..nodes.max(2) - 1);
+        if b >= a {
+            b += 1;
+        }
+        Drawn {
+            name: format!("chaos-{i}"),
+            step,
+            robot,
+            process: toml::Value::String(format!("robot-{robot}")),
+            lasting,
+            a: a.min(b),
+            b: a.max(b),
+        }
+    }
+}
+
+/// A fault of `kind` with the draws `d` (and any of its own from `rng`): what it does, in
+/// words, and its `[[faults]]` tables.
+fn fault_tables(
+    kind: FaultKind,
+    d: &Drawn,
+    nodes: u16,
+    rng: &mut ChaCha8Rng,
+) -> (String, Vec<toml::Table>) {
+    let (step, robot, lasting, (a, b)) = (d.step, d.robot, d.lasting, (d.a, d.b));
+    let process = || d.process.clone();
+    match kind {
+        FaultKind::Kill => {
+            let k = rng.gen_range(1..=5u32);
+            (
+                format!("kill robot-{robot}, back {k} steps later"),
+                vec![table(
+                    step,
+                    "kill",
+                    &[
+                        ("process", process()),
+                        ("restart_after", i64::from(k).into()),
+                    ],
+                )],
+            )
+        }
+        FaultKind::Restart => (
+            format!("restart robot-{robot}"),
+            vec![table(step, "restart", &[("process", process())])],
+        ),
+        FaultKind::Freeze => {
+            let f = rng.gen_range(3..=12u32);
+            (
+                format!("freeze robot-{robot} for {f} steps"),
+                vec![
+                    table(step, "freeze", &[("process", process())]),
+                    table(step + f, "thaw", &[("process", process())]),
+                ],
+            )
+        }
+        FaultKind::Netem => (
+            "restart netem".into(),
+            vec![table(step, "restart", &[("process", "netem".into())])],
+        ),
+        FaultKind::Cut => (
+            format!("cut {a}-{b} for {lasting} steps"),
+            vec![
+                table(step, "cut", &[("pair", pair_value(a, b))]),
+                table(step + lasting, "restore", &[("pair", pair_value(a, b))]),
+            ],
+        ),
+        FaultKind::Partition => partition(d, nodes, rng),
+        FaultKind::Latency | FaultKind::Bandwidth => toxic(kind, d, rng),
+        FaultKind::Reset => ("reset every link".into(), vec![table(step, "reset", &[])]),
+    }
+}
+
+/// A partition of the nodes into two random groups for `d.lasting` steps.
+fn partition(d: &Drawn, nodes: u16, rng: &mut ChaCha8Rng) -> (String, Vec<toml::Table>) {
+    let mut groups: [Vec<u16>; 2] = [Vec::new(), Vec::new()];
+    for node in 0..nodes {
+        groups[usize::from(rng.gen_bool(0.5))].push(node);
+    }
+    let what = format!(
+        "partition {:?} | {:?} for {} steps",
+        groups[0], groups[1], d.lasting
+    );
+    let group = |g: &Vec<u16>| toml::Value::Array(g.iter().map(|&n| i64::from(n).into()).collect());
+    let groups = toml::Value::Array(groups.iter().map(group).collect());
+    (
+        what,
+        vec![
+            table(d.step, "partition", &[("groups", groups)]),
+            table(d.step + d.lasting, "heal", &[]),
+        ],
+    )
+}
+
+/// A latency or bandwidth toxic on the pair `d.a`–`d.b` for `d.lasting` steps.
+fn toxic(kind: FaultKind, d: &Drawn, rng: &mut ChaCha8Rng) -> (String, Vec<toml::Table>) {
+    let (a, b, lasting) = (d.a, d.b, d.lasting);
+    let (toxic, attr, what) = if kind == FaultKind::Latency {
+        let ms = rng.gen_range(100..=1000i64);
+        (
+            "latency",
+            ("latency", ms),
+            format!("latency {ms} ms on {a}-{b} for {lasting} steps"),
+        )
+    } else {
+        let rate = rng.gen_range(100..=500i64);
+        (
+            "bandwidth",
+            ("rate_bytes_per_s", rate),
+            format!("bandwidth {rate} B/s on {a}-{b} for {lasting} steps"),
+        )
+    };
+    let mut attributes = toml::Table::new();
+    attributes.insert(attr.0.into(), attr.1.into());
+    let set = [
+        ("pair", pair_value(a, b)),
+        ("toxic", toxic_value(&d.name, toxic, attributes)),
+    ];
+    let remove = [("pair", pair_value(a, b)), ("name", d.name.as_str().into())];
+    (
+        what,
+        vec![
+            table(d.step, "set_toxic", &set),
+            table(d.step + lasting, "remove_toxic", &remove),
+        ],
+    )
 }
 
 /// One check of the run, as `chaos.json` lists it.
@@ -331,65 +371,8 @@ pub fn check_logs(summary: &Summary) -> Check {
         .iter()
         .map(|n| n.to_string())
         .collect();
-    // A node's entry lists the owners it holds ops of: an owner it does not list, it holds none of.
-    let held = |node: &str, owner: &str| {
-        summary
-            .logs_held
-            .get(node)
-            .and_then(|h| h.get(owner))
-            .map_or(0, |&n| u64::from(n))
-    };
-    let process = |robot: u16| {
-        if robot == summary.robots {
-            Process::BaseStation
-        } else {
-            Process::Robot(robot)
-        }
-    };
-    // Each process's life after its last start.
-    let mut current: BTreeMap<Process, u16> = BTreeMap::new();
-    for e in &summary.process_events {
-        if e.event == EventKind::Started {
-            current.insert(e.process, e.life);
-        }
-    }
-    let mut problems = Vec::new();
-    // No live node forgets.
-    for node in &alive {
-        for (owner, &most) in summary.logs_held_max.get(node).into_iter().flatten() {
-            let (most, now) = (u64::from(most), held(node, owner));
-            if now < most {
-                problems.push(format!(
-                    "node {node} held {most} ops of log {owner} and holds {now}"
-                ));
-            }
-        }
-    }
-    // A live writer holds its whole log; of ended lives, count what went with every holder.
-    let (mut owners, mut with_holders) = (0, 0);
-    for (owner, &others) in &summary.logs_held_by_others {
-        let Ok(o) = owner.parse::<u16>() else {
-            problems.push(format!("logs_held_by_others: {owner:?} is not a log owner"));
-            continue;
-        };
-        let others = u64::from(others);
-        owners += 1;
-        let (robot, life) = owner_life(o);
-        let writer_alive = alive.contains(&robot.to_string())
-            && current.get(&process(robot)).copied().unwrap_or(0) == life;
-        if writer_alive {
-            let own = held(&robot.to_string(), owner);
-            if own < others {
-                problems.push(format!(
-                    "{} (life {life}) holds {own} ops of its own log, others held {others}",
-                    process(robot)
-                ));
-            }
-        } else {
-            let end = alive.iter().map(|n| held(n, owner)).max().unwrap_or(0);
-            with_holders += others.saturating_sub(end);
-        }
-    }
+    let mut problems = forgotten(summary, &alive);
+    let (owners, with_holders) = writers_hold_their_logs(summary, &alive, &mut problems);
     for l in &summary.lost_logs {
         if l.ops_lost != l.ops_written.saturating_sub(l.ops_held) {
             let l = serde_json::to_string(l).unwrap_or_default();
@@ -410,6 +393,84 @@ pub fn check_logs(summary: &Summary) -> Check {
              held by others that died too"
         ),
     )
+}
+
+/// How many ops of `owner`'s log `node` holds at the end. A node's entry lists the owners it
+/// holds ops of: an owner it does not list, it holds none of.
+fn held(summary: &Summary, node: &str, owner: &str) -> u64 {
+    summary
+        .logs_held
+        .get(node)
+        .and_then(|h| h.get(owner))
+        .map_or(0, |&n| u64::from(n))
+}
+
+/// No live node forgets: the live nodes that hold less of a log than they once did.
+fn forgotten(summary: &Summary, alive: &[String]) -> Vec<String> {
+    let mut problems = Vec::new();
+    for node in alive {
+        for (owner, &most) in summary.logs_held_max.get(node).into_iter().flatten() {
+            let (most, now) = (u64::from(most), held(summary, node, owner));
+            if now < most {
+                problems.push(format!(
+                    "node {node} held {most} ops of log {owner} and holds {now}"
+                ));
+            }
+        }
+    }
+    problems
+}
+
+/// A live writer holds its whole log (a problem each where not); of ended lives, counts the
+/// ops that went with every holder. Returns (logs, ops gone with their holders).
+fn writers_hold_their_logs(
+    summary: &Summary,
+    alive: &[String],
+    problems: &mut Vec<String>,
+) -> (u64, u64) {
+    let process = |robot: u16| {
+        if robot == summary.robots {
+            Process::BaseStation
+        } else {
+            Process::Robot(robot)
+        }
+    };
+    // Each process's life after its last start.
+    let mut current: BTreeMap<Process, u16> = BTreeMap::new();
+    for e in &summary.process_events {
+        if e.event == EventKind::Started {
+            current.insert(e.process, e.life);
+        }
+    }
+    let (mut owners, mut with_holders) = (0, 0);
+    for (owner, &others) in &summary.logs_held_by_others {
+        let Ok(o) = owner.parse::<u16>() else {
+            problems.push(format!("logs_held_by_others: {owner:?} is not a log owner"));
+            continue;
+        };
+        let others = u64::from(others);
+        owners += 1;
+        let (robot, life) = owner_life(o);
+        let writer_alive = alive.contains(&robot.to_string())
+            && current.get(&process(robot)).copied().unwrap_or(0) == life;
+        if writer_alive {
+            let own = held(summary, &robot.to_string(), owner);
+            if own < others {
+                problems.push(format!(
+                    "{} (life {life}) holds {own} ops of its own log, others held {others}",
+                    process(robot)
+                ));
+            }
+        } else {
+            let end = alive
+                .iter()
+                .map(|n| held(summary, n, owner))
+                .max()
+                .unwrap_or(0);
+            with_holders += others.saturating_sub(end);
+        }
+    }
+    (owners, with_holders)
 }
 
 /// Every check of a finished run in `run` (its `summary.json`, `processes.csv`, `logs/`).
@@ -519,12 +580,7 @@ pub fn chaos(args: &ChaosArgs) -> anyhow::Result<(Report, PathBuf)> {
     scenario
         .validate()
         .context("the fault schedule does not fit the scenario")?;
-    let dir = args.out.clone().unwrap_or_else(|| {
-        let secs = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs());
-        PathBuf::from("runs").join(format!("chaos-{secs}-seed{}", args.seed))
-    });
+    let dir = args.out.clone().unwrap_or_else(|| default_dir(args.seed));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let scenario_file = dir.join("scenario.toml");
     std::fs::write(&scenario_file, scenario.to_toml()).context("writing scenario.toml")?;
@@ -540,31 +596,7 @@ pub fn chaos(args: &ChaosArgs) -> anyhow::Result<(Report, PathBuf)> {
     for p in &planned {
         eprintln!("  step {:>4}: {}", p.step, p.what);
     }
-    let exe = std::env::current_exe().context("finding the swarm binary")?;
-    let mut cmd = Command::new(exe);
-    cmd.arg("run")
-        .args(["--quiet", "--out"])
-        .arg(&run)
-        .arg("--")
-        .arg(&scenario_file)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit());
-    crate::process::children::die_with_parent_std(&mut cmd);
-    let mut child = cmd.spawn().context("starting swarm run")?;
-    let deadline = Instant::now() + Duration::from_secs(args.timeout_s);
-    let status = loop {
-        if let Some(status) = child.try_wait()? {
-            break Some(status);
-        }
-        if Instant::now() > deadline {
-            // SIGTERM: the launcher stops its processes and writes the run directory.
-            let _ = Command::new("kill").arg(child.id().to_string()).status();
-            let _ = child.wait();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    };
+    let status = run_within(&run, &scenario_file, Duration::from_secs(args.timeout_s))?;
     let mut checks = match check_run(&run, args.max_rss_mb.saturating_mul(1024)) {
         Ok(c) => c,
         Err(e) => vec![Check {
@@ -604,6 +636,50 @@ pub fn chaos(args: &ChaosArgs) -> anyhow::Result<(Report, PathBuf)> {
     )
     .context("writing chaos.json")?;
     Ok((report, dir))
+}
+
+/// `runs/chaos-<unix seconds>-seed<seed>`.
+fn default_dir(seed: u64) -> PathBuf {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    PathBuf::from("runs").join(format!("chaos-{secs}-seed{seed}"))
+}
+
+/// `swarm run` of `scenario_file` into `run`; its exit status, or `None` when it was still
+/// going after `timeout` (then it was sent SIGTERM: the launcher stops its processes and
+/// writes the run directory).
+fn run_within(
+    run: &Path,
+    scenario_file: &Path,
+    timeout: Duration,
+) -> anyhow::Result<Option<std::process::ExitStatus>> {
+    let exe = std::env::current_exe().context("finding the swarm binary")?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("run")
+        .args(["--quiet", "--out"])
+        .arg(run)
+        .arg("--")
+        .arg(scenario_file)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
+    crate::process::children::die_with_parent_std(&mut cmd);
+    let mut child = cmd.spawn().context("starting swarm run")?;
+    let deadline = Instant::now() + timeout;
+    let status = loop {
+        if let Some(status) = child.try_wait()? {
+            break Some(status);
+        }
+        if Instant::now() > deadline {
+            // SIGTERM: the launcher stops its processes and writes the run directory.
+            let _ = Command::new("kill").arg(child.id().to_string()).status();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    Ok(status)
 }
 
 fn resolved_name(s: &Scenario) -> String {

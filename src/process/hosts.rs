@@ -245,28 +245,14 @@ impl Hosts {
 
     /// Places every process of `scenario` (see the module's example for the defaults).
     pub fn place(&self, scenario: &Scenario) -> Result<Placement, HostsError> {
-        let bad = |message: String| HostsError::Invalid {
-            path: self.path.clone(),
-            message,
-        };
-        let known = |key: &str, name: &str| -> Result<String, HostsError> {
-            if self.hosts.contains_key(name) {
-                Ok(name.to_string())
-            } else {
-                Err(bad(format!(
-                    "placement.{key} = {name:?}: no such host (hosts: {})",
-                    self.names()
-                )))
-            }
-        };
         let first = self.hosts.keys().next().cloned().unwrap_or_default();
         let p = &self.placement;
         let world = match &p.world_server {
-            Some(h) => known("world-server", h)?,
+            Some(h) => self.known("world-server", h)?,
             None => first,
         };
         let netem = match &p.netem {
-            Some(h) => known("netem", h)?,
+            Some(h) => self.known("netem", h)?,
             None => world.clone(),
         };
         let mut on = BTreeMap::new();
@@ -274,14 +260,12 @@ impl Hosts {
         on.insert(Process::Netem, netem);
         if scenario.base_station.enabled {
             let base = match &p.base_station {
-                Some(h) => known("base-station", h)?,
+                Some(h) => self.known("base-station", h)?,
                 None => world,
             };
             on.insert(Process::BaseStation, base);
         } else if p.base_station.is_some() {
-            return Err(bad(
-                "placement.base-station: the scenario has no base station".into(),
-            ));
+            return Err(self.bad("placement.base-station: the scenario has no base station".into()));
         }
         let n = scenario.robots.count;
         match &p.robots {
@@ -292,62 +276,110 @@ impl Hosts {
                     on.insert(Process::Robot(i), h.clone());
                 }
             }
-            Some(table) => {
-                let mut rest = None;
-                for (h, robots) in table {
-                    let h = known(&format!("robots.{h}"), h)?;
-                    match robots {
-                        RobotsOn::Rest(word) if word == "rest" => {
-                            if let Some(other) = rest.replace(h.clone()) {
-                                return Err(bad(format!(
-                                    "placement.robots: \"rest\" on both {other} and {h}"
-                                )));
-                            }
-                        }
-                        RobotsOn::Rest(word) => {
-                            return Err(bad(format!(
-                                "placement.robots.{h} = {word:?}: a list of robot ids, or \"rest\""
-                            )))
-                        }
-                        RobotsOn::Ids(ids) => {
-                            for &i in ids {
-                                if i >= n {
-                                    return Err(bad(format!(
-                                        "placement.robots.{h}: robot {i}, but the run has robots 0..{}",
-                                        n.saturating_sub(1)
-                                    )));
-                                }
-                                if let Some(other) = on.insert(Process::Robot(i), h.clone()) {
-                                    return Err(bad(format!(
-                                        "placement.robots: robot {i} on both {other} and {h}"
-                                    )));
-                                }
-                            }
-                        }
+            Some(table) => self.place_robots(table, n, &mut on)?,
+        }
+        self.no_sim_over_ssh(&on)?;
+        Ok(Placement {
+            on,
+            hosts: self.hosts.clone(),
+        })
+    }
+
+    /// An error about this hosts file.
+    fn bad(&self, message: String) -> HostsError {
+        HostsError::Invalid {
+            path: self.path.clone(),
+            message,
+        }
+    }
+
+    /// `name`, when it is one of the file's hosts (`key` names the placement entry).
+    fn known(&self, key: &str, name: &str) -> Result<String, HostsError> {
+        if self.hosts.contains_key(name) {
+            Ok(name.to_string())
+        } else {
+            Err(self.bad(format!(
+                "placement.{key} = {name:?}: no such host (hosts: {})",
+                self.names()
+            )))
+        }
+    }
+
+    /// Robots `0..n` placed by `placement.robots` (lists of ids, at most one host taking the
+    /// rest): every robot on exactly one host.
+    fn place_robots(
+        &self,
+        table: &BTreeMap<String, RobotsOn>,
+        n: RobotId,
+        on: &mut BTreeMap<Process, String>,
+    ) -> Result<(), HostsError> {
+        let mut rest = None;
+        for (h, robots) in table {
+            let h = self.known(&format!("robots.{h}"), h)?;
+            match robots {
+                RobotsOn::Rest(word) if word == "rest" => {
+                    if let Some(other) = rest.replace(h.clone()) {
+                        return Err(self.bad(format!(
+                            "placement.robots: \"rest\" on both {other} and {h}"
+                        )));
                     }
                 }
-                let left: Vec<RobotId> = (0..n)
-                    .filter(|&i| !on.contains_key(&Process::Robot(i)))
-                    .collect();
-                match rest {
-                    Some(h) => {
-                        for i in left {
-                            on.insert(Process::Robot(i), h.clone());
-                        }
-                    }
-                    None if !left.is_empty() => {
-                        return Err(bad(format!(
-                            "placement.robots places no host for robots {left:?} (add them, or a host = \"rest\")"
-                        )))
-                    }
-                    None => {}
+                RobotsOn::Rest(word) => {
+                    return Err(self.bad(format!(
+                        "placement.robots.{h} = {word:?}: a list of robot ids, or \"rest\""
+                    )))
                 }
+                RobotsOn::Ids(ids) => self.place_ids(ids, &h, n, on)?,
             }
         }
+        let left: Vec<RobotId> = (0..n)
+            .filter(|&i| !on.contains_key(&Process::Robot(i)))
+            .collect();
+        match rest {
+            Some(h) => {
+                for i in left {
+                    on.insert(Process::Robot(i), h.clone());
+                }
+                Ok(())
+            }
+            None if !left.is_empty() => Err(self.bad(format!(
+                "placement.robots places no host for robots {left:?} (add them, or a host = \"rest\")"
+            ))),
+            None => Ok(()),
+        }
+    }
+
+    /// Robots `ids` on host `h`: each one of the run's `0..n`, and on no other host.
+    fn place_ids(
+        &self,
+        ids: &[RobotId],
+        h: &str,
+        n: RobotId,
+        on: &mut BTreeMap<Process, String>,
+    ) -> Result<(), HostsError> {
+        for &i in ids {
+            if i >= n {
+                return Err(self.bad(format!(
+                    "placement.robots.{h}: robot {i}, but the run has robots 0..{}",
+                    n.saturating_sub(1)
+                )));
+            }
+            if let Some(other) = on.insert(Process::Robot(i), h.to_string()) {
+                return Err(self.bad(format!(
+                    "placement.robots: robot {i} on both {other} and {h}"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The world-server and netem run on the launcher's host or a command-prefix host: over ssh
+    /// only robots and the base station are started.
+    fn no_sim_over_ssh(&self, on: &BTreeMap<Process, String>) -> Result<(), HostsError> {
         for p in [Process::WorldServer, Process::Netem] {
             let h = &on[&p];
             if matches!(self.hosts[h].start, Start::Ssh { .. }) {
-                return Err(bad(format!(
+                return Err(self.bad(format!(
                     "placement: {p} on {h}, an ssh host: over ssh only robots and the base \
                      station are started (the world-server reads the map file and netem writes \
                      link_totals.csv on its host); place {p} on the launcher's host or a \
@@ -355,10 +387,7 @@ impl Hosts {
                 )));
             }
         }
-        Ok(Placement {
-            on,
-            hosts: self.hosts.clone(),
-        })
+        Ok(())
     }
 
     fn names(&self) -> String {

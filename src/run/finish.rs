@@ -162,18 +162,7 @@ pub fn summary(
         coverage_steps: coverage_steps(&eval.coverage_steps),
         best_coverage_pct: eval.best.0,
         reachable_cells: eval.reachable_cells(),
-        // With step markers, up to the run's last step (what crossed while the processes
-        // stopped depends on timing). Else netem's final counters when it wrote them (they
-        // include that too), or the last per-step reports. A restarted netem wrote only its
-        // own life's counters: then the reports, which span every life.
-        bytes_wire_total: Some(
-            if plan.scenario.clock.marked() || rec.sup.life(Process::Netem) > 0 {
-                rec.links.wire_total()
-            } else {
-                link_totals_wire(&plan.dir.join("link_totals.csv"))
-                    .unwrap_or_else(|| rec.links.wire_total())
-            },
-        ),
+        bytes_wire_total: Some(wire_total(plan, rec)),
         bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum::<u64>()
             + earlier.iter().map(|l| l.bytes_sent).sum::<u64>(),
         traffic_shares_pct: traffic_shares(&by_type),
@@ -186,14 +175,7 @@ pub fn summary(
         backlog_max_bytes,
         backlog_mean_bytes,
         approx_error_avg: approx_error_avg(eval),
-        logs_held: eval
-            .last
-            .iter()
-            .map(|(r, (_, t))| {
-                let held = t.logs.iter().map(|(o, n)| (o.to_string(), *n)).collect();
-                (r.to_string(), held)
-            })
-            .collect(),
+        logs_held: logs_held(eval),
         collisions: last.collisions_total,
         distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
         radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
@@ -211,25 +193,48 @@ pub fn summary(
             .iter()
             .map(|(o, (n, _))| (o.to_string(), *n))
             .collect(),
-        logs_held_max: eval
-            .last
-            .iter()
-            .map(|(r, (_, t))| {
-                let most = rec.held_max.get(&(*r, t.life));
-                let most = most
-                    .into_iter()
-                    .flatten()
-                    .map(|(o, (n, _))| (o.to_string(), *n))
-                    .collect();
-                (r.to_string(), most)
-            })
-            .collect(),
+        logs_held_max: logs_held_max(rec),
         nodes_alive_at_end: alive_at_end(&last),
         lost_logs: lost_logs(rec, &alive_at_end(&last)),
         deterministic: false,
         nondeterministic: nondeterministic(plan, rec),
         run_digest: String::new(),
     }
+}
+
+/// The bytes on the wire. With step markers, up to the run's last step (what crossed while the
+/// processes stopped depends on timing). Else netem's final counters when it wrote them (they
+/// include that too), or the last per-step reports. A restarted netem wrote only its own life's
+/// counters: then the reports, which span every life.
+fn wire_total(plan: &Plan, rec: &Record) -> u64 {
+    if plan.scenario.clock.marked() || rec.sup.life(Process::Netem) > 0 {
+        rec.links.wire_total()
+    } else {
+        link_totals_wire(&plan.dir.join("link_totals.csv"))
+            .unwrap_or_else(|| rec.links.wire_total())
+    }
+}
+
+/// Per robot, how many records of each owner's log it held at its last report.
+fn logs_held(eval: &Evaluator) -> BTreeMap<String, BTreeMap<String, u32>> {
+    let held = |t: &Telemetry| t.logs.iter().map(|(o, n)| (o.to_string(), *n)).collect();
+    eval.last
+        .iter()
+        .map(|(r, (_, t))| (r.to_string(), held(t)))
+        .collect()
+}
+
+/// Per robot (its last life), the most of each owner's log it held at any step.
+fn logs_held_max(rec: &Record) -> BTreeMap<String, BTreeMap<String, u32>> {
+    let most = |r: RobotId, life: u16| {
+        let most = rec.held_max.get(&(r, life)).into_iter().flatten();
+        most.map(|(o, (n, _))| (o.to_string(), *n)).collect()
+    };
+    rec.eval
+        .last
+        .iter()
+        .map(|(r, (_, t))| (r.to_string(), most(*r, t.life)))
+        .collect()
 }
 
 /// What made the run depend on more than its scenario (empty: nothing did).

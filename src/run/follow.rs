@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use proto::exit::ExitReason;
-use proto::msg::{decode, LinkReport, ProcessOrder, Status, Step, Telemetry};
+use proto::msg::{decode, ProcessOrder, Status, Step, Telemetry};
 use serde::de::DeserializeOwned;
 use zenoh::sample::Sample;
 
@@ -444,7 +444,6 @@ pub async fn follow(
     rec: &mut Record,
     progress: &mut Progress,
 ) -> anyhow::Result<ExitReason> {
-    const CLOSED: ExitReason = ExitReason::SimPlaneClosed;
     let sim = &run.sim;
     let mut tick = tokio::time::interval(Duration::from_millis(200));
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
@@ -452,59 +451,23 @@ pub async fn follow(
     let reason = loop {
         let end = tokio::select! {
             s = sim.statuses.recv_async() => match message::<Status, _>(s, "status") {
-                Err(()) => Some(CLOSED),
+                Err(()) => Some(ExitReason::SimPlaneClosed),
                 Ok(None) => None,
-                Ok(Some(st)) => {
-                    let step = st.step;
-                    match rec.on_status(st, plan, progress) {
-                        Some(end) => Some(end),
-                        None if rec.end.is_none() => {
-                            let actions = rec.sup.on_step(step);
-                            rec.act(actions, &mut run.children, plan, progress).await
-                        }
-                        None => None,
-                    }
-                }
+                Ok(Some(st)) => rec.status(st, &mut run.children, plan, progress).await,
             },
-            t = sim.telemetry.recv_async() => match message::<Telemetry, _>(t, "telemetry") {
-                Err(()) => Some(CLOSED),
-                Ok(t) => {
-                    if let Some(t) = t { rec.on_telemetry(t) }
-                    None
-                }
-            },
-            o = sim.process_orders.recv_async() => match message::<ProcessOrder, _>(o, "process fault") {
-                Err(()) => Some(CLOSED),
-                Ok(o) => {
-                    if let Some(o) = o {
-                        rec.asked(o.into(), plan, progress);
-                    }
-                    None
-                }
-            },
-            r = sim.link_reports.recv_async() => match message::<LinkReport, _>(r, "link report") {
-                Err(()) => Some(CLOSED),
-                Ok(r) => {
-                    if let Some(r) = r {
-                        rec.log(|w| w.links(&r));
-                        rec.links.add(r);
-                    }
-                    None
-                }
-            },
-            // Once the last step is known the processes may end by themselves (the world-server
-            // does at the step limit): their exits are the run's end, not failures; a crash
-            // still is one.
-            _ = tick.tick() => {
-                run.children.sample_memory(rec.statuses.last().map(|s| s.step));
-                match rec.end {
-                    None => rec.on_exits(&mut run.children, plan, progress),
-                    Some(_) => {
-                        rec.on_crashes(&mut run.children, plan, progress);
-                        None
-                    }
-                }
+            t = sim.telemetry.recv_async() => received(message(t, "telemetry"), |t| {
+                rec.on_telemetry(t)
+            }),
+            o = sim.process_orders.recv_async() => {
+                received(message::<ProcessOrder, _>(o, "process fault"), |o| {
+                    rec.asked(o.into(), plan, progress)
+                })
             }
+            r = sim.link_reports.recv_async() => received(message(r, "link report"), |r| {
+                rec.log(|w| w.links(&r));
+                rec.links.add(r);
+            }),
+            _ = tick.tick() => rec.tick(&mut run.children, plan, progress),
             _ = tokio::signal::ctrl_c() => {
                 progress.event("swarm run: interrupted, stopping every process");
                 Some(ExitReason::Interrupted)
@@ -514,15 +477,8 @@ pub async fn follow(
                 Some(ExitReason::Terminated)
             }
         };
-        if let Some((_, reason)) = rec.end {
-            let by = *settle_by.get_or_insert_with(|| Instant::now() + SETTLE);
-            if rec.settled() {
-                break reason;
-            }
-            if Instant::now() >= by {
-                rec.settled_in_time = false;
-                break reason;
-            }
+        if let Some(reason) = rec.settled_end(&mut settle_by) {
+            break reason;
         }
         // Once the last step is known, a process that exits (the world-server ends itself at
         // the step limit) or a signal does not change why the run ended.
@@ -531,4 +487,74 @@ pub async fn follow(
         }
     };
     Ok(reason)
+}
+
+/// One sim-plane message handed to `on` (a message that did not decode is skipped); the end of
+/// the run when its subscription closed.
+fn received<T>(m: Result<Option<T>, ()>, on: impl FnOnce(T)) -> Option<ExitReason> {
+    match m {
+        Err(()) => Some(ExitReason::SimPlaneClosed),
+        Ok(t) => {
+            if let Some(t) = t {
+                on(t);
+            }
+            None
+        }
+    }
+}
+
+impl Record {
+    /// The world's status after a step: recorded, and while the run goes on the supervisor's
+    /// actions for the step carried out. The run's end, if that decided it.
+    async fn status(
+        &mut self,
+        st: Status,
+        children: &mut Children,
+        plan: &Plan,
+        progress: &mut Progress,
+    ) -> Option<ExitReason> {
+        let step = st.step;
+        match self.on_status(st, plan, progress) {
+            Some(end) => Some(end),
+            None if self.end.is_none() => {
+                let actions = self.sup.on_step(step);
+                self.act(actions, children, plan, progress).await
+            }
+            None => None,
+        }
+    }
+
+    /// The periodic look at the children: memory sampled, exits judged. Once the last step is
+    /// known the processes may end by themselves (the world-server does at the step limit):
+    /// their exits are the run's end, not failures; a crash still is one.
+    fn tick(
+        &mut self,
+        children: &mut Children,
+        plan: &Plan,
+        progress: &mut Progress,
+    ) -> Option<ExitReason> {
+        children.sample_memory(self.statuses.last().map(|s| s.step));
+        match self.end {
+            None => self.on_exits(children, plan, progress),
+            Some(_) => {
+                self.on_crashes(children, plan, progress);
+                None
+            }
+        }
+    }
+
+    /// Once the run's end is known: its reason when everything of it has arrived, or when
+    /// [`SETTLE`] has passed since (then not settled in time); `None` while waiting.
+    fn settled_end(&mut self, settle_by: &mut Option<Instant>) -> Option<ExitReason> {
+        let (_, reason) = self.end?;
+        let by = *settle_by.get_or_insert_with(|| Instant::now() + SETTLE);
+        if self.settled() {
+            return Some(reason);
+        }
+        if Instant::now() >= by {
+            self.settled_in_time = false;
+            return Some(reason);
+        }
+        None
+    }
 }

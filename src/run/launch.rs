@@ -1,5 +1,6 @@
 //! `swarm run` from its flags to its outcome: the four stages in order.
 
+use std::net::SocketAddr;
 use std::time::Instant;
 
 use crate::run::args::{Outcome, RunArgs};
@@ -7,8 +8,10 @@ use crate::run::{finish, follow, prepare, spawn};
 
 use crate::process::supervise::Supervisor;
 use crate::run::progress::Progress;
+use crate::rundir::steplog::StepLogWriter;
 use crate::rundir::summary::{run_digest, write_summary};
 use crate::score::evaluate::Evaluator;
+use crate::view::server::{live, Feed, NetemApi, Viewer};
 
 /// Runs one scenario to the end. The caller turns the outcome into an exit code.
 ///
@@ -42,7 +45,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         plan.scenario.process_faults()?,
     );
     let mut rec = follow::Record::new(eval, lockstep, sup);
-    let mut log = crate::rundir::steplog::StepLogWriter::create(
+    let mut log = StepLogWriter::create(
         &plan.dir,
         run.truth.map,
         &run.truth_grid,
@@ -50,28 +53,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         plan.scenario.clock.step_seconds,
     )?;
     let viewer = match args.view {
-        Some(addr) => {
-            let api = crate::view::server::NetemApi {
-                addr: plan.ports.http,
-                token: if plan.api_token() {
-                    Some(
-                        std::fs::read_to_string(plan.dir.join("netem.token"))?
-                            .trim()
-                            .to_string(),
-                    )
-                } else {
-                    None
-                },
-            };
-            let (viewer, feed) =
-                crate::view::server::live(addr, log.header().clone(), api, run.sim.session.clone())
-                    .await?;
-            std::fs::write(plan.dir.join("view.addr"), format!("{}\n", viewer.addr))?;
-            progress.event(&format!("swarm run: viewer at http://{}/", viewer.addr));
-            let f = feed.clone();
-            log.tee = Some(Box::new(move |r| f.push(r.clone())));
-            Some((viewer, feed))
-        }
+        Some(addr) => Some(start_viewer(addr, &plan, &run, &mut log, &mut progress).await?),
         None => None,
     };
     rec.log = Some(log);
@@ -82,24 +64,11 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         progress.event(&format!("swarm run: {e}"));
     }
     rec.truncate();
-    if let Some(Err(e)) = rec
-        .log
-        .take()
-        .map(crate::rundir::steplog::StepLogWriter::finish)
-    {
+    if let Some(Err(e)) = rec.log.take().map(StepLogWriter::finish) {
         progress.event(&format!("swarm run: {e:#}"));
     }
     if let Some((viewer, feed)) = viewer {
-        feed.finish();
-        let st = feed.stats();
-        if let Some(fps) = st.per_second() {
-            progress.event(&format!(
-                "swarm run: the viewer sent {} frames to its pages ({fps:.1} a second while one \
-                 was open); a page that fell behind skipped {}",
-                st.sent, st.skipped
-            ));
-        }
-        viewer.stop();
+        stop_viewer(viewer, &feed, &mut progress);
     }
     let up = rec.links.up_by_step();
     finish::score_contact(&plan, &mut rec, &up);
@@ -116,6 +85,47 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         dir: plan.dir,
         summary,
     })
+}
+
+/// Serves the live viewer at `addr` and tees the step log into its feed; the address goes to
+/// the run directory's `view.addr`.
+async fn start_viewer(
+    addr: SocketAddr,
+    plan: &prepare::Plan,
+    run: &spawn::Started,
+    log: &mut StepLogWriter,
+    progress: &mut Progress,
+) -> anyhow::Result<(Viewer, Feed)> {
+    let token = if plan.api_token() {
+        let t = std::fs::read_to_string(plan.dir.join("netem.token"))?;
+        Some(t.trim().to_string())
+    } else {
+        None
+    };
+    let api = NetemApi {
+        addr: plan.ports.http,
+        token,
+    };
+    let (viewer, feed) = live(addr, log.header().clone(), api, run.sim.session.clone()).await?;
+    std::fs::write(plan.dir.join("view.addr"), format!("{}\n", viewer.addr))?;
+    progress.event(&format!("swarm run: viewer at http://{}/", viewer.addr));
+    let f = feed.clone();
+    log.tee = Some(Box::new(move |r| f.push(r.clone())));
+    Ok((viewer, feed))
+}
+
+/// Ends the viewer's feed, says how many frames it sent, and stops serving.
+fn stop_viewer(viewer: Viewer, feed: &Feed, progress: &mut Progress) {
+    feed.finish();
+    let st = feed.stats();
+    if let Some(fps) = st.per_second() {
+        progress.event(&format!(
+            "swarm run: the viewer sent {} frames to its pages ({fps:.1} a second while one \
+             was open); a page that fell behind skipped {}",
+            st.sent, st.skipped
+        ));
+    }
+    viewer.stop();
 }
 
 /// `swarm run`: one run, its one-line summary on stdout; exit code 0 when the exploration

@@ -59,6 +59,35 @@ pub struct MetricsRow {
     pub comm_level_pct: Option<f64>,
 }
 
+impl MetricsRow {
+    /// The row of telemetry `t`, with the evaluator's counts; the team columns are set later
+    /// ([`Evaluator::share_rows_since`], the launcher's link scoring).
+    fn of(t: &Telemetry, correct_known_cells: u32, coverage_pct: f64) -> MetricsRow {
+        MetricsRow {
+            step: t.step,
+            robot: t.robot,
+            x: t.pose.x,
+            y: t.pose.y,
+            known_cells: t.known_cells,
+            correct_known_cells,
+            target: t.target,
+            bytes_sent: t.bytes_sent,
+            bytes_received: t.bytes_received,
+            coverage_pct,
+            idle: t.idle,
+            neighbours: t.neighbours.len(),
+            sent_by_type: t.sent_by_type.clone(),
+            splits_per_step: t.splits_per_step,
+            backlog_bytes: t.backlog_bytes.iter().map(|&(_, b)| b).max().unwrap_or(0),
+            alone: t.alone,
+            shared_pct: None,
+            steps_since_base: None,
+            team_pct: None,
+            comm_level_pct: None,
+        }
+    }
+}
+
 pub struct Evaluator {
     truth: Grid,
     reachable: Vec<bool>,
@@ -151,28 +180,43 @@ impl Evaluator {
             }
         };
         let known = known_cells(&grid, self.truth.width(), &self.reachable);
-        let covered = known.count();
-        let mut correct = 0u32;
-        if let Some(r) = grid.rect() {
-            for y in r.min.y..=r.max.y {
-                let truth = self.truth.row(y, r.min.x, r.max.x);
-                for (&seen, &truth) in grid.row(y).iter().zip(truth) {
-                    let agrees = match seen {
-                        Occ::Unknown => false,
-                        Occ::Free => truth == Occ::Free,
-                        Occ::Occupied => truth != Occ::Free,
-                    };
-                    correct += u32::from(agrees);
-                }
-            }
-        }
-        let pct = self.pct_of_reachable(covered);
-        let is_base = self.base == Some(t.robot);
-        if !is_base {
+        let pct = self.pct_of_reachable(known.count());
+        if self.base != Some(t.robot) {
             self.shared.update(t.robot, known);
         }
+        self.reached(t.robot, t.step, pct);
+        let correct = self.correct_cells(&grid);
+        self.rows.push(MetricsRow::of(&t, correct, pct));
+        self.judged.extend(t.judged.clone());
+        self.record_changes(&t);
+        self.last.insert(t.robot, (grid, t));
+    }
+
+    /// The known cells of `grid` whose state agrees with the truth (an occupied cell agrees
+    /// with any truth that is not free: truth-unknown space is opaque).
+    fn correct_cells(&self, grid: &KnownPart) -> u32 {
+        let Some(r) = grid.rect() else { return 0 };
+        let mut correct = 0u32;
+        for y in r.min.y..=r.max.y {
+            let truth = self.truth.row(y, r.min.x, r.max.x);
+            for (&seen, &truth) in grid.row(y).iter().zip(truth) {
+                let agrees = match seen {
+                    Occ::Unknown => false,
+                    Occ::Free => truth == Occ::Free,
+                    Occ::Occupied => truth != Occ::Free,
+                };
+                correct += u32::from(agrees);
+            }
+        }
+        correct
+    }
+
+    /// `robot` knew `pct` % of the reachable cells at `step`: the best coverage, the steps to
+    /// each threshold and the exploration time (the base station's apart, never deciding it).
+    fn reached(&mut self, robot: RobotId, step: Step, pct: f64) {
+        let is_base = self.base == Some(robot);
         if pct > self.best.0 && !is_base {
-            self.best = (pct, t.robot);
+            self.best = (pct, robot);
         }
         let steps = if is_base {
             &mut self.base_coverage_steps
@@ -181,36 +225,17 @@ impl Evaluator {
         };
         for th in THRESHOLDS {
             if pct >= f64::from(th) {
-                let e = steps.entry(th).or_insert(t.step);
-                *e = (*e).min(t.step);
+                let e = steps.entry(th).or_insert(step);
+                *e = (*e).min(step);
             }
         }
         if pct >= self.done_pct && !is_base {
-            self.exploration_step = Some(self.exploration_step.map_or(t.step, |s| s.min(t.step)));
+            self.exploration_step = Some(self.exploration_step.map_or(step, |s| s.min(step)));
         }
-        self.rows.push(MetricsRow {
-            step: t.step,
-            robot: t.robot,
-            x: t.pose.x,
-            y: t.pose.y,
-            known_cells: t.known_cells,
-            correct_known_cells: correct,
-            target: t.target,
-            bytes_sent: t.bytes_sent,
-            bytes_received: t.bytes_received,
-            coverage_pct: pct,
-            idle: t.idle,
-            neighbours: t.neighbours.len(),
-            sent_by_type: t.sent_by_type.clone(),
-            splits_per_step: t.splits_per_step,
-            backlog_bytes: t.backlog_bytes.iter().map(|&(_, b)| b).max().unwrap_or(0),
-            alone: t.alone,
-            shared_pct: None,
-            steps_since_base: None,
-            team_pct: None,
-            comm_level_pct: None,
-        });
-        self.judged.extend(t.judged.clone());
+    }
+
+    /// The save points and views `t` reports that its robot's last report did not.
+    fn record_changes(&mut self, t: &Telemetry) {
         let before = self.last.get(&t.robot).map(|(_, b)| b);
         if let Some((len, digest)) = t.save {
             if before.and_then(|b| b.save).map(|(l, _)| l) != Some(len) {
@@ -223,7 +248,6 @@ impl Evaluator {
                 self.views.push((t.step, t.robot, *v));
             }
         }
-        self.last.insert(t.robot, (grid, t));
     }
 
     /// Sets [`MetricsRow::shared_pct`] and [`MetricsRow::team_pct`] of the robot rows from

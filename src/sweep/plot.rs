@@ -6,6 +6,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use anyhow::{anyhow, Context};
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -187,24 +188,8 @@ fn render<DB: DrawingBackend>(
         XAxis::Categories(names) => Some(names.clone()),
         XAxis::Numeric => None,
     };
-    let x_fmt = |v: &f64| match &categories {
-        Some(names) => {
-            let i = v.round();
-            if (v - i).abs() < 1e-6 && i >= 0.0 {
-                names.get(i as usize).cloned().unwrap_or_default()
-            } else {
-                String::new()
-            }
-        }
-        None => short_number(*v),
-    };
-    let y_fmt = |v: &f64| {
-        if log {
-            short_number(10f64.powf(*v))
-        } else {
-            short_number(*v)
-        }
-    };
+    let x_fmt = |v: &f64| x_tick(categories.as_deref(), *v);
+    let y_fmt = |v: &f64| short_number(if log { 10f64.powf(*v) } else { *v });
     let mut mesh = chart.configure_mesh();
     mesh.x_desc(c.x_label.as_str())
         .y_desc(c.y_label.as_str())
@@ -218,38 +203,7 @@ fn render<DB: DrawingBackend>(
     }
     mesh.draw()?;
     for (i, line) in c.lines.iter().enumerate() {
-        let [r, g, b] = robot_colour(i);
-        let colour = RGBColor(r, g, b);
-        let pts = drawn_points(line, log);
-        if c.band && pts.iter().any(|&(_, _, lo, hi)| lo < hi) {
-            // Along the upper edge, then back along the lower one.
-            let upper = pts.iter().map(|&(x, _, _, hi)| (x, hi));
-            let lower = pts.iter().rev().map(|&(x, _, lo, _)| (x, lo));
-            chart.draw_series(std::iter::once(Polygon::new(
-                upper.chain(lower).collect::<Vec<_>>(),
-                colour.mix(0.18).filled(),
-            )))?;
-        }
-        chart
-            .draw_series(LineSeries::new(
-                pts.iter().map(|&(x, y, _, _)| (x, y)),
-                colour.stroke_width(if c.markers { 2 } else { 1 }),
-            ))?
-            .label(line.name.as_str())
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2))
-            });
-        if c.markers {
-            chart.draw_series(
-                pts.iter().map(|&(x, y, lo, hi)| {
-                    ErrorBar::new_vertical(x, lo, y, hi, colour.filled(), 6)
-                }),
-            )?;
-            chart.draw_series(
-                pts.iter()
-                    .map(|&(x, y, _, _)| Circle::new((x, y), 3, colour.filled())),
-            )?;
-        }
+        draw_line(&mut chart, c, i, line)?;
     }
     if c.lines.len() > 1 || c.lines.first().is_some_and(|l| !l.name.is_empty()) {
         chart
@@ -259,6 +213,59 @@ fn render<DB: DrawingBackend>(
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK.mix(0.4))
             .draw()?;
+    }
+    Ok(())
+}
+
+/// The tick label at `v` of an x axis of `categories` (at whole positions only), or of numbers.
+fn x_tick(categories: Option<&[String]>, v: f64) -> String {
+    let Some(names) = categories else {
+        return short_number(v);
+    };
+    let i = v.round();
+    if (v - i).abs() < 1e-6 && i >= 0.0 {
+        names.get(i as usize).cloned().unwrap_or_default()
+    } else {
+        String::new()
+    }
+}
+
+/// Line `i` of chart `c`: its interval band, the line with its legend entry, and its markers.
+fn draw_line<DB: DrawingBackend>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    c: &Chart,
+    i: usize,
+    line: &Line,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let log = c.log_y;
+    let [r, g, b] = robot_colour(i);
+    let colour = RGBColor(r, g, b);
+    let pts = drawn_points(line, log);
+    if c.band && pts.iter().any(|&(_, _, lo, hi)| lo < hi) {
+        // Along the upper edge, then back along the lower one.
+        let upper = pts.iter().map(|&(x, _, _, hi)| (x, hi));
+        let lower = pts.iter().rev().map(|&(x, _, lo, _)| (x, lo));
+        chart.draw_series(std::iter::once(Polygon::new(
+            upper.chain(lower).collect::<Vec<_>>(),
+            colour.mix(0.18).filled(),
+        )))?;
+    }
+    chart
+        .draw_series(LineSeries::new(
+            pts.iter().map(|&(x, y, _, _)| (x, y)),
+            colour.stroke_width(if c.markers { 2 } else { 1 }),
+        ))?
+        .label(line.name.as_str())
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+    if c.markers {
+        chart.draw_series(
+            pts.iter()
+                .map(|&(x, y, lo, hi)| ErrorBar::new_vertical(x, lo, y, hi, colour.filled(), 6)),
+        )?;
+        chart.draw_series(
+            pts.iter()
+                .map(|&(x, y, _, _)| Circle::new((x, y), 3, colour.filled())),
+        )?;
     }
     Ok(())
 }

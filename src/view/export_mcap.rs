@@ -163,6 +163,43 @@ struct Out<W: std::io::Write + std::io::Seek> {
 }
 
 impl<W: std::io::Write + std::io::Seek> Out<W> {
+    /// A writer of MCAP to `w` with the schemas of every message it writes.
+    fn create(w: W) -> anyhow::Result<Out<W>> {
+        let mut out = Out {
+            mcap: mcap::WriteOptions::new()
+                .compression(None)
+                .profile("")
+                .create(w)?,
+            channels: BTreeMap::new(),
+            schemas: BTreeMap::new(),
+            counts: Counts::new(),
+        };
+        for (name, props) in [
+            (
+                "foxglove.Grid",
+                json!({ "timestamp": {"type": "object"}, "frame_id": {"type": "string"}, "pose": {"type": "object"}, "column_count": {"type": "integer"}, "cell_size": {"type": "object"}, "row_stride": {"type": "integer"}, "cell_stride": {"type": "integer"}, "fields": {"type": "array"}, "data": {"type": "string", "contentEncoding": "base64"} }),
+            ),
+            (
+                "foxglove.PoseInFrame",
+                json!({ "timestamp": {"type": "object"}, "frame_id": {"type": "string"}, "pose": {"type": "object"} }),
+            ),
+            (
+                "foxglove.SceneUpdate",
+                json!({ "deletions": {"type": "array"}, "entities": {"type": "array"} }),
+            ),
+            (
+                "swarm.LinkBytes",
+                json!({ "step": {"type": "integer"}, "links": {"type": "object", "description": "per link r<a>-r<b>: up, bytes_a_to_b, bytes_b_to_a, queued_bytes of the step"} }),
+            ),
+        ] {
+            let id = out
+                .mcap
+                .add_schema(name, "jsonschema", &schema(name, props))?;
+            out.schemas.insert(name, id);
+        }
+        Ok(out)
+    }
+
     fn put(&mut self, topic: &str, schema: &'static str, ns: u64, v: &Value) -> anyhow::Result<()> {
         let channel = match self.channels.get(topic) {
             Some(&c) => c,
@@ -190,38 +227,7 @@ impl<W: std::io::Write + std::io::Seek> Out<W> {
 
 /// Writes `log` as MCAP to `w`; the messages per topic.
 pub fn write<W: std::io::Write + std::io::Seek>(log: &StepLog, w: W) -> anyhow::Result<Counts> {
-    let mut out = Out {
-        mcap: mcap::WriteOptions::new()
-            .compression(None)
-            .profile("")
-            .create(w)?,
-        channels: BTreeMap::new(),
-        schemas: BTreeMap::new(),
-        counts: Counts::new(),
-    };
-    for (name, props) in [
-        (
-            "foxglove.Grid",
-            json!({ "timestamp": {"type": "object"}, "frame_id": {"type": "string"}, "pose": {"type": "object"}, "column_count": {"type": "integer"}, "cell_size": {"type": "object"}, "row_stride": {"type": "integer"}, "cell_stride": {"type": "integer"}, "fields": {"type": "array"}, "data": {"type": "string", "contentEncoding": "base64"} }),
-        ),
-        (
-            "foxglove.PoseInFrame",
-            json!({ "timestamp": {"type": "object"}, "frame_id": {"type": "string"}, "pose": {"type": "object"} }),
-        ),
-        (
-            "foxglove.SceneUpdate",
-            json!({ "deletions": {"type": "array"}, "entities": {"type": "array"} }),
-        ),
-        (
-            "swarm.LinkBytes",
-            json!({ "step": {"type": "integer"}, "links": {"type": "object", "description": "per link r<a>-r<b>: up, bytes_a_to_b, bytes_b_to_a, queued_bytes of the step"} }),
-        ),
-    ] {
-        let id = out
-            .mcap
-            .add_schema(name, "jsonschema", &schema(name, props))?;
-        out.schemas.insert(name, id);
-    }
+    let mut out = Out::create(w)?;
     let (map, dt) = (log.header.map, log.header.step_seconds);
     let (_, stamp0) = time(0, dt);
     out.put(
@@ -233,13 +239,7 @@ pub fn write<W: std::io::Write + std::io::Seek>(log: &StepLog, w: W) -> anyhow::
     let end = log.last_step();
     let mut grids = Grids::default();
     let mut reports: BTreeMap<RobotId, u32> = BTreeMap::new();
-    let last_report: BTreeMap<RobotId, Step> =
-        log.records.iter().fold(BTreeMap::new(), |mut m, r| {
-            if let Record::Robot(r) = r {
-                m.insert(r.robot, r.step);
-            }
-            m
-        });
+    let last_report = last_reports(log);
     let mut at: Where = BTreeMap::new();
     // Reports of one step, drawn together once the step's reports are all in.
     let mut step_robots: Vec<RobotStep> = Vec::new();
@@ -293,6 +293,17 @@ pub fn write<W: std::io::Write + std::io::Seek>(log: &StepLog, w: W) -> anyhow::
     robots_scene(&mut out, &step_robots, dt)?;
     out.mcap.finish()?;
     Ok(out.counts)
+}
+
+/// The step of every robot's last report in `log`.
+fn last_reports(log: &StepLog) -> BTreeMap<RobotId, Step> {
+    let mut last = BTreeMap::new();
+    for r in &log.records {
+        if let Record::Robot(r) = r {
+            last.insert(r.robot, r.step);
+        }
+    }
+    last
 }
 
 fn robots_scene<W: std::io::Write + std::io::Seek>(

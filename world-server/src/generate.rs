@@ -119,6 +119,19 @@ pub fn generate(
     resolution_m: f64,
     seed: u64,
 ) -> Result<TruthMap, GenError> {
+    let (p, w, h) = sizes(width_m, height_m, resolution_m)?;
+    let mut g = Grid::new(w as u32, h as u32, Occ::Occupied);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let interior = Rect::new(p.wall, p.wall, w - p.wall, h - p.wall);
+    build(kind, &mut g, &mut rng, &p, interior);
+    open_free(&mut g, p.passage);
+    close_off_unreachable(&mut g);
+    let info = MapInfo::at_origin(g.width(), g.height(), resolution_m);
+    Ok(TruthMap { info, grid: g })
+}
+
+/// The [`Params`], width and height in cells of a map, or why it cannot be generated that size.
+fn sizes(width_m: f64, height_m: f64, resolution_m: f64) -> Result<(Params, i32, i32), GenError> {
     if !(resolution_m.is_finite() && resolution_m > 0.0) {
         return Err(GenError::BadResolution { resolution_m });
     }
@@ -154,46 +167,49 @@ pub fn generate(
     if w - 2 * p.wall < p.door || h - 2 * p.wall < p.door {
         return Err(too_small);
     }
-    let mut g = Grid::new(w as u32, h as u32, Occ::Occupied);
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let interior = Rect::new(p.wall, p.wall, w - p.wall, h - p.wall);
+    Ok((p, w, h))
+}
+
+/// Builds the world of `kind` inside `interior` (all occupied on entry).
+fn build(kind: GeneratedWorld, g: &mut Grid, rng: &mut ChaCha8Rng, p: &Params, interior: Rect) {
     match kind {
         GeneratedWorld::Unstructured => {
-            fill(&mut g, interior, Occ::Free);
+            fill(g, interior, Occ::Free);
             let cover = rng.gen_range(0.10..0.20);
-            scatter(&mut g, &mut rng, &p, interior, None, cover);
+            scatter(g, rng, p, interior, None, cover);
         }
         GeneratedWorld::Office => {
-            office(&mut g, &mut rng, &p, interior, None);
+            office(g, rng, p, interior, None);
         }
         GeneratedWorld::Corridor => {
-            office(&mut g, &mut rng, &p, interior, Some(1));
+            office(g, rng, p, interior, Some(1));
         }
         GeneratedWorld::TwoCorridors => {
-            office(&mut g, &mut rng, &p, interior, Some(2));
+            office(g, rng, p, interior, Some(2));
         }
-        GeneratedWorld::Empty => fill(&mut g, interior, Occ::Free),
+        GeneratedWorld::Empty => fill(g, interior, Occ::Free),
         GeneratedWorld::Random => {
-            fill(&mut g, interior, Occ::Free);
-            scatter(&mut g, &mut rng, &p, interior, None, RANDOM_COVER);
+            fill(g, interior, Occ::Free);
+            scatter(g, rng, p, interior, None, RANDOM_COVER);
         }
-        GeneratedWorld::Library => library::library(&mut g, &mut rng, &p, interior),
+        GeneratedWorld::Library => library::library(g, rng, p, interior),
         GeneratedWorld::Mixed => {
-            fill(&mut g, interior, Occ::Free);
-            let house = building(&mut g, &mut rng, &p, interior);
+            fill(g, interior, Occ::Free);
+            let house = building(g, rng, p, interior);
             let cover = rng.gen_range(0.06..0.12);
-            scatter(&mut g, &mut rng, &p, interior, house, cover);
+            scatter(g, rng, p, interior, house, cover);
         }
     }
-    open_free(&mut g, p.passage);
-    let mask = crate::reachable::largest_free_mask(&g);
+}
+
+/// Occupies the free cells outside the largest free component: the free cells are one region.
+fn close_off_unreachable(g: &mut Grid) {
+    let mask = crate::reachable::largest_free_mask(g);
     for (c, keep) in g.cells_mut().iter_mut().zip(mask) {
         if *c == Occ::Free && !keep {
             *c = Occ::Occupied;
         }
     }
-    let info = MapInfo::at_origin(g.width(), g.height(), resolution_m);
-    Ok(TruthMap { info, grid: g })
 }
 
 /// The share of the floor the `random` kind covers with obstacles (Simmons et al. 2000, "15 %
@@ -331,6 +347,46 @@ fn office(
     area: Rect,
     corridors: Option<i32>,
 ) -> Vec<Rect> {
+    let Some(plan) = floor_plan(rng, p, area, corridors) else {
+        // Too low for rooms beside a corridor: the whole area is one hall.
+        fill(g, area, Occ::Free);
+        return vec![area];
+    };
+    for &c in &plan.corridors {
+        fill(g, c, Occ::Free);
+    }
+    let spines = spines(g, rng, p, area, &plan);
+    for band in &plan.bands {
+        let mut x = area.x0;
+        let crossed: Vec<&Rect> = spines
+            .iter()
+            .filter(|s| s.y0 <= band.y0 && band.y1 <= s.y1)
+            .collect();
+        let mut cuts: Vec<(i32, i32)> = crossed.iter().map(|s| (s.x0, s.x1)).collect();
+        cuts.push((area.x1, area.x1));
+        for (cut0, cut1) in cuts {
+            rooms(g, rng, p, band, x, cut0);
+            x = x.max(cut1);
+        }
+    }
+    plan.corridors
+}
+
+/// Where an office's corridors and room bands lie, from the bottom of its area up.
+struct FloorPlan {
+    bands: Vec<Band>,
+    corridors: Vec<Rect>,
+    /// The corridors' width (across them), also the spines'.
+    corridor_w: i32,
+}
+
+/// Draws and stacks the bands and corridors of [`office`]; `None`: `area` is too low for rooms.
+fn floor_plan(
+    rng: &mut ChaCha8Rng,
+    p: &Params,
+    area: Rect,
+    corridors: Option<i32>,
+) -> Option<FloorPlan> {
     let t = p.wall;
     let cw = p.cells(rng.gen_range(1.4..2.2)).max(p.door);
     let mut rd = between(rng, p.cells(3.0), p.cells(5.0));
@@ -374,14 +430,24 @@ fn office(
             corridor_above: false,
         });
     } else {
-        // Too low for rooms beside a corridor: the whole area is one hall.
-        fill(g, area, Occ::Free);
-        return vec![area];
+        return None;
     }
-    for &c in &corridors {
-        fill(g, c, Occ::Free);
-    }
-    // Vertical spines join the corridors; the rooms leave a wall beside them.
+    Some(FloorPlan {
+        bands,
+        corridors,
+        corridor_w: cw,
+    })
+}
+
+/// Opens the spines joining the corridors (two over 40 m wide), returned grown by a wall.
+fn spines(
+    g: &mut Grid,
+    rng: &mut ChaCha8Rng,
+    p: &Params,
+    area: Rect,
+    plan: &FloorPlan,
+) -> Vec<Rect> {
+    let (t, cw, corridors) = (p.wall, plan.corridor_w, &plan.corridors);
     let mut spines = Vec::new();
     if let (Some(first), Some(last)) = (corridors.first(), corridors.last()) {
         if corridors.len() > 1 {
@@ -399,20 +465,7 @@ fn office(
             }
         }
     }
-    for band in &bands {
-        let mut x = area.x0;
-        let crossed: Vec<&Rect> = spines
-            .iter()
-            .filter(|s| s.y0 <= band.y0 && band.y1 <= s.y1)
-            .collect();
-        let mut cuts: Vec<(i32, i32)> = crossed.iter().map(|s| (s.x0, s.x1)).collect();
-        cuts.push((area.x1, area.x1));
-        for (cut0, cut1) in cuts {
-            rooms(g, rng, p, band, x, cut0);
-            x = x.max(cut1);
-        }
-    }
-    corridors
+    spines
 }
 
 /// Splits `[x0, x1)` of a band into rooms 3–6 m wide separated by walls.

@@ -252,58 +252,35 @@ fn parse_flat_yaml<'a>(
 /// a relative `image`).
 pub fn parse_map_yaml(text: &str, yaml_path: &Path) -> Result<MapYaml, MapError> {
     let path = || yaml_path.to_path_buf();
-    let entries = parse_flat_yaml(text, yaml_path)?;
-    let get = |key: &'static str| {
-        entries
-            .iter()
-            .find(|(_, k, _)| *k == key)
-            .map(|(_, _, v)| v)
+    let keys = Keys {
+        entries: parse_flat_yaml(text, yaml_path)?,
+        path: yaml_path,
     };
-    let require = |key| get(key).ok_or(MapError::MissingKey { path: path(), key });
-    let bad = |key, text: String, expected| MapError::BadValue {
-        path: path(),
-        key,
-        text,
-        expected,
-    };
-    let number = |key, text: &str| match text.parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
-        _ => Err(MapError::BadNumber {
-            path: path(),
-            key,
-            text: text.into(),
-        }),
-    };
-    let scalar = |key| match require(key)? {
-        Value::Scalar(s) => Ok(*s),
-        list @ Value::List(_) => Err(bad(key, list.to_string(), "a single value")),
-    };
-
-    let image = scalar("image")?;
+    let image = keys.scalar("image")?;
     if image.is_empty() {
-        return Err(bad("image", String::new(), "a file name"));
+        return Err(keys.bad("image", String::new(), "a file name"));
     }
-    let resolution_m = number("resolution", scalar("resolution")?)?;
+    let resolution_m = keys.number("resolution", keys.scalar("resolution")?)?;
     if resolution_m <= 0.0 {
         return Err(MapError::BadResolution {
             path: path(),
             resolution_m,
         });
     }
-    let origin = match require("origin")? {
+    let origin = match keys.require("origin")? {
         Value::List(items) if (2..=3).contains(&items.len()) => items
             .iter()
-            .map(|s| number("origin", s))
+            .map(|s| keys.number("origin", s))
             .collect::<Result<Vec<_>, _>>()?,
-        other => return Err(bad("origin", other.to_string(), "a list [x, y, yaw]")),
+        other => return Err(keys.bad("origin", other.to_string(), "a list [x, y, yaw]")),
     };
-    let negate = match scalar("negate")? {
+    let negate = match keys.scalar("negate")? {
         "0" | "false" => false,
         "1" | "true" => true,
-        other => return Err(bad("negate", other.into(), "0 or 1")),
+        other => return Err(keys.bad("negate", other.into(), "0 or 1")),
     };
-    let occupied = number("occupied_thresh", scalar("occupied_thresh")?)?;
-    let free = number("free_thresh", scalar("free_thresh")?)?;
+    let occupied = keys.number("occupied_thresh", keys.scalar("occupied_thresh")?)?;
+    let free = keys.number("free_thresh", keys.scalar("free_thresh")?)?;
     if !(0.0 <= free && free < occupied && occupied <= 1.0) {
         return Err(MapError::BadThresholds {
             path: path(),
@@ -311,12 +288,12 @@ pub fn parse_map_yaml(text: &str, yaml_path: &Path) -> Result<MapYaml, MapError>
             occupied,
         });
     }
-    let mode = match get("mode") {
+    let mode = match keys.get("mode") {
         None => Mode::Trinary,
         Some(Value::Scalar("trinary")) => Mode::Trinary,
         Some(Value::Scalar("scale")) => Mode::Scale,
         Some(Value::Scalar("raw")) => Mode::Raw,
-        Some(other) => return Err(bad("mode", other.to_string(), "trinary, scale or raw")),
+        Some(other) => return Err(keys.bad("mode", other.to_string(), "trinary, scale or raw")),
     };
     let dir = yaml_path.parent().unwrap_or(Path::new("."));
     Ok(MapYaml {
@@ -332,6 +309,60 @@ pub fn parse_map_yaml(text: &str, yaml_path: &Path) -> Result<MapYaml, MapError>
             mode,
         },
     })
+}
+
+/// The entries of a map YAML at `path`, read by key with errors that name the file.
+struct Keys<'a> {
+    entries: Vec<(usize, &'a str, Value<'a>)>,
+    path: &'a Path,
+}
+
+impl<'a> Keys<'a> {
+    /// The value of `key`, if the file gives one.
+    fn get(&self, key: &str) -> Option<&Value<'a>> {
+        self.entries
+            .iter()
+            .find(|(_, k, _)| *k == key)
+            .map(|(_, _, v)| v)
+    }
+
+    /// The value of `key`, which the file must give.
+    fn require(&self, key: &'static str) -> Result<&Value<'a>, MapError> {
+        self.get(key).ok_or(MapError::MissingKey {
+            path: self.path.to_path_buf(),
+            key,
+        })
+    }
+
+    /// The single value (not a list) of `key`, which the file must give.
+    fn scalar(&self, key: &'static str) -> Result<&'a str, MapError> {
+        match self.require(key)? {
+            Value::Scalar(s) => Ok(*s),
+            list @ Value::List(_) => Err(self.bad(key, list.to_string(), "a single value")),
+        }
+    }
+
+    /// `text`, given for `key`, as a finite number.
+    fn number(&self, key: &'static str, text: &str) -> Result<f64, MapError> {
+        match text.parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            _ => Err(MapError::BadNumber {
+                path: self.path.to_path_buf(),
+                key,
+                text: text.into(),
+            }),
+        }
+    }
+
+    /// The error for `text`, given for `key`, not being what was `expected`.
+    fn bad(&self, key: &'static str, text: String, expected: &'static str) -> MapError {
+        MapError::BadValue {
+            path: self.path.to_path_buf(),
+            key,
+            text,
+            expected,
+        }
+    }
 }
 
 /// Relative tolerance for cell boundaries that fall on a fine-cell boundary up to rounding.

@@ -185,24 +185,7 @@ pub fn spawn_cluster(
     clearance_m: f64,
     seed: u64,
 ) -> Result<Vec<Cell>, SpawnError> {
-    if (info.width, info.height) != (grid.width(), grid.height()) {
-        return Err(SpawnError::MapMismatch {
-            info_width: info.width,
-            info_height: info.height,
-            grid_width: grid.width(),
-            grid_height: grid.height(),
-        });
-    }
-    for (name, value) in [
-        ("spacing_m", spacing_m),
-        ("clearance_m", clearance_m),
-        ("resolution_m", info.resolution_m),
-    ] {
-        let positive = value > 0.0 || (value == 0.0 && name != "resolution_m");
-        if !(value.is_finite() && positive) {
-            return Err(SpawnError::BadParameter { name, value });
-        }
-    }
+    check_spawn_inputs(grid, info, spacing_m, clearance_m)?;
     let mask = largest_free_mask(grid);
     let component: Vec<usize> = (0..grid.len()).filter(|&i| mask[i]).collect();
     if component.is_empty() {
@@ -213,23 +196,7 @@ pub fn spawn_cluster(
         .iter()
         .map(|d2| (d2.sqrt() - 0.5) * info.resolution_m)
         .collect();
-    let open: Vec<usize> = component
-        .iter()
-        .copied()
-        .filter(|&i| clearance[i] >= clearance_m)
-        .collect();
-    let anchor = if open.is_empty() {
-        // The first most open cell: `max_by` would return the last of equals.
-        component.iter().copied().fold(component[0], |b, i| {
-            if clearance[i] > clearance[b] {
-                i
-            } else {
-                b
-            }
-        })
-    } else {
-        open[ChaCha8Rng::seed_from_u64(seed).gen_range(0..open.len())]
-    };
+    let anchor = spawn_anchor(&component, &clearance, clearance_m, seed);
     let order = bfs_order(grid, &mask, anchor);
     let threshold = clearance_m.min(clearance[anchor]);
     let mut chosen: Vec<Cell> = Vec::with_capacity(count);
@@ -257,6 +224,55 @@ pub fn spawn_cluster(
         spacing_m,
         cells: component.len(),
     })
+}
+
+/// Checks that `info` describes `grid` and the spacing, clearance and resolution are in range.
+fn check_spawn_inputs(
+    grid: &Grid,
+    info: &MapInfo,
+    spacing_m: f64,
+    clearance_m: f64,
+) -> Result<(), SpawnError> {
+    if (info.width, info.height) != (grid.width(), grid.height()) {
+        return Err(SpawnError::MapMismatch {
+            info_width: info.width,
+            info_height: info.height,
+            grid_width: grid.width(),
+            grid_height: grid.height(),
+        });
+    }
+    for (name, value) in [
+        ("spacing_m", spacing_m),
+        ("clearance_m", clearance_m),
+        ("resolution_m", info.resolution_m),
+    ] {
+        let positive = value > 0.0 || (value == 0.0 && name != "resolution_m");
+        if !(value.is_finite() && positive) {
+            return Err(SpawnError::BadParameter { name, value });
+        }
+    }
+    Ok(())
+}
+
+/// The cluster's anchor: a seeded random cell with `clearance_m`, else the first most open one.
+fn spawn_anchor(component: &[usize], clearance: &[f64], clearance_m: f64, seed: u64) -> usize {
+    let open: Vec<usize> = component
+        .iter()
+        .copied()
+        .filter(|&i| clearance[i] >= clearance_m)
+        .collect();
+    if open.is_empty() {
+        // The first most open cell: `max_by` would return the last of equals.
+        component.iter().copied().fold(component[0], |b, i| {
+            if clearance[i] > clearance[b] {
+                i
+            } else {
+                b
+            }
+        })
+    } else {
+        open[ChaCha8Rng::seed_from_u64(seed).gen_range(0..open.len())]
+    }
 }
 
 /// Indices of the masked cells in breadth-first (4-neighbour) order from `start`.

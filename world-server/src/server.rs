@@ -18,6 +18,8 @@ use proto::msg::{decode, encode, Cmd, Control, RobotId, Step};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::{ClockMode, Scenario};
 use tokio::time::{sleep_until, Instant};
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
 use zenoh::qos::CongestionControl;
 use zenoh::sample::{Sample, SampleKind};
 use zenoh::Session;
@@ -137,7 +139,7 @@ impl BadInput {
 /// Runs the world until stopped, `max_steps`, or every robot is dead.
 pub async fn serve(
     session: Session,
-    mut world: World,
+    world: World,
     s: &Scenario,
     opts: ServeOpts,
 ) -> Result<End, ZenohError> {
@@ -165,147 +167,26 @@ pub async fn serve(
         .declare_token(keys::WORLD_ALIVE)
         .await
         .map_err(zerr)?;
-    // Robots, then the base station: every node's token is awaited, and its command each step.
-    let n = world.nodes();
-    let mut bad = BadInput::default();
-
-    let mut clock = StepGate::default();
-    // Wait for every node's sim-plane token: a node declares it once its subscribers are up.
-    let mut present = HashSet::new();
-    let deadline = Instant::now() + opts.startup_timeout;
-    while present.len() < n {
-        tokio::select! {
-            sample = live.recv_async() => {
-                let Ok(sample) = sample else { return Ok(End::Stopped { step: 0 }) };
-                match keys::robot_of(sample.key_expr().as_str()) {
-                    Some(id) if usize::from(id) < n && sample.kind() == SampleKind::Put => { present.insert(id); }
-                    Some(id) if usize::from(id) < n => { present.remove(&id); }
-                    _ => bad.record(sample.key_expr().as_str(), "unknown robot id"),
-                }
-            }
-            c = ctl.recv_async() => if clock.control(c.ok(), &mut bad) {
-                return Ok(End::Stopped { step: 0 });
-            },
-            _ = sleep_until(deadline) => {
-                let missing: Vec<usize> = (0..n).filter(|i| !present.contains(&(*i as RobotId))).collect();
-                return Err(ZenohError(format!("nodes {missing:?} did not join within {:?} (robots 0..robots.count, then the base station)", opts.startup_timeout)));
-            }
-        }
+    let mut plane = SimPlane {
+        session: &session,
+        cmds: &cmds,
+        ctl: &ctl,
+        live: &live,
+        n: world.nodes(),
+        world,
+        s,
+        gate: StepGate::default(),
+        bad: BadInput::default(),
+    };
+    if let Some(end) = plane.join(opts.startup_timeout).await? {
+        return Ok(end);
     }
-    tracing::info!("all {n} nodes joined");
-
-    let timeout = match s.clock.mode {
-        ClockMode::Lockstep => Duration::from_millis(s.clock.step_timeout_ms),
-        ClockMode::Realtime => Duration::from_secs_f64(s.clock.step_seconds / s.clock.speedup),
-    };
-    let max_steps = s.step_limit();
-    let mut step: Step = 0;
-    put(&session, keys::STATUS, encode(&world.status(step))).await?;
-    let end = loop {
-        if step >= max_steps {
-            break End::Ended {
-                step,
-                reason: ExitReason::MaxSteps,
-            };
-        }
-        let alive: Vec<RobotId> = world.alive().collect();
-        if alive.is_empty() {
-            break End::Ended {
-                step,
-                reason: ExitReason::AllRobotsDead,
-            };
-        }
-        if !clock.may_step() {
-            tracing::info!("the clock is paused before step {step}");
-            let mut stop = false;
-            while !stop && !clock.may_step() {
-                stop = clock.control(ctl.recv_async().await.ok(), &mut bad);
-            }
-            if stop {
-                break End::Stopped { step };
-            }
-        }
-        let started = Instant::now();
-        for &id in &alive {
-            if let Some(scan) = world.scan(id, step) {
-                put(&session, &keys::scan(id), encode(&scan)).await?;
-            }
-        }
-        if let Some((id, tick)) = world.base_tick(step) {
-            put(&session, &keys::scan(id), encode(&tick)).await?;
-        }
-        let mut got: HashMap<RobotId, Cmd> = HashMap::new();
-        let mut stop = false;
-        loop {
-            let waiting = world.awaited().any(|id| !got.contains_key(&id));
-            if s.clock.mode == ClockMode::Lockstep && !waiting {
-                break;
-            }
-            tokio::select! {
-                sample = cmds.recv_async() => {
-                    let Ok(sample) = sample else { stop = true; break };
-                    let key = sample.key_expr().as_str().to_string();
-                    match decode::<Cmd>(&sample.payload().to_bytes()) {
-                        Ok(cmd) if keys::robot_of(&key) != Some(cmd.robot) => bad.record(&key, "robot id does not match the key"),
-                        Ok(cmd) if usize::from(cmd.robot) >= n => bad.record(&key, "unknown robot id"),
-                        Ok(cmd) if cmd.step == step => { got.insert(cmd.robot, cmd); }
-                        Ok(cmd) if cmd.step < step => {
-                            // A robot declared dead that still commands (it was frozen, or
-                            // too slow) is back: alive from the next step.
-                            if world.rejoin(cmd.robot) {
-                                tracing::warn!("robot {} commanded step {} while dead: it rejoins at step {}", cmd.robot, cmd.step, step + 1);
-                            } else {
-                                // Late, so not applied; but the robot lives (it waited for a
-                                // neighbour that did not answer): no miss towards dead_after.
-                                world.heard_late(cmd.robot);
-                                tracing::debug!("late command of robot {} for step {}", cmd.robot, cmd.step);
-                            }
-                        }
-                        Ok(cmd) => bad.record(&key, format!("command for future step {}", cmd.step)),
-                        Err(e) => bad.record(&key, e),
-                    }
-                }
-                sample = live.recv_async() => {
-                    let Ok(sample) = sample else { stop = true; break };
-                    match (keys::robot_of(sample.key_expr().as_str()), sample.kind()) {
-                        (Some(id), SampleKind::Delete) => {
-                            tracing::warn!("robot {id} left the sim plane at step {step}: declared dead");
-                            world.kill(id);
-                        }
-                        // A restarted process: alive again from the next step.
-                        (Some(id), SampleKind::Put) if world.rejoin(id) => {
-                            tracing::warn!("robot {id} joined the sim plane again at step {step}: it rejoins at step {}", step + 1);
-                        }
-                        _ => {}
-                    }
-                }
-                // Pausing takes effect once this step is done.
-                c = ctl.recv_async() => if clock.control(c.ok(), &mut bad) {
-                    stop = true;
-                    break;
-                },
-                _ = sleep_until(started + timeout) => break,
-            }
-        }
-        if stop {
-            break End::Stopped { step };
-        }
-        // Lockstep: whom the world went on without (the step timed out).
-        let missed: Vec<RobotId> = match s.clock.mode {
-            ClockMode::Lockstep => world.awaited().filter(|id| !got.contains_key(id)).collect(),
-            ClockMode::Realtime => Vec::new(),
-        };
-        if !missed.is_empty() {
-            tracing::warn!("step {step} timed out without the commands of robots {missed:?}");
-        }
-        world.apply(step, &got);
-        step += 1;
-        let mut status = world.status(step);
-        status.missed = missed;
-        put(&session, keys::STATUS, encode(&status)).await?;
-    };
-    if bad.count > 0 {
-        tracing::warn!("{} bad inputs were rejected during the run", bad.count);
+    let end = plane.run().await?;
+    if plane.bad.count > 0 {
+        tracing::warn!(
+            "{} bad inputs were rejected during the run",
+            plane.bad.count
+        );
     }
     // This process is the sim plane's router: tell everyone the run is over (also when the stop
     // came from the launcher, so no robot depends on the order of forwarding), then give the
@@ -314,6 +195,208 @@ pub async fn serve(
     tokio::time::sleep(Duration::from_millis(200)).await;
     queries.abort();
     Ok(end)
+}
+
+/// A subscription of the sim plane, its samples queued.
+type Sub = Subscriber<FifoChannelHandler<Sample>>;
+
+/// The world-server's end of the sim plane during a run: the world and what drives it.
+struct SimPlane<'a> {
+    session: &'a Session,
+    cmds: &'a Sub,
+    ctl: &'a Sub,
+    live: &'a Sub,
+    /// Robots, then the base station: every node's token is awaited, and its command each step.
+    n: usize,
+    world: World,
+    s: &'a Scenario,
+    gate: StepGate,
+    bad: BadInput,
+}
+
+impl SimPlane<'_> {
+    /// Waits for every node's sim-plane token (declared once its subscribers are up); `Some`: stop.
+    async fn join(&mut self, timeout: Duration) -> Result<Option<End>, ZenohError> {
+        let n = self.n;
+        let mut present = HashSet::new();
+        let deadline = Instant::now() + timeout;
+        while present.len() < n {
+            tokio::select! {
+                sample = self.live.recv_async() => {
+                    let Ok(sample) = sample else { return Ok(Some(End::Stopped { step: 0 })) };
+                    match keys::robot_of(sample.key_expr().as_str()) {
+                        Some(id) if usize::from(id) < n && sample.kind() == SampleKind::Put => { present.insert(id); }
+                        Some(id) if usize::from(id) < n => { present.remove(&id); }
+                        _ => self.bad.record(sample.key_expr().as_str(), "unknown robot id"),
+                    }
+                }
+                c = self.ctl.recv_async() => if self.gate.control(c.ok(), &mut self.bad) {
+                    return Ok(Some(End::Stopped { step: 0 }));
+                },
+                _ = sleep_until(deadline) => {
+                    let missing: Vec<usize> = (0..n).filter(|i| !present.contains(&(*i as RobotId))).collect();
+                    return Err(ZenohError(format!("nodes {missing:?} did not join within {timeout:?} (robots 0..robots.count, then the base station)")));
+                }
+            }
+        }
+        tracing::info!("all {n} nodes joined");
+        Ok(None)
+    }
+
+    /// Steps the world until the run ends: scans out, commands in, the world moved, status out.
+    async fn run(&mut self) -> Result<End, ZenohError> {
+        let clock = &self.s.clock;
+        let timeout = match clock.mode {
+            ClockMode::Lockstep => Duration::from_millis(clock.step_timeout_ms),
+            ClockMode::Realtime => Duration::from_secs_f64(clock.step_seconds / clock.speedup),
+        };
+        let max_steps = self.s.step_limit();
+        let mut step: Step = 0;
+        put(self.session, keys::STATUS, encode(&self.world.status(step))).await?;
+        loop {
+            if step >= max_steps {
+                return Ok(End::Ended {
+                    step,
+                    reason: ExitReason::MaxSteps,
+                });
+            }
+            let alive: Vec<RobotId> = self.world.alive().collect();
+            if alive.is_empty() {
+                return Ok(End::Ended {
+                    step,
+                    reason: ExitReason::AllRobotsDead,
+                });
+            }
+            if !self.gate.may_step() && self.paused(step).await {
+                return Ok(End::Stopped { step });
+            }
+            let started = Instant::now();
+            self.publish_scans(&alive, step).await?;
+            let Some(got) = self.commands(step, started + timeout).await else {
+                return Ok(End::Stopped { step });
+            };
+            // Lockstep: whom the world went on without (the step timed out).
+            let missed: Vec<RobotId> = match self.s.clock.mode {
+                ClockMode::Lockstep => (self.world.awaited())
+                    .filter(|id| !got.contains_key(id))
+                    .collect(),
+                ClockMode::Realtime => Vec::new(),
+            };
+            if !missed.is_empty() {
+                tracing::warn!("step {step} timed out without the commands of robots {missed:?}");
+            }
+            self.world.apply(step, &got);
+            step += 1;
+            let mut status = self.world.status(step);
+            status.missed = missed;
+            put(self.session, keys::STATUS, encode(&status)).await?;
+        }
+    }
+
+    /// Holds `step` while the gate is paused, taking orders; true when one of them ends the run.
+    async fn paused(&mut self, step: Step) -> bool {
+        tracing::info!("the clock is paused before step {step}");
+        let mut stop = false;
+        while !stop && !self.gate.may_step() {
+            stop = (self.gate).control(self.ctl.recv_async().await.ok(), &mut self.bad);
+        }
+        stop
+    }
+
+    /// Publishes step `step`'s scan of every robot in `alive`, then the base station's tick.
+    async fn publish_scans(&mut self, alive: &[RobotId], step: Step) -> Result<(), ZenohError> {
+        for &id in alive {
+            if let Some(scan) = self.world.scan(id, step) {
+                put(self.session, &keys::scan(id), encode(&scan)).await?;
+            }
+        }
+        if let Some((id, tick)) = self.world.base_tick(step) {
+            put(self.session, &keys::scan(id), encode(&tick)).await?;
+        }
+        Ok(())
+    }
+
+    /// Collects `step`'s commands until all came (lockstep) or `deadline`; `None`: the run ends.
+    async fn commands(&mut self, step: Step, deadline: Instant) -> Option<HashMap<RobotId, Cmd>> {
+        let mut got: HashMap<RobotId, Cmd> = HashMap::new();
+        loop {
+            let waiting = self.world.awaited().any(|id| !got.contains_key(&id));
+            if self.s.clock.mode == ClockMode::Lockstep && !waiting {
+                break;
+            }
+            tokio::select! {
+                sample = self.cmds.recv_async() => {
+                    let Ok(sample) = sample else { return None };
+                    self.command(&sample, step, &mut got);
+                }
+                sample = self.live.recv_async() => {
+                    let Ok(sample) = sample else { return None };
+                    self.liveliness(&sample, step);
+                }
+                // Pausing takes effect once this step is done.
+                c = self.ctl.recv_async() => if self.gate.control(c.ok(), &mut self.bad) {
+                    return None;
+                },
+                _ = sleep_until(deadline) => break,
+            }
+        }
+        Some(got)
+    }
+
+    /// Takes one command sample during `step`: into `got`, a late sign of life, or bad input.
+    fn command(&mut self, sample: &Sample, step: Step, got: &mut HashMap<RobotId, Cmd>) {
+        let key = sample.key_expr().as_str().to_string();
+        match decode::<Cmd>(&sample.payload().to_bytes()) {
+            Ok(cmd) if keys::robot_of(&key) != Some(cmd.robot) => {
+                self.bad.record(&key, "robot id does not match the key")
+            }
+            Ok(cmd) if usize::from(cmd.robot) >= self.n => {
+                self.bad.record(&key, "unknown robot id")
+            }
+            Ok(cmd) if cmd.step == step => {
+                got.insert(cmd.robot, cmd);
+            }
+            Ok(cmd) if cmd.step < step => {
+                // A robot declared dead that still commands (it was frozen, or too slow) is
+                // back: alive from the next step.
+                if self.world.rejoin(cmd.robot) {
+                    tracing::warn!(
+                        "robot {} commanded step {} while dead: it rejoins at step {}",
+                        cmd.robot,
+                        cmd.step,
+                        step + 1
+                    );
+                } else {
+                    // Late, so not applied; but the robot lives (it waited for a neighbour that
+                    // did not answer): no miss towards dead_after.
+                    self.world.heard_late(cmd.robot);
+                    tracing::debug!("late command of robot {} for step {}", cmd.robot, cmd.step);
+                }
+            }
+            Ok(cmd) => self
+                .bad
+                .record(&key, format!("command for future step {}", cmd.step)),
+            Err(e) => self.bad.record(&key, e),
+        }
+    }
+
+    /// Takes one liveliness sample during `step`: a token gone is death, one back is a rejoin.
+    fn liveliness(&mut self, sample: &Sample, step: Step) {
+        match (keys::robot_of(sample.key_expr().as_str()), sample.kind()) {
+            (Some(id), SampleKind::Delete) => {
+                tracing::warn!("robot {id} left the sim plane at step {step}: declared dead");
+                self.world.kill(id);
+            }
+            // A restarted process: alive again from the next step.
+            (Some(id), SampleKind::Put) if self.world.rejoin(id) => {
+                tracing::warn!(
+                    "robot {id} joined the sim plane again at step {step}: it rejoins at step {}",
+                    step + 1
+                );
+            }
+            _ => {}
+        }
+    }
 }
 
 #[cfg(test)]
