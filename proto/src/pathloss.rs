@@ -208,5 +208,34 @@ mod tests {
             // Corner-grazing segments may pick the other side cell when reversed.
             prop_assert!(n.abs_diff(back) <= 2, "{} vs {}", n, back);
         }
+
+        /// The running count a robot's reach estimate reads along a ray is the count of the
+        /// segment cut short inside each cell — the one wall rule, whether a caller counts a
+        /// whole link (netem, `Reach::linked`) or walks a ray (`Reach::estimate`); the estimate
+        /// once counted with a corner rule of its own.
+        #[test]
+        fn the_running_count_along_a_segment_is_the_count_of_the_segment_cut_there(
+            cells in proptest::collection::vec(0u8..3, 64),
+            ax in 0.01f64..7.99, ay in 0.01f64..7.99, bx in 0.01f64..7.99, by in 0.01f64..7.99,
+        ) {
+            let mut g = Grid::new(8, 8, Occ::Free);
+            for (i, v) in cells.iter().enumerate() {
+                let occ = [Occ::Free, Occ::Occupied, Occ::Unknown][*v as usize];
+                g.set(g.cell_of(i), occ);
+            }
+            let (m, wall) = (map(&g), |o: Occ| o == Occ::Occupied);
+            let along: Vec<(Cell, u32)> = walls_along(&m, &g, (ax, ay), (bx, by), wall).collect();
+            for k in 1..=50 {
+                let t = f64::from(k) / 50.0;
+                let x = (ax + t * (bx - ax), ay + t * (by - ay));
+                let here = Cell::new(x.0.floor() as i32, x.1.floor() as i32);
+                // The count where the walk is in the cell of x (the last visit if two).
+                let Some(&(_, running)) = along.iter().rev().find(|(c, _)| *c == here) else {
+                    continue; // x on a corner the walk passed by the other side cell
+                };
+                let cut = count_walls(&m, &g, (ax, ay), x, wall);
+                prop_assert_eq!(cut, running, "at t = {}, cell {:?}", t, here);
+            }
+        }
     }
 }
