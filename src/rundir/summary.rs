@@ -11,8 +11,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::score::evaluate::THRESHOLDS;
 
-/// Version of the run-directory schema, written into `summary.json`.
-pub const SCHEMA_VERSION: u32 = 6;
+/// Version of the run-directory schema, written into `summary.json` (7: `exit_reason` may be
+/// `stalled`).
+pub const SCHEMA_VERSION: u32 = 7;
 
 /// `summary.json`. Read back with [`read_summary`]: a field missing or renamed (an `Option` one
 /// too: it is written as `null`, never left out) or one the type does not know is an error.
