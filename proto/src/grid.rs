@@ -282,8 +282,20 @@ impl Grid {
     /// exactly this set on its planning grid, which its property tests check.
     pub fn reachable(&self, seeds: &[Cell]) -> Vec<bool> {
         let mut seen = vec![false; self.len()];
+        self.reach_into(seeds, &mut seen);
+        seen
+    }
+
+    /// [`Grid::reachable`] into `seen` (one flag per cell), flooding only from cells not yet
+    /// marked: marks what the seeds reach and returns how many cells it newly marked. Floods
+    /// from unmarked cells one after another label the free regions of a grid.
+    ///
+    /// # Panics
+    /// If `seen` has not [`Grid::len`] flags.
+    pub fn reach_into(&self, seeds: &[Cell], seen: &mut [bool]) -> usize {
+        assert_eq!(seen.len(), self.len(), "one flag per cell");
         let mut stack = Vec::new();
-        let visit = |c: Cell, seen: &mut Vec<bool>, stack: &mut Vec<Cell>| {
+        let mut visit = |c: Cell, stack: &mut Vec<Cell>| {
             if let Some(i) = self
                 .index(c)
                 .filter(|&i| self.cells[i] == Occ::Free && !seen[i])
@@ -293,14 +305,16 @@ impl Grid {
             }
         };
         for &s in seeds {
-            visit(s, &mut seen, &mut stack);
+            visit(s, &mut stack);
         }
+        let mut marked = 0;
         while let Some(c) = stack.pop() {
+            marked += 1;
             for n in c.neighbours4() {
-                visit(n, &mut seen, &mut stack);
+                visit(n, &mut stack);
             }
         }
-        seen
+        marked
     }
 
     /// Sets `c` (ignored outside the grid).
@@ -685,6 +699,28 @@ fn get_varint(bytes: &[u8], pos: &mut usize) -> Result<u64, RleError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floods_from_unmarked_cells_label_the_free_regions() {
+        let g = Grid::from_ascii("..#.\n#.#.\n");
+        let mut seen = vec![false; g.len()];
+        assert_eq!(g.reach_into(&[Cell::new(0, 1)], &mut seen), 3);
+        assert_eq!(
+            g.reach_into(&[Cell::new(1, 0)], &mut seen),
+            0,
+            "already marked"
+        );
+        assert_eq!(
+            g.reach_into(&[Cell::new(3, 0), Cell::new(2, 0)], &mut seen),
+            2
+        );
+        assert_eq!(seen.iter().filter(|&&s| s).count(), 5);
+        assert_eq!(
+            g.reachable(&[Cell::new(2, 1)]),
+            vec![false; 8],
+            "a wall reaches nothing"
+        );
+    }
     use proptest::prelude::*;
 
     #[test]

@@ -834,8 +834,7 @@ impl Scenario {
 
     /// `[world]`: a map named, a resolution and an extent in range.
     fn validate_world(&self) -> Result<(), ScenarioError> {
-        let s = self;
-        if s.world.map.trim().is_empty() {
+        if self.world.map.trim().is_empty() {
             return Err(invalid(
                 "world.map",
                 "\"\"",
@@ -845,16 +844,16 @@ impl Scenario {
                 ),
             ));
         }
-        if !(0.01..=2.0).contains(&s.world.resolution_m) {
+        if !(0.01..=2.0).contains(&self.world.resolution_m) {
             return Err(invalid(
                 "world.resolution_m",
-                s.world.resolution_m,
+                self.world.resolution_m,
                 "must be in [0.01, 2]",
             ));
         }
         for (key, v) in [
-            ("world.width_m", s.world.width_m),
-            ("world.height_m", s.world.height_m),
+            ("world.width_m", self.world.width_m),
+            ("world.height_m", self.world.height_m),
         ] {
             if !(5.0..=500.0).contains(&v) {
                 return Err(invalid(key, v, "must be in [5, 500] metres"));
@@ -865,22 +864,25 @@ impl Scenario {
 
     /// `[robots]`: a team size in range, robots that fit and start apart.
     fn validate_robots(&self) -> Result<(), ScenarioError> {
-        let s = self;
-        if !(1..=MAX_ROBOTS).contains(&s.robots.count) {
+        if !(1..=MAX_ROBOTS).contains(&self.robots.count) {
             return Err(invalid(
                 "robots.count",
-                s.robots.count,
+                self.robots.count,
                 &format!("must be in 1..={MAX_ROBOTS}"),
             ));
         }
-        positive("robots.speed_m_per_s", s.robots.speed_m_per_s)?;
-        positive("robots.radius_m", s.robots.radius_m)?;
-        positive("robots.spawn_spacing_m", s.robots.spawn_spacing_m)?;
-        at_least("robots.spawn_clearance_m", s.robots.spawn_clearance_m, 0.0)?;
-        if s.robots.spawn_spacing_m < 2.0 * s.robots.radius_m {
+        positive("robots.speed_m_per_s", self.robots.speed_m_per_s)?;
+        positive("robots.radius_m", self.robots.radius_m)?;
+        positive("robots.spawn_spacing_m", self.robots.spawn_spacing_m)?;
+        at_least(
+            "robots.spawn_clearance_m",
+            self.robots.spawn_clearance_m,
+            0.0,
+        )?;
+        if self.robots.spawn_spacing_m < 2.0 * self.robots.radius_m {
             return Err(invalid(
                 "robots.spawn_spacing_m",
-                s.robots.spawn_spacing_m,
+                self.robots.spawn_spacing_m,
                 "must be at least 2 × robots.radius_m, or robots would start in collision",
             ));
         }
@@ -889,30 +891,28 @@ impl Scenario {
 
     /// `[sensor]`: beams, field of view, range and noise in range.
     fn validate_sensor(&self) -> Result<(), ScenarioError> {
-        let s = self;
-        if !(1..=4096).contains(&s.sensor.beams) {
+        if !(1..=4096).contains(&self.sensor.beams) {
             return Err(invalid(
                 "sensor.beams",
-                s.sensor.beams,
+                self.sensor.beams,
                 "must be in 1..=4096",
             ));
         }
-        if !(s.sensor.fov_deg > 0.0 && s.sensor.fov_deg <= 360.0) {
+        if !(self.sensor.fov_deg > 0.0 && self.sensor.fov_deg <= 360.0) {
             return Err(invalid(
                 "sensor.fov_deg",
-                s.sensor.fov_deg,
+                self.sensor.fov_deg,
                 "must be in (0, 360]",
             ));
         }
-        positive("sensor.max_range_m", s.sensor.max_range_m)?;
-        at_least("sensor.noise_std_m", s.sensor.noise_std_m, 0.0)?;
+        positive("sensor.max_range_m", self.sensor.max_range_m)?;
+        at_least("sensor.noise_std_m", self.sensor.noise_std_m, 0.0)?;
         Ok(())
     }
 
     /// `[supervise]`: the world-server is never restarted, and restarts fit the log owners.
     fn validate_supervise(&self) -> Result<(), ScenarioError> {
-        let s = self;
-        if s.supervise.restart.contains(&ProcessKind::WorldServer) {
+        if self.supervise.restart.contains(&ProcessKind::WorldServer) {
             return Err(invalid(
                 "supervise.restart",
                 "world-server",
@@ -920,10 +920,10 @@ impl Scenario {
             ));
         }
         let most = crate::msg::MAX_LIVES - 1;
-        if s.supervise.max_restarts > most {
+        if self.supervise.max_restarts > most {
             return Err(invalid(
                 "supervise.max_restarts",
-                s.supervise.max_restarts,
+                self.supervise.max_restarts,
                 &format!(
                     "must be at most {most} (a restarted robot's log is owned by its next life)"
                 ),
@@ -934,8 +934,7 @@ impl Scenario {
 
     /// `[bandwidth]`: the splitting frequency's bounds (thesis eq. 5.5) in order.
     fn validate_bandwidth(&self) -> Result<(), ScenarioError> {
-        let s = self;
-        let b = &s.bandwidth;
+        let b = &self.bandwidth;
         if !(b.usage > 0.0 && b.usage <= 1.0) {
             return Err(invalid("bandwidth.usage", b.usage, "must be in (0, 1]"));
         }
@@ -963,8 +962,7 @@ impl Scenario {
 
     /// `[coordination]`: the utility's weights, and `bandwidth.p_comm` in (0, 1].
     fn validate_coordination(&self) -> Result<(), ScenarioError> {
-        let s = self;
-        let c = &s.coordination;
+        let c = &self.coordination;
         at_least("coordination.beta", c.beta, 0.0)?;
         at_least(
             "coordination.target_half_life_steps",
@@ -978,7 +976,7 @@ impl Scenario {
             f64::from(c.replan_every_steps),
             1.0,
         )?;
-        if let Some(p) = s.bandwidth.p_comm.filter(|p| !(*p > 0.0 && *p <= 1.0)) {
+        if let Some(p) = self.bandwidth.p_comm.filter(|p| !(*p > 0.0 && *p <= 1.0)) {
             return Err(invalid("bandwidth.p_comm", p, "must be in (0, 1]"));
         }
         Ok(())
@@ -986,8 +984,7 @@ impl Scenario {
 
     /// `[base_station]`: a finite pose, and a base station where a strategy needs one.
     fn validate_base_station(&self) -> Result<(), ScenarioError> {
-        let s = self;
-        if let Some([x, y]) = s.base_station.pose {
+        if let Some([x, y]) = self.base_station.pose {
             if !(x.is_finite() && y.is_finite()) {
                 return Err(invalid(
                     "base_station.pose",
@@ -996,14 +993,14 @@ impl Scenario {
                 ));
             }
         }
-        if s.coordination.strategy == Strategy::Bids && !s.base_station.enabled {
+        if self.coordination.strategy == Strategy::Bids && !self.base_station.enabled {
             return Err(invalid(
                 "coordination.strategy",
                 "\"bids\"",
                 "needs the central executive's node: set base_station.enabled = true",
             ));
         }
-        if s.coordination.strategy == Strategy::Roles && !s.base_station.enabled {
+        if self.coordination.strategy == Strategy::Roles && !self.base_station.enabled {
             return Err(invalid(
                 "coordination.strategy",
                 "\"roles\"",

@@ -201,7 +201,6 @@ struct Drawn {
     name: String,
     step: u32,
     robot: u16,
-    process: toml::Value,
     lasting: u32,
     a: u16,
     b: u16,
@@ -221,7 +220,6 @@ impl Drawn {
             name: format!("chaos-{i}"),
             step,
             robot,
-            process: toml::Value::String(format!("robot-{robot}")),
             lasting,
             a: a.min(b),
             b: a.max(b),
@@ -238,7 +236,7 @@ fn fault_tables(
     rng: &mut ChaCha8Rng,
 ) -> (String, Vec<toml::Table>) {
     let (step, robot, lasting, (a, b)) = (d.step, d.robot, d.lasting, (d.a, d.b));
-    let process = || d.process.clone();
+    let process = || toml::Value::String(format!("robot-{robot}"));
     match kind {
         FaultKind::Kill => {
             let k = rng.gen_range(1..=5u32);

@@ -54,33 +54,19 @@ pub fn reachable_free(grid: &Grid, seeds: &[Cell]) -> Grid {
 /// Membership mask of the largest 4-connected free component (ties: the one whose first cell
 /// comes first in row-major order); all false when there is no free cell.
 pub fn largest_free_mask(grid: &Grid) -> Vec<bool> {
-    let mut label = vec![0u32; grid.len()];
-    let (mut best, mut best_size, mut next) = (0, 0, 1);
+    let mut seen = vec![false; grid.len()];
+    let mut best: Option<(Cell, usize)> = None;
     for start in 0..grid.len() {
-        if grid.cells()[start] != Occ::Free || label[start] != 0 {
+        if grid.cells()[start] != Occ::Free || seen[start] {
             continue;
         }
-        let mut size = 0;
-        let mut stack = vec![start];
-        label[start] = next;
-        while let Some(i) = stack.pop() {
-            size += 1;
-            for n in grid.cell_of(i).neighbours4() {
-                if let Some(j) = grid
-                    .index(n)
-                    .filter(|&j| grid.cells()[j] == Occ::Free && label[j] == 0)
-                {
-                    label[j] = next;
-                    stack.push(j);
-                }
-            }
+        let c = grid.cell_of(start);
+        let size = grid.reach_into(&[c], &mut seen);
+        if best.is_none_or(|(_, most)| size > most) {
+            best = Some((c, size));
         }
-        if size > best_size {
-            (best, best_size) = (next, size);
-        }
-        next += 1;
     }
-    label.iter().map(|&l| l != 0 && l == best).collect()
+    best.map_or_else(|| vec![false; grid.len()], |(c, _)| grid.reachable(&[c]))
 }
 
 /// The cells of the largest 4-connected free component, in row-major order.
