@@ -96,7 +96,7 @@ fn the_live_viewer_serves_the_run_and_cuts_a_link_through_netem() {
     let (st, robot) = get(view, "/api/robot/1");
     assert_eq!(st, 200);
     let robot: serde_json::Value = serde_json::from_str(&robot).expect("JSON");
-    assert_eq!(robot["id"], 1, "{robot}");
+    assert_eq!(robot["robot"], 1, "{robot}");
     let (st, _) = http(
         view,
         None,

@@ -199,7 +199,7 @@ async function showDetail() {
     try { r = await getJson(`/api/robot/${sel.robot}${stepQ}`); } catch (e) { say(e.message); return; }
     const views = (r.views || []).map((w) =>
       `<tr><td>${w.owner}</td><td>${w.held}</td><td>${w.shown}</td></tr>`).join("");
-    d.innerHTML = `<h3 style="color:${colour(r.id)}">robot ${r.id}</h3>
+    d.innerHTML = `<h3 style="color:${colour(r.robot)}">robot ${r.robot}</h3>
       <table>
       <tr><th>step</th><td>${r.step}</td></tr><tr><th>life</th><td>${r.life}</td></tr>
       <tr><th>target</th><td>${r.target ? r.target.map((x) => x.toFixed(1)).join(", ") : "none"}</td></tr>
@@ -210,11 +210,11 @@ async function showDetail() {
       <tr><th>bytes sent / received</th><td>${r.bytes_sent} / ${r.bytes_received}</td></tr>
       </table>
       <p>planning grid (frontiers in red):</p>
-      <img id="grid" alt="planning grid of robot ${r.id}" src="/api/robot/${r.id}/grid.png${stepQ}${stepQ ? "&" : "?"}t=${f.step}">
+      <img id="grid" alt="planning grid of robot ${r.robot}" src="/api/robot/${r.robot}/grid.png${stepQ}${stepQ ? "&" : "?"}t=${f.step}">
       <div id="held">${state.info.live ? "asking the robot for its polygons…" : ""}</div>
       ${views && !state.info.live ? `<p>what it shows of each owner's log (ops held, shown up to a save point; its polygons are asked of live robots only):</p>
       <table><tr><th>owner</th><th>held</th><th>shown</th></tr>${views}</table>` : ""}`;
-    if (state.info.live) loadPolygons(r.id);
+    if (state.info.live) loadPolygons(r.robot);
   } else if (sel.link) {
     const [a, b] = sel.link;
     const l = f.links.find((x) => x.a === a && x.b === b);

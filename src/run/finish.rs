@@ -26,13 +26,14 @@ use crate::rundir::summary::{
     bytes_by_type, coverage_steps, traffic_shares, AwarenessSummary, CommLevel, LostLog, Summary,
     SCHEMA_VERSION,
 };
+use crate::rundir::tables::MetricsRow;
 use crate::rundir::tables::{
     link_totals_wire, write_links, write_metrics, write_pgm, write_saves_and_views, write_traffic,
 };
 use crate::score::awareness::{mean_of_step_means, steps_since_base};
 use crate::score::connectivity::UpLinks;
 use crate::score::connectivity::{check_judgements, comm_level_pct};
-use crate::score::evaluate::{Evaluator, MetricsRow};
+use crate::score::evaluate::Evaluator;
 
 /// Tells everyone to stop, waits for every child (killing what does not stop), and collects the
 /// link reports that arrived meanwhile.

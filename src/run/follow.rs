@@ -206,13 +206,13 @@ impl Record {
             let logged = self.log.as_mut().and_then(|w| w.robot_step(&t));
             let scored = self.eval.rows.len();
             self.eval.add(t);
-            if let Some(mut r) = logged {
+            if let Some((mut r, grid)) = logged {
                 r.coverage_pct = self
                     .eval
                     .rows
                     .get(scored)
                     .map(|row| row.coverage_pct as f32);
-                self.log(|w| w.robot(r));
+                self.log(|w| w.robot(r, grid));
             }
         }
         // Lockstep: the whole step is in, so every share compares grids of this step.

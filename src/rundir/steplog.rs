@@ -58,8 +58,8 @@ pub enum Record {
         step: Step,
         robots: Vec<Pose>,
     },
-    /// What robot `robot` reported of step `step`.
-    Robot(RobotStep),
+    /// What a robot reported of a step, and how its planning grid changed.
+    Robot(RobotStep, GridChange),
     /// netem's report of step `step`.
     Links {
         step: Step,
@@ -76,6 +76,10 @@ pub struct Pose {
     pub alive: bool,
 }
 
+/// What robot `robot` reported of step `step` — the launcher's one record of a robot's step: built
+/// from its telemetry ([`StepLogWriter::robot_step`]), written to `steps.log` (beside its grid's
+/// change), read by the MCAP export, and served to the page as it is ([`crate::view::timeline`]).
+/// Numbers are `f32`: the log keeps a run of 128 robots small, and a millimetre is finer than a cell.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RobotStep {
     pub step: Step,
@@ -99,10 +103,18 @@ pub struct RobotStep {
     pub sent_by_type: Vec<u64>,
     /// Polygon exchange: per other owner, the ops of its log held and shown (up to its last
     /// save point held).
-    pub views: Vec<(RobotId, u32, u32)>,
+    pub views: Vec<ViewRow>,
     /// The evaluator's coverage of the report, % of the reachable free cells.
     pub coverage_pct: Option<f32>,
-    pub grid: GridChange,
+}
+
+/// What a robot shows of another owner's log: the ops it holds and those it shows (polygon
+/// exchange).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ViewRow {
+    pub owner: RobotId,
+    pub held: u32,
+    pub shown: u32,
 }
 
 /// How a robot's planning grid changed.
@@ -279,7 +291,7 @@ impl StepLogWriter {
     /// A robot's report as a record (its grid as changes since its last report), for
     /// [`Self::robot`] once scored; `None` for a report whose grid does not decode to the map's
     /// size (the evaluator counts it as bad telemetry).
-    pub fn robot_step(&mut self, t: &Telemetry) -> Option<RobotStep> {
+    pub fn robot_step(&mut self, t: &Telemetry) -> Option<(RobotStep, GridChange)> {
         let grid = Grid::from_rle(&t.grid_rle).ok()?;
         if grid.width() != self.map.width || grid.height() != self.map.height {
             return None;
@@ -293,7 +305,7 @@ impl StepLogWriter {
             _ => (GridChange::Whole(t.grid_rle.clone()), t.step),
         };
         self.last.insert(t.robot, (t.life, grid, whole_at));
-        Some(RobotStep {
+        let report = RobotStep {
             step: t.step,
             robot: t.robot,
             life: t.life,
@@ -308,15 +320,21 @@ impl StepLogWriter {
             splits_per_step: t.splits_per_step.map(|s| s as f32),
             backlog_bytes: t.backlog_bytes.iter().map(|b| b.1).max().unwrap_or(0),
             sent_by_type: t.sent_by_type.clone(),
-            views: t.views.iter().map(|v| (v.owner, v.held, v.shown)).collect(),
+            views: (t.views.iter())
+                .map(|v| ViewRow {
+                    owner: v.owner,
+                    held: v.held,
+                    shown: v.shown,
+                })
+                .collect(),
             coverage_pct: None,
-            grid: change,
-        })
+        };
+        Some((report, change))
     }
 
     /// Writes a robot's report.
-    pub fn robot(&mut self, r: RobotStep) -> anyhow::Result<()> {
-        self.write(&Record::Robot(r))
+    pub fn robot(&mut self, r: RobotStep, grid: GridChange) -> anyhow::Result<()> {
+        self.write(&Record::Robot(r, grid))
     }
 
     pub fn links(&mut self, r: &LinkReport) -> anyhow::Result<()> {
@@ -361,7 +379,7 @@ impl StepLog {
         self.records
             .iter()
             .filter_map(|r| match r {
-                Record::Robot(r) => Some(r.step),
+                Record::Robot(r, _) => Some(r.step),
                 _ => None,
             })
             .max()
@@ -383,16 +401,21 @@ pub struct Grids {
 
 impl Grids {
     /// Applies one robot report's grid change; an error names what does not fit.
-    pub fn apply(&mut self, map: &MapInfo, r: &RobotStep) -> Result<&Grid, String> {
+    pub fn apply(
+        &mut self,
+        map: &MapInfo,
+        r: &RobotStep,
+        grid: &GridChange,
+    ) -> Result<&Grid, String> {
         let at = |e: String| format!("robot {} step {}: {e}", r.robot, r.step);
-        if matches!(r.grid, GridChange::Runs(_)) && !self.grids.contains_key(&r.robot) {
+        if matches!(grid, GridChange::Runs(_)) && !self.grids.contains_key(&r.robot) {
             return Err(at("changes before a whole grid".into()));
         }
         let slot = self
             .grids
             .entry(r.robot)
             .or_insert_with(|| Grid::new(map.width, map.height, Occ::Unknown));
-        match &r.grid {
+        match grid {
             GridChange::Whole(rle) => {
                 let g = Grid::from_rle(rle).map_err(|e| at(e.to_string()))?;
                 if g.width() != map.width || g.height() != map.height {
@@ -520,23 +543,23 @@ mod tests {
             grid_rle: g.to_rle(),
             ..Telemetry::default()
         };
-        let r = w.robot_step(&t).expect("test");
-        w.robot(r).expect("test");
+        let (r, grid) = w.robot_step(&t).expect("test");
+        w.robot(r, grid).expect("test");
         g.set(proto::grid::Cell::new(2, 1), Occ::Occupied);
         t.step = 1;
         t.grid_rle = g.to_rle();
-        let r = w.robot_step(&t).expect("test");
-        w.robot(r).expect("test");
+        let (r, grid) = w.robot_step(&t).expect("test");
+        w.robot(r, grid).expect("test");
         t.grid_rle = Grid::new(5, 3, Occ::Free).to_rle();
         assert!(w.robot_step(&t).is_none(), "a grid not of the map's size");
         w.finish().expect("test");
         let log = read(&dir).expect("test");
         assert_eq!(log.header.map, map);
-        let Record::Robot(r) = &log.records[1] else {
+        let Record::Robot(_, grid) = &log.records[1] else {
             panic!("{:?}", log.records[1]);
         };
         assert_eq!(
-            r.grid,
+            *grid,
             GridChange::Runs(vec![Run {
                 gap: 6,
                 len: 1,

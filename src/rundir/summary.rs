@@ -9,7 +9,8 @@ use proto::exit::ExitReason;
 use proto::msg::{RobotId, Step, Traffic};
 use serde::{Deserialize, Serialize};
 
-use crate::score::evaluate::THRESHOLDS;
+/// Coverage thresholds reported in `summary.json` (`coverage_steps`).
+pub const THRESHOLDS: [u32; 4] = [50, 90, 95, 100];
 
 /// Version of the run-directory schema, written into `summary.json` (7: `exit_reason` may be
 /// `stalled`).

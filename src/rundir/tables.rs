@@ -10,81 +10,72 @@ use proto::msg::{LinkReport, LinkState, RobotId, Step, Traffic};
 use serde::{Deserialize, Serialize};
 
 use crate::rundir::summary::*;
-use crate::score::evaluate::MetricsRow;
 
-/// A row of `metrics.csv`.
-#[derive(Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct MetricsCsv {
+/// A row of `metrics.csv`: one robot's step as the evaluator scored it. The evaluator builds it
+/// from the robot's telemetry ([`crate::score::evaluate`]), the launcher fills in the team columns,
+/// and every reader reads the table back through this type (numbers are kept in memory as
+/// computed and written with the precision the schema keeps).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MetricsRow {
     pub step: Step,
     pub robot: RobotId,
-    pub x: Fixed<3>,
-    pub y: Fixed<3>,
+    /// Where the robot stood (metres).
+    #[serde(serialize_with = "fixed::<3, _>")]
+    pub x: f64,
+    #[serde(serialize_with = "fixed::<3, _>")]
+    pub y: f64,
     pub known_cells: u32,
     pub correct_known_cells: u32,
-    pub target_x: Option<Fixed<3>>,
-    pub target_y: Option<Fixed<3>>,
+    /// The robot's target (metres); empty when it has none.
+    #[serde(serialize_with = "fixed_opt::<3, _>")]
+    pub target_x: Option<f64>,
+    #[serde(serialize_with = "fixed_opt::<3, _>")]
+    pub target_y: Option<f64>,
     pub bytes_sent: u64,
     pub bytes_received: u64,
-    pub coverage_pct: Fixed<3>,
-    pub idle: Flag,
+    #[serde(serialize_with = "fixed::<3, _>")]
+    pub coverage_pct: f64,
+    #[serde(with = "flag")]
+    pub idle: bool,
     pub neighbours: usize,
-    pub splits_per_step: Option<Fixed<4>>,
+    /// The splitting frequency for the next step (polygon exchange).
+    #[serde(serialize_with = "fixed_opt::<4, _>")]
+    pub splits_per_step: Option<f64>,
+    /// The largest backlog of any neighbour after the step's sending (bytes that waited).
     pub backlog_bytes: u64,
     /// `bids`: the robot decided alone (no fresh assignment from the executive).
-    pub alone: Flag,
-    /// Team awareness (de Hoog et al. 2010, Fig. 5c); empty on the base station's rows. The
-    /// last three columns are new: tables written before them read back as empty.
-    #[serde(default)]
-    pub shared_pct: Option<Fixed<3>>,
-    /// Fig. 5d; empty on the base station's rows and without a base station.
+    #[serde(with = "flag")]
+    pub alone: bool,
+    /// Team awareness (de Hoog et al. 2010, Fig. 5c): the share of this robot's known space that
+    /// every robot knows; empty on the base station's rows. The last four columns came later:
+    /// tables written before them read back as empty.
+    #[serde(serialize_with = "fixed_opt::<3, _>", default)]
+    pub shared_pct: Option<f64>,
+    /// Fig. 5d: steps since this robot's last contact with the base station, set once the
+    /// run's links are all in; empty on the base station's rows and without a base station.
     #[serde(default)]
     pub steps_since_base: Option<Step>,
     /// Fig. 5a: the percentage of the reachable free cells that at least one robot knows (the
-    /// same on every robot row of a step in lockstep); empty on the base station's rows.
-    #[serde(default)]
-    pub team_pct: Option<Fixed<3>>,
+    /// union of the team's known space; the same on every robot row of a step in lockstep);
+    /// empty on the base station's rows.
+    #[serde(serialize_with = "fixed_opt::<3, _>", default)]
+    pub team_pct: Option<f64>,
     /// Rooker and Birk 2005, Fig. 6: the percentage of robot pairs that can reach each other
-    /// over the step's links (netem's `up`), directly or through others; empty on the base
-    /// station's rows.
-    #[serde(default)]
-    pub comm_level_pct: Option<Fixed<3>>,
-}
-
-impl From<&MetricsRow> for MetricsCsv {
-    fn from(r: &MetricsRow) -> MetricsCsv {
-        MetricsCsv {
-            step: r.step,
-            robot: r.robot,
-            x: Fixed(r.x),
-            y: Fixed(r.y),
-            known_cells: r.known_cells,
-            correct_known_cells: r.correct_known_cells,
-            target_x: r.target.map(|(x, _)| Fixed(x)),
-            target_y: r.target.map(|(_, y)| Fixed(y)),
-            bytes_sent: r.bytes_sent,
-            bytes_received: r.bytes_received,
-            coverage_pct: Fixed(r.coverage_pct),
-            idle: Flag(r.idle),
-            neighbours: r.neighbours,
-            splits_per_step: r.splits_per_step.map(Fixed),
-            backlog_bytes: r.backlog_bytes,
-            alone: Flag(r.alone),
-            shared_pct: r.shared_pct.map(Fixed),
-            steps_since_base: r.steps_since_base,
-            team_pct: r.team_pct.map(Fixed),
-            comm_level_pct: r.comm_level_pct.map(Fixed),
-        }
-    }
+    /// over the step's links (netem's `up`), directly or through others, set once the run's
+    /// links are all in; empty on the base station's rows.
+    #[serde(serialize_with = "fixed_opt::<3, _>", default)]
+    pub comm_level_pct: Option<f64>,
+    /// Payload bytes sent so far per traffic class ([`Traffic::ALL`] order): no column here
+    /// (`traffic_by_type.csv` has them per step), empty when read back.
+    #[serde(skip)]
+    pub sent_by_type: Vec<u64>,
 }
 
 /// `metrics.csv`: one row per robot and step, by step and robot.
 pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
     let mut sorted: Vec<&MetricsRow> = rows.iter().collect();
     sorted.sort_by_key(|r| (r.step, r.robot));
-    write_rows(
-        &dir.join("metrics.csv"),
-        sorted.into_iter().map(MetricsCsv::from),
-    )
+    write_table::<MetricsRow, _>(&dir.join("metrics.csv"), sorted)
 }
 
 /// Every link report of a run, in arrival order, each kept packed (its links postcard-encoded:
@@ -357,6 +348,32 @@ impl<'de, const D: usize> Deserialize<'de> for Fixed<D> {
     }
 }
 
+/// Writes an `f64` field with `D` decimals (`#[serde(serialize_with = "fixed::<D, _>")]`).
+fn fixed<const D: usize, S: serde::Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+    Fixed::<D>(*v).serialize(s)
+}
+
+/// Writes an optional `f64` field with `D` decimals, empty when `None`.
+fn fixed_opt<const D: usize, S: serde::Serializer>(
+    v: &Option<f64>,
+    s: S,
+) -> Result<S::Ok, S::Error> {
+    v.map(Fixed::<D>).serialize(s)
+}
+
+/// A `bool` field as a yes/no column (`#[serde(with = "flag")]`).
+mod flag {
+    use serde::{Deserialize, Serialize};
+
+    pub fn serialize<S: serde::Serializer>(v: &bool, s: S) -> Result<S::Ok, S::Error> {
+        super::Flag(*v).serialize(s)
+    }
+
+    pub fn deserialize<'de, D: serde::Deserializer<'de>>(d: D) -> Result<bool, D::Error> {
+        super::Flag::deserialize(d).map(|f| f.0)
+    }
+}
+
 /// A yes/no column, written `1`/`0`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Flag(pub bool);
@@ -402,6 +419,15 @@ pub fn write_rows<R: Serialize + Default>(
     path: &Path,
     rows: impl IntoIterator<Item = R>,
 ) -> anyhow::Result<()> {
+    write_table::<R, R>(path, rows)
+}
+
+/// [`write_rows`] of rows of any form that serializes like `H` (borrowed rows, say), the header
+/// from `H`'s field names.
+fn write_table<H: Serialize + Default, R: Serialize>(
+    path: &Path,
+    rows: impl IntoIterator<Item = R>,
+) -> anyhow::Result<()> {
     let context = || format!("writing {}", path.display());
     let mut w = csv::Writer::from_path(path).with_context(context)?;
     let mut empty = true;
@@ -410,7 +436,7 @@ pub fn write_rows<R: Serialize + Default>(
         empty = false;
     }
     if empty {
-        w.write_record(header::<R>()?).with_context(context)?;
+        w.write_record(header::<H>()?).with_context(context)?;
     }
     w.flush().with_context(context)
 }
@@ -464,7 +490,7 @@ mod tests {
         let doc = std::fs::read_to_string(path).expect("docs/run-directory.md");
         let mut names = Vec::new();
         for header in [
-            header::<MetricsCsv>(),
+            header::<MetricsRow>(),
             header::<SaveCsv>(),
             header::<ViewCsv>(),
             header::<LinkCsv>(),
@@ -512,7 +538,8 @@ mod tests {
                 y: 0.0,
                 known_cells: 0,
                 correct_known_cells: 0,
-                target: None,
+                target_x: None,
+                target_y: None,
                 bytes_sent: 0,
                 bytes_received: 0,
                 coverage_pct: 0.0,
@@ -559,7 +586,7 @@ mod tests {
     fn tables_have_the_documented_columns() {
         let h = |v: anyhow::Result<Vec<String>>| v.unwrap_or_default().join(",");
         assert_eq!(
-            h(header::<MetricsCsv>()),
+            h(header::<MetricsRow>()),
             "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone,shared_pct,steps_since_base,team_pct,comm_level_pct"
         );
         assert_eq!(
@@ -575,24 +602,25 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("swarm-rows-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
         let rows = vec![
-            MetricsCsv {
+            MetricsRow {
                 step: 3,
                 robot: 1,
-                x: Fixed(1.23456),
-                y: Fixed(-2.0),
-                target_x: Some(Fixed(0.5)),
-                target_y: Some(Fixed(7.0)),
-                coverage_pct: Fixed(12.3456),
-                idle: Flag(true),
-                splits_per_step: Some(Fixed(0.25)),
+                x: 1.23456,
+                y: -2.0,
+                target_x: Some(0.5),
+                target_y: Some(7.0),
+                coverage_pct: 12.3456,
+                idle: true,
+                splits_per_step: Some(0.25),
                 backlog_bytes: 9,
-                shared_pct: Some(Fixed(62.5)),
+                shared_pct: Some(62.5),
                 steps_since_base: Some(4),
-                team_pct: Some(Fixed(87.5)),
-                comm_level_pct: Some(Fixed(100.0)),
-                ..MetricsCsv::default()
+                team_pct: Some(87.5),
+                comm_level_pct: Some(100.0),
+                sent_by_type: vec![1, 2],
+                ..MetricsRow::default()
             },
-            MetricsCsv::default(),
+            MetricsRow::default(),
         ];
         let path = dir.join("metrics.csv");
         write_rows(&path, rows).unwrap_or_else(|e| panic!("{e}"));
@@ -603,29 +631,30 @@ mod tests {
             "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4,87.500,100.000"
         );
         assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,,,");
-        let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
+        let back: Vec<MetricsRow> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             (back[0].idle, back[0].target_y, back[1].target_x),
-            (Flag(true), Some(Fixed(7.0)), None)
+            (true, Some(7.0), None)
         );
-        assert_eq!(back[0].splits_per_step, Some(Fixed(0.25)));
+        assert_eq!(back[0].splits_per_step, Some(0.25));
+        assert!(
+            back[0].sent_by_type.is_empty(),
+            "no column: read back empty"
+        );
         assert_eq!(
             (
                 back[0].shared_pct,
                 back[0].steps_since_base,
                 back[1].shared_pct
             ),
-            (Some(Fixed(62.5)), Some(4), None)
+            (Some(62.5), Some(4), None)
         );
-        assert_eq!(
-            (back[0].team_pct, back[1].team_pct),
-            (Some(Fixed(87.5)), None)
-        );
+        assert_eq!((back[0].team_pct, back[1].team_pct), (Some(87.5), None));
         // A table written before the awareness columns reads back without them.
         let old = "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone\n\
                    3,1,1.235,-2.000,0,0,,,0,0,12.346,1,0,,9,0\n";
         std::fs::write(&path, old).unwrap_or_else(|e| panic!("{e}"));
-        let back: Vec<MetricsCsv> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
+        let back: Vec<MetricsRow> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             (
                 back[0].backlog_bytes,

@@ -15,49 +15,9 @@ use proto::exit::ExitReason;
 use proto::grid::{Cell, Grid, KnownPart, Occ};
 use proto::msg::{Judged, RobotId, Step, Telemetry, View};
 
+use crate::rundir::summary::THRESHOLDS;
+use crate::rundir::tables::MetricsRow;
 use crate::score::awareness::{known_cells, SharedKnowledge};
-
-/// Coverage thresholds reported in `summary.json` (`coverage_steps`).
-pub const THRESHOLDS: [u32; 4] = [50, 90, 95, 100];
-
-/// One row of `metrics.csv`.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct MetricsRow {
-    pub step: Step,
-    pub robot: RobotId,
-    pub x: f64,
-    pub y: f64,
-    pub known_cells: u32,
-    pub correct_known_cells: u32,
-    pub target: Option<(f64, f64)>,
-    pub bytes_sent: u64,
-    pub bytes_received: u64,
-    pub coverage_pct: f64,
-    pub idle: bool,
-    pub neighbours: usize,
-    /// Payload bytes sent so far per traffic class ([`proto::msg::Traffic::ALL`] order).
-    pub sent_by_type: Vec<u64>,
-    /// The splitting frequency for the next step (polygon exchange).
-    pub splits_per_step: Option<f64>,
-    /// The largest backlog of any neighbour after the step's sending (bytes that waited).
-    pub backlog_bytes: u64,
-    /// `bids`: the robot decided alone.
-    pub alone: bool,
-    /// Team awareness (de Hoog et al. 2010, Fig. 5c): the share of this robot's known space that
-    /// every robot knows ([`Evaluator::share_rows_since`]); `None` for the base station.
-    pub shared_pct: Option<f64>,
-    /// Fig. 5d: steps since this robot's last contact with the base station, set once the
-    /// run's links are all in (`None` for the base station, or without one).
-    pub steps_since_base: Option<Step>,
-    /// Fig. 5a: the share of the truth's reachable free cells that at least one robot knows
-    /// (the union of the team's known space; [`Evaluator::share_rows_since`]); `None` for the
-    /// base station.
-    pub team_pct: Option<f64>,
-    /// Rooker and Birk 2005, Fig. 6: the percentage of robot pairs that can reach each other
-    /// over the step's links, directly or through others; set once the run's links are all in
-    /// (`None` for the base station).
-    pub comm_level_pct: Option<f64>,
-}
 
 impl MetricsRow {
     /// The row of telemetry `t`, with the evaluator's counts; the team columns are set later
@@ -70,7 +30,8 @@ impl MetricsRow {
             y: t.pose.y,
             known_cells: t.known_cells,
             correct_known_cells,
-            target: t.target,
+            target_x: t.target.map(|(x, _)| x),
+            target_y: t.target.map(|(_, y)| y),
             bytes_sent: t.bytes_sent,
             bytes_received: t.bytes_received,
             coverage_pct,

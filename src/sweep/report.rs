@@ -18,7 +18,7 @@ use std::path::Path;
 use anyhow::Context;
 use serde::Deserialize;
 
-use crate::rundir::tables::{header, read_rows, LinkCsv, MetricsCsv};
+use crate::rundir::tables::{header, read_rows, LinkCsv, MetricsRow};
 use crate::sweep::curve::{mean_over_runs, read_series, CurveSpec};
 use crate::sweep::plot::{draw, short_number, Chart, Line, Mean, XAxis};
 use crate::sweep::results::{check_field, Point, Results};
@@ -101,7 +101,7 @@ pub fn check(spec: &Spec, keys: &[String]) -> anyhow::Result<()> {
             known(s, "timeline.series")?;
         }
     }
-    let columns = header::<MetricsCsv>()?;
+    let columns = header::<MetricsRow>()?;
     for c in &spec.curves {
         if let Some(s) = &c.series {
             known(s, "curve.series")?;
@@ -280,7 +280,7 @@ fn load_over_time(run: &Path) -> anyhow::Result<(PerStep, PerStep)> {
     for l in links {
         *load.entry(l.step).or_insert(0.0) += (l.bytes_a_to_b + l.bytes_b_to_a) as f64;
     }
-    let metrics: Vec<MetricsCsv> = read_rows(&run.join("metrics.csv"))?;
+    let metrics: Vec<MetricsRow> = read_rows(&run.join("metrics.csv"))?;
     let mut backlog: BTreeMap<Step, f64> = BTreeMap::new();
     for m in metrics {
         let b = backlog.entry(m.step).or_insert(0.0);

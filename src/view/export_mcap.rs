@@ -255,8 +255,8 @@ pub fn write<W: std::io::Write + std::io::Seek>(log: &StepLog, w: W) -> anyhow::
                     .map(|p| (p.id, (f64::from(p.x), f64::from(p.y))))
                     .collect();
             }
-            Record::Robot(rs) => {
-                let grid = grids.apply(&map, rs).map_err(anyhow::Error::msg)?;
+            Record::Robot(rs, change) => {
+                let grid = grids.apply(&map, rs, change).map_err(anyhow::Error::msg)?;
                 let (ns, stamp) = time(rs.step, dt);
                 let n = reports.entry(rs.robot).or_default();
                 if n.is_multiple_of(GRID_EVERY) || last_report.get(&rs.robot) == Some(&rs.step) {
@@ -299,7 +299,7 @@ pub fn write<W: std::io::Write + std::io::Seek>(log: &StepLog, w: W) -> anyhow::
 fn last_reports(log: &StepLog) -> BTreeMap<RobotId, Step> {
     let mut last = BTreeMap::new();
     for r in &log.records {
-        if let Record::Robot(r) = r {
+        if let Record::Robot(r, _) = r {
             last.insert(r.robot, r.step);
         }
     }

@@ -149,7 +149,7 @@ impl Feed {
         let mut t = lock(&self.app.timeline);
         let before = t.latest();
         let reported = match &r {
-            Record::Robot(rs) => Some(rs.step),
+            Record::Robot(rs, _) => Some(rs.step),
             _ => None,
         };
         t.push(r);

@@ -59,28 +59,13 @@ pub struct Series {
     pub backlog_max: Vec<u64>,
 }
 
-/// What the page shows of one robot at a step.
+/// What the page shows of one robot at a step: its report as the run logged it, and how many
+/// frontier cells its planning grid held then.
 #[derive(Clone, Debug, Serialize)]
-pub struct RobotDetail {
-    pub id: RobotId,
-    pub step: Step,
-    pub life: u16,
-    pub target: Option<(f32, f32)>,
-    pub idle: bool,
-    pub known_cells: u32,
+pub struct RobotDetail<'a> {
+    #[serde(flatten)]
+    pub report: &'a RobotStep,
     pub frontier_cells: usize,
-    pub splits_per_step: Option<f32>,
-    pub backlog_bytes: u64,
-    pub bytes_sent: u64,
-    pub bytes_received: u64,
-    pub views: Vec<ViewRow>,
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct ViewRow {
-    pub owner: RobotId,
-    pub held: u32,
-    pub shown: u32,
 }
 
 /// Where one step's records are.
@@ -142,7 +127,7 @@ impl Timeline {
             Record::Header(_) => return,
             Record::Poses { step, .. } => self.steps.entry(*step).or_default().poses = Some(i),
             Record::Links { step, .. } => self.steps.entry(*step).or_default().links = Some(i),
-            Record::Robot(rs) => {
+            Record::Robot(rs, _) => {
                 self.steps.entry(rs.step).or_default().robots.push(i);
                 self.reports.entry(rs.robot).or_default().push(i);
                 self.sent
@@ -188,7 +173,7 @@ impl Timeline {
             .into_iter()
             .flat_map(|at| at.robots.iter())
             .filter_map(|&i| match &self.records[i] {
-                Record::Robot(r) => Some(r),
+                Record::Robot(r, _) => Some(r),
                 _ => None,
             })
     }
@@ -283,7 +268,7 @@ impl Timeline {
                 t.resize(id + 1, Vec::new());
             }
             for &i in idx {
-                if let Record::Robot(r) = &self.records[i] {
+                if let Record::Robot(r, _) = &self.records[i] {
                     if r.step > step {
                         break;
                     }
@@ -298,12 +283,12 @@ impl Timeline {
     fn report(&self, robot: RobotId, step: Step) -> Option<(usize, &RobotStep)> {
         let idx = self.reports.get(&robot)?;
         let k = idx.partition_point(|&i| match &self.records[i] {
-            Record::Robot(r) => r.step <= step,
+            Record::Robot(r, _) => r.step <= step,
             _ => false,
         });
         let i = *idx.get(k.checked_sub(1)?)?;
         match &self.records[i] {
-            Record::Robot(r) => Some((k - 1, r)),
+            Record::Robot(r, _) => Some((k - 1, r)),
             _ => None,
         }
     }
@@ -315,37 +300,23 @@ impl Timeline {
         let idx = &self.reports[&robot];
         let whole = idx[..=k]
             .iter()
-            .rposition(|&i| matches!(&self.records[i], Record::Robot(r) if matches!(r.grid, GridChange::Whole(_))))?;
+            .rposition(|&i| matches!(&self.records[i], Record::Robot(_, GridChange::Whole(_))))?;
         let mut grids = Grids::default();
         for &i in &idx[whole..=k] {
-            if let Record::Robot(r) = &self.records[i] {
-                grids.apply(&self.header.map, r).ok()?;
+            if let Record::Robot(r, change) = &self.records[i] {
+                grids.apply(&self.header.map, r, change).ok()?;
             }
         }
         grids.grids.remove(&robot)
     }
 
     /// What the page shows of `robot` at `step`; `None`: no such robot or no report yet.
-    pub fn robot(&self, robot: RobotId, step: Step) -> Option<RobotDetail> {
-        let (_, r) = self.report(robot, step)?;
+    pub fn robot(&self, robot: RobotId, step: Step) -> Option<RobotDetail<'_>> {
+        let (_, report) = self.report(robot, step)?;
         let frontier_cells = self.grid(robot, step).map_or(0, |g| frontiers(&g).len());
         Some(RobotDetail {
-            id: r.robot,
-            step: r.step,
-            life: r.life,
-            target: r.target,
-            idle: r.idle,
-            known_cells: r.known_cells,
+            report,
             frontier_cells,
-            splits_per_step: r.splits_per_step,
-            backlog_bytes: r.backlog_bytes,
-            bytes_sent: r.bytes_sent,
-            bytes_received: r.bytes_received,
-            views: r
-                .views
-                .iter()
-                .map(|&(owner, held, shown)| ViewRow { owner, held, shown })
-                .collect(),
         })
     }
 
@@ -410,7 +381,7 @@ pub fn frontiers(g: &Grid) -> Vec<proto::grid::Cell> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rundir::steplog::{diff, LinkStep, Pose, Run};
+    use crate::rundir::steplog::{diff, LinkStep, Pose, Run, ViewRow};
     use proto::geom::MapInfo;
     use proto::grid::{Cell, Occ};
 
@@ -439,25 +410,31 @@ mod tests {
     }
 
     fn report(robot: RobotId, step: Step, x: f32, grid: GridChange, coverage: f32) -> Record {
-        Record::Robot(RobotStep {
-            step,
-            robot,
-            life: 0,
-            x,
-            y: 1.0,
-            theta: 0.0,
-            target: Some((3.0, 2.0)),
-            idle: false,
-            known_cells: 1,
-            bytes_sent: 10,
-            bytes_received: 5,
-            splits_per_step: None,
-            backlog_bytes: u64::from(step) * 7,
-            sent_by_type: vec![u64::from(step) + 1, 2],
-            views: vec![(1 - robot, 3, 2)],
-            coverage_pct: Some(coverage),
+        Record::Robot(
+            RobotStep {
+                step,
+                robot,
+                life: 0,
+                x,
+                y: 1.0,
+                theta: 0.0,
+                target: Some((3.0, 2.0)),
+                idle: false,
+                known_cells: 1,
+                bytes_sent: 10,
+                bytes_received: 5,
+                splits_per_step: None,
+                backlog_bytes: u64::from(step) * 7,
+                sent_by_type: vec![u64::from(step) + 1, 2],
+                views: vec![ViewRow {
+                    owner: 1 - robot,
+                    held: 3,
+                    shown: 2,
+                }],
+                coverage_pct: Some(coverage),
+            },
             grid,
-        })
+        )
     }
 
     /// Two robots over three steps: robot 0 reports its grid whole, then as changes.
@@ -593,7 +570,10 @@ mod tests {
         assert_eq!(t.span(), Some((0, 2)));
         assert_eq!(t.series().coverage, vec![5.0, 10.0, 20.0]);
         let d = t.robot(0, 2).expect("robot 0 reported");
-        assert_eq!((d.step, d.known_cells, d.views.len()), (2, 1, 1));
+        assert_eq!(
+            (d.report.step, d.report.known_cells, d.report.views.len()),
+            (2, 1, 1)
+        );
         assert_eq!(d.frontier_cells, 2, "both free cells border unknown ones");
         assert!(t.robot(0, 2).is_some() && t.robot(7, 2).is_none());
     }
