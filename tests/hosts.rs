@@ -12,7 +12,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::capture::{compare, dropped, link_totals, segments, Capture};
-use crate::support::{run_args, stderr, summary_typed, Launcher, TempDir, SWARM};
+use crate::support::{
+    run_args, stderr, summary_typed, wait_for_step, wait_steps, Launcher, TempDir, SWARM,
+};
 
 /// Namespaces made by one test: `<tag>-h0` … (the hosts) and `<tag>-sw` (their switch).
 struct Lab {
@@ -456,22 +458,18 @@ fn a_host_killed_mid_run_degrades_the_run_like_a_local_kill_and_leaves_no_proces
     } = ssh_lab("drop", "{ h1 = [0, 3, 6], h2 = [1, 4, 7], h3 = \"rest\" }");
     let run = dir.path().join("run");
     let mut cmd = lab.exec(0, SWARM);
-    // Robots at a fifth of the default speed: the run lasts several times the seconds the kills
-    // below wait (at the default speed an 8-robot run could end before h3 was killed).
-    run_args(
-        &mut cmd,
-        &run,
-        &["robots.count=8", "robots.speed_m_per_s=0.1"],
-    );
+    run_args(&mut cmd, &run, &["robots.count=8"]);
     cmd.arg("--hosts").arg(&hosts);
     let launcher = Launcher::spawn(cmd);
     // h2 runs robots 1, 4, 7; h3 its sshd and, for robots 2 and 5, a session, `swarm on-host`
     // and the robot each.
     wait_for_processes(&lab, 2, 3);
     wait_for_processes(&lab, 3, 5);
-    std::thread::sleep(Duration::from_secs(3));
+    // At steps of the run, not at wall-clock moments (after 3 s and 2 s more the run could be
+    // ending): h2 at step 10, h3 ten steps later.
+    wait_for_step(&run, 10, Duration::from_secs(120));
     assert_eq!(lab.kill_host(2), 3, "h2's robots");
-    std::thread::sleep(Duration::from_secs(2));
+    wait_steps(&run, 10, Duration::from_secs(120));
     assert!(lab.kill_host(3) >= 5, "h3's sshd, sessions and robots");
     drop(sshd);
     let out = launcher.wait_output(Duration::from_secs(600));
@@ -504,12 +502,13 @@ fn a_launcher_killed_mid_run_leaves_no_process_on_any_host() {
         lab,
         sshd,
     } = ssh_lab("orphan", "{ h1 = [0, 3], h2 = [1, 4], h3 = \"rest\" }");
+    let run = dir.path().join("run");
     let mut cmd = lab.exec(0, SWARM);
-    run_args(&mut cmd, &dir.path().join("run"), &["robots.count=6"]);
+    run_args(&mut cmd, &run, &["robots.count=6"]);
     cmd.arg("--hosts").arg(&hosts);
     let launcher = Launcher::spawn(cmd);
     wait_for_processes(&lab, 3, 5);
-    std::thread::sleep(Duration::from_secs(2));
+    wait_for_step(&run, 10, Duration::from_secs(120));
     crate::support::kill(launcher.pid, 9);
     let mut except: Vec<u32> = sshd.child.as_ref().map(Child::id).into_iter().collect();
     except.push(launcher.pid);

@@ -7,11 +7,14 @@ use std::time::{Duration, Instant};
 
 use proto::exit::ExitReason;
 
-use crate::support::{descendants, kill, running, stderr, summary_typed, Launcher, TempDir, SWARM};
+use crate::support::{
+    descendants, kill, running, stderr, summary_typed, wait_for_step, wait_steps, Launcher,
+    TempDir, SWARM,
+};
 
-/// Starts a run in realtime mode (200 ms per step), so that it lasts long enough to be
-/// interfered with: about 60 steps, some 12 s, where the kills below land after 2–3 s even on
-/// a loaded machine (at 50 ms per step the run could end before them).
+/// Starts a run in realtime mode (200 ms per step): about 60 steps, some 12 s. The kills below
+/// land at a step of the run (its `steps.log`, [`wait_for_step`]), a few steps in, whatever
+/// the machine's load.
 fn start(dir: &TempDir, robots: u32, sets: &[&str]) -> Launcher {
     let mut cmd = Command::new(SWARM);
     cmd.args(["run", "--quiet", "--out"])
@@ -71,7 +74,7 @@ fn a_robot_killed_mid_run_is_reported_and_nothing_is_left() {
     let l = start(&dir, 3, &["supervise.restart=[]"]);
     let kids = wait_for_children(&l, 4);
     // Let the run get going, then kill one robot-agent process (not the world-server).
-    std::thread::sleep(Duration::from_secs(3));
+    wait_for_step(&dir.path().join("run"), 10, Duration::from_secs(60));
     let robot = kids
         .iter()
         .copied()
@@ -121,7 +124,7 @@ fn killing_the_world_server_is_the_reported_cause() {
     let l = start(&dir, 2, &[]);
     // World-server, netem and 2 robots.
     let kids = wait_for_children(&l, 4);
-    std::thread::sleep(Duration::from_secs(2));
+    wait_for_step(&dir.path().join("run"), 8, Duration::from_secs(60));
     let world = kids
         .iter()
         .copied()
@@ -178,19 +181,20 @@ fn wait_for_new(launcher: u32, what: &str, not: u32) -> u32 {
 fn robots_and_netem_killed_from_outside_are_started_again_by_supervision() {
     let dir = TempDir::new("supervise");
     let l = start(&dir, 3, &[]);
+    let run = dir.path().join("run");
     let first = wait_for_children(&l, 5);
-    std::thread::sleep(Duration::from_secs(2));
+    wait_for_step(&run, 8, Duration::from_secs(60));
     let robot = child_running(l.pid, "robot-agent --id 1").expect("robot 1");
     kill(robot, 9);
     let robot2 = wait_for_new(l.pid, "robot-agent --id 1", robot);
-    std::thread::sleep(Duration::from_secs(1));
+    wait_steps(&run, 5, Duration::from_secs(60));
     let netem = child_running(l.pid, "netem serve").expect("netem");
     kill(netem, 9);
     let netem2 = wait_for_new(l.pid, "netem serve", netem);
     let mut all = first;
     all.extend([robot2, netem2]);
     let out = l.wait_output(Duration::from_secs(300));
-    let s = summary_typed(&dir.path().join("run"));
+    let s = summary_typed(&run);
     assert!(s.complete, "{}\n{s:?}", stderr(&out));
     assert_eq!(s.robots_alive_at_end, 3, "{s:?}");
     crate::support::assert_killed_and_supervised(&s, &["robot-1", "netem"]);

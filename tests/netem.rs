@@ -5,7 +5,9 @@ use std::collections::HashMap;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use crate::support::{csv, num, stderr, summary_typed, swarm_run, Launcher, TempDir, SWARM};
+use crate::support::{
+    csv, num, stderr, summary_typed, swarm_run, wait_steps, Launcher, TempDir, SWARM,
+};
 
 /// An 8-robot run with a 6 m disk range; returns its run directory (kept by `dir`).
 fn ranged_run(dir: &TempDir) -> std::path::PathBuf {
@@ -252,7 +254,8 @@ fn curl_cuts_and_restores_a_link_during_a_run() {
     let (_, listed) = curl(&[&format!("http://{addr}/proxies/r0-r1")]);
     let v: serde_json::Value = serde_json::from_str(&listed).expect("JSON");
     assert_eq!(v["enabled"], false, "{listed}");
-    std::thread::sleep(Duration::from_secs(2));
+    // The cut holds for 20 steps of the run.
+    wait_steps(&run, 20, Duration::from_secs(60));
     let (ok, body) = curl(&[
         "-X",
         "POST",

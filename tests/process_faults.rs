@@ -14,7 +14,8 @@ use swarm::process::supervise::EventKind;
 use swarm::rundir::summary::{LostLog, Summary};
 
 use crate::support::{
-    csv, num, run_args, stderr, summary_typed, swarm_run, wait_file, Launcher, TempDir, SWARM,
+    csv, num, run_args, stderr, summary_typed, swarm_run, wait_file, wait_steps, Launcher, TempDir,
+    SWARM,
 };
 
 /// A 5-robot intel_lab run (the embedded default scenario) with `faults` appended.
@@ -281,7 +282,8 @@ fn process_faults_asked_through_netems_api_are_carried_out_at_the_next_step() {
     let refused = netem_cli(&run, &["restart", "robot-7"]);
     assert!(!refused.status.success());
     assert!(stderr(&refused).contains("404"), "{}", stderr(&refused));
-    std::thread::sleep(Duration::from_secs(2));
+    // Robot 1 stays frozen for 3 steps of the run (each waits out its step timeout).
+    wait_steps(&run, 3, Duration::from_secs(60));
     let thaw = netem_cli(&run, &["thaw", "robot-1"]);
     assert!(thaw.status.success(), "{}", stderr(&thaw));
     let out = launcher.wait_output(Duration::from_secs(300));

@@ -126,6 +126,33 @@ pub fn wait_file(path: &Path, wait: Duration) -> String {
     }
 }
 
+/// Waits up to `wait` until the run writing `run` (its directory) has come to step `step` — its
+/// `steps.log` holds that step's world status — and returns the step it is at. A test acts at a
+/// step of the run this way, never at a wall-clock moment.
+pub fn wait_for_step(run: &Path, step: u32, wait: Duration) -> u32 {
+    let deadline = Instant::now() + wait;
+    loop {
+        let at = swarm::rundir::steplog::read_so_far(run)
+            .ok()
+            .and_then(|log| log.reached());
+        if let Some(at) = at.filter(|&at| at >= step) {
+            return at;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the run in {} did not come to step {step} (at {at:?})",
+            run.display()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Waits until the run writing `run` has gone `steps` steps further than where it is now.
+pub fn wait_steps(run: &Path, steps: u32, wait: Duration) -> u32 {
+    let now = wait_for_step(run, 0, wait);
+    wait_for_step(run, now + steps, wait)
+}
+
 pub fn kill(pid: u32, sig: i32) {
     let _ = Command::new("kill")
         .arg(format!("-{sig}"))

@@ -8,7 +8,8 @@
 //! `swarm export-mcap` read it ([`read`]). The file is a sequence of records, each a
 //! little-endian `u32` length and the record in postcard; the first is a [`Header`]. Reading is
 //! total: a file that is not a step log, or one cut short, gives an error naming the file and
-//! where it stops — never a panic.
+//! where it stops — never a panic. [`read_so_far`] reads the whole records of a log still being
+//! written (the launcher flushes it at every step) or left cut short by a launcher that died.
 //!
 //! **Invariant:** replaying a robot's grid changes from its last whole grid gives exactly the
 //! grid it reported at that step (property-tested: [`diff`] then [`apply`]).
@@ -285,7 +286,13 @@ impl StepLogWriter {
         self.write(&Record::Poses {
             step: st.step,
             robots,
-        })
+        })?;
+        // A step's world status comes before the step's reports: everything of the steps
+        // before it is in, so the file holds whole steps for whoever reads it while the run
+        // goes on ([`read_so_far`]).
+        self.out
+            .flush()
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", self.path.display()))
     }
 
     /// A robot's report as a record (its grid as changes since its last report), for
@@ -374,6 +381,17 @@ pub struct StepLog {
 }
 
 impl StepLog {
+    /// The latest step whose world status the log holds: how far the run has come.
+    pub fn reached(&self) -> Option<Step> {
+        self.records
+            .iter()
+            .filter_map(|r| match r {
+                Record::Poses { step, .. } => Some(*step),
+                _ => None,
+            })
+            .max()
+    }
+
     /// The last step any robot's report was taken for (the run's last step), if any.
     pub fn last_step(&self) -> Option<Step> {
         self.records
@@ -431,6 +449,17 @@ impl Grids {
 
 /// Reads `dir/steps.log`.
 pub fn read(dir: &Path) -> anyhow::Result<StepLog> {
+    read_with(dir, decode)
+}
+
+/// Reads `dir/steps.log` as far as it is written: every whole record of a log still being
+/// written (the launcher flushes it at each step's world status) or of one its launcher left
+/// cut short.
+pub fn read_so_far(dir: &Path) -> anyhow::Result<StepLog> {
+    read_with(dir, decode_so_far)
+}
+
+fn read_with(dir: &Path, decode: fn(&[u8]) -> Result<StepLog, String>) -> anyhow::Result<StepLog> {
     let path = dir.join(FILE);
     let mut bytes = Vec::new();
     File::open(&path)
@@ -440,12 +469,26 @@ pub fn read(dir: &Path) -> anyhow::Result<StepLog> {
 }
 
 /// Decodes a whole step log. Total: any bytes give a log or an error.
-pub fn decode(mut bytes: &[u8]) -> Result<StepLog, String> {
+pub fn decode(bytes: &[u8]) -> Result<StepLog, String> {
+    decode_records(bytes, false)
+}
+
+/// Decodes the whole records of a step log, leaving out a record cut short at its end. Total.
+pub fn decode_so_far(bytes: &[u8]) -> Result<StepLog, String> {
+    decode_records(bytes, true)
+}
+
+fn decode_records(mut bytes: &[u8], cut_tail_ok: bool) -> Result<StepLog, String> {
     let mut records = Vec::new();
     let mut at = 0usize;
     while !bytes.is_empty() {
+        let cut =
+            |records: &Vec<Record>| format!("cut short at byte {at} (record {})", records.len());
         let Some((len, rest)) = bytes.split_first_chunk::<4>() else {
-            return Err(format!("cut short at byte {at} (record {})", records.len()));
+            if cut_tail_ok {
+                break;
+            }
+            return Err(cut(&records));
         };
         let len = u32::from_le_bytes(*len) as usize;
         if len > MAX_RECORD_BYTES {
@@ -455,7 +498,10 @@ pub fn decode(mut bytes: &[u8]) -> Result<StepLog, String> {
             ));
         }
         let Some((body, rest)) = rest.split_at_checked(len) else {
-            return Err(format!("cut short at byte {at} (record {})", records.len()));
+            if cut_tail_ok {
+                break;
+            }
+            return Err(cut(&records));
         };
         let r: Record = postcard::from_bytes(body)
             .map_err(|e| format!("record {} at byte {at} does not decode: {e}", records.len()))?;
@@ -527,7 +573,17 @@ mod tests {
         #[test]
         fn any_bytes_decode_or_give_an_error(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
             let _ = decode(&bytes);
+            let _ = decode_so_far(&bytes);
         }
+    }
+
+    /// The bytes the first `n` records of `log` (its header first) take in the file.
+    fn encoded_len(log: &StepLog, n: usize) -> usize {
+        std::iter::once(Record::Header(log.header.clone()))
+            .chain(log.records.iter().cloned())
+            .take(n)
+            .map(|r| 4 + postcard::to_stdvec(&r).expect("test").len())
+            .sum()
     }
 
     #[test]
@@ -545,6 +601,16 @@ mod tests {
         };
         let (r, grid) = w.robot_step(&t).expect("test");
         w.robot(r, grid).expect("test");
+        w.status(&Status {
+            step: 1,
+            robots: vec![],
+            collisions_total: 0,
+            base: None,
+            missed: vec![],
+        })
+        .expect("test");
+        let so_far = read_so_far(&dir).expect("flushed at the step's status");
+        assert_eq!((so_far.reached(), so_far.records.len()), (Some(1), 2));
         g.set(proto::grid::Cell::new(2, 1), Occ::Occupied);
         t.step = 1;
         t.grid_rle = g.to_rle();
@@ -555,8 +621,8 @@ mod tests {
         w.finish().expect("test");
         let log = read(&dir).expect("test");
         assert_eq!(log.header.map, map);
-        let Record::Robot(_, grid) = &log.records[1] else {
-            panic!("{:?}", log.records[1]);
+        let Record::Robot(_, grid) = &log.records[2] else {
+            panic!("{:?}", log.records[2]);
         };
         assert_eq!(
             *grid,
@@ -570,6 +636,18 @@ mod tests {
         std::fs::write(dir.join(FILE), &bytes[..bytes.len() - 1]).expect("test");
         let e = read(&dir).expect_err("an error").to_string();
         assert!(e.contains("steps.log") && e.contains("cut short"), "{e}");
+        // Read so far: every whole record, at every cut.
+        for cut in 0..bytes.len() {
+            let whole = match decode_so_far(&bytes[..cut]) {
+                Ok(l) => l.records.len() + 1,
+                Err(_) => 0,
+            };
+            let want = (1..=log.records.len() + 1)
+                .take_while(|&n| encoded_len(&log, n) <= cut)
+                .last()
+                .unwrap_or(0);
+            assert_eq!(whole, want, "cut at byte {cut}");
+        }
         std::fs::write(dir.join(FILE), b"PK\x03\x04 a zip file").expect("test");
         assert!(read(&dir).is_err());
         std::fs::remove_dir_all(&dir).expect("test");
