@@ -74,7 +74,7 @@ impl Radio {
     /// Whether robots at `a` and `b` can talk. Non-finite poses are out of range (except for
     /// `always`).
     pub fn evaluate(&self, a: &Pose, b: &Pose) -> Verdict {
-        let distance_m = (a.x - b.x).hypot(a.y - b.y);
+        let distance_m = a.xy().dist(b.xy());
         let finite = distance_m.is_finite();
         match &self.model {
             Model::Always => Verdict {
@@ -91,9 +91,7 @@ impl Radio {
             },
             Model::PathLoss(p) => {
                 let walls = match (&self.truth, finite) {
-                    (Some(t), true) => {
-                        Some(count_walls(&t.0, &t.1, (a.x, a.y), (b.x, b.y), truth_wall))
-                    }
+                    (Some(t), true) => Some(count_walls(&t.0, &t.1, a.xy(), b.xy(), truth_wall)),
                     _ => None,
                 };
                 let s = p.signal_dbm(distance_m, walls.unwrap_or(0));

@@ -1,12 +1,36 @@
 //! Metric geometry shared by every process: poses in metres and the map frame that converts
 //! between metres and grid cells.
 //!
-//! One vocabulary: [`crate::grid::Cell`] for integer grid indices, metres as
-//! `f64` in [`Pose`] / [`MapInfo`] — never mixed silently.
+//! Two vocabularies, never mixed silently: [`Metres`] for a point of the map frame in metres
+//! (and [`Pose`], whose `x`/`y` are metres), [`crate::grid::Cell`] for integer grid indices.
+//! Fractional cell units — a bare `(f64, f64)` where cell `(x, y)` covers `[x, x+1) × [y, y+1)`
+//! — appear only inside the grid walks ([`crate::traverse`]: swept moves, laser rays, scan
+//! integration, lines of sight, wall counts); [`MapInfo`] converts between metres and cells
+//! ([`MapInfo::cell_of`], [`MapInfo::in_cells`], [`MapInfo::centre_of`]).
 
 use serde::{Deserialize, Serialize};
 
 use crate::grid::Cell;
+
+/// A point of the map frame, in metres. Encodes exactly like the tuple `(x, y)` of two `f64`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Metres {
+    pub x: f64,
+    pub y: f64,
+}
+
+impl Metres {
+    pub const fn new(x: f64, y: f64) -> Metres {
+        Metres { x, y }
+    }
+
+    /// The Euclidean distance to `o`, in metres: `(self.x - o.x).hypot(self.y - o.y)`, exactly
+    /// (the expression the world's and netem's distances were written with, so they keep their
+    /// bits).
+    pub fn dist(self, o: Metres) -> f64 {
+        (self.x - o.x).hypot(self.y - o.y)
+    }
+}
 
 /// A robot pose in the map frame: metres and radians.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Default)]
@@ -14,6 +38,13 @@ pub struct Pose {
     pub x: f64,
     pub y: f64,
     pub theta: f64,
+}
+
+impl Pose {
+    /// Where the robot stands, without its heading.
+    pub fn xy(&self) -> Metres {
+        Metres::new(self.x, self.y)
+    }
 }
 
 /// The frame of a grid: its size in cells, the cell side in metres and the metric position of
@@ -41,25 +72,26 @@ impl MapInfo {
     }
 
     /// The cell containing a metric point (may lie outside the grid).
-    pub fn cell_of(&self, x_m: f64, y_m: f64) -> Cell {
+    pub fn cell_of(&self, p: Metres) -> Cell {
         Cell::new(
-            ((x_m - self.origin_x_m) / self.resolution_m).floor() as i32,
-            ((y_m - self.origin_y_m) / self.resolution_m).floor() as i32,
+            ((p.x - self.origin_x_m) / self.resolution_m).floor() as i32,
+            ((p.y - self.origin_y_m) / self.resolution_m).floor() as i32,
+        )
+    }
+
+    /// A metric point in cell units, returned as a bare `(f64, f64)` tuple of *cell units* (not
+    /// metres): cell `(x, y)` covers `[x, x+1) × [y, y+1)`. The one conversion the world's
+    /// motion check and the robots' planner share before walking the grid.
+    pub fn in_cells(&self, p: Metres) -> (f64, f64) {
+        (
+            (p.x - self.origin_x_m) / self.resolution_m,
+            (p.y - self.origin_y_m) / self.resolution_m,
         )
     }
 
     /// The metric centre of a cell.
-    /// A metric point in cell units: cell `(x, y)` covers `[x, x+1) × [y, y+1)`. The one
-    /// conversion the world's motion check and the robots' planner share.
-    pub fn in_cells(&self, x_m: f64, y_m: f64) -> (f64, f64) {
-        (
-            (x_m - self.origin_x_m) / self.resolution_m,
-            (y_m - self.origin_y_m) / self.resolution_m,
-        )
-    }
-
-    pub fn centre_of(&self, c: Cell) -> (f64, f64) {
-        (
+    pub fn centre_of(&self, c: Cell) -> Metres {
+        Metres::new(
             self.origin_x_m + (f64::from(c.x) + 0.5) * self.resolution_m,
             self.origin_y_m + (f64::from(c.y) + 0.5) * self.resolution_m,
         )
@@ -87,9 +119,8 @@ mod tests {
             origin_y_m: 0.5,
         };
         let c = Cell::new(3, 7);
-        let (x, y) = m.centre_of(c);
-        assert_eq!(m.cell_of(x, y), c);
-        assert_eq!(m.cell_of(-1.01, 0.5), Cell::new(-1, 0));
+        assert_eq!(m.cell_of(m.centre_of(c)), c);
+        assert_eq!(m.cell_of(Metres::new(-1.01, 0.5)), Cell::new(-1, 0));
     }
 }
 

@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
-use crate::geom::{LaserSpec, MapInfo, Pose};
+use crate::geom::{LaserSpec, MapInfo, Metres, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
@@ -76,7 +76,7 @@ pub struct Scan {
 pub struct Cmd {
     pub step: Step,
     pub robot: RobotId,
-    pub waypoint: Option<(f64, f64)>,
+    pub waypoint: Option<Metres>,
 }
 
 /// World → everyone, after each step's moves: the truth-side state.
@@ -109,7 +109,8 @@ pub struct Telemetry {
     pub robot: RobotId,
     pub step: Step,
     pub pose: Pose,
-    pub target: Option<(f64, f64)>,
+    /// Where the robot is heading (the centre of its target cell), if anywhere.
+    pub target: Option<Metres>,
     /// Cells of the planning grid that are not unknown.
     pub known_cells: u32,
     /// Radio payload bytes this robot handed to its radio session so far, and received.
@@ -926,6 +927,19 @@ mod tests {
         assert_eq!(encode(&Some(cell)), encode(&Some((-3i32, 120i32))));
     }
 
+    /// `Cmd.waypoint` and `Telemetry.target` carry [`Metres`] where they carried `(f64, f64)`
+    /// pairs; postcard encodes both alike, so the wire (and [`PROTOCOL_VERSION`]) is unchanged.
+    #[test]
+    fn metres_encode_like_the_pair_they_replaced() {
+        let p = Metres::new(1.5, -2.0);
+        assert_eq!(encode(&p), encode(&(1.5f64, -2.0f64)));
+        assert_eq!(encode(&Some(p)), encode(&Some((1.5f64, -2.0f64))));
+        assert_eq!(
+            postcard::to_stdvec(&p).ok(),
+            postcard::to_stdvec(&(1.5f64, -2.0f64)).ok()
+        );
+    }
+
     #[test]
     fn every_message_round_trips() {
         let pose = Pose {
@@ -973,7 +987,7 @@ mod tests {
         round_trip(Cmd {
             step: 3,
             robot: 1,
-            waypoint: Some((0.5, 0.5)),
+            waypoint: Some(Metres::new(0.5, 0.5)),
         });
         round_trip(Cmd {
             step: 3,
@@ -1051,7 +1065,7 @@ mod tests {
             robot: 2,
             step: 5,
             pose,
-            target: Some((1.0, 1.0)),
+            target: Some(Metres::new(1.0, 1.0)),
             known_cells: 100,
             bytes_sent: 1000,
             bytes_received: 2000,

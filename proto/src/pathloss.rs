@@ -6,7 +6,7 @@
 //! netem decides links with it on the truth map; a robot estimates with the same formula, on its
 //! own map, how far it could be heard from a place (the `roles` strategy's rendezvous points).
 
-use crate::geom::MapInfo;
+use crate::geom::{MapInfo, Metres};
 use crate::grid::{Cell, Grid, Occ};
 use crate::scenario::{Radio, RadioModel};
 use crate::traverse::{clip, Corners, Traversal};
@@ -78,8 +78,8 @@ impl PathLoss {
 pub fn count_walls(
     map: &MapInfo,
     grid: &Grid,
-    a: (f64, f64),
-    b: (f64, f64),
+    a: Metres,
+    b: Metres,
     wall: impl Fn(Occ) -> bool,
 ) -> u32 {
     walls_along(map, grid, a, b, wall)
@@ -94,8 +94,8 @@ pub fn count_walls(
 pub fn walls_along<'a>(
     map: &MapInfo,
     grid: &'a Grid,
-    a: (f64, f64),
-    b: (f64, f64),
+    a: Metres,
+    b: Metres,
     wall: impl Fn(Occ) -> bool + 'a,
 ) -> impl Iterator<Item = (Cell, u32)> + 'a {
     let (mut walls, mut in_wall) = (0, false);
@@ -115,18 +115,13 @@ pub fn walls_along<'a>(
 /// The cells of `grid` the segment `a`–`b` (metres) crosses, by the plain traversal: a wall is
 /// counted where the line enters it, and a line through a corner between two wall cells crosses
 /// one of them. `None` when no part of the segment lies on the map.
-fn crossed(
-    map: &MapInfo,
-    grid: &Grid,
-    a: (f64, f64),
-    b: (f64, f64),
-) -> Option<impl Iterator<Item = Cell>> {
+fn crossed(map: &MapInfo, grid: &Grid, a: Metres, b: Metres) -> Option<impl Iterator<Item = Cell>> {
     let res = map.resolution_m;
     if res.is_nan() || res <= 0.0 || grid.is_empty() {
         return None;
     }
     // Cell coordinates: cell (i, j) covers [i, i+1) × [j, j+1).
-    let (p0, p1) = (map.in_cells(a.0, a.1), map.in_cells(b.0, b.1));
+    let (p0, p1) = (map.in_cells(a), map.in_cells(b));
     let (w, h) = (f64::from(grid.width()), f64::from(grid.height()));
     let (t0, t1) = clip(p0, p1, (0.0, 0.0), (w, h))?;
     let (dx, dy) = (p1.0 - p0.0, p1.1 - p0.1);
@@ -158,9 +153,13 @@ mod tests {
         ........
     ";
 
+    fn at(p: (f64, f64)) -> Metres {
+        Metres::new(p.0, p.1)
+    }
+
     fn walls(pic: &str, a: (f64, f64), b: (f64, f64)) -> u32 {
         let g = Grid::from_ascii(pic);
-        count_walls(&map(&g), &g, a, b, |o| o != Occ::Free)
+        count_walls(&map(&g), &g, at(a), at(b), |o| o != Occ::Free)
     }
 
     #[test]
@@ -177,7 +176,10 @@ mod tests {
         assert_eq!(walls("..?..\n", (0.5, 0.5), (4.5, 0.5)), 1);
         let g = Grid::from_ascii("..?#.\n");
         let seen = |o: Occ| o == Occ::Occupied;
-        assert_eq!(count_walls(&map(&g), &g, (0.5, 0.5), (4.5, 0.5), seen), 1);
+        assert_eq!(
+            count_walls(&map(&g), &g, at((0.5, 0.5)), at((4.5, 0.5)), seen),
+            1
+        );
     }
 
     #[test]
@@ -202,9 +204,9 @@ mod tests {
                 g.set(g.cell_of(i), occ);
             }
             let m = map(&g);
-            let n = count_walls(&m, &g, (ax, ay), (bx, by), |o| o != Occ::Free);
+            let n = count_walls(&m, &g, Metres::new(ax, ay), Metres::new(bx, by), |o| o != Occ::Free);
             prop_assert!(n <= 8);
-            let back = count_walls(&m, &g, (bx, by), (ax, ay), |o| o != Occ::Free);
+            let back = count_walls(&m, &g, Metres::new(bx, by), Metres::new(ax, ay), |o| o != Occ::Free);
             // Corner-grazing segments may pick the other side cell when reversed.
             prop_assert!(n.abs_diff(back) <= 2, "{} vs {}", n, back);
         }
@@ -224,16 +226,16 @@ mod tests {
                 g.set(g.cell_of(i), occ);
             }
             let (m, wall) = (map(&g), |o: Occ| o == Occ::Occupied);
-            let along: Vec<(Cell, u32)> = walls_along(&m, &g, (ax, ay), (bx, by), wall).collect();
+            let along: Vec<(Cell, u32)> = walls_along(&m, &g, Metres::new(ax, ay), Metres::new(bx, by), wall).collect();
             for k in 1..=50 {
                 let t = f64::from(k) / 50.0;
-                let x = (ax + t * (bx - ax), ay + t * (by - ay));
-                let here = Cell::new(x.0.floor() as i32, x.1.floor() as i32);
+                let x = Metres::new(ax + t * (bx - ax), ay + t * (by - ay));
+                let here = Cell::new(x.x.floor() as i32, x.y.floor() as i32);
                 // The count where the walk is in the cell of x (the last visit if two).
                 let Some(&(_, running)) = along.iter().rev().find(|(c, _)| *c == here) else {
                     continue; // x on a corner the walk passed by the other side cell
                 };
-                let cut = count_walls(&m, &g, (ax, ay), x, wall);
+                let cut = count_walls(&m, &g, Metres::new(ax, ay), x, wall);
                 prop_assert_eq!(cut, running, "at t = {}, cell {:?}", t, here);
             }
         }

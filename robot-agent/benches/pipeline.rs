@@ -10,7 +10,7 @@
 use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion, Throughput};
-use proto::geom::{LaserSpec, MapInfo, Pose};
+use proto::geom::{LaserSpec, MapInfo, Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use robot_agent::exchange::delta::diff;
 use robot_agent::exchange::wire::encode;
@@ -63,7 +63,7 @@ fn poses(truth: &Grid, info: &MapInfo, n: usize) -> Vec<Pose> {
         .step_by(stride)
         .take(n)
         .map(|&c| {
-            let (x, y) = info.centre_of(c);
+            let Metres { x, y } = info.centre_of(c);
             Pose { x, y, theta: 0.0 }
         })
         .collect()

@@ -15,7 +15,7 @@
 use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use proto::geom::{MapInfo, Pose};
+use proto::geom::{MapInfo, Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{MoveOutcome, Scan, Step, WorldInfo};
 use proto::scenario::Scenario;
@@ -55,7 +55,7 @@ fn tour(truth: &Grid, info: &MapInfo, k: usize) -> Vec<Pose> {
     let start = free.len() * k / usize::from(ROBOTS);
     (0..free.len() / 97)
         .map(|i| {
-            let (x, y) = info.centre_of(free[(start + 97 * i) % free.len()]);
+            let Metres { x, y } = info.centre_of(free[(start + 97 * i) % free.len()]);
             Pose { x, y, theta: 0.0 }
         })
         .collect()

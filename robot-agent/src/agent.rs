@@ -9,7 +9,7 @@
 //! other robots; getting past other robots and refused moves is [`crate::nav::right_of_way`]'s; the
 //! radio — neighbours, pacing, encoding and counting — is [`crate::radio::station`]'s.
 
-use proto::geom::Pose;
+use proto::geom::{Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{Cmd, Mark, RobotId, Scan, Step, Telemetry, WorldInfo};
 use proto::scenario::Scenario;
@@ -149,11 +149,11 @@ impl Agent {
     }
 
     fn my_cell(&self) -> Cell {
-        self.world.map.cell_of(self.pose.x, self.pose.y)
+        self.world.map.cell_of(self.pose.xy())
     }
 
     /// This step's target and the waypoint toward it (or out of another robot's way).
-    fn plan(&mut self) -> Option<(f64, f64)> {
+    fn plan(&mut self) -> Option<Metres> {
         self.build_planning();
         let g = &self.planning;
         let me = self.my_cell();
@@ -210,7 +210,7 @@ impl Agent {
             return waypoint;
         }
         let max_cells = w.max_speed_m_per_s * w.step_seconds / w.map.resolution_m;
-        let at = (self.pose.x, self.pose.y);
+        let at = self.pose.xy();
         if let Some(aside) = self
             .right_of_way
             .give_way(g, &w.map, at, me, &self.heard, max_cells)

@@ -12,7 +12,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use proto::geom::MapInfo;
+use proto::geom::{MapInfo, Metres};
 use proto::grid::{Grid, Occ};
 use proto::msg::Traffic;
 use robot_agent::agent::Agent;
@@ -209,15 +209,15 @@ fn summarize(map: &str, steps: u32, reachable: &Grid, own: &Grid, m: &Mapper) ->
 }
 
 /// Metric position of a quarter-cell point.
-fn metres(q: QPoint, info: MapInfo) -> (f64, f64) {
-    (
+fn metres(q: QPoint, info: MapInfo) -> Metres {
+    Metres::new(
         info.origin_x_m + f64::from(q.x) / 4.0 * info.resolution_m,
         info.origin_y_m + f64::from(q.y) / 4.0 * info.resolution_m,
     )
 }
 
-fn closed(points: impl Iterator<Item = QPoint>, info: MapInfo) -> Vec<(f64, f64)> {
-    let mut v: Vec<(f64, f64)> = points.map(|q| metres(q, info)).collect();
+fn closed(points: impl Iterator<Item = QPoint>, info: MapInfo) -> Vec<Metres> {
+    let mut v: Vec<Metres> = points.map(|q| metres(q, info)).collect();
     if let Some(&first) = v.first() {
         v.push(first);
     }

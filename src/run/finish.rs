@@ -437,8 +437,8 @@ pub fn write_pictures(
     let mut truth_pic = Picture::of_grid(truth, info);
     for (i, t) in trajectories.iter().enumerate() {
         truth_pic.path(t, robot_colour(i));
-        if let Some(&(x, y)) = t.first() {
-            truth_pic.marker(x, y, robot_colour(i));
+        if let Some(&p) = t.first() {
+            truth_pic.marker(p, robot_colour(i));
         }
     }
     truth_pic.save(&dir.join("truth.png"))?;
@@ -447,8 +447,8 @@ pub fn write_pictures(
         let i = usize::from(*id);
         if let Some(t) = trajectories.get(i) {
             pic.path(t, robot_colour(i));
-            if let Some(&(x, y)) = t.last() {
-                pic.marker(x, y, robot_colour(i));
+            if let Some(&p) = t.last() {
+                pic.marker(p, robot_colour(i));
             }
         }
         pic.save(&dir.join(format!("robot_{id}.png")))?;

@@ -5,6 +5,7 @@
 use std::time::{Duration, Instant};
 
 use proto::exit::ExitReason;
+use proto::geom::Metres;
 use proto::msg::{decode, ProcessOrder, Status, Step, Telemetry};
 use serde::de::DeserializeOwned;
 use zenoh::sample::Sample;
@@ -113,14 +114,14 @@ impl Record {
     }
 
     /// Every robot's poses, in step order, up to the last status.
-    pub fn trajectories(&self) -> Vec<Vec<(f64, f64)>> {
+    pub fn trajectories(&self) -> Vec<Vec<Metres>> {
         let upto = self.last_status().map_or(0, |s| s.step);
         let robots = self.statuses.first().map_or(0, |s| s.robots.len());
         let mut t = vec![Vec::new(); robots];
         for st in self.statuses.iter().filter(|s| s.step <= upto) {
             for r in &st.robots {
                 if let Some(t) = t.get_mut(usize::from(r.id)) {
-                    t.push((r.pose.x, r.pose.y));
+                    t.push(r.pose.xy());
                 }
             }
         }

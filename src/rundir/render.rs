@@ -7,7 +7,7 @@ use std::io::BufWriter;
 use std::path::Path;
 
 use anyhow::Context;
-use proto::geom::MapInfo;
+use proto::geom::{MapInfo, Metres};
 use proto::grid::{Grid, Occ};
 
 /// Colours of robots' trajectories, reused cyclically.
@@ -87,17 +87,18 @@ impl Picture {
     }
 
     /// Pixel of a metric point.
-    fn pixel(&self, x_m: f64, y_m: f64) -> (f64, f64) {
+    fn pixel(&self, p: Metres) -> (f64, f64) {
         let s = f64::from(self.scale);
-        let px = (x_m - self.info.origin_x_m) / self.info.resolution_m * s;
-        let py = f64::from(self.height) - (y_m - self.info.origin_y_m) / self.info.resolution_m * s;
+        let (cx, cy) = self.info.in_cells(p);
+        let px = cx * s;
+        let py = f64::from(self.height) - cy * s;
         (px, py)
     }
 
     /// A polyline through metric points.
-    pub fn path(&mut self, points: &[(f64, f64)], col: [u8; 3]) {
+    pub fn path(&mut self, points: &[Metres], col: [u8; 3]) {
         for w in points.windows(2) {
-            let (a, b) = (self.pixel(w[0].0, w[0].1), self.pixel(w[1].0, w[1].1));
+            let (a, b) = (self.pixel(w[0]), self.pixel(w[1]));
             let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as i32).max(1);
             for k in 0..=n {
                 let t = f64::from(k) / f64::from(n);
@@ -111,8 +112,8 @@ impl Picture {
     }
 
     /// A filled square marker at a metric point.
-    pub fn marker(&mut self, x_m: f64, y_m: f64, col: [u8; 3]) {
-        let (px, py) = self.pixel(x_m, y_m);
+    pub fn marker(&mut self, p: Metres, col: [u8; 3]) {
+        let (px, py) = self.pixel(p);
         let r = (self.scale as i32).max(2);
         for dy in -r..=r {
             for dx in -r..=r {

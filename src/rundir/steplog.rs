@@ -319,7 +319,7 @@ impl StepLogWriter {
             x: t.pose.x as f32,
             y: t.pose.y as f32,
             theta: t.pose.theta as f32,
-            target: t.target.map(|(x, y)| (x as f32, y as f32)),
+            target: t.target.map(|p| (p.x as f32, p.y as f32)),
             idle: t.idle,
             known_cells: t.known_cells,
             bytes_sent: t.bytes_sent,

@@ -13,6 +13,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use proto::geom::Metres;
 use proto::grid::{Cell, Occ};
 use proto::msg::{Cmd, RobotId, Step};
 use proto::scenario::Scenario;
@@ -74,7 +75,7 @@ fn step_by_map_size(c: &mut Criterion) {
                 let dx = if step.is_multiple_of(2) { 0.05 } else { -0.05 };
                 let cmds: HashMap<RobotId, Cmd> = (world.bodies.iter())
                     .map(|b| {
-                        let waypoint = Some((b.pose.x + dx, b.pose.y));
+                        let waypoint = Some(Metres::new(b.pose.x + dx, b.pose.y));
                         let cmd = Cmd {
                             step,
                             robot: b.id,

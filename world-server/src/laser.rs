@@ -11,7 +11,7 @@
 //! touches both side cells too, and either one blocks it — the same supercover rule robots move
 //! by ([`crate::motion`]), so a beam never sees through a diagonal gap a robot cannot pass.
 
-use proto::geom::{LaserSpec, MapInfo, Pose};
+use proto::geom::{LaserSpec, MapInfo, Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::traverse::{Corners, Crossing, Traversal};
 use rand::{Rng, RngCore};
@@ -32,7 +32,7 @@ pub fn cast(
     for i in 0..spec.beams {
         let angle = pose.theta + spec.beam_angle(i);
         let range = match (
-            ray_hit_m(grid, info, (pose.x, pose.y), angle, max),
+            ray_hit_m(grid, info, pose.xy(), angle, max),
             rng.as_deref_mut(),
         ) {
             (Some(hit), Some(r)) if noisy => (hit + spec.noise_std_m * gaussian(r)).clamp(0.0, max),
@@ -52,24 +52,24 @@ fn gaussian(rng: &mut dyn RngCore) -> f64 {
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
-/// Distance in metres from `(x, y)` along `angle` to the first non-free cell, if one is entered
+/// Distance in metres from `p` along `angle` to the first non-free cell, if one is entered
 /// before `max_range_m` and before the ray leaves the grid. A ray starting in a non-free cell hits
 /// at 0; one starting outside the grid sees nothing.
 pub fn ray_hit_m(
     grid: &Grid,
     info: &MapInfo,
-    (x, y): (f64, f64),
+    p: Metres,
     angle: f64,
     max_range_m: f64,
 ) -> Option<f64> {
     let res = info.resolution_m;
-    if !(x.is_finite() && y.is_finite() && angle.is_finite() && res.is_finite() && res > 0.0) {
+    if !(p.x.is_finite() && p.y.is_finite() && angle.is_finite() && res.is_finite() && res > 0.0) {
         return None;
     }
     if max_range_m.is_nan() || max_range_m <= 0.0 {
         return None;
     }
-    let start = ((x - info.origin_x_m) / res, (y - info.origin_y_m) / res);
+    let start = info.in_cells(p);
     let hit_cells = traverse(grid, start, (angle.cos(), angle.sin()), max_range_m / res)?;
     Some(hit_cells * res)
 }
@@ -184,16 +184,18 @@ mod tests {
         let mut g = Grid::new(12, 12, Occ::Free);
         g.set(Cell::new(6, 6), Occ::Occupied);
         let i = info(&g, 0.1);
-        let at = |x, y, angle| ray_hit_m(&g, &i, (x, y), angle, 8.0);
+        let at = |x, y, angle| ray_hit_m(&g, &i, Metres::new(x, y), angle, 8.0);
         // Through the corners (3,3), (4,4), (5,5) into the occupied cell.
         let hit = at(0.25, 0.25, PI / 4.0).unwrap_or(f64::NAN);
         assert!((hit - 3.5 * 2f64.sqrt() * 0.1).abs() < 1e-4, "{hit}");
         // Slope 1/2 from (2.5, 2.5) cells reaches the wall column x = 8 at y = 5.25.
         let mut wall = Grid::new(12, 12, Occ::Free);
         (0..12).for_each(|y| wall.set(Cell::new(8, y), Occ::Occupied));
-        let hit = ray_hit_m(&wall, &i, (0.25, 0.25), 0.5f64.atan(), 8.0).unwrap_or(f64::NAN);
+        let hit =
+            ray_hit_m(&wall, &i, Metres::new(0.25, 0.25), 0.5f64.atan(), 8.0).unwrap_or(f64::NAN);
         assert!((hit - 0.55 * 1.25f64.sqrt()).abs() < 1e-4, "{hit}");
-        let back = ray_hit_m(&wall, &i, (1.15, 0.55), PI - 0.5f64.atan(), 8.0).unwrap_or(f64::NAN);
+        let back = ray_hit_m(&wall, &i, Metres::new(1.15, 0.55), PI - 0.5f64.atan(), 8.0)
+            .unwrap_or(f64::NAN);
         assert!((back - 0.25 * 1.25f64.sqrt()).abs() < 1e-4, "{back}");
     }
 
@@ -368,14 +370,14 @@ mod tests {
             0.22183393019343198 * 0.2,
             1.1040862664648514,
         );
-        let hit = ray_hit_m(&g, &i, (x, y), angle, 8.0).unwrap_or(f64::NAN);
+        let hit = ray_hit_m(&g, &i, Metres::new(x, y), angle, 8.0).unwrap_or(f64::NAN);
         let want = (1.0 - 0.22183393019343198) / angle.sin() * 0.2;
         assert!((hit - want).abs() < 1e-12, "{hit} vs {want}");
         assert_eq!(
-            i.cell_of(
+            i.cell_of(Metres::new(
                 x + (hit + 1e-6) * angle.cos(),
                 y + (hit + 1e-6) * angle.sin()
-            ),
+            )),
             Cell::new(0, 1)
         );
     }
@@ -417,8 +419,8 @@ mod tests {
             prop_assume!(!free.is_empty());
             let c = free[pick.index(free.len())];
             let (x, y) = ((f64::from(c.x) + fx) * res, (f64::from(c.y) + fy) * res);
-            let range = ray_hit_m(&g, &i, (x, y), angle, max).unwrap_or(max);
-            let at = |s: f64| i.cell_of(x + s * angle.cos(), y + s * angle.sin());
+            let range = ray_hit_m(&g, &i, Metres::new(x, y), angle, max).unwrap_or(max);
+            let at = |s: f64| i.cell_of(Metres::new(x + s * angle.cos(), y + s * angle.sin()));
             if range < max {
                 // Just beyond: a ray that clips the corner of the blocking cell may cross it in
                 // less than 0.01 cell, so the probe is much closer than that (it is regression

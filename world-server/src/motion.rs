@@ -16,7 +16,7 @@
 
 use std::collections::HashMap;
 
-use proto::geom::{MapInfo, Pose};
+use proto::geom::{MapInfo, Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{MoveOutcome, RobotId};
 use proto::traverse::swept;
@@ -25,14 +25,14 @@ use proto::traverse::swept;
 pub trait Others {
     /// The robot nearest to `p` among those closer than `distance_m`, and where it is; of
     /// equally near ones, the first in id order.
-    fn nearest(&self, p: (f64, f64), distance_m: f64) -> Option<(RobotId, (f64, f64))>;
+    fn nearest(&self, p: Metres, distance_m: f64) -> Option<(RobotId, Metres)>;
 }
 
 /// Every robot in the slice, in its order.
-impl Others for [(RobotId, (f64, f64))] {
-    fn nearest(&self, p: (f64, f64), distance_m: f64) -> Option<(RobotId, (f64, f64))> {
+impl Others for [(RobotId, Metres)] {
+    fn nearest(&self, p: Metres, distance_m: f64) -> Option<(RobotId, Metres)> {
         self.iter()
-            .map(|&(id, at)| (id, at, (at.0 - p.0).hypot(at.1 - p.1)))
+            .map(|&(id, at)| (id, at, at.dist(p)))
             .filter(|&(_, _, d)| d < distance_m)
             .min_by(|a, b| a.2.total_cmp(&b.2))
             .map(|(id, at, _)| (id, at))
@@ -45,14 +45,14 @@ impl Others for [(RobotId, (f64, f64))] {
 #[derive(Clone, Debug)]
 pub struct Crowd {
     bucket_m: f64,
-    at: Vec<Option<(f64, f64)>>,
+    at: Vec<Option<Metres>>,
     buckets: HashMap<(i64, i64), Vec<RobotId>>,
 }
 
 impl Crowd {
     /// The robots at `at` (by id; `None`: not an obstacle, e.g. dead), for collision checks of
     /// up to `distance_m`.
-    pub fn new(distance_m: f64, at: Vec<Option<(f64, f64)>>) -> Crowd {
+    pub fn new(distance_m: f64, at: Vec<Option<Metres>>) -> Crowd {
         // A hair wider than the distance, so that rounding never puts two robots closer than it
         // two buckets apart.
         let bucket_m = if distance_m > 0.0 && distance_m.is_finite() {
@@ -71,16 +71,16 @@ impl Crowd {
         crowd
     }
 
-    fn bucket(&self, p: (f64, f64)) -> (i64, i64) {
+    fn bucket(&self, p: Metres) -> (i64, i64) {
         // `as` saturates (and maps NaN to 0): any point has a bucket.
         (
-            (p.0 / self.bucket_m).floor() as i64,
-            (p.1 / self.bucket_m).floor() as i64,
+            (p.x / self.bucket_m).floor() as i64,
+            (p.y / self.bucket_m).floor() as i64,
         )
     }
 
     /// Robot `id` is now at `p` (`None`: no longer an obstacle).
-    pub fn place(&mut self, id: usize, p: Option<(f64, f64)>) {
+    pub fn place(&mut self, id: usize, p: Option<Metres>) {
         let Some(slot) = self.at.get(id).copied() else {
             return;
         };
@@ -113,7 +113,7 @@ pub struct Without<'a> {
 }
 
 impl Others for Without<'_> {
-    fn nearest(&self, p: (f64, f64), distance_m: f64) -> Option<(RobotId, (f64, f64))> {
+    fn nearest(&self, p: Metres, distance_m: f64) -> Option<(RobotId, Metres)> {
         let c = self.crowd;
         if distance_m > c.bucket_m {
             // Farther than the buckets reach: every robot, as a slice would be searched.
@@ -124,7 +124,7 @@ impl Others for Without<'_> {
             return all.nearest(p, distance_m);
         }
         let (bx, by) = c.bucket(p);
-        let mut near: Vec<(RobotId, (f64, f64))> = (-1..=1)
+        let mut near: Vec<(RobotId, Metres)> = (-1..=1)
             .flat_map(|dx| (-1..=1).map(move |dy| (bx.saturating_add(dx), by.saturating_add(dy))))
             .filter_map(|key| c.buckets.get(&key))
             .flatten()
@@ -150,9 +150,9 @@ pub fn validate_move(
     grid: &Grid,
     info: &MapInfo,
     from: Pose,
-    to: (f64, f64),
+    to: Metres,
     max_step_m: f64,
-    others: &[(RobotId, (f64, f64))],
+    others: &[(RobotId, Metres)],
     robot_radius_m: f64,
 ) -> Result<Pose, MoveOutcome> {
     validate_move_among(grid, info, from, to, max_step_m, others, robot_radius_m)
@@ -163,16 +163,16 @@ pub fn validate_move_among(
     grid: &Grid,
     info: &MapInfo,
     from: Pose,
-    to: (f64, f64),
+    to: Metres,
     max_step_m: f64,
     others: &(impl Others + ?Sized),
     robot_radius_m: f64,
 ) -> Result<Pose, MoveOutcome> {
-    let finite = [from.x, from.y, to.0, to.1].iter().all(|v| v.is_finite());
-    if !finite || !grid.contains(info.cell_of(from.x, from.y)) {
+    let finite = [from.x, from.y, to.x, to.y].iter().all(|v| v.is_finite());
+    if !finite || !grid.contains(info.cell_of(from.xy())) {
         return Err(MoveOutcome::OutOfMap);
     }
-    let (dx, dy) = (to.0 - from.x, to.1 - from.y);
+    let (dx, dy) = (to.x - from.x, to.y - from.y);
     let length = dx.hypot(dy);
     // NaN or negative limits allow no motion at all.
     let step = if max_step_m > 0.0 { max_step_m } else { 0.0 };
@@ -180,37 +180,37 @@ pub fn validate_move_among(
         return Ok(from);
     }
     let end = if length > step {
-        (from.x + dx / length * step, from.y + dy / length * step)
+        Metres::new(from.x + dx / length * step, from.y + dy / length * step)
     } else {
         to
     };
-    if !grid.contains(info.cell_of(end.0, end.1)) {
+    if !grid.contains(info.cell_of(end)) {
         return Err(MoveOutcome::OutOfMap);
     }
-    if swept_m(info, (from.x, from.y), end)
+    if swept_m(info, from.xy(), end)
         .into_iter()
         .any(|c| grid.get(c) != Occ::Free)
     {
         return Err(MoveOutcome::Blocked);
     }
-    if let Some((with, (x, y))) = others.nearest(end, 2.0 * robot_radius_m) {
+    if let Some((with, at)) = others.nearest(end, 2.0 * robot_radius_m) {
         let mm = |v: f64| (v * 1000.0).round() as i32;
         return Err(MoveOutcome::Collision {
             with,
-            at_mm: (mm(x), mm(y)),
+            at_mm: (mm(at.x), mm(at.y)),
         });
     }
     Ok(Pose {
-        x: end.0,
-        y: end.1,
+        x: end.x,
+        y: end.y,
         theta: dy.atan2(dx),
     })
 }
 
 /// The cells a move between two metric points sweeps ([`proto::traverse::swept`], the walk the
 /// planner checks its waypoints with).
-pub fn swept_m(info: &MapInfo, a: (f64, f64), b: (f64, f64)) -> Vec<Cell> {
-    swept(info.in_cells(a.0, a.1), info.in_cells(b.0, b.1))
+pub fn swept_m(info: &MapInfo, a: Metres, b: Metres) -> Vec<Cell> {
+    swept(info.in_cells(a), info.in_cells(b))
 }
 
 #[cfg(test)]
@@ -240,7 +240,15 @@ mod tests {
     #[test]
     fn a_free_move_heads_along_the_motion() {
         let (g, i) = setup();
-        let got = validate_move(&g, &i, pose(0.75, 0.75), (0.75, 1.75), 2.0, &[], 0.2);
+        let got = validate_move(
+            &g,
+            &i,
+            pose(0.75, 0.75),
+            Metres::new(0.75, 1.75),
+            2.0,
+            &[],
+            0.2,
+        );
         assert_eq!(
             got,
             Ok(Pose {
@@ -254,8 +262,16 @@ mod tests {
     #[test]
     fn long_moves_are_clipped_to_the_step() {
         let (g, i) = setup();
-        let got = validate_move(&g, &i, pose(0.75, 0.75), (3.75, 4.75), 1.0, &[], 0.2)
-            .expect("free segment");
+        let got = validate_move(
+            &g,
+            &i,
+            pose(0.75, 0.75),
+            Metres::new(3.75, 4.75),
+            1.0,
+            &[],
+            0.2,
+        )
+        .expect("free segment");
         assert!(
             (got.x - 1.35).abs() < 1e-12 && (got.y - 1.55).abs() < 1e-12,
             "{got:?}"
@@ -267,15 +283,39 @@ mod tests {
     fn zero_moves_keep_the_pose() {
         let (g, i) = setup();
         assert_eq!(
-            validate_move(&g, &i, pose(0.75, 0.75), (0.75, 0.75), 1.0, &[], 0.2),
+            validate_move(
+                &g,
+                &i,
+                pose(0.75, 0.75),
+                Metres::new(0.75, 0.75),
+                1.0,
+                &[],
+                0.2
+            ),
             Ok(pose(0.75, 0.75))
         );
         assert_eq!(
-            validate_move(&g, &i, pose(0.75, 0.75), (1.75, 0.75), 0.0, &[], 0.2),
+            validate_move(
+                &g,
+                &i,
+                pose(0.75, 0.75),
+                Metres::new(1.75, 0.75),
+                0.0,
+                &[],
+                0.2
+            ),
             Ok(pose(0.75, 0.75))
         );
         assert_eq!(
-            validate_move(&g, &i, pose(0.75, 0.75), (1.75, 0.75), f64::NAN, &[], 0.2),
+            validate_move(
+                &g,
+                &i,
+                pose(0.75, 0.75),
+                Metres::new(1.75, 0.75),
+                f64::NAN,
+                &[],
+                0.2
+            ),
             Ok(pose(0.75, 0.75))
         );
     }
@@ -284,24 +324,64 @@ mod tests {
     fn leaving_the_map_is_out_of_map() {
         let (g, i) = setup();
         assert_eq!(
-            validate_move(&g, &i, pose(0.75, 0.75), (-0.2, 0.75), 5.0, &[], 0.2),
+            validate_move(
+                &g,
+                &i,
+                pose(0.75, 0.75),
+                Metres::new(-0.2, 0.75),
+                5.0,
+                &[],
+                0.2
+            ),
             Err(MoveOutcome::OutOfMap)
         );
         assert_eq!(
-            validate_move(&g, &i, pose(0.75, 0.75), (0.75, 3.0), 5.0, &[], 0.2),
+            validate_move(
+                &g,
+                &i,
+                pose(0.75, 0.75),
+                Metres::new(0.75, 3.0),
+                5.0,
+                &[],
+                0.2
+            ),
             Err(MoveOutcome::OutOfMap)
         );
         assert_eq!(
-            validate_move(&g, &i, pose(0.75, 0.75), (f64::NAN, 1.0), 5.0, &[], 0.2),
+            validate_move(
+                &g,
+                &i,
+                pose(0.75, 0.75),
+                Metres::new(f64::NAN, 1.0),
+                5.0,
+                &[],
+                0.2
+            ),
             Err(MoveOutcome::OutOfMap)
         );
         assert_eq!(
-            validate_move(&g, &i, pose(-9.0, 0.75), (0.75, 0.75), 5.0, &[], 0.2),
+            validate_move(
+                &g,
+                &i,
+                pose(-9.0, 0.75),
+                Metres::new(0.75, 0.75),
+                5.0,
+                &[],
+                0.2
+            ),
             Err(MoveOutcome::OutOfMap)
         );
         // Clipping can bring a target beyond the map back inside it: that move is legal.
         assert_eq!(
-            validate_move(&g, &i, pose(0.75, 0.75), (-5.0, 0.75), 0.2, &[], 0.2),
+            validate_move(
+                &g,
+                &i,
+                pose(0.75, 0.75),
+                Metres::new(-5.0, 0.75),
+                0.2,
+                &[],
+                0.2
+            ),
             Ok(Pose {
                 x: 0.55,
                 y: 0.75,
@@ -313,8 +393,17 @@ mod tests {
     #[test]
     fn obstacles_unknown_cells_and_corners_block() {
         let (g, i) = setup();
-        let blocked =
-            |from: (f64, f64), to| validate_move(&g, &i, pose(from.0, from.1), to, 5.0, &[], 0.2);
+        let blocked = |from: (f64, f64), to: (f64, f64)| {
+            validate_move(
+                &g,
+                &i,
+                pose(from.0, from.1),
+                Metres::new(to.0, to.1),
+                5.0,
+                &[],
+                0.2,
+            )
+        };
         assert_eq!(
             blocked((0.75, 1.75), (2.75, 1.75)),
             Err(MoveOutcome::Blocked),
@@ -342,8 +431,20 @@ mod tests {
     #[test]
     fn ending_near_another_robot_is_a_collision_with_the_nearest() {
         let (g, i) = setup();
-        let others = [(3, (2.2, 2.25)), (7, (2.05, 2.25)), (9, (4.0, 0.75))];
-        let got = validate_move(&g, &i, pose(2.25, 1.25), (2.25, 2.25), 2.0, &others, 0.2);
+        let others = [
+            (3, Metres::new(2.2, 2.25)),
+            (7, Metres::new(2.05, 2.25)),
+            (9, Metres::new(4.0, 0.75)),
+        ];
+        let got = validate_move(
+            &g,
+            &i,
+            pose(2.25, 1.25),
+            Metres::new(2.25, 2.25),
+            2.0,
+            &others,
+            0.2,
+        );
         assert_eq!(
             got,
             Err(MoveOutcome::Collision {
@@ -351,9 +452,18 @@ mod tests {
                 at_mm: (2200, 2250)
             })
         );
-        let touching = [(7, (2.25, 2.75))];
+        let touching = [(7, Metres::new(2.25, 2.75))];
         assert!(
-            validate_move(&g, &i, pose(2.25, 1.25), (2.25, 2.25), 2.0, &touching, 0.25).is_ok(),
+            validate_move(
+                &g,
+                &i,
+                pose(2.25, 1.25),
+                Metres::new(2.25, 2.25),
+                2.0,
+                &touching,
+                0.25
+            )
+            .is_ok(),
             "exactly 2r apart"
         );
     }
@@ -368,8 +478,8 @@ mod tests {
             probes in prop::collection::vec((0u8..80, 0u8..80, 0usize..40), 1..20),
             radius in prop::sample::select(vec![0.1, 0.15, 0.2, 0.25]),
         ) {
-            let m = |(x, y): (u8, u8)| (f64::from(x) * 0.05, f64::from(y) * 0.05);
-            let mut at: Vec<Option<(f64, f64)>> = start.iter().map(|p| p.map(m)).collect();
+            let m = |(x, y): (u8, u8)| Metres::new(f64::from(x) * 0.05, f64::from(y) * 0.05);
+            let mut at: Vec<Option<Metres>> = start.iter().map(|p| p.map(m)).collect();
             let mut crowd = Crowd::new(2.0 * radius, at.clone());
             for (i, p) in moves {
                 let i = i % at.len();
@@ -378,7 +488,7 @@ mod tests {
             }
             for (x, y, me) in probes {
                 let me = (me % at.len()) as RobotId;
-                let team: Vec<(RobotId, (f64, f64))> = (at.iter().enumerate())
+                let team: Vec<(RobotId, Metres)> = (at.iter().enumerate())
                     .filter_map(|(id, p)| Some((id as RobotId, (*p)?)))
                     .filter(|&(id, _)| id != me)
                     .collect();

@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use proto::geom::{LaserSpec, MapInfo, Pose};
+use proto::geom::{LaserSpec, MapInfo, Metres, Pose};
 use proto::grid::Grid;
 use proto::msg::{Cmd, MoveOutcome, RobotId, RobotStatus, Scan, Status, Step, TruthMap, WorldInfo};
 use proto::scenario::Scenario;
@@ -109,7 +109,7 @@ impl World {
             .iter()
             .enumerate()
             .map(|(i, &c)| {
-                let (x, y) = truth.info.centre_of(c);
+                let Metres { x, y } = truth.info.centre_of(c);
                 Body {
                     id: i as RobotId,
                     pose: Pose { x, y, theta: 0.0 },
@@ -123,7 +123,7 @@ impl World {
         let base = match (s.base_id(), s.base_station.pose) {
             (None, _) => None,
             (Some(id), Some([x, y])) => {
-                if !truth.grid.contains(truth.info.cell_of(x, y)) {
+                if !truth.grid.contains(truth.info.cell_of(Metres::new(x, y))) {
                     return Err(WorldError::BaseOutside(x, y));
                 }
                 Some(Base {
@@ -134,7 +134,7 @@ impl World {
             }
             // In the spawn area: where robot 0 starts (the spawn cluster's anchor).
             (Some(id), None) => {
-                let (x, y) = truth.info.centre_of(spawn[0]);
+                let Metres { x, y } = truth.info.centre_of(spawn[0]);
                 Some(Base {
                     id,
                     pose: Pose { x, y, theta: 0.0 },
@@ -228,7 +228,7 @@ impl World {
         let mut crowd = Crowd::new(
             2.0 * self.radius_m,
             (self.bodies.iter())
-                .map(|b| b.alive.then_some((b.pose.x, b.pose.y)))
+                .map(|b| b.alive.then_some(b.pose.xy()))
                 .collect(),
         );
         for i in 0..self.bodies.len() {
@@ -262,8 +262,8 @@ impl World {
         self.revive();
     }
 
-    fn try_move(&mut self, i: usize, to: (f64, f64), crowd: &mut Crowd) -> MoveOutcome {
-        if !(to.0.is_finite() && to.1.is_finite()) {
+    fn try_move(&mut self, i: usize, to: Metres, crowd: &mut Crowd) -> MoveOutcome {
+        if !(to.x.is_finite() && to.y.is_finite()) {
             return MoveOutcome::OutOfMap;
         }
         let from = self.bodies[i].pose;
@@ -277,9 +277,9 @@ impl World {
             self.radius_m,
         ) {
             Ok(pose) => {
-                self.bodies[i].distance_m += (pose.x - from.x).hypot(pose.y - from.y);
+                self.bodies[i].distance_m += pose.xy().dist(from.xy());
                 self.bodies[i].pose = pose;
-                crowd.place(i, Some((pose.x, pose.y)));
+                crowd.place(i, Some(pose.xy()));
                 MoveOutcome::Moved
             }
             Err(outcome) => outcome,

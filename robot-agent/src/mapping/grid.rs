@@ -125,10 +125,7 @@ fn trace_scan(g: &Grid, info: &MapInfo, pose: Pose, ranges: &[f32], spec: &Laser
     if !sane || ![pose.x, pose.y, pose.theta].iter().all(|v| v.is_finite()) {
         return Vec::new();
     }
-    let robot = (
-        (pose.x - info.origin_x_m) / res,
-        (pose.y - info.origin_y_m) / res,
-    );
+    let robot = info.in_cells(pose.xy());
     ranges
         .iter()
         .zip(0..spec.beams)
@@ -645,11 +642,7 @@ mod tests {
         w: i32,
         h: i32,
     ) -> BTreeSet<Cell> {
-        let res = info.resolution_m;
-        let p = (
-            (pose.x - info.origin_x_m) / res,
-            (pose.y - info.origin_y_m) / res,
-        );
+        let p = info.in_cells(pose.xy());
         let mut out = BTreeSet::new();
         for i in 0..spec.beams {
             let angle = pose.theta + spec.beam_angle(i);
@@ -690,10 +683,7 @@ mod tests {
             max_range_m: 7.539_774_040_875_619,
             noise_std_m: 0.0,
         };
-        let p = (
-            (pose.x - info.origin_x_m) / res,
-            (pose.y - info.origin_y_m) / res,
-        );
+        let p = info.in_cells(pose.xy());
         let ranges: Vec<f32> = (0..spec.beams)
             .map(|i| {
                 box_range(
@@ -757,7 +747,7 @@ mod tests {
             let (w, h) = (g.width() as i32, g.height() as i32);
             let changed = integrate_scan(&mut g, &info, pose, &ranges, &spec);
             prop_assert_eq!(changed, g.len() - g.count(Occ::Unknown));
-            let robot = info.cell_of(pose.x, pose.y);
+            let robot = info.cell_of(pose.xy());
             prop_assert_eq!(g.get(robot), Occ::Free);
             let grazed = grazed_cells(&info, pose, &spec, w, h);
             for i in 0..g.len() {

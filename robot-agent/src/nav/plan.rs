@@ -18,7 +18,7 @@ use std::collections::BinaryHeap;
 
 use proto::grid::{Cell, Grid, Occ, Rect};
 
-use proto::geom::MapInfo;
+use proto::geom::{MapInfo, Metres};
 use proto::traverse::swept;
 
 /// Costs that differ by less than this count as equal when frontiers are ranked, so that the
@@ -351,7 +351,7 @@ pub fn path_to(costs: &CostMap, target: Cell) -> Option<Vec<Cell>> {
 pub fn next_waypoint(
     g: &Grid,
     map: &MapInfo,
-    from_m: (f64, f64),
+    from_m: Metres,
     path: &[Cell],
     max_cells: f64,
 ) -> Option<Cell> {
@@ -360,7 +360,7 @@ pub fn next_waypoint(
     if second.dist(first) > max_cells {
         return Some(second);
     }
-    let from = map.in_cells(from_m.0, from_m.1);
+    let from = map.in_cells(from_m);
     let reach = rest.iter().take_while(|&&c| {
         let (dx, dy) = (f64::from(c.x - first.x), f64::from(c.y - first.y));
         dx.hypot(dy) <= max_cells
@@ -368,10 +368,10 @@ pub fn next_waypoint(
     let candidates: Vec<Cell> = reach.copied().collect();
     // The waypoint crosses the wire in metres: check the move the world will check, to the
     // centre as the world converts it back (at a corner crossing the last bit decides).
-    candidates.into_iter().rev().find(|&c| {
-        let (x, y) = map.centre_of(c);
-        move_is_free(g, from, map.in_cells(x, y), first)
-    })
+    candidates
+        .into_iter()
+        .rev()
+        .find(|&c| move_is_free(g, from, map.in_cells(map.centre_of(c)), first))
 }
 
 /// Whether a straight move from `from` to `to` (cell units) sweeps only free cells of `g`
@@ -927,17 +927,17 @@ mod tests {
                 origin_x_m: origin_m.0,
                 origin_y_m: origin_m.1,
             };
-            let from_m = (
+            let from_m = Metres::new(
                 info.origin_x_m + (f64::from(start.x) + off.0) * resolution_m,
                 info.origin_y_m + (f64::from(start.y) + off.1) * resolution_m,
             );
-            prop_assume!(info.cell_of(from_m.0, from_m.1) == start);
+            prop_assume!(info.cell_of(from_m) == start);
             let map = costs(&g, start);
             let reachable: Vec<Cell> = (0..g.len()).map(|i| g.cell_of(i)).filter(|&c| map.cost(c).is_some()).collect();
             let target = reachable[pick.index(reachable.len())];
             let path = path_to(&map, target).expect("reachable cells have paths");
             if let Some(w) = next_waypoint(&g, &info, from_m, &path, max_cells) {
-                let pose = proto::geom::Pose { x: from_m.0, y: from_m.1, theta: 0.0 };
+                let pose = proto::geom::Pose { x: from_m.x, y: from_m.y, theta: 0.0 };
                 let moved = world_server::motion::validate_move(
                     &g, &info, pose, info.centre_of(w), max_cells * resolution_m, &[], 0.2,
                 );

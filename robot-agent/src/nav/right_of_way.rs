@@ -15,7 +15,7 @@
 
 use std::collections::HashMap;
 
-use proto::geom::MapInfo;
+use proto::geom::{MapInfo, Metres};
 use proto::grid::{Cell, Grid};
 use proto::msg::{MoveOutcome, RobotId, Step};
 
@@ -87,7 +87,7 @@ impl RightOfWay {
             let m = |v: i32| f64::from(v) / 1000.0;
             self.bump = Some(Bump {
                 other: with,
-                at: map.cell_of(m(at_mm.0), m(at_mm.1)),
+                at: map.cell_of(Metres::new(m(at_mm.0), m(at_mm.1))),
                 until: step + BUMP_STEPS,
             });
         }
@@ -151,7 +151,7 @@ impl RightOfWay {
         &self,
         g: &Grid,
         map: &MapInfo,
-        at_m: (f64, f64),
+        at_m: Metres,
         me: Cell,
         heard: &Heard,
         max_cells: f64,
@@ -183,11 +183,11 @@ mod tests {
     }
 
     fn collision(with: RobotId, at: Cell, info: &MapInfo) -> MoveOutcome {
-        let (x, y) = info.centre_of(at);
+        let p = info.centre_of(at);
         let mm = |v: f64| (v * 1000.0).round() as i32;
         MoveOutcome::Collision {
             with,
-            at_mm: (mm(x), mm(y)),
+            at_mm: (mm(p.x), mm(p.y)),
         }
     }
 
@@ -290,7 +290,7 @@ mod tests {
         agents[0].link_up(1);
         agents[1].link_up(0);
         let mut poses = starts.map(|c| {
-            let (x, y) = info.centre_of(c);
+            let Metres { x, y } = info.centre_of(c);
             Pose { x, y, theta: 0.0 }
         });
         let mut last = [MoveOutcome::Start; 2];
@@ -330,7 +330,7 @@ mod tests {
                         poses[i],
                         to,
                         s.robots.speed_m_per_s * s.clock.step_seconds,
-                        &[(1 - i as RobotId, (other.x, other.y))],
+                        &[(1 - i as RobotId, other.xy())],
                         s.robots.radius_m,
                     ) {
                         Ok(p) => {

@@ -8,7 +8,7 @@
 //! * [`Reach::linked`]: whether robots at two places could talk (Rooker and Birk's pack judges
 //!   its configurations with it).
 
-use proto::geom::MapInfo;
+use proto::geom::{MapInfo, Metres};
 use proto::grid::{Cell, Grid, Occ};
 use proto::pathloss::{count_walls, walls_along, PathLoss};
 use proto::scenario::{RadioModel, Scenario};
@@ -61,14 +61,15 @@ impl Reach {
                 res_m,
             } => (model, *range_cells, *res_m),
         };
+        // A frame of 1 m cells at the origin: its metres are `g`'s cell units.
         let cells = MapInfo::at_origin(g.width(), g.height(), 1.0);
-        let from = p.centre();
+        let from = cells.centre_of(p);
         let mut total = 0.0;
         for k in 0..REACH_RAYS {
             let a = std::f64::consts::TAU * k as f64 / REACH_RAYS as f64;
-            let to = (
-                from.0 + range_cells * a.cos(),
-                from.1 + range_cells * a.sin(),
+            let to = Metres::new(
+                from.x + range_cells * a.cos(),
+                from.y + range_cells * a.sin(),
             );
             // The walls counted as [`Reach::linked`] and netem count them.
             let mut heard = 0.0f64;
@@ -93,8 +94,9 @@ impl Reach {
             Reach::Unlimited => true,
             Reach::Disk { range_cells } => d <= *range_cells,
             Reach::PathLoss { model, res_m, .. } => {
+                // A frame of 1 m cells at the origin: its metres are `g`'s cell units.
                 let cells = MapInfo::at_origin(g.width(), g.height(), 1.0);
-                let centre = Cell::centre;
+                let centre = |c| cells.centre_of(c);
                 let walls = count_walls(&cells, g, centre(a), centre(b), |o| o == Occ::Occupied);
                 model.signal_dbm(d * res_m, walls) >= model.threshold_dbm
             }

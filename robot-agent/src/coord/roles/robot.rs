@@ -32,6 +32,7 @@
 
 use std::collections::BTreeMap;
 
+use proto::geom::Metres;
 use proto::grid::Cell;
 use proto::msg::{Phase, Place, RobotId, Role as RoleMsg, RoleState, Step, Swap, WorldInfo};
 use proto::scenario::Scenario;
@@ -92,7 +93,10 @@ impl Settings {
             },
             refresh: r.refresh_steps.max(1),
             status_every: r.status_every_steps.max(1),
-            base_cell: s.base_station.pose.map(|[x, y]| world.map.cell_of(x, y)),
+            base_cell: s
+                .base_station
+                .pose
+                .map(|[x, y]| world.map.cell_of(Metres::new(x, y))),
             params,
         }
     }
