@@ -18,7 +18,7 @@ use proto::geom::{MapInfo, Pose};
 use proto::grid::Grid;
 use proto::msg::{LinkPlan, ProcessOrder, RobotId, Step};
 use proto::scenario::{
-    ClockMode, Medium, Netem as ScenarioNetem, Radio as ScenarioRadio, RadioModel,
+    Clock, ClockMode, Medium, Netem as ScenarioNetem, Radio as ScenarioRadio, RadioModel,
 };
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
@@ -56,15 +56,11 @@ pub struct NetemConfig {
     pub netem: ScenarioNetem,
     /// Seed of jitter, corruption and toxicity draws (the scenario's `seed`).
     pub seed: u64,
-    /// Simulated seconds per step (the scenario's `clock.step_seconds`).
-    pub step_seconds: f64,
-    pub mode: ClockMode,
-    /// Lockstep with step markers (`clock.markers`): the robots pace and wait for each step's
-    /// traffic, and links let a larger burst through
-    /// ([`LOCKSTEP_BURST_STEPS`](crate::control::LOCKSTEP_BURST_STEPS)).
-    pub markers: bool,
-    /// Realtime only: simulated seconds per wall second.
-    pub speedup: f64,
+    /// The scenario's `[clock]`: its mode, seconds per step, speed-up (realtime) and whether
+    /// lockstep runs with step markers ([`Clock::marked`]: the robots pace and wait for each
+    /// step's traffic, and links let a larger burst through,
+    /// [`LOCKSTEP_BURST_STEPS`](crate::control::LOCKSTEP_BURST_STEPS)).
+    pub clock: Clock,
     /// The truth map, for path loss wall counts.
     pub truth: Option<(MapInfo, Grid)>,
     pub faults: Vec<ScheduledFault>,
@@ -82,10 +78,10 @@ impl NetemConfig {
             radio,
             netem: ScenarioNetem::default(),
             seed: 1,
-            step_seconds: 1.0,
-            mode: ClockMode::Lockstep,
-            markers: false,
-            speedup: 1.0,
+            clock: Clock {
+                markers: false,
+                ..Clock::default()
+            },
             truth: None,
             faults: Vec::new(),
             http: None,
@@ -108,10 +104,7 @@ impl NetemConfig {
             radio: s.radio.clone(),
             netem: s.netem.clone(),
             seed: s.seed,
-            step_seconds: s.clock.step_seconds,
-            mode: s.clock.mode,
-            markers: s.clock.marked(),
-            speedup: s.clock.speedup,
+            clock: s.clock.clone(),
             truth,
             faults,
             http,
@@ -129,19 +122,8 @@ pub struct Netem {
 
 fn validate(cfg: &NetemConfig) -> Result<(), NetemError> {
     let bad = |m: String| Err(NetemError::Config(m));
-    if !(cfg.step_seconds.is_finite() && cfg.step_seconds > 0.0) {
-        return bad(format!(
-            "step_seconds = {} must be a positive number",
-            cfg.step_seconds
-        ));
-    }
-    if cfg.mode == ClockMode::Realtime && !(cfg.speedup.is_finite() && cfg.speedup > 0.0) {
-        return bad(format!(
-            "speedup = {} must be a positive number",
-            cfg.speedup
-        ));
-    }
     let scenario = |e: proto::scenario::ScenarioError| NetemError::Config(e.to_string());
+    cfg.clock.validate().map_err(scenario)?;
     cfg.radio.validate().map_err(scenario)?;
     cfg.netem.validate().map_err(scenario)?;
     let mut seen = HashMap::new();
@@ -201,9 +183,9 @@ pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(1);
 /// Binds every listener (and the HTTP API), spawns the tasks. Needs a tokio runtime.
 pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     validate(&cfg)?;
-    let clock = match cfg.mode {
+    let clock = match cfg.clock.mode {
         ClockMode::Lockstep => SimClock::lockstep(),
-        ClockMode::Realtime => SimClock::realtime(cfg.speedup),
+        ClockMode::Realtime => SimClock::realtime(cfg.clock.speedup),
     };
     if cfg.radio.model == RadioModel::Pathloss && cfg.truth.is_none() {
         tracing::warn!("path loss without a truth map: walls are not counted");
@@ -228,8 +210,8 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
             .collect(),
         links,
         radio,
-        step_seconds: cfg.step_seconds,
-        markers: cfg.markers,
+        step_seconds: cfg.clock.step_seconds,
+        markers: cfg.clock.marked(),
         steps: Mutex::new(StepState {
             step: None,
             poses: HashMap::new(),
@@ -275,7 +257,7 @@ async fn bind_links(
     shutdown: &watch::Receiver<bool>,
 ) -> Result<Vec<(Arc<Link>, TcpListener)>, NetemError> {
     let rate = cfg.radio.bandwidth_bytes_per_s;
-    let burst = |rate| burst_seconds(rate, cfg.step_seconds, cfg.markers);
+    let burst = |rate| burst_seconds(rate, cfg.clock.step_seconds, cfg.clock.marked());
     let medium = (rate > 0 && cfg.radio.medium == Medium::Shared)
         .then(|| Budget::new(rate, burst(rate), true, clock.clone()));
     let ns = |ms: f64| (ms * 1e6).round() as u64;
@@ -304,7 +286,7 @@ async fn bind_links(
             buffer_bytes: cfg.netem.buffer_bytes as usize,
             connect_timeout: Duration::from_millis(cfg.netem.connect_timeout_ms.max(1)),
             seed: cfg.seed ^ (i as u64).wrapping_mul(0x2545_F491_4F6C_DD1D),
-            markers: cfg.markers,
+            markers: cfg.clock.marked(),
         };
         let state = LinkState {
             enabled: true,
@@ -866,8 +848,8 @@ mod tests {
             all_pairs(&r),
             radio(RadioModel::Always, 1.0, 1000, Medium::PerLink),
         );
-        cfg.mode = ClockMode::Realtime;
-        cfg.speedup = 20.0;
+        cfg.clock.mode = ClockMode::Realtime;
+        cfg.clock.speedup = 20.0;
         let n = start(cfg).await.unwrap();
         let (sa, sb) = connect(&n, &mut r, 0, 1).await;
         let (_ra, wa) = sa.into_split();
@@ -1043,12 +1025,12 @@ mod tests {
     async fn bad_configurations_and_taken_ports_are_errors() {
         let r = robots(2).await;
         let mut cfg = disk_10m(&r);
-        cfg.step_seconds = 0.0;
+        cfg.clock.step_seconds = 0.0;
         assert!(matches!(
             start(cfg.clone()).await,
             Err(NetemError::Config(_))
         ));
-        cfg.step_seconds = 1.0;
+        cfg.clock.step_seconds = 1.0;
         cfg.pairs[0].a = 1;
         assert!(matches!(
             start(cfg.clone()).await,
