@@ -78,6 +78,7 @@ async fn a_message_reaches_a_robot_out_of_range_only_through_the_robot_in_betwee
             })
             .collect(),
         collisions_total: 0,
+        blocked_total: 0,
         base: None,
         missed: Vec::new(),
     };

@@ -209,7 +209,7 @@ async function showDetail() {
       <tr><th>largest backlog</th><td>${r.backlog_bytes} B</td></tr>
       <tr><th>bytes sent / received</th><td>${r.bytes_sent} / ${r.bytes_received}</td></tr>
       </table>
-      <p>planning grid (frontiers in red):</p>
+      <p>planning grid (frontiers in red; believed free but not free in the world in magenta):</p>
       <img id="grid" alt="planning grid of robot ${r.robot}" src="/api/robot/${r.robot}/grid.png${stepQ}${stepQ ? "&" : "?"}t=${f.step}">
       <div id="held">${state.info.live ? "asking the robot for its polygons…" : ""}</div>
       ${views && !state.info.live ? `<p>what it shows of each owner's log (ops held, shown up to a save point; its polygons are asked of live robots only):</p>

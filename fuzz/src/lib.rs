@@ -363,7 +363,7 @@ mod tests {
         write(
             "sim_plane",
             "status",
-            &encode(&Status { step: 4, robots: vec![r(0), r(1)], collisions_total: 1, base: Some(r(2)), missed: vec![1] }),
+            &encode(&Status { step: 4, robots: vec![r(0), r(1)], collisions_total: 1, blocked_total: 3, base: Some(r(2)), missed: vec![1] }),
         );
         write("sim_plane", "scan", &encode(&plain_scan(3)));
         write("sim_plane", "cmd", &encode(&Cmd { step: 3, robot: 1, waypoint: Some(proto::geom::Metres::new(2.0, 2.5)) }));

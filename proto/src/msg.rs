@@ -14,7 +14,7 @@ use crate::geom::{LaserSpec, MapInfo, Metres, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 11;
+pub const PROTOCOL_VERSION: u16 = 12;
 
 pub use crate::ids::{RobotId, Step};
 
@@ -85,7 +85,10 @@ pub struct Status {
     /// The step whose scans are published next.
     pub step: Step,
     pub robots: Vec<RobotStatus>,
+    /// Moves refused so far because the robot would come too close to another robot.
     pub collisions_total: u64,
+    /// Moves refused so far because their segment crosses a cell that is not free (walls).
+    pub blocked_total: u64,
     /// The base station (node `robots.count`), if the run has one: where it stands and whether
     /// its process is up. It never moves.
     pub base: Option<RobotStatus>,
@@ -1053,6 +1056,7 @@ mod tests {
                 distance_m: 3.5,
             }],
             collisions_total: 2,
+            blocked_total: 5,
             base: Some(RobotStatus {
                 id: 1,
                 pose,

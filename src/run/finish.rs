@@ -138,6 +138,7 @@ pub fn summary(
         step: 0,
         robots: Vec::new(),
         collisions_total: 0,
+        blocked_total: 0,
         base: None,
         missed: Vec::new(),
     });
@@ -177,7 +178,9 @@ pub fn summary(
         backlog_mean_bytes,
         approx_error_avg: approx_error_avg(eval),
         logs_held: logs_held(eval),
-        collisions: last.collisions_total,
+        collisions_robots: last.collisions_total,
+        collisions_walls: last.blocked_total,
+        fidelity: crate::score::fidelity::summarize(&eval.rows, plan.robots()),
         distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
         radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
         reconnect: (&rec.links.reconnects()).into(),

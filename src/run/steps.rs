@@ -101,6 +101,7 @@ mod tests {
                 })
                 .collect(),
             collisions_total: 0,
+            blocked_total: 0,
             base: None,
             missed: Vec::new(),
         }

@@ -605,6 +605,7 @@ mod tests {
             step: 1,
             robots: vec![],
             collisions_total: 0,
+            blocked_total: 0,
             base: None,
             missed: vec![],
         })

@@ -12,9 +12,9 @@ use serde::{Deserialize, Serialize};
 /// Coverage thresholds reported in `summary.json` (`coverage_steps`).
 pub const THRESHOLDS: [u32; 4] = [50, 90, 95, 100];
 
-/// Version of the run-directory schema, written into `summary.json` (7: `exit_reason` may be
-/// `stalled`).
-pub const SCHEMA_VERSION: u32 = 7;
+/// Version of the run-directory schema, written into `summary.json` (8: `collisions` split into
+/// `collisions_robots` and `collisions_walls`, `fidelity`, and `metrics.csv`'s fidelity columns).
+pub const SCHEMA_VERSION: u32 = 8;
 
 /// `summary.json`. Read back with [`read_summary`]: a field missing or renamed (an `Option` one
 /// too: it is written as `null`, never left out) or one the type does not know is an error.
@@ -55,7 +55,13 @@ pub struct Summary {
     pub backlog_mean_bytes: f64,
     /// Per robot, per owner: how many records of the owner's log the robot held at the end.
     pub logs_held: BTreeMap<String, BTreeMap<String, u32>>,
-    pub collisions: u64,
+    /// Moves the world refused because the robot would come too close to another robot.
+    pub collisions_robots: u64,
+    /// Moves the world refused because their straight segment crosses a cell that is not free
+    /// (the robot planned through what it believed free).
+    pub collisions_walls: u64,
+    /// How true the robots' planning grids are at the end ([`FidelitySummary`]).
+    pub fidelity: FidelitySummary,
     pub distance_m: Vec<f64>,
     pub radio_decode_errors: u64,
     /// How many steps links needed to reconnect after coming back into range or being restored.
@@ -136,6 +142,22 @@ pub struct AwarenessSummary {
     /// Fig. 5a: the mean over steps of `team_pct` (what the team knows together).
     #[serde(deserialize_with = "required")]
     pub team_pct_mean: Option<f64>,
+}
+
+/// `fidelity` in `summary.json` ([`crate::score::fidelity`]): of each robot's last report, the
+/// share of the cells its planning grid holds free that are not free in the truth, and that are
+/// occupied in it — the median robot and the worst. `null` when no robot believed a cell free.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FidelitySummary {
+    #[serde(deserialize_with = "required")]
+    pub false_free_pct_median: Option<f64>,
+    #[serde(deserialize_with = "required")]
+    pub false_free_pct_worst: Option<f64>,
+    #[serde(deserialize_with = "required")]
+    pub on_walls_pct_median: Option<f64>,
+    #[serde(deserialize_with = "required")]
+    pub on_walls_pct_worst: Option<f64>,
 }
 
 /// `comm_level_pct` in `summary.json`.
@@ -295,7 +317,9 @@ impl Default for Summary {
             backlog_max_bytes: 0,
             backlog_mean_bytes: 0.0,
             logs_held: BTreeMap::new(),
-            collisions: 0,
+            collisions_robots: 0,
+            collisions_walls: 0,
+            fidelity: FidelitySummary::default(),
             distance_m: Vec::new(),
             radio_decode_errors: 0,
             reconnect: ReconnectSummary::default(),
@@ -346,6 +370,12 @@ fn exemplar() -> Summary {
             team_pct_mean: Some(0.0),
         }),
         comm_level_pct: Some(CommLevel::default()),
+        fidelity: FidelitySummary {
+            false_free_pct_median: Some(0.0),
+            false_free_pct_worst: Some(0.0),
+            on_walls_pct_median: Some(0.0),
+            on_walls_pct_worst: Some(0.0),
+        },
         link_judgement: Some(crate::score::connectivity::LinkJudgement::default()),
         logs_held_by_others: one("<owner>"),
         logs_held_max: BTreeMap::from([("<node>".to_string(), one("<owner>"))]),
@@ -543,8 +573,8 @@ mod tests {
             ("exploration_steps", &|v| {
                 v.as_object_mut().map(|m| m.remove("exploration_steps"));
             }),
-            ("collisions", &|v| {
-                v.as_object_mut().map(|m| m.remove("collisions"));
+            ("collisions_walls", &|v| {
+                v.as_object_mut().map(|m| m.remove("collisions_walls"));
             }),
             ("team_pct_mean", &|v| {
                 v["awareness"]

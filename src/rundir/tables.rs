@@ -47,8 +47,8 @@ pub struct MetricsRow {
     #[serde(with = "flag")]
     pub alone: bool,
     /// Team awareness (de Hoog et al. 2010, Fig. 5c): the share of this robot's known space that
-    /// every robot knows; empty on the base station's rows. The last four columns came later:
-    /// tables written before them read back as empty.
+    /// every robot knows; empty on the base station's rows. The columns from here on came
+    /// later: tables written before them read back as empty (or 0).
     #[serde(serialize_with = "fixed_opt::<3, _>", default)]
     pub shared_pct: Option<f64>,
     /// Fig. 5d: steps since this robot's last contact with the base station, set once the
@@ -65,6 +65,20 @@ pub struct MetricsRow {
     /// links are all in; empty on the base station's rows.
     #[serde(serialize_with = "fixed_opt::<3, _>", default)]
     pub comm_level_pct: Option<f64>,
+    /// Map fidelity ([`crate::score::fidelity`]): the cells the planning grid holds free, those
+    /// of them not free in the truth, and those of them occupied in the truth.
+    #[serde(default)]
+    pub free_cells: u32,
+    #[serde(default)]
+    pub false_free_cells: u32,
+    #[serde(default)]
+    pub on_wall_cells: u32,
+    /// `false_free_cells` and `on_wall_cells` as percentages of `free_cells` (empty when the
+    /// grid holds no free cell).
+    #[serde(serialize_with = "fixed_opt::<3, _>", default)]
+    pub false_free_pct: Option<f64>,
+    #[serde(serialize_with = "fixed_opt::<3, _>", default)]
+    pub on_walls_pct: Option<f64>,
     /// Payload bytes sent so far per traffic class ([`Traffic::ALL`] order): no column here
     /// (`traffic_by_type.csv` has them per step), empty when read back.
     #[serde(skip)]
@@ -534,25 +548,8 @@ mod tests {
             MetricsRow {
                 step,
                 robot,
-                x: 0.0,
-                y: 0.0,
-                known_cells: 0,
-                correct_known_cells: 0,
-                target_x: None,
-                target_y: None,
-                bytes_sent: 0,
-                bytes_received: 0,
-                coverage_pct: 0.0,
-                idle: false,
-                neighbours: 0,
                 sent_by_type: v,
-                splits_per_step: None,
-                backlog_bytes: 0,
-                alone: false,
-                shared_pct: None,
-                steps_since_base: None,
-                team_pct: None,
-                comm_level_pct: None,
+                ..MetricsRow::default()
             }
         };
         let dir = std::env::temp_dir().join(format!("swarm-traffic-{}", std::process::id()));
@@ -587,7 +584,7 @@ mod tests {
         let h = |v: anyhow::Result<Vec<String>>| v.unwrap_or_default().join(",");
         assert_eq!(
             h(header::<MetricsRow>()),
-            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone,shared_pct,steps_since_base,team_pct,comm_level_pct"
+            "step,robot,x,y,known_cells,correct_known_cells,target_x,target_y,bytes_sent,bytes_received,coverage_pct,idle,neighbours,splits_per_step,backlog_bytes,alone,shared_pct,steps_since_base,team_pct,comm_level_pct,free_cells,false_free_cells,on_wall_cells,false_free_pct,on_walls_pct"
         );
         assert_eq!(
             h(header::<LinkCsv>()),
@@ -628,9 +625,9 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(
             lines[1],
-            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4,87.500,100.000"
+            "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4,87.500,100.000,0,0,0,,"
         );
-        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,,,");
+        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,,,,0,0,0,,");
         let back: Vec<MetricsRow> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             (back[0].idle, back[0].target_y, back[1].target_x),

@@ -18,18 +18,19 @@ use proto::msg::{Judged, RobotId, Step, Telemetry, View};
 use crate::rundir::summary::THRESHOLDS;
 use crate::rundir::tables::MetricsRow;
 use crate::score::awareness::{known_cells, SharedKnowledge};
+use crate::score::fidelity::Fidelity;
 
 impl MetricsRow {
     /// The row of telemetry `t`, with the evaluator's counts; the team columns are set later
     /// ([`Evaluator::share_rows_since`], the launcher's link scoring).
-    fn of(t: &Telemetry, correct_known_cells: u32, coverage_pct: f64) -> MetricsRow {
+    fn of(t: &Telemetry, fidelity: Fidelity, coverage_pct: f64) -> MetricsRow {
         MetricsRow {
             step: t.step,
             robot: t.robot,
             x: t.pose.x,
             y: t.pose.y,
             known_cells: t.known_cells,
-            correct_known_cells,
+            correct_known_cells: fidelity.correct,
             target_x: t.target.map(|p| p.x),
             target_y: t.target.map(|p| p.y),
             bytes_sent: t.bytes_sent,
@@ -45,6 +46,11 @@ impl MetricsRow {
             steps_since_base: None,
             team_pct: None,
             comm_level_pct: None,
+            free_cells: fidelity.free,
+            false_free_cells: fidelity.false_free,
+            on_wall_cells: fidelity.on_walls,
+            false_free_pct: fidelity.false_free_pct(),
+            on_walls_pct: fidelity.on_walls_pct(),
         }
     }
 }
@@ -146,30 +152,11 @@ impl Evaluator {
             self.shared.update(t.robot, known);
         }
         self.reached(t.robot, t.step, pct);
-        let correct = self.correct_cells(&grid);
-        self.rows.push(MetricsRow::of(&t, correct, pct));
+        let fidelity = Fidelity::of(&grid, &self.truth);
+        self.rows.push(MetricsRow::of(&t, fidelity, pct));
         self.judged.extend(t.judged.clone());
         self.record_changes(&t);
         self.last.insert(t.robot, (grid, t));
-    }
-
-    /// The known cells of `grid` whose state agrees with the truth (an occupied cell agrees
-    /// with any truth that is not free: truth-unknown space is opaque).
-    fn correct_cells(&self, grid: &KnownPart) -> u32 {
-        let Some(r) = grid.rect() else { return 0 };
-        let mut correct = 0u32;
-        for y in r.min.y..=r.max.y {
-            let truth = self.truth.row(y, r.min.x, r.max.x);
-            for (&seen, &truth) in grid.row(y).iter().zip(truth) {
-                let agrees = match seen {
-                    Occ::Unknown => false,
-                    Occ::Free => truth == Occ::Free,
-                    Occ::Occupied => truth != Occ::Free,
-                };
-                correct += u32::from(agrees);
-            }
-        }
-        correct
     }
 
     /// `robot` knew `pct` % of the reachable cells at `step`: the best coverage, the steps to

@@ -8,3 +8,5 @@ pub mod awareness;
 pub mod connectivity;
 /// Coverage and exploration time from telemetry.
 pub mod evaluate;
+/// Map fidelity: whether what a robot's planning grid believes free is free in the truth.
+pub mod fidelity;

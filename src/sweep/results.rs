@@ -12,7 +12,7 @@ use crate::rundir::summary::{read_summary, Summary};
 /// The summary fields every sweep reports per run and aggregates per point. The `awareness`
 /// ones (de Hoog et al. 2010, Fig. 5) are empty in runs without a base station,
 /// `link_judgement` in runs of strategies other than `pack`.
-pub const FIELDS: [&str; 16] = [
+pub const FIELDS: [&str; 20] = [
     "exploration_steps",
     "steps",
     "bytes_wire_total",
@@ -29,6 +29,10 @@ pub const FIELDS: [&str; 16] = [
     "comm_level_pct.min",
     "comm_level_pct.mean",
     "link_judgement.wrong_pct",
+    "fidelity.false_free_pct_median",
+    "fidelity.on_walls_pct_median",
+    "collisions_walls",
+    "collisions_robots",
 ];
 
 /// One grid point: its overrides, as `KEY=VALUE`, in key order.

@@ -38,6 +38,7 @@ use zenoh::qos::CongestionControl;
 
 use crate::rundir::render::Picture;
 use crate::rundir::steplog::{Header, Record};
+use crate::score::fidelity::false_free_cells;
 use crate::view::timeline::{frontiers, Timeline};
 
 const INDEX: &str = include_str!("../../assets/view/index.html");
@@ -205,9 +206,19 @@ impl Viewer {
     }
 }
 
-fn png_of(g: &Grid, header: &Header, marks: &[proto::grid::Cell]) -> anyhow::Result<Vec<u8>> {
+/// A planning grid with its frontier cells in red and the cells it believes free that are not
+/// free in the world in magenta.
+fn png_of(
+    g: &Grid,
+    header: &Header,
+    frontiers: &[proto::grid::Cell],
+    false_free: &[proto::grid::Cell],
+) -> anyhow::Result<Vec<u8>> {
     let mut p = Picture::of_grid(g, header.map);
-    for &c in marks {
+    for &c in false_free {
+        p.cell(c, [200, 0, 200]);
+    }
+    for &c in frontiers {
         p.cell(c, [220, 30, 30]);
     }
     p.png()
@@ -303,7 +314,7 @@ pub async fn command(args: ViewArgs) -> anyhow::Result<std::process::ExitCode> {
 fn truth_png(h: &Header) -> anyhow::Result<Vec<u8>> {
     let g = Grid::from_rle(&h.truth)
         .unwrap_or_else(|_| Grid::new(h.map.width, h.map.height, Occ::Unknown));
-    png_of(&g, h, &[])
+    png_of(&g, h, &[], &[])
 }
 
 type Shared = State<Arc<App>>;
@@ -403,7 +414,9 @@ async fn robot_grid(
             None => return not_found(format!("robot {id} has not reported by step {step}")),
         }
     };
-    match png_of(&grid, &header, &frontiers(&grid)) {
+    let truth = Grid::from_rle(&header.truth).ok();
+    let false_free = truth.map_or_else(Vec::new, |t| false_free_cells(&grid, &t));
+    match png_of(&grid, &header, &frontiers(&grid), &false_free) {
         Ok(png) => ([(CONTENT_TYPE, "image/png")], png).into_response(),
         Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
     }

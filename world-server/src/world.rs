@@ -71,6 +71,7 @@ pub struct World {
     speed_m_per_s: f64,
     rng: ChaCha8Rng,
     collisions_total: u64,
+    blocked_total: u64,
     /// Dead nodes that showed life again (a restarted process's token, a thawed one's
     /// command): alive again from the next step.
     rejoining: std::collections::BTreeSet<RobotId>,
@@ -155,6 +156,7 @@ impl World {
             speed_m_per_s: s.robots.speed_m_per_s,
             rng: ChaCha8Rng::seed_from_u64(s.seed ^ 0x5eed_1a5e),
             collisions_total: 0,
+            blocked_total: 0,
             rejoining: Default::default(),
         })
     }
@@ -254,8 +256,10 @@ impl World {
             if cmds.contains_key(&id) {
                 self.bodies[i].missed = 0;
             }
-            if matches!(outcome, MoveOutcome::Collision { .. }) {
-                self.collisions_total += 1;
+            match outcome {
+                MoveOutcome::Collision { .. } => self.collisions_total += 1,
+                MoveOutcome::Blocked => self.blocked_total += 1,
+                _ => {}
             }
             self.bodies[i].last_move = outcome;
         }
@@ -357,6 +361,7 @@ impl World {
                 })
                 .collect(),
             collisions_total: self.collisions_total,
+            blocked_total: self.blocked_total,
             base: self.base.as_ref().map(|b| RobotStatus {
                 id: b.id,
                 pose: b.pose,
