@@ -627,7 +627,10 @@ mod tests {
             lines[1],
             "3,1,1.235,-2.000,0,0,0.500,7.000,0,0,12.346,1,0,0.2500,9,0,62.500,4,87.500,100.000,0,0,0,,"
         );
-        assert_eq!(lines[2], "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,,,,0,0,0,,");
+        assert_eq!(
+            lines[2],
+            "0,0,0.000,0.000,0,0,,,0,0,0.000,0,0,,0,0,,,,,0,0,0,,"
+        );
         let back: Vec<MetricsRow> = read_rows(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             (back[0].idle, back[0].target_y, back[1].target_x),
