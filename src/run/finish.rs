@@ -26,9 +26,9 @@ use crate::rundir::summary::{
     bytes_by_type, coverage_steps, traffic_shares, AwarenessSummary, CommLevel, LostLog, Summary,
     SCHEMA_VERSION,
 };
-use crate::rundir::tables::MetricsRow;
 use crate::rundir::tables::{
     link_totals_wire, write_links, write_metrics, write_pgm, write_saves_and_views, write_traffic,
+    MetricsRow,
 };
 use crate::score::awareness::{mean_of_step_means, steps_since_base};
 use crate::score::connectivity::UpLinks;

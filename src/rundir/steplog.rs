@@ -402,12 +402,13 @@ impl StepLog {
             })
             .max()
     }
+}
 
-    /// The truth map (checked to decode when the log was read).
+impl Header {
+    /// The truth map (checked to decode when a log is read; all unknown if it does not).
     pub fn truth(&self) -> Grid {
-        Grid::from_rle(&self.header.truth).unwrap_or_else(|_| {
-            Grid::new(self.header.map.width, self.header.map.height, Occ::Unknown)
-        })
+        Grid::from_rle(&self.truth)
+            .unwrap_or_else(|_| Grid::new(self.map.width, self.map.height, Occ::Unknown))
     }
 }
 

@@ -51,7 +51,7 @@ impl Fidelity {
             Occ::Unknown => {}
             Occ::Free => {
                 self.free += 1;
-                self.false_free += u32::from(truth != Occ::Free);
+                self.false_free += u32::from(false_free(seen, truth));
                 self.on_walls += u32::from(truth == Occ::Occupied);
                 self.correct += u32::from(truth == Occ::Free);
             }
@@ -70,6 +70,11 @@ impl Fidelity {
     }
 }
 
+/// The one rule: a cell believed free that is not free in the truth.
+fn false_free(seen: Occ, truth: Occ) -> bool {
+    seen == Occ::Free && truth != Occ::Free
+}
+
 fn pct(part: u32, of: u32) -> Option<f64> {
     (of > 0).then(|| 100.0 * f64::from(part) / f64::from(of))
 }
@@ -78,7 +83,7 @@ fn pct(part: u32, of: u32) -> Option<f64> {
 pub fn false_free_cells(grid: &Grid, truth: &Grid) -> Vec<Cell> {
     (0..grid.height() as i32)
         .flat_map(|y| (0..grid.width() as i32).map(move |x| Cell::new(x, y)))
-        .filter(|&c| grid.get(c) == Occ::Free && truth.get(c) != Occ::Free)
+        .filter(|&c| false_free(grid.get(c), truth.get(c)))
         .collect()
 }
 

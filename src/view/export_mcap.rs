@@ -234,7 +234,7 @@ pub fn write<W: std::io::Write + std::io::Seek>(log: &StepLog, w: W) -> anyhow::
         "/map/truth",
         "foxglove.Grid",
         0,
-        &grid_message(&log.truth(), &map, &stamp0),
+        &grid_message(&log.header.truth(), &map, &stamp0),
     )?;
     let end = log.last_step();
     let mut grids = Grids::default();

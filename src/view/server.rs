@@ -312,9 +312,7 @@ pub async fn command(args: ViewArgs) -> anyhow::Result<std::process::ExitCode> {
 }
 
 fn truth_png(h: &Header) -> anyhow::Result<Vec<u8>> {
-    let g = Grid::from_rle(&h.truth)
-        .unwrap_or_else(|_| Grid::new(h.map.width, h.map.height, Occ::Unknown));
-    png_of(&g, h, &[], &[])
+    png_of(&h.truth(), h, &[], &[])
 }
 
 type Shared = State<Arc<App>>;
@@ -414,8 +412,7 @@ async fn robot_grid(
             None => return not_found(format!("robot {id} has not reported by step {step}")),
         }
     };
-    let truth = Grid::from_rle(&header.truth).ok();
-    let false_free = truth.map_or_else(Vec::new, |t| false_free_cells(&grid, &t));
+    let false_free = false_free_cells(&grid, &header.truth());
     match png_of(&grid, &header, &frontiers(&grid), &false_free) {
         Ok(png) => ([(CONTENT_TYPE, "image/png")], png).into_response(),
         Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
