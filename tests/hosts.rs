@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use crate::capture::{compare, dropped, link_totals, segments, Capture};
 use crate::support::{
-    run_args, stderr, summary_typed, wait_for_step, wait_steps, Launcher, TempDir, SWARM,
+    poll, run_args, stderr, summary_typed, wait_for_step, wait_steps, Launcher, TempDir, SWARM,
 };
 
 /// Namespaces made by one test: `<tag>-h0` … (the hosts) and `<tag>-sw` (their switch).
@@ -431,14 +431,11 @@ impl Lab {
 
 /// Waits until host `k` runs at least `n` processes.
 fn wait_for_processes(lab: &Lab, k: usize, n: usize) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while lab.pids(k).len() < n {
-        assert!(
-            Instant::now() < deadline,
-            "host {k} never ran {n} processes"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    poll(Duration::from_secs(60), Duration::from_millis(100), || {
+        (lab.pids(k).len() >= n)
+            .then_some(())
+            .ok_or_else(|| format!("host {k} never ran {n} processes"))
+    })
 }
 
 /// A host's processes SIGKILLed mid-run, as a local kill: the robots of a command-prefix host

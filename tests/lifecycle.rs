@@ -3,12 +3,12 @@
 //! itself is killed.
 
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use proto::exit::ExitReason;
 
 use crate::support::{
-    descendants, kill, running, stderr, summary_typed, wait_for_step, wait_steps, Launcher,
+    descendants, kill, poll, running, stderr, summary_typed, wait_for_step, wait_steps, Launcher,
     TempDir, SWARM,
 };
 
@@ -38,33 +38,26 @@ fn start(dir: &TempDir, robots: u32, sets: &[&str]) -> Launcher {
 
 /// Waits until the launcher has `n` live child processes (world-server + robots).
 fn wait_for_children(l: &Launcher, n: usize) -> Vec<u32> {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    loop {
+    poll(Duration::from_secs(60), Duration::from_millis(100), || {
         let kids: Vec<u32> = descendants(l.pid)
             .into_iter()
             .filter(|&p| running(p))
             .collect();
         if kids.len() >= n {
-            return kids;
+            Ok(kids)
+        } else {
+            Err(format!("children did not start: {kids:?}"))
         }
-        assert!(
-            Instant::now() < deadline,
-            "children did not start: {kids:?}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    })
 }
 
 fn wait_gone(pids: &[u32]) {
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while pids.iter().any(|&p| running(p)) {
-        assert!(
-            Instant::now() < deadline,
-            "processes survived: {:?}",
-            pids.iter().filter(|&&p| running(p)).collect::<Vec<_>>()
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    poll(Duration::from_secs(10), Duration::from_millis(100), || {
+        let left: Vec<&u32> = pids.iter().filter(|&&p| running(p)).collect();
+        left.is_empty()
+            .then_some(())
+            .ok_or_else(|| format!("processes survived: {left:?}"))
+    })
 }
 
 /// Without supervision (`supervise.restart = []`) a robot killed from outside stays dead.
@@ -164,14 +157,11 @@ fn child_running(launcher: u32, what: &str) -> Option<u32> {
 
 /// Waits until a child matching `what` other than `not` runs.
 fn wait_for_new(launcher: u32, what: &str, not: u32) -> u32 {
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        if let Some(p) = child_running(launcher, what).filter(|&p| p != not) {
-            return p;
-        }
-        assert!(Instant::now() < deadline, "{what} was not started again");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    poll(Duration::from_secs(30), Duration::from_millis(50), || {
+        child_running(launcher, what)
+            .filter(|&p| p != not)
+            .ok_or_else(|| format!("{what} was not started again"))
+    })
 }
 
 /// Supervision (the default `[supervise]`: robots and netem): a robot and netem killed with

@@ -108,43 +108,45 @@ impl Drop for Launcher {
     }
 }
 
-/// Waits up to `wait` for a file to hold something and returns its trimmed text.
-pub fn wait_file(path: &Path, wait: Duration) -> String {
+/// Asks `f` every `every` until it answers `Ok`, for at most `wait`; then fails with its last
+/// `Err` (what did not happen).
+pub fn poll<T>(wait: Duration, every: Duration, mut f: impl FnMut() -> Result<T, String>) -> T {
     let deadline = Instant::now() + wait;
     loop {
-        if let Ok(t) = std::fs::read_to_string(path) {
-            if !t.trim().is_empty() {
-                return t.trim().to_string();
-            }
+        match f() {
+            Ok(v) => return v,
+            Err(why) => assert!(Instant::now() < deadline, "{why}"),
         }
-        assert!(
-            Instant::now() < deadline,
-            "{} never appeared",
-            path.display()
-        );
-        std::thread::sleep(Duration::from_millis(100));
+        std::thread::sleep(every);
     }
+}
+
+/// Waits up to `wait` for a file to hold something and returns its trimmed text.
+pub fn wait_file(path: &Path, wait: Duration) -> String {
+    poll(wait, Duration::from_millis(100), || {
+        let text = std::fs::read_to_string(path).unwrap_or_default();
+        let text = text.trim();
+        (!text.is_empty())
+            .then(|| text.to_string())
+            .ok_or_else(|| format!("{} never appeared", path.display()))
+    })
 }
 
 /// Waits up to `wait` until the run writing `run` (its directory) has come to step `step` — its
 /// `steps.log` holds that step's world status — and returns the step it is at. A test acts at a
 /// step of the run this way, never at a wall-clock moment.
 pub fn wait_for_step(run: &Path, step: u32, wait: Duration) -> u32 {
-    let deadline = Instant::now() + wait;
-    loop {
+    poll(wait, Duration::from_millis(50), || {
         let at = swarm::rundir::steplog::read_so_far(run)
             .ok()
             .and_then(|log| log.reached());
-        if let Some(at) = at.filter(|&at| at >= step) {
-            return at;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the run in {} did not come to step {step} (at {at:?})",
-            run.display()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+        at.filter(|&at| at >= step).ok_or_else(|| {
+            format!(
+                "the run in {} did not come to step {step} (at {at:?})",
+                run.display()
+            )
+        })
+    })
 }
 
 /// Waits until the run writing `run` has gone `steps` steps further than where it is now.
