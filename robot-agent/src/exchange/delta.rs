@@ -260,6 +260,7 @@ mod tests {
         Vertex {
             p: crate::mapping::qpoint::QPoint::new(x, 0),
             occ: Occ::Occupied,
+            bound: 0,
         }
     }
 

@@ -203,6 +203,7 @@ mod tests {
         Vertex {
             p: crate::mapping::qpoint::QPoint::new(x, 1),
             occ: Occ::Unknown,
+            bound: 0,
         }
     }
 

@@ -117,6 +117,8 @@ impl Encoder {
             &mut self.out,
             zigzag(i64::from(v.p.y) - i64::from(self.ctx.point.y)),
         );
+        // The edge's error bound (half cells): one byte.
+        self.out.push(v.bound);
         self.ctx.point = v.p;
     }
 
@@ -235,9 +237,11 @@ impl Reader<'_> {
                 let x = self.coord(self.ctx.point.x)?;
                 let y = self.coord(self.ctx.point.y)?;
                 self.ctx.point = QPoint::new(x, y);
+                let bound = self.byte()?;
                 let v = Vertex {
                     p: self.ctx.point,
                     occ,
+                    bound,
                 };
                 if h & 7 == 0 {
                     Op::Insert { pos, v }
@@ -349,14 +353,17 @@ mod tests {
     fn arb_op() -> impl Strategy<Value = Op> {
         let occ = prop_oneof![Just(Occ::Free), Just(Occ::Occupied), Just(Occ::Unknown)];
         let kind = prop_oneof![Just(Kind::Inside), Just(Kind::Outside)];
-        let v = (any::<i32>(), any::<i32>(), occ).prop_map(|(x, y, occ)| Vertex {
-            p: QPoint::new(x, y),
-            occ,
-        });
+        let v =
+            (any::<i32>(), any::<i32>(), occ, any::<u8>()).prop_map(|(x, y, occ, bound)| Vertex {
+                p: QPoint::new(x, y),
+                occ,
+                bound,
+            });
         let small_v =
             (-300i32..300, -300i32..300, Just(Occ::Occupied)).prop_map(|(x, y, occ)| Vertex {
                 p: QPoint::new(x, y),
                 occ,
+                bound: 0,
             });
         let pos = prop_oneof![0u32..8, any::<u32>()];
         let id = prop_oneof![0u32..40, any::<u32>()];

@@ -16,16 +16,20 @@ use std::collections::BTreeMap;
 use proto::grid::{Occ, Rect};
 
 use crate::mapping::contour::{Contour, Contours, Kind};
-use crate::mapping::qpoint::QPoint;
+use crate::mapping::qpoint::{seg_dist2, QPoint};
 
 /// Identity of an object across steps (docs/design.md §4.2): it persists while the object does.
 pub type ObjectId = u32;
 
-/// A polygon vertex and f_occ of the edge from it to its successor.
+/// A polygon vertex, and f_occ and the one-sided error bound of the edge from it to its
+/// successor ([`edge_bound`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Vertex {
     pub p: QPoint,
     pub occ: Occ,
+    /// How far (half cells, rounded up) the contour the edge stands for strays onto the edge's
+    /// free side: a receiver paints nothing free that close to it ([`crate::mapping::render`]).
+    pub bound: u8,
 }
 
 /// One approximated object.
@@ -60,7 +64,7 @@ impl Approximation {
             for v in &poly.vertices {
                 eat(&v.p.x.to_le_bytes());
                 eat(&v.p.y.to_le_bytes());
-                eat(&[v.occ as u8]);
+                eat(&[v.occ as u8, v.bound]);
             }
         }
         h
@@ -89,6 +93,7 @@ impl Approximation {
                     .map(|i| Vertex {
                         p: c.points[i],
                         occ: edge_occ(c, i, (i + 1) % n),
+                        bound: edge_bound(c, i, (i + 1) % n),
                     })
                     .collect();
                 (
@@ -131,6 +136,30 @@ impl Polygon {
     pub fn points(&self) -> Vec<QPoint> {
         self.vertices.iter().map(|v| v.p).collect()
     }
+}
+
+/// The one-sided error of the edge of A_t from P_t point `from` to point `to` of object `c`
+/// (cyclic, `from == to` spans the whole object), as a code in half cells rounded up, at most
+/// 255: the largest distance from the chord of a spanned point on the chord's free side (P_t keeps
+/// the free side on its right). Every cell the chord wrongly puts on its free side — between
+/// the chord and the contour it stands for — lies within that distance of the chord on that
+/// side, so a receiver that paints nothing free there paints free only what the owner saw free.
+/// 0 for an exact edge.
+pub fn edge_bound(c: &Contour, from: usize, to: usize) -> u8 {
+    let n = c.points.len();
+    let (a, b) = (c.points[from], c.points[to]);
+    let (dx, dy) = (i64::from(b.x - a.x), i64::from(b.y - a.y));
+    let mut worst = 0.0f64;
+    let mut k = (from + 1) % n;
+    while k != to {
+        let p = c.points[k];
+        let cross = dx * i64::from(p.y - a.y) - dy * i64::from(p.x - a.x);
+        if cross < 0 || (dx == 0 && dy == 0) {
+            worst = worst.max(seg_dist2(p, a, b));
+        }
+        k = (k + 1) % n;
+    }
+    (worst.sqrt() / 2.0).ceil().min(255.0) as u8
 }
 
 /// f_occ of the edge of A_t from P_t point `from` to point `to` of object `c` (cyclic,

@@ -27,7 +27,7 @@
 use proto::grid::{Grid, Occ, Rect};
 
 use crate::mapping::approx::{Approximation, Polygon};
-use crate::mapping::render::paint;
+use crate::mapping::render::{paint, Bands};
 
 /// Algorithm 9: the planning grid from `own` (G_s) and other robots' approximations, all in
 /// the frame of `own`.
@@ -56,7 +56,7 @@ pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
         .iter()
         .map(|a| a.objects.values().collect())
         .collect();
-    let plan = paint(&polys, r.min, r.width(), r.height());
+    let plan = paint(&polys, r.min, r.width(), r.height(), Bands::Kept);
     let w = r.width() as usize;
     for (y, painted) in (r.min.y..=r.max.y).zip(plan.chunks(w)) {
         let mine = own.row(y, r.min.x, r.max.x);
@@ -175,7 +175,13 @@ mod tests {
             .iter()
             .map(|a| a.objects.values().collect())
             .collect();
-        let plan = paint(&polys, Cell::new(0, 0), own.width(), own.height());
+        let plan = paint(
+            &polys,
+            Cell::new(0, 0),
+            own.width(),
+            own.height(),
+            Bands::Kept,
+        );
         let mut out = Grid::new(own.width(), own.height(), Occ::Unknown);
         for (i, p) in plan.into_iter().enumerate() {
             let s = own.cells()[i];
@@ -211,15 +217,35 @@ mod tests {
             prop_assert_eq!(kept.to_ascii(), merge_every_cell(&own1, &[&a, &b]).to_ascii());
         }
 
+        /// A peer's approximation, at any splitting frequency, never makes a receiver believe
+        /// free a cell the peer did not see free: what a coarse edge may claim lies within its
+        /// error bound, which the receiver keeps from being painted free.
+        #[test]
+        fn a_received_approximation_paints_free_only_what_its_owner_saw_free(
+            steps in crate::testutil::arb_exploration(16, 4),
+            s in prop_oneof![Just(0.0), Just(0.5), Just(2.0), Just(8.0)],
+        ) {
+            let mut ax = crate::mapping::approximator::Approximator::new();
+            let mut a = Approximation::default();
+            for g in &steps {
+                a = ax.step(&Contours::extract(g), g, s).clone();
+            }
+            let seen = steps.last().expect("a step");
+            let plan = merge(&Grid::new(seen.width(), seen.height(), Occ::Unknown), &[&a]);
+            for (i, (p, s)) in plan.cells().iter().zip(seen.cells()).enumerate() {
+                prop_assert!(*p != Occ::Free || *s == Occ::Free, "cell {} painted free:\n{}\nseen:\n{}", i, plan.to_ascii(), seen.to_ascii());
+            }
+        }
+
         #[test]
         fn merging_arbitrary_polygons_never_panics(
-            polys in proptest::collection::vec((any::<bool>(), proptest::collection::vec((any::<i32>(), any::<i32>(), 0u8..3), 0..6)), 0..4)
+            polys in proptest::collection::vec((any::<bool>(), proptest::collection::vec((any::<i32>(), any::<i32>(), 0u8..3, any::<u8>()), 0..6)), 0..4)
         ) {
             let mut a = Approximation::default();
             for (id, (inside, vs)) in polys.into_iter().enumerate() {
                 let kind = if inside { Kind::Inside } else { Kind::Outside };
                 let occ = |o: u8| [Occ::Free, Occ::Occupied, Occ::Unknown][usize::from(o)];
-                let vertices = vs.into_iter().map(|(x, y, o)| crate::mapping::approx::Vertex { p: crate::mapping::qpoint::QPoint::new(x, y), occ: occ(o) }).collect();
+                let vertices = vs.into_iter().map(|(x, y, o, bound)| crate::mapping::approx::Vertex { p: crate::mapping::qpoint::QPoint::new(x, y), occ: occ(o), bound }).collect();
                 a.objects.insert(id as u32, Polygon { kind, vertices });
             }
             let g = merge(&Grid::new(8, 8, Occ::Unknown), &[&a]);

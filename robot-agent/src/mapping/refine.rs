@@ -29,7 +29,7 @@ use std::collections::BinaryHeap;
 
 use proto::grid::{Cell, Grid, Occ};
 
-use crate::mapping::approx::{edge_occ, ObjectId, Polygon, Vertex};
+use crate::mapping::approx::{edge_bound, edge_occ, ObjectId, Polygon, Vertex};
 use crate::mapping::contour::{Contour, Contours};
 use crate::mapping::qpoint::seg_dist2;
 use crate::mapping::render::render_window;
@@ -57,6 +57,7 @@ impl Draft {
             .map(|k| Vertex {
                 p: c.points[idx[k]],
                 occ: edge_occ(c, idx[k], idx[(k + 1) % n]),
+                bound: edge_bound(c, idx[k], idx[(k + 1) % n]),
             })
             .collect();
         Draft {
@@ -84,9 +85,11 @@ impl Draft {
             Vertex {
                 p: c.points[split],
                 occ: edge_occ(c, split, to),
+                bound: edge_bound(c, split, to),
             },
         );
         self.poly.vertices[at - 1].occ = edge_occ(c, from, split);
+        self.poly.vertices[at - 1].bound = edge_bound(c, from, split);
         at
     }
 
@@ -96,6 +99,7 @@ impl Draft {
         self.poly.vertices.remove(at);
         let (from, to) = (self.idx[at - 1], self.idx[at % self.idx.len()]);
         self.poly.vertices[at - 1].occ = edge_occ(c, from, to);
+        self.poly.vertices[at - 1].bound = edge_bound(c, from, to);
     }
 }
 

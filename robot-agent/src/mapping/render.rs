@@ -15,6 +15,7 @@ use proto::grid::{Cell, Grid, Occ, Rect};
 
 use crate::mapping::approx::{Approximation, Polygon};
 use crate::mapping::contour::Kind;
+use crate::mapping::qpoint::{seg_dist2, QPoint};
 use crate::mapping::raster;
 
 /// A working canvas over the window `[x0, x0+width) × [y0, y0+height)` of the grid frame; a cell
@@ -74,6 +75,57 @@ impl Canvas {
             });
         }
     }
+
+    /// Every cell of the window whose centre lies on the free (right) side of an edge of
+    /// `poly`, or on its line, within the edge's error bound of it ([`crate::mapping::approx::Vertex::bound`]): where the
+    /// contour the edge stands for may stray.
+    fn bands(&self, poly: &Polygon, mut f: impl FnMut(usize)) {
+        let n = poly.vertices.len();
+        for (i, v) in poly.vertices.iter().enumerate() {
+            if v.bound == 0 {
+                continue;
+            }
+            let (a, b) = (v.p, poly.vertices[(i + 1) % n].p);
+            // Half cells to quarter cells; cells of the box around the edge, within the window.
+            let e = i64::from(v.bound) * 2;
+            let grow = |q: i32, d: i64| {
+                (i64::from(q) + d).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+            };
+            let lo = QPoint::new(grow(a.x.min(b.x), -e), grow(a.y.min(b.y), -e)).cell();
+            let hi = QPoint::new(grow(a.x.max(b.x), e), grow(a.y.max(b.y), e)).cell();
+            let (x0, x1) = (lo.x.max(self.x0), hi.x.min(self.x0 + self.width as i32 - 1));
+            let (y0, y1) = (
+                lo.y.max(self.y0),
+                hi.y.min(self.y0 + self.height as i32 - 1),
+            );
+            let (dx, dy) = (
+                i64::from(b.x) - i64::from(a.x),
+                i64::from(b.y) - i64::from(a.y),
+            );
+            let e2 = (e * e) as f64;
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    let q = QPoint::centre(Cell::new(x, y));
+                    let cross = dx * (i64::from(q.y) - i64::from(a.y))
+                        - dy * (i64::from(q.x) - i64::from(a.x));
+                    if cross <= 0 && seg_dist2(q, a, b) <= e2 {
+                        if let Some(k) = self.index(Cell::new(x, y)) {
+                            f(k);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Whether [`paint`] keeps the cells near an approximated edge from being painted free: for
+/// peers' approximations (what a receiver merges), never for the owner's own rendering (its
+/// error d_t against G_s, monotone refinement).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Bands {
+    Kept,
+    Ignored,
 }
 
 /// Steps (1)–(5) of Algorithm 9 ([`crate::mapping::merge`]) for `approximations`, each as the list of its
@@ -84,12 +136,13 @@ pub fn paint(
     origin: Cell,
     width: u32,
     height: u32,
+    bands: Bands,
 ) -> Vec<Option<Occ>> {
-    paint_on(Canvas::new(origin, width, height), approximations).cells
+    paint_on(Canvas::new(origin, width, height), approximations, bands).cells
 }
 
 /// Steps (1)–(5) of Algorithm 9 on a canvas; each approximation as the list of its polygons.
-fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>]) -> Canvas {
+fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>], bands: Bands) -> Canvas {
     let outside = || others.iter().flatten().filter(|o| o.kind == Kind::Outside);
     for o in outside() {
         let mut unknown = Vec::new();
@@ -106,7 +159,7 @@ fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>]) -> Canvas {
         });
     }
     for a in others {
-        free_inside(&mut plan, a);
+        free_inside(&mut plan, a, bands);
     }
     for o in others.iter().flatten() {
         plan.edges(o, |cell, occ| {
@@ -119,16 +172,26 @@ fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>]) -> Canvas {
 }
 
 /// Step (4) for one approximation: cells inside its inside objects that are undefined, or
-/// unknown but inside an odd number of its polygons, become free.
-fn free_inside(plan: &mut Canvas, a: &[&Polygon]) {
+/// unknown but inside an odd number of its polygons, become free — with [`Bands::Kept`], none
+/// within an edge's error bound on its free side.
+fn free_inside(plan: &mut Canvas, a: &[&Polygon], bands: Bands) {
     const INSIDE: u8 = 1;
     const ODD: u8 = 2;
+    const BAND: u8 = 4;
     let mut flags = vec![0u8; plan.cells.len()];
     for o in a {
         let bit = if o.kind == Kind::Inside { INSIDE } else { 0 };
         plan.fill(o, |k| flags[k] = (flags[k] | bit) ^ ODD);
     }
+    if bands == Bands::Kept {
+        for o in a {
+            plan.bands(o, |k| flags[k] |= BAND);
+        }
+    }
     for (cell, f) in plan.cells.iter_mut().zip(flags) {
+        if f & BAND != 0 {
+            continue;
+        }
         let free = match *cell {
             None => f & INSIDE != 0,
             Some(Occ::Unknown) => f & INSIDE != 0 && f & ODD != 0,
@@ -145,7 +208,7 @@ fn free_inside(plan: &mut Canvas, a: &[&Polygon]) {
 /// rendering, at the cost of the window (and one pass over the edges) — used to score a
 /// single split locally.
 pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) -> Vec<Occ> {
-    paint(&[polys.to_vec()], origin, width, height)
+    paint(&[polys.to_vec()], origin, width, height, Bands::Ignored)
         .into_iter()
         .map(|p| p.unwrap_or(Occ::Unknown))
         .collect()
