@@ -117,8 +117,8 @@ impl Encoder {
             &mut self.out,
             zigzag(i64::from(v.p.y) - i64::from(self.ctx.point.y)),
         );
-        // The edge's error bound (half cells): one byte.
-        self.out.push(v.bound);
+        // The edge's error bound (half cells): a varint, one byte up to 63 cells.
+        put_varint(&mut self.out, u64::from(v.bound));
         self.ctx.point = v.p;
     }
 
@@ -237,7 +237,7 @@ impl Reader<'_> {
                 let x = self.coord(self.ctx.point.x)?;
                 let y = self.coord(self.ctx.point.y)?;
                 self.ctx.point = QPoint::new(x, y);
-                let bound = self.byte()?;
+                let bound = u16::try_from(self.varint()?).map_err(|_| WireError::BadOcc(start))?;
                 let v = Vertex {
                     p: self.ctx.point,
                     occ,
@@ -354,7 +354,7 @@ mod tests {
         let occ = prop_oneof![Just(Occ::Free), Just(Occ::Occupied), Just(Occ::Unknown)];
         let kind = prop_oneof![Just(Kind::Inside), Just(Kind::Outside)];
         let v =
-            (any::<i32>(), any::<i32>(), occ, any::<u8>()).prop_map(|(x, y, occ, bound)| Vertex {
+            (any::<i32>(), any::<i32>(), occ, any::<u16>()).prop_map(|(x, y, occ, bound)| Vertex {
                 p: QPoint::new(x, y),
                 occ,
                 bound,

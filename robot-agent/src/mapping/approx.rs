@@ -29,7 +29,7 @@ pub struct Vertex {
     pub occ: Occ,
     /// How far (half cells, rounded up) the contour the edge stands for strays onto the edge's
     /// free side: a receiver paints nothing free that close to it ([`crate::mapping::render`]).
-    pub bound: u8,
+    pub bound: u16,
 }
 
 /// One approximated object.
@@ -64,7 +64,8 @@ impl Approximation {
             for v in &poly.vertices {
                 eat(&v.p.x.to_le_bytes());
                 eat(&v.p.y.to_le_bytes());
-                eat(&[v.occ as u8, v.bound]);
+                eat(&[v.occ as u8]);
+                eat(&v.bound.to_le_bytes());
             }
         }
         h
@@ -139,13 +140,13 @@ impl Polygon {
 }
 
 /// The one-sided error of the edge of A_t from P_t point `from` to point `to` of object `c`
-/// (cyclic, `from == to` spans the whole object), as a code in half cells rounded up, at most
-/// 255: the largest distance from the chord of a spanned point on the chord's free side (P_t keeps
+/// (cyclic, `from == to` spans the whole object), in half cells rounded up (at most
+/// `u16::MAX`): the largest distance from the chord of a spanned point on the chord's free side (P_t keeps
 /// the free side on its right). Every cell the chord wrongly puts on its free side — between
 /// the chord and the contour it stands for — lies within that distance of the chord on that
 /// side, so a receiver that paints nothing free there paints free only what the owner saw free.
 /// 0 for an exact edge.
-pub fn edge_bound(c: &Contour, from: usize, to: usize) -> u8 {
+pub fn edge_bound(c: &Contour, from: usize, to: usize) -> u16 {
     let n = c.points.len();
     let (a, b) = (c.points[from], c.points[to]);
     let (dx, dy) = (i64::from(b.x - a.x), i64::from(b.y - a.y));
@@ -159,7 +160,7 @@ pub fn edge_bound(c: &Contour, from: usize, to: usize) -> u8 {
         }
         k = (k + 1) % n;
     }
-    (worst.sqrt() / 2.0).ceil().min(255.0) as u8
+    (worst.sqrt() / 2.0).ceil().min(f64::from(u16::MAX)) as u16
 }
 
 /// f_occ of the edge of A_t from P_t point `from` to point `to` of object `c` (cyclic,
