@@ -314,9 +314,9 @@ pub struct Bandwidth {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SplitControl {
-    /// Eq. 5.5 with d measured online (open loop in everything but d).
+    /// Eq. 5.5 with d measured online (open loop in everything but d): the thesis's.
     Formula,
-    /// Closed loop: s follows the measured backlog of what neighbours lack.
+    /// Closed loop: s follows the measured backlog of what neighbours lack (the default).
     Adaptive,
     /// s = `splits_per_step` throughout.
     Fixed,
@@ -325,7 +325,7 @@ pub enum SplitControl {
 impl Default for Bandwidth {
     fn default() -> Self {
         Bandwidth {
-            control: SplitControl::Formula,
+            control: SplitControl::Adaptive,
             usage: 0.5,
             splits_per_step: 2.0,
             min_splits_per_step: 0.05,

@@ -423,6 +423,86 @@ mod tests {
             }
         }
 
+        /// However links come and go, how small each step's budget and wherever chunks are lost
+        /// with a dropped link, once the robots stay connected (a chain, each robot reaching the
+        /// others only through relays) every robot ends with every other owner's approximation in
+        /// full detail: the transitive exchange delivers every log whole, eventually.
+        #[test]
+        fn every_approximation_arrives_in_full_detail_eventually(
+            robots in 3usize..6,
+            rounds in proptest::collection::vec(
+                (proptest::collection::vec(any::<bool>(), 15), 8usize..80, any::<bool>()),
+                0..30,
+            ),
+        ) {
+            let (ops, states) = owner_log();
+            let mut xs: Vec<ApproxExchange> =
+                (0..robots).map(|r| ApproxExchange::new(r as RobotId)).collect();
+            let pairs: Vec<(usize, usize)> = (0..robots)
+                .flat_map(|a| (a + 1..robots).map(move |b| (a, b)))
+                .collect();
+            let mut up = vec![false; pairs.len()];
+            // One round: links change, owners append a step of their log, every up link carries
+            // one budget each way; on a link going down this round, its chunks are lost.
+            let mut written = vec![0usize; robots];
+            let round = |xs: &mut Vec<ApproxExchange>, up: &mut Vec<bool>, want: &[bool], budget: usize,
+                         lose: bool, written: &mut Vec<usize>| -> Result<(), TestCaseError> {
+                for (r, x) in xs.iter_mut().enumerate() {
+                    let next = (written[r] + 1 + r).min(ops.len());
+                    x.record_own(&ops[written[r]..next]);
+                    written[r] = next;
+                }
+                for (k, &(a, b)) in pairs.iter().enumerate() {
+                    let now = want.get(k).copied().unwrap_or(false);
+                    if now && !up[k] {
+                        xs[a].link_up(b as RobotId);
+                        xs[b].link_up(a as RobotId);
+                        let (ha, hb) = (xs[a].knowledge(), xs[b].knowledge());
+                        xs[a].on_hello(&hb);
+                        xs[b].on_hello(&ha);
+                    }
+                    if now || up[k] {
+                        for (from, to) in [(a, b), (b, a)] {
+                            let out = xs[from].outgoing(to as RobotId, budget, size);
+                            if !now && lose {
+                                continue;
+                            }
+                            for c in out {
+                                let got = xs[to]
+                                    .on_chunk(&c)
+                                    .map_err(|e| TestCaseError::fail(e.to_string()))?;
+                                if matches!(got, DeltaOutcome::Gap { .. }) {
+                                    let h = xs[to].knowledge();
+                                    xs[from].on_hello(&h);
+                                }
+                            }
+                        }
+                    }
+                    if !now && up[k] {
+                        xs[a].link_down(b as RobotId);
+                        xs[b].link_down(a as RobotId);
+                    }
+                    up[k] = now;
+                }
+                Ok(())
+            };
+            for (links, budget, lose) in &rounds {
+                round(&mut xs, &mut up, links, *budget, *lose, &mut written)?;
+            }
+            // Then a chain 0 – 1 – … – n−1 and nothing else, at a small budget.
+            let chain: Vec<bool> = pairs.iter().map(|&(a, b)| b == a + 1).collect();
+            for _ in 0..400 {
+                round(&mut xs, &mut up, &chain, 64, false, &mut written)?;
+            }
+            let last = states.last().cloned().unwrap_or_default();
+            for (r, x) in xs.iter().enumerate() {
+                for owner in (0..robots).filter(|&o| o != r) {
+                    prop_assert_eq!(x.log(owner as RobotId), ops.as_slice(), "robot {} of {}", r, owner);
+                    prop_assert_eq!(x.approximation(owner as RobotId), Some(&last));
+                }
+            }
+        }
+
         /// Nothing a peer sends can crash the receiver: garbage is refused whole.
         #[test]
         fn arbitrary_chunks_are_refused_or_taken_never_a_panic(

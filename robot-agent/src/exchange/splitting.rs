@@ -6,9 +6,10 @@
 //!   the scenario gives it. The thesis fixes d in advance; here d, the op-log bytes one split
 //!   causes, is measured by the robot as it goes (starting from a prior), so s follows it.
 //! * `adaptive` — beyond the thesis: a closed loop on what actually waits. While the largest
-//!   backlog of any neighbour (bytes of logs it still lacks) exceeds two steps of its budget, s
-//!   shrinks; while it is under half a step, s grows; in between it holds. Without neighbours
-//!   there is nothing to measure and s holds.
+//!   backlog of any neighbour (bytes of logs it still lacks) exceeds two steps of its budget and
+//!   is not draining, s shrinks; while it is under half a step, s grows; in between, or while a
+//!   large backlog drains (a link that just came up, catching up on history), it holds. Without
+//!   neighbours there is nothing to measure and s holds.
 //! * `fixed` — s as given.
 //!
 //! Under unlimited bandwidth (and for a lone robot) the formula has no finite value: s is the
@@ -58,6 +59,8 @@ pub struct SplittingFrequency {
     bytes: f64,
     splits: f64,
     s: f64,
+    /// The largest backlog at the last step, to tell a draining backlog from a growing one.
+    last_backlog: Option<f64>,
 }
 
 impl SplittingFrequency {
@@ -76,6 +79,7 @@ impl SplittingFrequency {
             bytes: 0.0,
             splits: 0.0,
             s: cfg.splits_per_step,
+            last_backlog: None,
         };
         if cfg.control != SplitControl::Fixed {
             f.s = f.by_formula().unwrap_or(cfg.splits_per_step);
@@ -133,9 +137,14 @@ impl SplittingFrequency {
             self.s = self.max;
             return;
         };
-        let Some(backlog) = backlog else { return };
+        let Some(backlog) = backlog else {
+            self.last_backlog = None;
+            return;
+        };
         let backlog = backlog as f64;
-        if backlog > BACKLOG_HIGH_STEPS * b {
+        let draining = self.last_backlog.is_some_and(|last| backlog < last);
+        self.last_backlog = Some(backlog);
+        if backlog > BACKLOG_HIGH_STEPS * b && !draining {
             self.s = (self.s * SHRINK).max(self.min);
         } else if backlog < BACKLOG_LOW_STEPS * b {
             self.s = (self.s * GROW).min(self.max);
@@ -221,6 +230,16 @@ mod tests {
         );
         f.backlog(None);
         assert_eq!(f.current(), low, "no neighbour, no change");
+        // A large backlog that drains (a link catching up) holds s; one that stays shrinks it.
+        f.backlog(Some(6000));
+        let low = f.current();
+        for b in (0..10).rev() {
+            f.backlog(Some(5000 + b * 100));
+            assert_eq!(f.current(), low, "draining, no change");
+        }
+        f.backlog(Some(5000));
+        assert!(f.current() < low, "not draining");
+        let low = f.current();
         f.backlog(Some(1000));
         assert_eq!(f.current(), low, "inside the band, no change");
         for _ in 0..200 {

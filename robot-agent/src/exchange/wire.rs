@@ -8,8 +8,10 @@
 //! inserts). Every chunk starts from a fresh context, so the exchange can cut a log at any op.
 //!
 //! Header bits 0–2 name the type (0 ins, 1 rep, 2 del, 3 em, 4 chg, 5 rm, 6 save).
-//! ins/rep: bits 3–4 f_occ (0 free, 1 occupied, 2 unknown), bits 5–7 position mode; then
-//! zigzag varints dx, dy. del: bits 3–7 position mode. Position modes: `m` below the last two
+//! ins/rep: bits 3–4 f_occ (0 free, 1 occupied, 2 unknown; 3: bounded, below), bits 5–7
+//! position mode; then zigzag varints dx, dy. An exact edge (error bound 0, most of a fine
+//! approximation) costs nothing more; a bounded one has f_occ 3 and, after dy, one varint
+//! `bound << 2 | f_occ` (one byte up to 31 half cells). del: bits 3–7 position mode. Position modes: `m` below the last two
 //! values means previous position − m; the last two mean "absolute varint follows" and
 //! "zigzag delta varint follows". em/chg: bit 3 kind (0 inside, 1 outside), bits 4–7 id mode,
 //! then varint vertex count; rm: bits 3–7 id mode. Id modes: `m` below the last value means
@@ -33,7 +35,7 @@ pub enum WireError {
     Truncated(usize),
     #[error("unknown op type 7 at byte {0}")]
     BadType(usize),
-    #[error("bad occupancy code 3 at byte {0}")]
+    #[error("bad occupancy code or error bound at byte {0}")]
     BadOcc(usize),
     #[error("save header with extra bits at byte {0}")]
     BadSave(usize),
@@ -105,7 +107,8 @@ impl Encoder {
 
     fn vertex(&mut self, ty: u8, pos: u32, v: Vertex) {
         let (mode, extra) = pos_mode(&mut self.ctx, pos, 8);
-        self.out.push(ty | occ_code(v.occ) << 3 | mode << 5);
+        let code = if v.bound == 0 { occ_code(v.occ) } else { 3 };
+        self.out.push(ty | code << 3 | mode << 5);
         if let Some(x) = extra {
             put_varint(&mut self.out, x);
         }
@@ -117,8 +120,12 @@ impl Encoder {
             &mut self.out,
             zigzag(i64::from(v.p.y) - i64::from(self.ctx.point.y)),
         );
-        // The edge's error bound (half cells): a varint, one byte up to 63 cells.
-        put_varint(&mut self.out, u64::from(v.bound));
+        if v.bound != 0 {
+            put_varint(
+                &mut self.out,
+                u64::from(v.bound) << 2 | u64::from(occ_code(v.occ)),
+            );
+        }
         self.ctx.point = v.p;
     }
 
@@ -231,13 +238,23 @@ impl Reader<'_> {
         let h = self.byte()?;
         Ok(match h & 7 {
             0 | 1 => {
-                let occ = [Occ::Free, Occ::Occupied, Occ::Unknown].get(usize::from(h >> 3 & 3));
-                let occ = *occ.ok_or(WireError::BadOcc(start))?;
                 let pos = self.pos(h >> 5, 8)?;
                 let x = self.coord(self.ctx.point.x)?;
                 let y = self.coord(self.ctx.point.y)?;
                 self.ctx.point = QPoint::new(x, y);
-                let bound = u16::try_from(self.varint()?).map_err(|_| WireError::BadOcc(start))?;
+                let (code, bound) = match h >> 3 & 3 {
+                    3 => {
+                        let b = self.varint()?;
+                        let bound = u16::try_from(b >> 2).map_err(|_| WireError::BadOcc(start))?;
+                        if bound == 0 {
+                            return Err(WireError::BadOcc(start));
+                        }
+                        (b & 3, bound)
+                    }
+                    c => (u64::from(c), 0),
+                };
+                let occ = [Occ::Free, Occ::Occupied, Occ::Unknown].get(code as usize);
+                let occ = *occ.ok_or(WireError::BadOcc(start))?;
                 let v = Vertex {
                     p: self.ctx.point,
                     occ,
@@ -398,7 +415,22 @@ mod tests {
         assert_eq!(decode(&[6, 6]), Ok(vec![Op::Save, Op::Save]));
         assert_eq!(decode(&[7]), Err(WireError::BadType(0)));
         assert_eq!(decode(&[6 | 8]), Err(WireError::BadSave(0)));
-        assert_eq!(decode(&[3 << 3, 0, 0]), Err(WireError::BadOcc(0)));
+        // A bounded vertex: its bound and f_occ after the coordinates, neither may be invalid.
+        let bounded = Vertex {
+            p: QPoint::new(1, 0),
+            occ: Occ::Unknown,
+            bound: 5,
+        };
+        assert_eq!(
+            encode(&[Op::Insert { pos: 0, v: bounded }]),
+            vec![3 << 3, 2, 0, 5 << 2 | 2]
+        );
+        assert_eq!(decode(&[3 << 3, 0, 0, 0]), Err(WireError::BadOcc(0)));
+        assert_eq!(
+            decode(&[3 << 3, 0, 0, 1 << 2 | 3]),
+            Err(WireError::BadOcc(0))
+        );
+        assert_eq!(decode(&[3 << 3, 0, 0]), Err(WireError::Truncated(3)));
         assert_eq!(decode(&[3]), Err(WireError::Truncated(1)));
     }
 
