@@ -14,7 +14,7 @@ use crate::geom::{LaserSpec, MapInfo, Metres, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 12;
+pub const PROTOCOL_VERSION: u16 = 13;
 
 pub use crate::ids::{RobotId, Step};
 

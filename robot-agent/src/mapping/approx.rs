@@ -21,14 +21,15 @@ use crate::mapping::qpoint::{seg_dist2, QPoint};
 /// Identity of an object across steps (docs/design.md §4.2): it persists while the object does.
 pub type ObjectId = u32;
 
-/// A polygon vertex, and f_occ and the one-sided error bound of the edge from it to its
-/// successor ([`edge_bound`]).
+/// A polygon vertex, and f_occ and the error bound of the edge from it to its successor
+/// ([`edge_bound`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Vertex {
     pub p: QPoint,
     pub occ: Occ,
-    /// How far (half cells, rounded up) the contour the edge stands for strays onto the edge's
-    /// free side: a receiver paints nothing free that close to it ([`crate::mapping::render`]).
+    /// How far (half cells, rounded up) the contour the edge stands for strays from it
+    /// ([`edge_bound`]): a receiver paints nothing free that close to it
+    /// ([`crate::mapping::render`]).
     pub bound: u16,
 }
 
@@ -139,25 +140,24 @@ impl Polygon {
     }
 }
 
-/// The one-sided error of the edge of A_t from P_t point `from` to point `to` of object `c`
+/// The error bound of the edge of A_t from P_t point `from` to point `to` of object `c`
 /// (cyclic, `from == to` spans the whole object), in half cells rounded up (at most
-/// `u16::MAX`): the largest distance from the chord of a spanned point on the chord's free side (P_t keeps
-/// the free side on its right). Every cell the chord wrongly puts on its free side — between
-/// the chord and the contour it stands for — lies within that distance of the chord on that
-/// side, so a receiver that paints nothing free there paints free only what the owner saw free.
-/// 0 for an exact edge.
+/// `u16::MAX`): the largest distance of a spanned point from the edge — the Douglas–Peucker
+/// criterion itself. 0 for an exact edge.
+///
+/// Why it bounds what a receiver may get wrong: a cell's membership in the even–odd fill of the
+/// approximated polygon and of the contour it stands for differs only inside a loop formed by
+/// one edge and the chain of points it spans (parity adds up over the loops), and such a loop
+/// lies in the convex hull of its chain, where the distance from the edge is at most the largest
+/// of its points' (a convex function is largest at a vertex). This holds on both sides of the
+/// edge and for self-intersecting approximations, which coarse ones can be.
 pub fn edge_bound(c: &Contour, from: usize, to: usize) -> u16 {
     let n = c.points.len();
     let (a, b) = (c.points[from], c.points[to]);
-    let (dx, dy) = (i64::from(b.x - a.x), i64::from(b.y - a.y));
     let mut worst = 0.0f64;
     let mut k = (from + 1) % n;
     while k != to {
-        let p = c.points[k];
-        let cross = dx * i64::from(p.y - a.y) - dy * i64::from(p.x - a.x);
-        if cross < 0 || (dx == 0 && dy == 0) {
-            worst = worst.max(seg_dist2(p, a, b));
-        }
+        worst = worst.max(seg_dist2(c.points[k], a, b));
         k = (k + 1) % n;
     }
     (worst.sqrt() / 2.0).ceil().min(f64::from(u16::MAX)) as u16

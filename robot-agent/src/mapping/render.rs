@@ -76,9 +76,9 @@ impl Canvas {
         }
     }
 
-    /// Every cell of the window whose centre lies on the free (right) side of an edge of
-    /// `poly`, or on its line, within the edge's error bound of it ([`crate::mapping::approx::Vertex::bound`]): where the
-    /// contour the edge stands for may stray.
+    /// Every cell of the window whose centre lies within an edge's error bound of the edge of
+    /// `poly` ([`crate::mapping::approx::edge_bound`]), on either side: where the contour the
+    /// edge stands for may run.
     fn bands(&self, poly: &Polygon, mut f: impl FnMut(usize)) {
         let n = poly.vertices.len();
         for (i, v) in poly.vertices.iter().enumerate() {
@@ -98,17 +98,11 @@ impl Canvas {
                 lo.y.max(self.y0),
                 hi.y.min(self.y0 + self.height as i32 - 1),
             );
-            let (dx, dy) = (
-                i64::from(b.x) - i64::from(a.x),
-                i64::from(b.y) - i64::from(a.y),
-            );
             let e2 = (e * e) as f64;
             for y in y0..=y1 {
                 for x in x0..=x1 {
                     let q = QPoint::centre(Cell::new(x, y));
-                    let cross = dx * (i64::from(q.y) - i64::from(a.y))
-                        - dy * (i64::from(q.x) - i64::from(a.x));
-                    if cross <= 0 && seg_dist2(q, a, b) <= e2 {
+                    if seg_dist2(q, a, b) <= e2 {
                         if let Some(k) = self.index(Cell::new(x, y)) {
                             f(k);
                         }
@@ -173,7 +167,7 @@ fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>], bands: Bands) -> Canvas 
 
 /// Step (4) for one approximation: cells inside its inside objects that are undefined, or
 /// unknown but inside an odd number of its polygons, become free — with [`Bands::Kept`], none
-/// within an edge's error bound on its free side.
+/// within an edge's error bound of it.
 fn free_inside(plan: &mut Canvas, a: &[&Polygon], bands: Bands) {
     const INSIDE: u8 = 1;
     const ODD: u8 = 2;
