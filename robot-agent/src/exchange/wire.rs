@@ -11,10 +11,10 @@
 //! ins/rep: bits 3–4 f_occ (0 free, 1 occupied, 2 unknown; 3: bounded, below), bits 5–7
 //! position mode; then zigzag varints dx, dy. An exact edge (error bound 0, most of a fine
 //! approximation) costs nothing more; a bounded one has f_occ 3 and, after dy, one varint
-//! `bound << 2 | f_occ` (one byte up to 31 half cells). del: bits 3–7 position mode. Position modes: `m` below the last two
-//! values means previous position − m; the last two mean "absolute varint follows" and
-//! "zigzag delta varint follows". em/chg: bit 3 kind (0 inside, 1 outside), bits 4–7 id mode,
-//! then varint vertex count; rm: bits 3–7 id mode. Id modes: `m` below the last value means
+//! `bound << 2 | f_occ` (one byte up to 31 half cells). del: bits 3–7 position mode. Position
+//! modes: `m` below the last two values means previous position − m; the last two mean
+//! "absolute varint follows" and "zigzag delta varint follows". em/chg: bit 3 kind (0 inside,
+//! 1 outside), bits 4–7 id mode, then varint vertex count; rm: bits 3–7 id mode. Id modes: `m` below the last value means
 //! previous id + 1 + m, the last means "zigzag delta varint follows". save: bits 3–7 zero.
 //!
 //! Mean sizes on exploration runs stay below Table 6.1 (ins 6, rep 6, del 2, em 5, chg 5,

@@ -22,14 +22,13 @@ use crate::mapping::qpoint::{seg_dist2, QPoint};
 pub type ObjectId = u32;
 
 /// A polygon vertex, and f_occ and the error bound of the edge from it to its successor
-/// ([`edge_bound`]).
+/// ([`Vertex::spanning`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Vertex {
     pub p: QPoint,
     pub occ: Occ,
-    /// How far (half cells, rounded up) the contour the edge stands for strays from it
-    /// ([`edge_bound`]): a receiver paints nothing free that close to it
-    /// ([`crate::mapping::render`]).
+    /// How far (half cells, rounded up) the contour the edge stands for strays from it: a
+    /// receiver paints nothing free that close to it ([`crate::mapping::render`]).
     pub bound: u16,
 }
 
@@ -92,11 +91,7 @@ impl Approximation {
             .map(|(id, c)| {
                 let n = c.points.len();
                 let vertices = (0..n)
-                    .map(|i| Vertex {
-                        p: c.points[i],
-                        occ: edge_occ(c, i, (i + 1) % n),
-                        bound: edge_bound(c, i, (i + 1) % n),
-                    })
+                    .map(|i| Vertex::spanning(c, i, (i + 1) % n))
                     .collect();
                 (
                     id as ObjectId,
@@ -140,39 +135,31 @@ impl Polygon {
     }
 }
 
-/// The error bound of the edge of A_t from P_t point `from` to point `to` of object `c`
-/// (cyclic, `from == to` spans the whole object), in half cells rounded up (at most
-/// `u16::MAX`): the largest distance of a spanned point from the edge — the Douglas–Peucker
-/// criterion itself. 0 for an exact edge.
-///
-/// Why it bounds what a receiver may get wrong: a cell's membership in the even–odd fill of the
-/// approximated polygon and of the contour it stands for differs only inside a loop formed by
-/// one edge and the chain of points it spans (parity adds up over the loops), and such a loop
-/// lies in the convex hull of its chain, where the distance from the edge is at most the largest
-/// of its points' (a convex function is largest at a vertex). This holds on both sides of the
-/// edge and for self-intersecting approximations, which coarse ones can be.
-pub fn edge_bound(c: &Contour, from: usize, to: usize) -> u16 {
-    let n = c.points.len();
-    let (a, b) = (c.points[from], c.points[to]);
-    let mut worst = 0.0f64;
-    let mut k = (from + 1) % n;
-    while k != to {
-        worst = worst.max(seg_dist2(c.points[k], a, b));
-        k = (k + 1) % n;
-    }
-    (worst.sqrt() / 2.0).ceil().min(f64::from(u16::MAX)) as u16
-}
-
-/// f_occ of the edge of A_t from P_t point `from` to point `to` of object `c` (cyclic,
-/// `from == to` spans the whole object): occupied iff every point in `[from, to)` is occupied;
-/// otherwise precautious — free for inside objects, unknown for outside objects.
-pub fn edge_occ(c: &Contour, from: usize, to: usize) -> Occ {
-    let n = c.occ.len();
-    let span = if to > from { to - from } else { to + n - from };
-    let all_occupied = (0..span).all(|k| c.occ[(from + k) % n] == Occ::Occupied);
-    match (all_occupied, c.kind) {
-        (true, _) => Occ::Occupied,
-        (false, Kind::Inside) => Occ::Free,
-        (false, Kind::Outside) => Occ::Unknown,
+impl Vertex {
+    /// The vertex at P_t point `from` of object `c`, with f_occ and the error bound of its edge to
+    /// point `to` (cyclic; `from == to` spans the whole object), both from one pass over the
+    /// points the edge spans.
+    ///
+    /// f_occ: occupied iff every point in `[from, to)` is occupied; otherwise precautious — free
+    /// for inside objects, unknown for outside objects. The bound: the largest distance of a
+    /// spanned point from the edge — the Douglas–Peucker criterion — in half cells rounded up (at
+    /// most `u16::MAX`), 0 for an exact edge; why it bounds what a receiver's merge can get
+    /// wrong is docs/design.md §4.5.
+    pub fn spanning(c: &Contour, from: usize, to: usize) -> Vertex {
+        let n = c.points.len();
+        let (a, b) = (c.points[from], c.points[to]);
+        let span = if to > from { to - from } else { to + n - from };
+        let (mut all_occupied, mut worst) = (true, 0.0f64);
+        for k in (from..from + span).map(|k| k % n) {
+            all_occupied &= c.occ[k] == Occ::Occupied;
+            worst = worst.max(seg_dist2(c.points[k], a, b));
+        }
+        let occ = match (all_occupied, c.kind) {
+            (true, _) => Occ::Occupied,
+            (false, Kind::Inside) => Occ::Free,
+            (false, Kind::Outside) => Occ::Unknown,
+        };
+        let bound = (worst.sqrt() / 2.0).ceil().min(f64::from(u16::MAX)) as u16;
+        Vertex { p: a, occ, bound }
     }
 }

@@ -204,7 +204,7 @@ fn finish(drafts: Vec<Draft>) -> Approximation {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mapping::approx::edge_occ;
+    use crate::mapping::approx::Vertex;
     use crate::mapping::approx_error::approx_error;
     use crate::mapping::contour::Kind;
     use crate::testutil::{arb_exploration, arb_grid, arb_grid_sequence, arb_map_window};
@@ -244,7 +244,7 @@ mod tests {
             for k in 0..at.len() {
                 assert_eq!(
                     poly.vertices[k].occ,
-                    edge_occ(c, at[k].1, at[(k + 1) % at.len()].1)
+                    Vertex::spanning(c, at[k].1, at[(k + 1) % at.len()].1).occ
                 );
             }
         }

@@ -29,7 +29,7 @@ use std::collections::BinaryHeap;
 
 use proto::grid::{Cell, Grid, Occ};
 
-use crate::mapping::approx::{edge_bound, edge_occ, ObjectId, Polygon, Vertex};
+use crate::mapping::approx::{ObjectId, Polygon, Vertex};
 use crate::mapping::contour::{Contour, Contours};
 use crate::mapping::qpoint::seg_dist2;
 use crate::mapping::render::render_window;
@@ -54,11 +54,7 @@ impl Draft {
     pub(crate) fn new(id: ObjectId, pobj: usize, idx: Vec<usize>, c: &Contour) -> Draft {
         let n = idx.len();
         let vertices = (0..n)
-            .map(|k| Vertex {
-                p: c.points[idx[k]],
-                occ: edge_occ(c, idx[k], idx[(k + 1) % n]),
-                bound: edge_bound(c, idx[k], idx[(k + 1) % n]),
-            })
+            .map(|k| Vertex::spanning(c, idx[k], idx[(k + 1) % n]))
             .collect();
         Draft {
             id,
@@ -80,16 +76,10 @@ impl Draft {
             .map_or(0, |k| k + 1);
         let to = self.idx[at % self.idx.len()];
         self.idx.insert(at, split);
-        self.poly.vertices.insert(
-            at,
-            Vertex {
-                p: c.points[split],
-                occ: edge_occ(c, split, to),
-                bound: edge_bound(c, split, to),
-            },
-        );
-        self.poly.vertices[at - 1].occ = edge_occ(c, from, split);
-        self.poly.vertices[at - 1].bound = edge_bound(c, from, split);
+        self.poly
+            .vertices
+            .insert(at, Vertex::spanning(c, split, to));
+        self.poly.vertices[at - 1] = Vertex::spanning(c, from, split);
         at
     }
 
@@ -98,8 +88,7 @@ impl Draft {
         self.idx.remove(at);
         self.poly.vertices.remove(at);
         let (from, to) = (self.idx[at - 1], self.idx[at % self.idx.len()]);
-        self.poly.vertices[at - 1].occ = edge_occ(c, from, to);
-        self.poly.vertices[at - 1].bound = edge_bound(c, from, to);
+        self.poly.vertices[at - 1] = Vertex::spanning(c, from, to);
     }
 }
 

@@ -77,7 +77,7 @@ impl Canvas {
     }
 
     /// Every cell of the window whose centre lies within an edge's error bound of the edge of
-    /// `poly` ([`crate::mapping::approx::edge_bound`]), on either side: where the contour the
+    /// `poly` ([`crate::mapping::approx::Vertex::spanning`]), on either side: where the contour the
     /// edge stands for may run.
     fn bands(&self, poly: &Polygon, mut f: impl FnMut(usize)) {
         let n = poly.vertices.len();
