@@ -281,6 +281,10 @@ pub enum Medium {
 pub struct Exchange {
     pub mode: ExchangeMode,
     pub hello_every_steps: u32,
+    /// Polygon mode: every approximated edge carries its error bound and a receiver paints
+    /// nothing free within it (docs/design.md §4.5); `false`: the thesis's exchange, edges
+    /// without bounds, painted as they are.
+    pub edge_bounds: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -602,6 +606,7 @@ impl Default for Exchange {
         Exchange {
             mode: ExchangeMode::Polygon,
             hello_every_steps: 10,
+            edge_bounds: true,
         }
     }
 }

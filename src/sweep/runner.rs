@@ -85,6 +85,11 @@ pub struct SweepArgs {
     /// values of one key are all kept). The runs go to the same directory as the whole grid's.
     #[arg(long, value_name = "KEY=VALUE")]
     pub only: Vec<String>,
+    /// A scenario override for every run, after the file's `set` and before the grid point's
+    /// values, e.g. --set exchange.edge_bounds=true (repeatable). It is part of the sweep's
+    /// identity: give it its own --out.
+    #[arg(long, value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
 }
 
 /// Keeps only the values `only` names (`KEY=VALUE`, as the grid's values are written) of their
@@ -362,8 +367,9 @@ impl Plan {
             toml::from_str(&text).with_context(|| format!("experiment {file}"))?;
         let base_dir = args.experiment.parent().unwrap_or(Path::new("."));
         let scenario = exp.scenario.as_ref().map(|s| base_dir.join(s));
-        let (seeds, sets, mut grid) =
+        let (seeds, mut sets, mut grid) =
             variant(&exp, args.quick).with_context(|| format!("experiment {file}"))?;
+        sets.extend(args.set.iter().cloned());
         restrict(&mut grid, &args.only)?;
         let spec = Spec {
             name: exp.name.clone(),
@@ -604,8 +610,11 @@ mod tests {
                 seeds: None,
                 quick: false,
                 only: Vec::new(),
+                set: vec!["exchange.edge_bounds=false".into()],
             };
-            Plan::load(&args).map(|_| ()).map_err(|e| format!("{e:#}"))
+            Plan::load(&args)
+                .map(|p| p.sets)
+                .map_err(|e| format!("{e:#}"))
         };
         let ok = load("fields = [\"traffic_shares_pct.vertex\", \"coverage_steps.90\"]\n");
         let field = load("fields = [\"traffic_share_pct.vertex\"]\n");
@@ -618,7 +627,7 @@ mod tests {
              rows = [\"robots.count\"]\ncolumns = [\"awareness.team_pct\"]\n",
         );
         let _ = std::fs::remove_dir_all(&dir);
-        assert!(ok.is_ok(), "{ok:?}");
+        assert_eq!(ok, Ok(vec!["exchange.edge_bounds=false".to_string()]));
         for (r, what, name) in [
             (field, "fields", "traffic_share_pct.vertex"),
             (y, "plot.y", "exploration_step"),

@@ -64,6 +64,9 @@ pub struct Mapper {
     previous: Approximation,
     /// Douglas–Peucker splits per step (fractional values accumulate).
     pub splits_per_step: f64,
+    /// Whether the logged approximation keeps its edges' error bounds
+    /// (`exchange.edge_bounds`; without them, the thesis's).
+    pub edge_bounds: bool,
     pub stats: OpStats,
     /// Σ d_t and Σ known cells over all steps (for e_avg).
     error_sum: u64,
@@ -81,6 +84,7 @@ impl Mapper {
             log: OpLog::new(),
             previous: Approximation::default(),
             splits_per_step,
+            edge_bounds: true,
             stats: OpStats::default(),
             error_sum: 0,
             known_sum: 0,
@@ -107,10 +111,13 @@ impl Mapper {
             }
             None => self.view.insert(ExplorationView::new(own)),
         };
-        let a = self
+        let mut a = self
             .approximator
             .step_in_view(&p, view.grid(), self.splits_per_step)
             .clone();
+        if !self.edge_bounds {
+            a.drop_bounds();
+        }
         let first = self.log.len();
         let ops = self.log.record(&self.previous, &a);
         let mut enc = Encoder::new();
@@ -195,5 +202,34 @@ mod tests {
         let total: u64 = m.stats.count.iter().sum();
         assert_eq!(total as usize, m.log().len());
         assert!(m.error_avg().is_some());
+    }
+
+    /// `exchange.edge_bounds = false` logs the thesis's approximation: the same vertices, no
+    /// edge with an error bound.
+    #[test]
+    fn without_edge_bounds_the_log_carries_none() {
+        let g = Grid::from_ascii("?########?\n?#......#?\n?#..##..#?\n?#......#?\n?########?\n");
+        let all: Vec<Cell> = (0..g.len())
+            .map(|i| Cell::new((i % 10) as i32, (i / 10) as i32))
+            .collect();
+        let bounded = |edge_bounds: bool| {
+            let mut m = Mapper::new(0.0);
+            m.edge_bounds = edge_bounds;
+            m.step(&g, &all);
+            let vertices: Vec<_> = m
+                .log()
+                .since(0)
+                .iter()
+                .filter_map(|op| match op {
+                    crate::exchange::delta::Op::Insert { v, .. } => Some(v.bound),
+                    _ => None,
+                })
+                .collect();
+            (vertices.len(), vertices.iter().filter(|&&b| b != 0).count())
+        };
+        let (with, without) = (bounded(true), bounded(false));
+        assert_eq!(with.0, without.0);
+        assert!(with.1 > 0, "a coarse approximation has bounded edges");
+        assert_eq!(without.1, 0);
     }
 }

@@ -217,9 +217,11 @@ pub fn new(
             };
             let splitting =
                 SplittingFrequency::new(&s.bandwidth, u32::from(world.robots), budget, p);
+            let mut mapper = Mapper::new(splitting.current());
+            mapper.edge_bounds = s.exchange.edge_bounds;
             Box::new(Polygon {
                 exchange: ApproxExchange::owning(me, own),
-                mapper: Box::new(Mapper::new(splitting.current())),
+                mapper: Box::new(mapper),
                 splitting,
             })
         }

@@ -71,6 +71,18 @@ impl Approximation {
         h
     }
 
+    /// Every edge without its error bound: the thesis's approximation, which a receiver paints
+    /// as it is.
+    pub fn drop_bounds(&mut self) {
+        for v in self
+            .objects
+            .values_mut()
+            .flat_map(|p| p.vertices.iter_mut())
+        {
+            v.bound = 0;
+        }
+    }
+
     /// The objects in id order as the sim plane's [`proto::msg::Outline`]s (for a viewer).
     pub fn outlines(&self) -> Vec<proto::msg::Outline> {
         self.objects
