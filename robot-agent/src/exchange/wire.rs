@@ -14,8 +14,9 @@
 //! `bound << 2 | f_occ` (one byte up to 31 half cells). del: bits 3–7 position mode. Position
 //! modes: `m` below the last two values means previous position − m; the last two mean
 //! "absolute varint follows" and "zigzag delta varint follows". em/chg: bit 3 kind (0 inside,
-//! 1 outside), bits 4–7 id mode, then varint vertex count; rm: bits 3–7 id mode. Id modes: `m` below the last value means
-//! previous id + 1 + m, the last means "zigzag delta varint follows". save: bits 3–7 zero.
+//! 1 outside), bits 4–7 id mode, then varint vertex count; rm: bits 3–7 id mode. Id modes: `m`
+//! below the last value means previous id + 1 + m, the last means "zigzag delta varint follows".
+//! save: bits 3–7 zero.
 //!
 //! Mean sizes on exploration runs stay below Table 6.1 (ins 6, rep 6, del 2, em 5, chg 5,
 //! rm 2, save 1 bytes); the tests measure them. Decoding is total: every byte string decodes
