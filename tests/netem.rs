@@ -477,9 +477,11 @@ fn a_run_survives_every_fault_type_and_each_shows_its_effect() {
         assert!(total > 0.0, "the slow link carried nothing, {d}: {rows:?}");
     }
     // Throttled, not stalled: while netem holds more than two steps' budget for the pair (so at
-    // least one direction has a full step waiting), that direction moves at about the rate, in
-    // the row or the next. The robots may have nothing to send for a while, so an idle row
-    // without a backlog is no fault (measured: some runs never queue 400 bytes here).
+    // least one direction has a full step waiting), the step's grant crosses in the row or the
+    // next (a busy receiver can take it a row late: a row of 0 then one of 400 is pacing, two
+    // empty rows with a backlog are a stall). The robots may have nothing to send for a while,
+    // so an idle row without a backlog is no fault (measured: some runs never queue 400 bytes
+    // here).
     for s in 122..168 {
         if num(row(s, 0, 2), "queued_bytes") >= 400.0 {
             let moved = |t: u64| {
@@ -487,7 +489,7 @@ fn a_run_survives_every_fault_type_and_each_shows_its_effect() {
                 num(l, "bytes_a_to_b").max(num(l, "bytes_b_to_a"))
             };
             assert!(
-                moved(s).min(moved(s + 1)) >= 150.0,
+                moved(s) + moved(s + 1) >= 150.0,
                 "the slow link stalled with a backlog at step {s}: {:?} {:?}",
                 row(s, 0, 2),
                 row(s + 1, 0, 2)
