@@ -117,7 +117,7 @@ pub fn sim_plane(data: &[u8]) {
 
 /// The radio payload kinds a robot takes (the last segment of `radio/<to>/<kind>`).
 pub const RADIO_KINDS: [&str; 11] = [
-    "hello", "targ", "mark", "team", "bid", "task", "role", "move", "delta", "ops", "patch",
+    "hello", "targ", "frame", "team", "bid", "task", "role", "move", "delta", "ops", "patch",
 ];
 
 const STRATEGIES: [Strategy; 6] = [
@@ -149,12 +149,15 @@ pub fn radio(data: &[u8]) {
     let strategy = STRATEGIES[usize::from(*c & 7) % STRATEGIES.len()];
     let mode = MODES[usize::from((*c >> 3) & 3) % MODES.len()];
     let mut a = agent(strategy, mode);
-    if let Some(m) = a.receive(kind, payload) {
+    let msgs = a.receive(kind, payload).msgs;
+    let took = !msgs.is_empty();
+    for m in msgs {
         let _ = a.take(m);
-        if *c & 0x80 != 0 {
-            let _ = a.on_scan(&plain_scan(1));
-            let _ = a.radio_step();
-        }
+    }
+    if took && *c & 0x80 != 0 {
+        let _ = a.on_scan(&plain_scan(1));
+        let _ = a.radio_step();
+        let _ = a.frames();
     }
 }
 
@@ -318,28 +321,38 @@ mod tests {
                         let mut scan = plain_scan(step);
                         scan.pose.x = 1.5 + i as f64;
                         let _ = a.on_scan(&scan);
-                        let step_out = a.radio_step();
-                        let marks = a.marks(&step_out);
-                        out.extend(step_out);
-                        out.extend(marks);
+                        out.extend(a.radio_step());
+                        out.extend(a.frames());
                     }
                     for o in std::mem::take(&mut out) {
-                        let kind = o.key.rsplit('/').next().unwrap_or_default().to_string();
-                        let Some(k) = RADIO_KINDS.iter().position(|&r| r == kind) else {
-                            continue;
-                        };
-                        if kind == "ops" && ops_chunks < 12 {
-                            if let Ok(c) = decode::<OpChunk>(&o.bytes) {
-                                write("op_chunk", &format!("chunk-{ops_chunks}"), &c.ops);
-                                ops_chunks += 1;
+                        let kind = proto::keys::radio_kind(&o.key).unwrap_or_default().to_string();
+                        // A frame, and each message it carries, as if sent alone.
+                        let mut payloads = vec![(kind.clone(), o.bytes.clone())];
+                        if let Ok(f) = decode::<proto::msg::Frame>(&o.bytes) {
+                            for (k, b) in f.records {
+                                let Some(k) = proto::keys::RADIO_KINDS.get(usize::from(k)) else {
+                                    continue;
+                                };
+                                payloads.push((k.to_string(), b));
                             }
                         }
-                        // Every seed has the robot act on what it took (bit 7).
-                        let select = 0x80 | u8::try_from(si + 8 * mi).unwrap_or(0);
-                        if o.bytes.len() < 4000 && seen.insert((kind.clone(), si, mi)) {
-                            let mut input = vec![k as u8, select];
-                            input.extend(&o.bytes);
-                            write("radio", &format!("{kind}-{si}-{mi}"), &input);
+                        for (kind, bytes) in payloads {
+                            let Some(k) = RADIO_KINDS.iter().position(|&r| r == kind) else {
+                                continue;
+                            };
+                            if kind == "ops" && ops_chunks < 12 {
+                                if let Ok(c) = decode::<OpChunk>(&bytes) {
+                                    write("op_chunk", &format!("chunk-{ops_chunks}"), &c.ops);
+                                    ops_chunks += 1;
+                                }
+                            }
+                            // Every seed has the robot act on what it took (bit 7).
+                            let select = 0x80 | u8::try_from(si + 8 * mi).unwrap_or(0);
+                            if bytes.len() < 4000 && seen.insert((kind.clone(), si, mi)) {
+                                let mut input = vec![k as u8, select];
+                                input.extend(&bytes);
+                                write("radio", &format!("{kind}-{si}-{mi}"), &input);
+                            }
                         }
                         if let Some(to) = team.get_mut(usize::from(o.to)) {
                             out.extend(to.on_radio(&kind, &o.bytes));

@@ -120,26 +120,40 @@ pub fn radio_targ(to: RobotId) -> String {
     format!("radio/{to}/targ")
 }
 
-/// Radio: step markers ([`crate::msg::Mark`]) addressed to robot `to`.
-pub fn radio_mark(to: RobotId) -> String {
-    format!("radio/{to}/mark")
+/// Radio: a step's frame ([`crate::msg::Frame`]: its messages and its marker, lockstep with step
+/// markers) addressed to robot `to`: the robot's radio address itself, the shortest key, since
+/// zenoh sends a message's key in full with every message and a frame is one message per link
+/// and step. Its kind is `frame`.
+pub fn radio_frame(to: RobotId) -> String {
+    format!("radio/{to}")
 }
 
 /// Every `<kind>` a `radio/<to>/<kind>` key of ours has (one per `radio_*` function above).
 pub const RADIO_KINDS: &[&str] = &[
-    "hello", "delta", "ops", "patch", "team", "bid", "role", "move", "task", "targ", "mark",
+    "hello", "delta", "ops", "patch", "team", "bid", "role", "move", "task", "targ", "frame",
 ];
 
-/// Everything on the radio addressed to robot `to` (`radio/<to>/<kind>`).
+/// Everything on the radio addressed to robot `to` (`radio/<to>` and `radio/<to>/<kind>`).
 pub fn radio_inbox(to: RobotId) -> String {
-    format!("radio/{to}/*")
+    format!("radio/{to}/**")
 }
 
-/// The `<kind>` of a `radio/<to>/<kind>` key (`hello`, `delta`, `ops`, `patch`, `targ`, `team`).
+/// The key of kind `kind` (one of [`RADIO_KINDS`]) addressed to robot `to`.
+pub fn radio_key(to: RobotId, kind: &str) -> String {
+    if kind == "frame" {
+        radio_frame(to)
+    } else {
+        format!("radio/{to}/{kind}")
+    }
+}
+
+/// The `<kind>` of a `radio/<to>/<kind>` key (`hello`, `delta`, `ops`, `patch`, `targ`, `team`,
+/// ...), and `frame` for `radio/<to>`.
 pub fn radio_kind(key: &str) -> Option<&str> {
     let mut parts = key.split('/');
     match (parts.next(), parts.next(), parts.next(), parts.next()) {
-        (Some("radio"), Some(_), Some(kind), None) => Some(kind),
+        (Some("radio"), Some(to), Some(kind), None) if to.parse::<RobotId>().is_ok() => Some(kind),
+        (Some("radio"), Some(to), None, None) if to.parse::<RobotId>().is_ok() => Some("frame"),
         _ => None,
     }
 }
@@ -175,12 +189,16 @@ mod tests {
             radio_move,
             radio_task,
             radio_targ,
-            radio_mark,
+            radio_frame,
         ];
         let kinds: Vec<_> = ours.iter().map(|f| f(3)).collect();
         let kinds: Vec<_> = kinds.iter().filter_map(|k| radio_kind(k)).collect();
         assert_eq!(kinds, RADIO_KINDS);
-        assert_eq!(radio_kind("radio/3"), None);
+        for kind in RADIO_KINDS {
+            assert_eq!(radio_kind(&radio_key(5, kind)), Some(*kind));
+        }
+        assert_eq!(radio_kind("radio/alive"), None);
+        assert_eq!(radio_kind("radio/alive/3"), None);
         assert_eq!(radio_kind("sim/robot/3/cmd"), None);
     }
 

@@ -14,7 +14,7 @@ use crate::geom::{LaserSpec, MapInfo, Metres, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 13;
+pub const PROTOCOL_VERSION: u16 = 14;
 
 pub use crate::ids::{RobotId, Step};
 
@@ -239,8 +239,9 @@ pub struct View {
 /// The package types every radio payload byte is accounted to: the nine of thesis Table 6.1 —
 /// the seven op types of the polygon exchange's log ([`Traffic::OPS`]), `conn` (handshakes and
 /// chunk headers) and `targ` (targets, coordination) — and `scan` and `cells` for the raw-scans
-/// and grid-snapshots baselines — and `mark`, the step markers of lockstep runs (the simulator's
-/// own, not part of any paper's protocol). The op log names its ops' types with it too, so there
+/// and grid-snapshots baselines — and `mark`, the step frames of lockstep runs ([`Frame`]: its
+/// header, the step marker, and each record's kind and length; the simulator's own, not part of
+/// any paper's protocol). The op log names its ops' types with it too, so there
 /// is one enum for them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum Traffic {
@@ -457,14 +458,17 @@ impl PlannedLink {
     }
 }
 
-/// Radio, lockstep: the last message `from` sends a neighbour in `step`, after `sent` others.
-/// Once a robot holds a neighbour's marker of a step and that many of its messages, it holds
-/// everything the neighbour sent it in the step.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Mark {
+/// Radio, lockstep with step markers: everything `from` sends one neighbour in `step`, as one
+/// message, and the end of it (the step marker). zenoh's framing and the marker are paid once per
+/// link and step, not once per message. Each record is a radio kind (its index in
+/// [`crate::keys::RADIO_KINDS`]) and a payload of that kind, encoded as if sent alone. Once a
+/// robot holds a neighbour's frame of a step, it holds everything the neighbour sent it in the
+/// step.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Frame {
     pub from: RobotId,
     pub step: Step,
-    pub sent: u32,
+    pub records: Vec<(u8, Vec<u8>)>,
 }
 
 /// netem → launcher, every step: the state of every robot pair's link (docs/design.md §5).
@@ -854,7 +858,10 @@ pub struct GridPatch {
 pub type PatchDelta = LogDelta<GridPatch>;
 
 /// Radio, `polygon` exchange: ops `start..start+count` of `owner`'s op log, sent by `from`, in
-/// the compact op encoding of `robot_agent::exchange::wire` (thesis Table 6.1).
+/// the compact op encoding of `robot_agent::exchange::wire` (thesis Table 6.1). With `snapshot`
+/// `Some(offset)` the ops are instead ops `offset..offset+count` of a snapshot: the ops that
+/// build `owner`'s approximation at log index `start` from nothing, ending with its one save
+/// point (a peer far behind on the log gets the state instead of the history).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct OpChunk {
     pub from: RobotId,
@@ -862,6 +869,7 @@ pub struct OpChunk {
     pub start: u32,
     pub count: u32,
     pub ops: Vec<u8>,
+    pub snapshot: Option<u32>,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -1021,10 +1029,10 @@ mod tests {
             round_trip(order.clone());
             assert_eq!(ProcessAction::from(order), action);
         }
-        round_trip(Mark {
+        round_trip(Frame {
             from: 3,
             step: 7,
-            sent: 2,
+            records: vec![(0, vec![1, 2, 3]), (9, Vec::new())],
         });
         round_trip(LinkPlan {
             step: 4,
@@ -1294,7 +1302,7 @@ mod tests {
             let _ = decode::<OpChunk>(&bytes);
             let _ = decode::<Scan>(&bytes);
             let _ = decode::<Status>(&bytes);
-            let _ = decode::<Mark>(&bytes);
+            let _ = decode::<Frame>(&bytes);
             let _ = decode::<LinkPlan>(&bytes);
         }
     }

@@ -351,9 +351,10 @@ pub fn sim_client(
 /// for slow links (docs/design.md §1, "zenoh facts"): a batch is only counted when it has
 /// fully arrived, so batches are kept small ([`RADIO_BATCH_BYTES`]) for keep-alives to get
 /// through a 1 kB/s link well within the lease; in realtime runs messages are published with
-/// `CongestionControl::Drop` by the robot. `lockstep`: no batching and an hour's lease
-/// ([`LOCKSTEP_RADIO_LEASE_MS`]), so that none of zenoh's own wall-clock traffic crosses a link
-/// during a run and a message's bytes do not depend on timing.
+/// `CongestionControl::Drop` by the robot. `lockstep`: no batching, an hour's lease
+/// ([`LOCKSTEP_RADIO_LEASE_MS`]) and the largest batches ([`LOCKSTEP_RADIO_BATCH_BYTES`]), so
+/// that none of zenoh's own wall-clock traffic crosses a link during a run, a message's bytes do
+/// not depend on timing and a step's frame is one batch.
 ///
 /// `me` of a team of `team` robots: the session's zenoh id is [`radio_zid`]`(me)`, and an access
 /// rule lets a put addressed to robot `j` (`radio/j/…`) leave only on the session to `j`. zenoh
@@ -384,11 +385,12 @@ pub fn radio_peer(
         "connect/retry",
         "{period_init_ms: 10, period_max_ms: 20, period_increase_factor: 2}",
     )?;
-    set(
-        &mut c,
-        "transport/link/tx/batch_size",
-        &RADIO_BATCH_BYTES.to_string(),
-    )?;
+    let batch = if lockstep {
+        LOCKSTEP_RADIO_BATCH_BYTES
+    } else {
+        RADIO_BATCH_BYTES
+    };
+    set(&mut c, "transport/link/tx/batch_size", &batch.to_string())?;
     let lease = if lockstep {
         LOCKSTEP_RADIO_LEASE_MS
     } else {
@@ -473,6 +475,10 @@ pub use crate::scenario::{LOCKSTEP_RADIO_LEASE_MS, SIM_LEASE_MS};
 
 /// Largest zenoh batch on the radio plane: at 1 000 bytes/s one batch crosses in half a second.
 pub const RADIO_BATCH_BYTES: u16 = 512;
+/// Largest zenoh batch on the radio plane in lockstep with step markers: zenoh's largest, so
+/// that a step's frame is rarely fragmented (every further fragment costs its own headers).
+/// No keep-alive has to cross a link within a lease there ([`LOCKSTEP_RADIO_LEASE_MS`]).
+pub const LOCKSTEP_RADIO_BATCH_BYTES: u16 = u16::MAX;
 /// Radio link lease (wall milliseconds); 4 keep-alives per lease.
 pub const RADIO_LEASE_MS: u64 = 10_000;
 

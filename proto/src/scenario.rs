@@ -285,6 +285,10 @@ pub struct Exchange {
     /// nothing free within it (docs/design.md §4.5); `false`: the thesis's exchange, edges
     /// without bounds, painted as they are.
     pub edge_bounds: bool,
+    /// Polygon mode: a peer far behind on an owner's log gets the owner's approximation at a
+    /// save point (a snapshot) instead of the history, when that is fewer ops (docs/design.md
+    /// §4.4); `false`: the thesis's exchange, log suffixes only.
+    pub snapshots: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -607,6 +611,7 @@ impl Default for Exchange {
             mode: ExchangeMode::Polygon,
             hello_every_steps: 10,
             edge_bounds: true,
+            snapshots: true,
         }
     }
 }

@@ -133,6 +133,7 @@ impl Team {
         for (a, scan) in self.agents.iter_mut().zip(&scans) {
             a.on_scan(scan);
             out.extend(a.radio_step());
+            out.extend(a.frames());
         }
         self.deliver(out);
         self.step += 1;
@@ -152,7 +153,9 @@ impl Team {
         let scan = self.scan(0);
         let a = &mut self.agents[0];
         a.on_scan(&scan);
-        let sent: usize = a.radio_step().iter().map(|o| o.bytes.len()).sum();
+        let mut out = a.radio_step();
+        out.extend(a.frames());
+        let sent: usize = out.iter().map(|o| o.bytes.len()).sum();
         self.step += 1;
         sent + proto::msg::encode(&a.telemetry()).len()
     }

@@ -11,7 +11,7 @@
 
 use proto::geom::{Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
-use proto::msg::{Cmd, Mark, RobotId, Scan, Step, Telemetry, WorldInfo};
+use proto::msg::{Cmd, RobotId, Scan, Step, Telemetry, WorldInfo};
 use proto::scenario::Scenario;
 
 use crate::coord::{self, Coordinator, Heard, Situation, Status, Steer};
@@ -19,7 +19,7 @@ use crate::exchange::sharing::{self, Sharing};
 use crate::mapping::grid::Evidence;
 use crate::nav::plan;
 use crate::nav::right_of_way::RightOfWay;
-use crate::radio::station::{self, Msg, Outgoing, Radio};
+use crate::radio::station::{self, Msg, Outgoing, Radio, Received};
 
 pub struct Agent {
     pub id: RobotId,
@@ -281,35 +281,22 @@ impl Agent {
         (out, gone)
     }
 
-    /// Lockstep: the marker that ends this step's traffic `out`, to every neighbour, with how
-    /// many of the messages went to it.
-    pub fn marks(&mut self, out: &[Outgoing]) -> Vec<Outgoing> {
-        let peers: Vec<RobotId> = self.radio.neighbours().iter().copied().collect();
-        let mut marks = Vec::new();
-        for p in peers {
-            let sent = out.iter().filter(|o| o.to == p).count();
-            let mark = Msg::Mark(Mark {
-                from: self.id,
-                step: self.step,
-                sent: u32::try_from(sent).unwrap_or(u32::MAX),
-            });
-            marks.extend(self.radio.send_paced(p, &mark));
-        }
-        marks
+    /// Lockstep with step markers: this step's frame to every neighbour, its messages and its
+    /// marker ([`Radio::frames`](crate::radio::station::Radio::frames)).
+    pub fn frames(&mut self) -> Vec<Outgoing> {
+        self.radio.frames(self.step)
     }
 
     /// Bytes received on the radio under key segment `kind` (`hello`, `targ`, `delta`, ...):
     /// counted and decoded by the radio ([`Self::receive`]), then taken ([`Self::take`]).
     pub fn on_radio(&mut self, kind: &str, bytes: &[u8]) -> Vec<Outgoing> {
-        match self.receive(kind, bytes) {
-            Some(m) => self.take(m),
-            None => Vec::new(),
-        }
+        let msgs = self.receive(kind, bytes).msgs;
+        msgs.into_iter().flat_map(|m| self.take(m)).collect()
     }
 
-    /// Counts and decodes bytes received under key segment `kind` (`None`: undecodable,
-    /// counted as a decode error).
-    pub fn receive(&mut self, kind: &str, bytes: &[u8]) -> Option<Msg> {
+    /// Counts and decodes bytes received under key segment `kind`: the messages, and a frame's
+    /// marker (what does not decode counts as a decode error).
+    pub fn receive(&mut self, kind: &str, bytes: &[u8]) -> Received {
         self.radio.receive(kind, bytes)
     }
 
@@ -338,8 +325,6 @@ impl Agent {
                     }
                 }
             }
-            // Markers are the step protocol's business (lockstep), not the agent's.
-            Msg::Mark(_) => {}
         }
         Vec::new()
     }
@@ -474,6 +459,7 @@ mod tests {
                     last_move,
                 });
                 out.extend(a.radio_step());
+                out.extend(a.frames());
             }
             for o in std::mem::take(&mut out) {
                 let kind = proto::keys::radio_kind(&o.key)

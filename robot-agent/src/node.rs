@@ -82,7 +82,7 @@ impl RadioKeys {
     async fn with_inbox(radio: &Session, id: RobotId) -> RadioKeys {
         let keys = RadioKeys(RefCell::default());
         for kind in keys::RADIO_KINDS {
-            keys.get(radio, &format!("radio/{id}/{kind}")).await;
+            keys.get(radio, &keys::radio_key(id, kind)).await;
         }
         keys
     }
@@ -414,8 +414,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
         let mut out = std::mem::take(&mut answers);
         out.extend(greetings);
         out.extend(agent.radio_step());
-        let marks = agent.marks(&out);
-        out.extend(marks);
+        out.extend(agent.frames());
         tracing::debug!(
             "step {t}: sent {:?}",
             out.iter()
@@ -546,8 +545,10 @@ fn note(ls: &mut Lockstep, agent: &mut Agent, e: Event) -> Option<End> {
         // netem sends each robot only its own links (`keys::plan`).
         Event::Plan(plan) => ls.on_plan(plan),
         Event::Radio(kind, bytes) => {
-            if let Some(m) = agent.receive(&kind, &bytes) {
-                ls.on_radio(m);
+            let r = agent.receive(&kind, &bytes);
+            r.msgs.into_iter().for_each(|m| ls.on_radio(m));
+            if let Some(end) = r.end {
+                ls.on_mark(end);
             }
         }
         Event::Peer(peer, up) => ls.on_token(peer, up),

@@ -5,6 +5,15 @@
 //! plans with is the replica's approximation **at its last complete save point** — a step whose
 //! ops arrived only in part is never shown (atomicity).
 //!
+//! **Snapshots** (beyond the thesis; `exchange.snapshots`, docs/design.md §4.4): a peer far behind
+//! on an owner's log — a link that just came up, a robot that heard nothing of that owner yet —
+//! is sent the owner's approximation at the last save point we show, as the ops that build it
+//! from nothing, when those are fewer than the ops of the history it lacks. A snapshot may take
+//! several chunks; the receiver shows nothing of it until it is whole, then holds the owner's log
+//! from that index on ([`LogExchange::install`]) and relays it onwards the same way to any peer
+//! that knows less than that. Ops after the snapshot follow as usual. Either way the receiver
+//! ends with exactly the approximation that replaying the whole log gives.
+//!
 //! A chunk whose ops do not decode, or whose op count disagrees with its header, is refused as a
 //! whole (nothing is appended). Ops that decode but cannot be applied (possible only with bytes
 //! corrupted in transit) are dropped from the owner's log back to its last save point, and the
@@ -13,12 +22,13 @@
 //! (the op encoding carries no checksum).
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use proto::msg::{Hello, LogDelta, OpChunk, RobotId, View};
 
-use crate::exchange::delta::Op;
+use crate::exchange::delta::{diff, Op};
 use crate::exchange::oplog::Replica;
-use crate::exchange::transitive::{DeltaOutcome, Handshake, LogExchange};
+use crate::exchange::transitive::{fill, DeltaOutcome, Handshake, LogExchange};
 use crate::exchange::wire::{self, WireError};
 use crate::mapping::approx::Approximation;
 
@@ -40,7 +50,40 @@ pub struct ApproxExchange {
     /// Per owner: the encoded size of the ops we hold, measured as one chunk from the log's
     /// start (the encoding is relative to the op before), and how many ops it covers.
     sizes: BTreeMap<RobotId, (wire::Encoder, usize, u64)>,
+    /// Our own approximation as our log builds it (what a snapshot of it holds), and the log
+    /// index of its last save point.
+    own_state: Replica,
+    own_saved: u32,
+    /// Whether a peer far behind may get a snapshot instead of the history (a peer that knows
+    /// less of a log than we hold of it gets one whatever this says).
+    snapshots: bool,
+    /// Per (peer, owner): a snapshot on its way to the peer.
+    sending: BTreeMap<(RobotId, RobotId), Sending>,
+    /// Per owner: a snapshot on its way here.
+    arriving: BTreeMap<RobotId, Arriving>,
+    /// Per owner: the last snapshot made, for every peer that gets the same one; kept only
+    /// while one is under way (a big team's snapshots would otherwise stay in memory).
+    made: BTreeMap<RobotId, (u32, Arc<Vec<Op>>)>,
 }
+
+/// A snapshot being sent: the state at log index `at`, its `ops`, how many of them went.
+#[derive(Clone, Debug)]
+struct Sending {
+    at: u32,
+    ops: Arc<Vec<Op>>,
+    sent: usize,
+}
+
+/// A snapshot being received from `from`: the state at log index `at`, its ops so far.
+#[derive(Clone, Debug)]
+struct Arriving {
+    from: RobotId,
+    at: u32,
+    ops: Vec<Op>,
+}
+
+/// A snapshot is not even considered for a lag of fewer ops than this.
+const SNAPSHOT_MIN_LAG: u32 = 32;
 
 /// Another owner's approximation as rebuilt here.
 #[derive(Clone, Debug, Default)]
@@ -63,7 +106,20 @@ impl ApproxExchange {
             logs: LogExchange::owning(me, own),
             replicas: BTreeMap::new(),
             sizes: BTreeMap::new(),
+            own_state: Replica::new(),
+            own_saved: 0,
+            snapshots: true,
+            sending: BTreeMap::new(),
+            arriving: BTreeMap::new(),
+            made: BTreeMap::new(),
         }
+    }
+
+    /// With snapshots for peers far behind (`true`, the default) or the thesis's exchange, log
+    /// suffixes only (`false`; a peer that knows less of a log than a relay holds still gets one).
+    pub fn with_snapshots(mut self, on: bool) -> ApproxExchange {
+        self.snapshots = on;
+        self
     }
 
     pub fn id(&self) -> RobotId {
@@ -79,8 +135,58 @@ impl ApproxExchange {
     pub fn record_own(&mut self, ops: &[Op]) {
         for &op in ops {
             self.logs.record_own(op);
+            if let Err(e) = self.own_state.apply(&op) {
+                tracing::warn!("our own op does not apply ({e}): no snapshot of it");
+            }
+            if op == Op::Save {
+                self.own_saved = self.logs.len(self.own());
+            }
         }
         self.measure(self.own());
+    }
+
+    /// `owner`'s approximation at the last save point we show, and that save point's log index.
+    fn latest(&self, owner: RobotId) -> Option<(u32, &Approximation)> {
+        if owner == self.own() {
+            return Some((self.own_saved, self.own_state.committed()));
+        }
+        let f = self.replicas.get(&owner)?;
+        Some((
+            u32::try_from(f.shown).unwrap_or(u32::MAX),
+            f.replica.committed(),
+        ))
+    }
+
+    /// A snapshot to start sending `peer`, who knows `known` ops of `owner`'s log: when it
+    /// cannot have the ops it lacks from us (we hold the log from a later index), or when
+    /// snapshots are on and the state takes fewer ops than the history it lacks.
+    fn snapshot_for(&mut self, owner: RobotId, known: u32) -> Option<Sending> {
+        let (at, state) = self.latest(owner)?;
+        if known >= at {
+            return None;
+        }
+        let must = known < self.logs.base(owner);
+        if !must {
+            let lag = at - known;
+            // An approximation's ops from nothing: one per object and vertex, and the save.
+            let ops = state.objects.len() + state.vertex_count() + 1;
+            if !self.snapshots || lag < SNAPSHOT_MIN_LAG || ops >= lag as usize {
+                return None;
+            }
+        }
+        let ops = match self.made.get(&owner) {
+            Some((made_at, ops)) if *made_at == at => ops.clone(),
+            _ => {
+                let mut ops = diff(&Approximation::default(), state);
+                if ops.last() != Some(&Op::Save) {
+                    ops.push(Op::Save);
+                }
+                let ops = Arc::new(ops);
+                self.made.insert(owner, (at, ops.clone()));
+                ops
+            }
+        };
+        Some(Sending { at, ops, sent: 0 })
     }
 
     /// Brings the measured size of `owner`'s log up to what we hold (from scratch if the log
@@ -109,17 +215,72 @@ impl ApproxExchange {
 
     /// The chunks to send `peer` now, within `budget_bytes` as measured by `size_of` (the size
     /// of one encoded chunk message), in the exchange's policy order.
+    ///
+    /// Snapshots go first (those under way, then new ones, in owner order); an owner whose
+    /// snapshot is under way sends nothing else until it is whole.
     pub fn outgoing(
         &mut self,
         peer: RobotId,
         budget_bytes: usize,
         size_of: impl Fn(&OpChunk) -> usize,
     ) -> Vec<OpChunk> {
-        self.logs
-            .outgoing(peer, budget_bytes, |d| size_of(&chunk(d)))
-            .iter()
-            .map(chunk)
-            .collect()
+        let mut out = Vec::new();
+        let mut used = 0usize;
+        let mut busy = Vec::new();
+        let mut full = false;
+        let owners: Vec<RobotId> = self.logs.owners().collect();
+        for owner in owners {
+            let Some(known) = self.logs.known(peer, owner) else {
+                return Vec::new();
+            };
+            let job = match self.sending.remove(&(peer, owner)) {
+                Some(job) if known < job.at => Some(job),
+                _ => self.snapshot_for(owner, known),
+            };
+            let Some(mut job) = job else {
+                continue;
+            };
+            busy.push(owner);
+            if !full {
+                let at = job.at;
+                let (part, size, stopped) = fill(
+                    self.id(),
+                    owner,
+                    u32::try_from(job.sent).unwrap_or(u32::MAX),
+                    job.ops.get(job.sent..).unwrap_or_default(),
+                    budget_bytes.saturating_sub(used),
+                    &|d| size_of(&snapshot_chunk(d, at)),
+                );
+                if !part.records.is_empty() {
+                    used += size;
+                    job.sent += part.records.len();
+                    out.push(snapshot_chunk(&part, at));
+                }
+                full = stopped;
+            }
+            if job.sent >= job.ops.len() {
+                // Whole: the peer holds the log up to `at`, and takes what follows as usual.
+                self.logs.sent_up_to(peer, owner, job.at);
+                busy.pop();
+            } else {
+                self.sending.insert((peer, owner), job);
+            }
+        }
+        self.made.retain(|_, (_, ops)| Arc::strong_count(ops) > 1);
+        if !full {
+            out.extend(
+                self.logs
+                    .outgoing_skipping(
+                        peer,
+                        budget_bytes.saturating_sub(used),
+                        |d| size_of(&chunk(d)),
+                        &busy,
+                    )
+                    .iter()
+                    .map(chunk),
+            );
+        }
+        out
     }
 
     /// Takes a received chunk: appends the new ops of its owner's log and brings that owner's
@@ -132,6 +293,9 @@ impl ApproxExchange {
                 want: c.count,
                 got: records.len(),
             });
+        }
+        if let Some(offset) = c.snapshot {
+            return Ok(self.on_snapshot_part(c, records, offset));
         }
         let outcome = self.logs.on_delta(&LogDelta {
             from: c.from,
@@ -153,15 +317,90 @@ impl ApproxExchange {
         Ok(outcome)
     }
 
+    /// Takes part of a snapshot (ops `offset..` of it): kept until the snapshot is whole, then
+    /// installed if it is ahead of what we hold. A part that does not follow on the one before
+    /// drops what came of it and reports a gap (the sender, told by our handshake, starts over).
+    fn on_snapshot_part(&mut self, c: &OpChunk, ops: Vec<Op>, offset: u32) -> DeltaOutcome {
+        let owner = c.owner;
+        // The sender holds the state at `start`, so the log up to there.
+        self.logs.sent_up_to(c.from, owner, c.start);
+        let have = self.logs.len(owner);
+        if self.arriving.get(&owner).is_some_and(|a| a.at <= have) {
+            self.arriving.remove(&owner);
+        }
+        if owner == self.own() || c.start <= have {
+            return DeltaOutcome::Duplicate;
+        }
+        let gap = DeltaOutcome::Gap {
+            owner,
+            have,
+            start: c.start,
+        };
+        match self.arriving.get_mut(&owner) {
+            Some(a) if a.from == c.from && a.at == c.start && a.ops.len() == offset as usize => {
+                a.ops.extend(ops);
+            }
+            _ if offset == 0 => {
+                self.arriving.insert(
+                    owner,
+                    Arriving {
+                        from: c.from,
+                        at: c.start,
+                        ops,
+                    },
+                );
+            }
+            _ => {
+                self.arriving.remove(&owner);
+                return gap;
+            }
+        }
+        let whole = self
+            .arriving
+            .get(&owner)
+            .map(|a| a.ops.last() == Some(&Op::Save));
+        if whole != Some(true) {
+            return DeltaOutcome::Arriving { owner };
+        }
+        let Some(a) = self.arriving.remove(&owner) else {
+            return gap;
+        };
+        let mut replica = Replica::new();
+        let saves = a.ops.iter().filter(|&&op| op == Op::Save).count();
+        if saves != 1 || a.ops.iter().any(|op| replica.apply(op).is_err()) {
+            tracing::warn!(
+                "a snapshot of robot {owner} from robot {} does not apply",
+                a.from
+            );
+            return gap;
+        }
+        self.logs.install(owner, a.at);
+        let at = a.at as usize;
+        self.replicas.insert(
+            owner,
+            Follower {
+                replica,
+                applied: at,
+                shown: at,
+            },
+        );
+        self.measure(owner);
+        DeltaOutcome::Installed { owner, at: a.at }
+    }
+
     /// Applies the ops of `owner`'s log the replica has not seen. If one does not apply, the
     /// log is cut back to the last save point and its length returned (to be asked for again).
     fn catch_up(&mut self, owner: RobotId) -> Option<u32> {
         if owner == self.own() {
             return None;
         }
+        let base = self.logs.base(owner) as usize;
         let log = self.logs.log(owner);
         let f = self.replicas.entry(owner).or_default();
-        for op in log.get(f.applied..).unwrap_or_default() {
+        for op in log
+            .get(f.applied.saturating_sub(base)..)
+            .unwrap_or_default()
+        {
             if let Err(e) = f.replica.apply(op) {
                 tracing::warn!(
                     "ops of robot {owner} do not apply ({e}): dropped back to its save point at \
@@ -201,7 +440,7 @@ impl ApproxExchange {
         self.replicas.iter().map(|(&owner, f)| {
             (
                 owner,
-                u32::try_from(self.logs.log(owner).len()).unwrap_or(u32::MAX),
+                self.logs.len(owner),
                 u32::try_from(f.shown).unwrap_or(u32::MAX),
                 f.replica.committed(),
             )
@@ -221,16 +460,34 @@ impl ApproxExchange {
             .map(|(&o, f)| (o, f.replica.committed()))
     }
 
-    /// The prefix of `owner`'s op log we hold.
+    /// The ops of `owner`'s log we hold, from index [`Self::base`] on.
     pub fn log(&self, owner: RobotId) -> &[Op] {
         self.logs.log(owner)
     }
 
-    /// Encoded bytes of the ops we hold that `peer` lacks (one chunk per owner, headers aside):
-    /// what waits for that link. `None` before its handshake.
+    /// The log index from which we hold `owner`'s ops (0 unless a snapshot was installed).
+    pub fn base(&self, owner: RobotId) -> u32 {
+        self.logs.base(owner)
+    }
+
+    /// Encoded bytes of the ops we hold that `peer` lacks (one chunk per owner, headers aside)
+    /// and of the snapshots under way to it: what waits for that link. `None` before its
+    /// handshake.
     pub fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {
-        self.logs
-            .backlog(peer, |_, ops| wire::encode(ops).len() as u64)
+        let logs = self
+            .logs
+            .backlog(peer, |_, ops| wire::encode(ops).len() as u64)?;
+        let snapshots: u64 = self
+            .sending
+            .range((peer, RobotId::MIN)..=(peer, RobotId::MAX))
+            .map(|(_, j)| wire::encode(j.ops.get(j.sent..).unwrap_or_default()).len() as u64)
+            .sum();
+        Some(logs + snapshots)
+    }
+
+    /// Forgets the snapshots under way to `peer` (its link went, or came up again).
+    fn drop_sending(&mut self, peer: RobotId) {
+        self.sending.retain(|&(p, _), _| p != peer);
     }
 }
 
@@ -240,16 +497,26 @@ impl Handshake for ApproxExchange {
         self.logs.knowledge()
     }
 
+    /// A snapshot under way to the peer goes on unless the handshake says it holds the state
+    /// already: a periodic handshake must not start a long snapshot over.
     fn on_hello(&mut self, h: &Hello) {
         self.logs.on_hello(h);
+        self.sending.retain(|&(peer, owner), job| {
+            peer != h.from
+                || h.knowledge
+                    .iter()
+                    .all(|&(o, known)| o != owner || known < job.at)
+        });
     }
 
     fn link_up(&mut self, peer: RobotId) {
         self.logs.link_up(peer);
+        self.drop_sending(peer);
     }
 
     fn link_down(&mut self, peer: RobotId) {
         self.logs.link_down(peer);
+        self.drop_sending(peer);
     }
 
     fn forget(&mut self, owner: RobotId) {
@@ -257,6 +524,9 @@ impl Handshake for ApproxExchange {
             self.logs.forget(owner);
             self.replicas.remove(&owner);
             self.sizes.remove(&owner);
+            self.arriving.remove(&owner);
+            self.made.remove(&owner);
+            self.sending.retain(|&(_, o), _| o != owner);
         }
     }
 
@@ -282,6 +552,17 @@ fn chunk(d: &LogDelta<Op>) -> OpChunk {
         start: d.start,
         count: u32::try_from(d.records.len()).unwrap_or(u32::MAX),
         ops: wire::encode(&d.records),
+        snapshot: None,
+    }
+}
+
+/// Ops of a snapshot of the state at log index `at`, from `d.start` on in the snapshot, as the
+/// radio message.
+fn snapshot_chunk(d: &LogDelta<Op>, at: u32) -> OpChunk {
+    OpChunk {
+        start: at,
+        snapshot: Some(d.start),
+        ..chunk(d)
     }
 }
 
@@ -304,10 +585,22 @@ mod tests {
 
     /// Robot 0's op log after mapping the frames, and its approximation after each step.
     fn owner_log() -> (Vec<Op>, Vec<Approximation>) {
+        log_of(&FRAMES)
+    }
+
+    /// A long log whose history is much larger than its state: the world seen over and over,
+    /// changing back and forth (every change rewrites vertices).
+    fn churn_log() -> (Vec<Op>, Vec<Approximation>) {
+        let frames: Vec<&str> = (0..24).map(|i| FRAMES[[1, 2, 3, 2][i % 4]]).collect();
+        log_of(&frames)
+    }
+
+    /// The op log of a robot mapping `frames`, and its approximation after each step.
+    fn log_of(frames: &[&str]) -> (Vec<Op>, Vec<Approximation>) {
         let mut m = Mapper::new(2.0);
         let mut states = Vec::new();
-        let mut before = Grid::from_ascii(FRAMES[0]);
-        for f in FRAMES {
+        let mut before = Grid::from_ascii(frames[0]);
+        for &f in frames {
             let g = Grid::from_ascii(f);
             let w = g.width() as usize;
             let changed: Vec<Cell> = (0..g.len())
@@ -339,7 +632,16 @@ mod tests {
                 return sent;
             }
             for c in out {
-                assert!(matches!(to.on_chunk(&c), Ok(DeltaOutcome::Appended { .. })));
+                let got = to.on_chunk(&c);
+                assert!(
+                    matches!(
+                        got,
+                        Ok(DeltaOutcome::Appended { .. }
+                            | DeltaOutcome::Arriving { .. }
+                            | DeltaOutcome::Installed { .. })
+                    ),
+                    "{got:?}"
+                );
                 sent.push(c);
             }
         }
@@ -381,6 +683,113 @@ mod tests {
         });
         assert_eq!(a2.on_chunk(&forged), Ok(DeltaOutcome::Duplicate));
         assert_eq!(a2.log(second), &ops[..3]);
+    }
+
+    /// A peer that knows nothing of a long log gets the state it leads to, in fewer bytes than
+    /// the history; a relay that holds the log only from there passes the state on; the ops that
+    /// follow go as usual; and everyone shows what replaying the whole log gives.
+    #[test]
+    fn a_peer_far_behind_gets_the_state_not_the_history_and_passes_it_on() {
+        let (ops, states) = churn_log();
+        let last = states.last().cloned().unwrap_or_default();
+        let history = wire::encode(&ops).len();
+        let state = diff(&Approximation::default(), &last);
+        assert!(
+            ops.len() > 3 * state.len() + SNAPSHOT_MIN_LAG as usize,
+            "a long history: {} ops for a state of {}",
+            ops.len(),
+            state.len()
+        );
+        let split = ops.len()
+            - 1
+            - ops[..ops.len() - 1]
+                .iter()
+                .rev()
+                .position(|&o| o == Op::Save)
+                .unwrap_or(0);
+        let (mut a, mut b, mut c) = (
+            ApproxExchange::new(0),
+            ApproxExchange::new(1),
+            ApproxExchange::new(2),
+        );
+        a.record_own(&ops[..split]);
+        let sent = transfer(&mut a, &mut b, 64);
+        assert!(
+            sent.iter().all(|c| c.snapshot.is_some()),
+            "only the snapshot"
+        );
+        let bytes: usize = sent.iter().map(|c| c.ops.len()).sum();
+        assert!(
+            bytes * 2 < history,
+            "{bytes} bytes for a history of {history}"
+        );
+        assert_eq!(b.base(0), split as u32);
+        assert!(b.log(0).is_empty());
+        let views = b.views();
+        assert_eq!(
+            (views[0].held, views[0].shown),
+            (split as u32, split as u32)
+        );
+        let mut log = OpLog::new();
+        ops.iter().for_each(|&op| log.push(op));
+        assert_eq!(b.approximation(0), log.state_at(split).ok().as_ref());
+        // C learns A's map from B, who holds no history to send: the state again.
+        let relayed = transfer(&mut b, &mut c, 64);
+        assert!(relayed.iter().all(|c| c.snapshot.is_some()));
+        assert_eq!(c.approximation(0), b.approximation(0));
+        // A's next step goes as ops, and on through B.
+        a.record_own(&ops[split..]);
+        let more = transfer(&mut a, &mut b, 64);
+        assert!(more
+            .iter()
+            .all(|c| c.snapshot.is_none() && c.start == split as u32));
+        transfer(&mut b, &mut c, 64);
+        assert_eq!(b.approximation(0), Some(&last));
+        assert_eq!(c.approximation(0), Some(&last));
+        assert_eq!(c.log(0), &ops[split..]);
+        // The thesis's exchange sends the history.
+        let (mut a, mut d) = (
+            ApproxExchange::new(0).with_snapshots(false),
+            ApproxExchange::new(3).with_snapshots(false),
+        );
+        a.record_own(&ops);
+        let thesis = transfer(&mut a, &mut d, 64);
+        assert!(thesis.iter().all(|c| c.snapshot.is_none()));
+        assert_eq!(d.log(0), ops.as_slice());
+        assert_eq!(d.approximation(0), Some(&last));
+    }
+
+    /// A snapshot cut off (its link went) is started over, never shown in part, and a part that
+    /// does not follow on is reported as a gap.
+    #[test]
+    fn a_snapshot_is_shown_only_whole() {
+        let (ops, states) = churn_log();
+        let (mut a, mut b) = (ApproxExchange::new(0), ApproxExchange::new(1));
+        a.record_own(&ops);
+        for x in [&mut a, &mut b] {
+            x.link_up(1 - x.id());
+        }
+        a.on_hello(&b.knowledge());
+        b.on_hello(&a.knowledge());
+        let first = a.outgoing(1, 16, size);
+        assert!(!first.is_empty() && first.iter().all(|c| c.snapshot.is_some()));
+        for c in &first {
+            assert_eq!(b.on_chunk(c), Ok(DeltaOutcome::Arriving { owner: 0 }));
+        }
+        assert!(b.approximation(0).is_none(), "nothing shown of a part");
+        // A part that skips ahead: what came is dropped, and B asks again.
+        let mut skip = a.outgoing(1, 16, size).remove(0);
+        skip.snapshot = skip.snapshot.map(|o| o + 1);
+        assert!(matches!(
+            b.on_chunk(&skip),
+            Ok(DeltaOutcome::Gap { owner: 0, .. })
+        ));
+        // The link goes and comes back: the snapshot starts over and arrives whole.
+        for x in [&mut a, &mut b] {
+            x.link_down(1 - x.id());
+        }
+        transfer(&mut a, &mut b, 16);
+        assert_eq!(b.approximation(0), states.last());
     }
 
     #[test]
@@ -426,7 +835,9 @@ mod tests {
         /// However links come and go, how small each step's budget and wherever chunks are lost
         /// with a dropped link, once the robots stay connected (a chain, each robot reaching the
         /// others only through relays) every robot ends with every other owner's approximation in
-        /// full detail: the transitive exchange delivers every log whole, eventually.
+        /// full detail: the transitive exchange delivers every log whole, eventually. With
+        /// snapshots or without, what a robot shows of an owner at any time is exactly what
+        /// replaying the owner's whole log up to the save point shown gives.
         #[test]
         fn every_approximation_arrives_in_full_detail_eventually(
             robots in 3usize..6,
@@ -434,10 +845,16 @@ mod tests {
                 (proptest::collection::vec(any::<bool>(), 15), 8usize..80, any::<bool>()),
                 0..30,
             ),
+            snapshots in any::<bool>(),
+            churn in any::<bool>(),
+            burst in 1usize..30,
         ) {
-            let (ops, states) = owner_log();
-            let mut xs: Vec<ApproxExchange> =
-                (0..robots).map(|r| ApproxExchange::new(r as RobotId)).collect();
+            let (ops, states) = if churn { churn_log() } else { owner_log() };
+            let mut full = OpLog::new();
+            ops.iter().for_each(|&op| full.push(op));
+            let mut xs: Vec<ApproxExchange> = (0..robots)
+                .map(|r| ApproxExchange::new(r as RobotId).with_snapshots(snapshots))
+                .collect();
             let pairs: Vec<(usize, usize)> = (0..robots)
                 .flat_map(|a| (a + 1..robots).map(move |b| (a, b)))
                 .collect();
@@ -448,7 +865,7 @@ mod tests {
             let round = |xs: &mut Vec<ApproxExchange>, up: &mut Vec<bool>, want: &[bool], budget: usize,
                          lose: bool, written: &mut Vec<usize>| -> Result<(), TestCaseError> {
                 for (r, x) in xs.iter_mut().enumerate() {
-                    let next = (written[r] + 1 + r).min(ops.len());
+                    let next = (written[r] + burst + r).min(ops.len());
                     x.record_own(&ops[written[r]..next]);
                     written[r] = next;
                 }
@@ -486,19 +903,34 @@ mod tests {
                 }
                 Ok(())
             };
+            let replayed = |xs: &[ApproxExchange]| -> Result<(), TestCaseError> {
+                for x in xs {
+                    for v in x.views() {
+                        let want = full.state_at(v.shown as usize).map_err(|e| TestCaseError::fail(e.to_string()))?;
+                        prop_assert_eq!(x.approximation(v.owner), Some(&want));
+                        prop_assert!(v.shown <= v.held && v.held as usize <= ops.len());
+                    }
+                }
+                Ok(())
+            };
             for (links, budget, lose) in &rounds {
                 round(&mut xs, &mut up, links, *budget, *lose, &mut written)?;
+                replayed(&xs)?;
             }
             // Then a chain 0 – 1 – … – n−1 and nothing else, at a small budget.
             let chain: Vec<bool> = pairs.iter().map(|&(a, b)| b == a + 1).collect();
             for _ in 0..400 {
                 round(&mut xs, &mut up, &chain, 64, false, &mut written)?;
             }
+            replayed(&xs)?;
             let last = states.last().cloned().unwrap_or_default();
             for (r, x) in xs.iter().enumerate() {
                 for owner in (0..robots).filter(|&o| o != r) {
-                    prop_assert_eq!(x.log(owner as RobotId), ops.as_slice(), "robot {} of {}", r, owner);
-                    prop_assert_eq!(x.approximation(owner as RobotId), Some(&last));
+                    let o = owner as RobotId;
+                    let held = x.base(o) as usize + x.log(o).len();
+                    prop_assert_eq!(held, ops.len(), "robot {} of {}", r, owner);
+                    prop_assert_eq!(&ops[x.base(o) as usize..], x.log(o));
+                    prop_assert_eq!(x.approximation(o), Some(&last));
                 }
             }
         }
@@ -506,10 +938,11 @@ mod tests {
         /// Nothing a peer sends can crash the receiver: garbage is refused whole.
         #[test]
         fn arbitrary_chunks_are_refused_or_taken_never_a_panic(
-            start in 0u32..50, count in 0u32..50, bytes in proptest::collection::vec(any::<u8>(), 0..200)
+            start in 0u32..50, count in 0u32..50, bytes in proptest::collection::vec(any::<u8>(), 0..200),
+            snapshot in proptest::option::of(0u32..3),
         ) {
             let mut b = ApproxExchange::new(1);
-            let c = OpChunk { from: 0, owner: 0, start, count, ops: bytes };
+            let c = OpChunk { from: 0, owner: 0, start, count, ops: bytes, snapshot };
             let before = b.log(0).len();
             if b.on_chunk(&c).is_err() {
                 prop_assert_eq!(b.log(0).len(), before);
@@ -534,6 +967,7 @@ mod tests {
             start: start as u32,
             count: ops.len() as u32,
             ops: wire::encode(ops),
+            snapshot: None,
         };
         let mut b = ApproxExchange::new(1);
         let out = b.on_chunk(&chunk(&bad, 0));
@@ -566,6 +1000,7 @@ mod tests {
             start: 0,
             count: 3,
             ops: wire::encode(&ops[..2]),
+            snapshot: None,
         };
         let mut b = ApproxExchange::new(1);
         assert_eq!(b.on_chunk(&c), Err(ChunkError::Count { want: 3, got: 2 }));

@@ -220,7 +220,7 @@ pub fn new(
             let mut mapper = Mapper::new(splitting.current());
             mapper.edge_bounds = s.exchange.edge_bounds;
             Box::new(Polygon {
-                exchange: ApproxExchange::owning(me, own),
+                exchange: ApproxExchange::owning(me, own).with_snapshots(s.exchange.snapshots),
                 mapper: Box::new(mapper),
                 splitting,
             })

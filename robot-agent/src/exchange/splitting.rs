@@ -9,7 +9,8 @@
 //!   backlog of any neighbour (bytes of logs it still lacks) exceeds two steps of its budget and
 //!   is not draining, s shrinks; while it is under half a step, s grows; in between, or while a
 //!   large backlog drains (a link that just came up, catching up on history), it holds. Without
-//!   neighbours there is nothing to measure and s holds.
+//!   neighbours there is nothing to measure and s holds. It starts at the maximum, where idle
+//!   links take it.
 //! * `fixed` — s as given.
 //!
 //! Under unlimited bandwidth (and for a lone robot) the formula has no finite value: s is the
@@ -81,9 +82,12 @@ impl SplittingFrequency {
             s: cfg.splits_per_step,
             last_backlog: None,
         };
-        if cfg.control != SplitControl::Fixed {
-            f.s = f.by_formula().unwrap_or(cfg.splits_per_step);
-        }
+        f.s = match cfg.control {
+            SplitControl::Formula => f.by_formula().unwrap_or(cfg.splits_per_step),
+            // Links are idle when a run starts: the loop starts where idle links take it.
+            SplitControl::Adaptive => f.max,
+            SplitControl::Fixed => cfg.splits_per_step,
+        };
         f
     }
 
@@ -220,6 +224,7 @@ mod tests {
         let c = cfg(SplitControl::Adaptive);
         let mut f = SplittingFrequency::new(&c, 4, Some(1000.0), 0.375);
         let start = f.current();
+        assert_eq!(start, c.max_splits_per_step, "idle links at the start");
         for _ in 0..10 {
             f.backlog(Some(5000));
         }

@@ -11,6 +11,12 @@
 //! handshake so the sender learns where to resume. Messages lost with a dropped link are
 //! harmless: the link's S row is forgotten, and the next handshake re-establishes it.
 //!
+//! A log may be held from an index on rather than from its start ([`LogExchange::install`]): the
+//! polygon exchange replaces a long history by the state it leads to (a snapshot), and a robot
+//! that took one holds the owner's records only from there. Records below that base cannot be
+//! sent; [`LogExchange::outgoing`] skips an owner a peer knows less of than our base, and the
+//! caller serves it otherwise.
+//!
 //! [`crate::exchange::raw_scans`] instantiates it with laser scans (the baseline); its tests exercise this
 //! module.
 
@@ -28,8 +34,12 @@ pub struct LogExchange<R> {
     /// [`proto::msg::log_owner`] of its life (a restarted robot holds its earlier lives' logs
     /// like anyone else's).
     own: RobotId,
-    /// Per owner, the prefix of its log we hold (our own log is complete).
+    /// Per owner, the part of its log we hold: records from its base on (our own log is
+    /// complete).
     logs: BTreeMap<RobotId, Vec<R>>,
+    /// Per owner, the index of the first record we hold (missing: 0): the state at it came as a
+    /// whole ([`LogExchange::install`]).
+    base: BTreeMap<RobotId, u32>,
     /// S[peer][owner]: how far we believe `peer` knows `owner`'s log. A peer has a row only after
     /// its handshake; an owner missing from a row counts as known up to 0.
     sent: BTreeMap<RobotId, BTreeMap<RobotId, u32>>,
@@ -50,6 +60,11 @@ pub enum DeltaOutcome {
         have: u32,
         start: u32,
     },
+    /// Part of a snapshot of `owner`'s approximation came (the polygon exchange); nothing is
+    /// shown of it until it is whole.
+    Arriving { owner: RobotId },
+    /// A snapshot came whole: we hold `owner`'s log from index `at` on, and show the state there.
+    Installed { owner: RobotId, at: u32 },
 }
 
 impl<R: Clone> LogExchange<R> {
@@ -64,7 +79,46 @@ impl<R: Clone> LogExchange<R> {
             me,
             own,
             logs: BTreeMap::from([(own, Vec::new())]),
+            base: BTreeMap::new(),
             sent: BTreeMap::new(),
+        }
+    }
+
+    /// The index of the first record of `owner`'s log we hold (0 unless a snapshot was
+    /// installed).
+    pub fn base(&self, owner: RobotId) -> u32 {
+        self.base.get(&owner).copied().unwrap_or(0)
+    }
+
+    /// How many records of `owner`'s log we know of: our base and the records held after it.
+    pub fn len(&self, owner: RobotId) -> u32 {
+        self.base(owner).saturating_add(len_u32(
+            self.logs.get(&owner).map_or(&[][..], Vec::as_slice),
+        ))
+    }
+
+    /// From now on we hold `owner`'s log from index `at` on, and nothing before: the state at
+    /// `at` came as a whole. Only forward (`at` beyond what we know of the log), never our own.
+    pub fn install(&mut self, owner: RobotId, at: u32) {
+        if owner == self.own || at <= self.len(owner) {
+            return;
+        }
+        self.logs.insert(owner, Vec::new());
+        self.base.insert(owner, at);
+    }
+
+    /// How far we believe `peer` knows `owner`'s log (`None` before its handshake).
+    pub fn known(&self, peer: RobotId, owner: RobotId) -> Option<u32> {
+        self.sent
+            .get(&peer)
+            .map(|row| row.get(&owner).copied().unwrap_or(0))
+    }
+
+    /// `peer` holds `owner`'s log up to `at` (we sent it the state there): S is raised.
+    pub fn sent_up_to(&mut self, peer: RobotId, owner: RobotId, at: u32) {
+        if let Some(row) = self.sent.get_mut(&peer) {
+            let known = row.entry(owner).or_insert(0);
+            *known = at.max(*known);
         }
     }
 
@@ -91,12 +145,24 @@ impl<R: Clone> LogExchange<R> {
     /// id. Records are added while the deltas' total size stays within the budget; at the first
     /// record that does not fit, the call stops (later owners wait rather than overtake the
     /// policy). So a record larger than the whole budget blocks everything behind it until a call
-    /// with a larger budget. Nothing is sent to a peer whose handshake we have not had.
+    /// with a larger budget. Nothing is sent to a peer whose handshake we have not had, nor of an
+    /// owner the peer knows less of than our base.
     pub fn outgoing(
         &mut self,
         peer: RobotId,
         budget_bytes: usize,
         size_of: impl Fn(&LogDelta<R>) -> usize,
+    ) -> Vec<LogDelta<R>> {
+        self.outgoing_skipping(peer, budget_bytes, size_of, &[])
+    }
+
+    /// [`Self::outgoing`], sending nothing of the owners in `skip`.
+    pub fn outgoing_skipping(
+        &mut self,
+        peer: RobotId,
+        budget_bytes: usize,
+        size_of: impl Fn(&LogDelta<R>) -> usize,
+        skip: &[RobotId],
     ) -> Vec<LogDelta<R>> {
         let Some(row) = self.sent.get(&peer) else {
             return Vec::new();
@@ -106,8 +172,9 @@ impl<R: Clone> LogExchange<R> {
             .iter()
             .filter_map(|(&owner, log)| {
                 let known = row.get(&owner).copied().unwrap_or(0);
-                let lag = u64::from(len_u32(log).saturating_sub(known));
-                (lag > 0).then_some((lag, owner, known))
+                let base = self.base.get(&owner).copied().unwrap_or(0);
+                let lag = u64::from((base + len_u32(log)).saturating_sub(known));
+                (lag > 0 && known >= base && !skip.contains(&owner)).then_some((lag, owner, known))
             })
             .collect();
         let (me, own) = (self.me, self.own);
@@ -119,11 +186,12 @@ impl<R: Clone> LogExchange<R> {
             let Some(log) = self.logs.get(&owner) else {
                 continue;
             };
+            let base = self.base.get(&owner).copied().unwrap_or(0);
             let (delta, size, full) = fill(
                 me,
                 owner,
                 start,
-                log,
+                log.get((start - base) as usize..).unwrap_or_default(),
                 budget_bytes.saturating_sub(used),
                 &size_of,
             );
@@ -159,8 +227,9 @@ impl<R: Clone> LogExchange<R> {
         if d.owner == self.own {
             return DeltaOutcome::Duplicate;
         }
+        let base = self.base(d.owner);
         let log = self.logs.entry(d.owner).or_default();
-        let have = len_u32(log);
+        let have = base.saturating_add(len_u32(log));
         if d.start > have {
             return DeltaOutcome::Gap {
                 owner: d.owner,
@@ -182,7 +251,7 @@ impl<R: Clone> LogExchange<R> {
         );
         DeltaOutcome::Appended {
             owner: d.owner,
-            new: have..len_u32(log),
+            new: have..base.saturating_add(len_u32(log)),
         }
     }
 
@@ -191,26 +260,30 @@ impl<R: Clone> LogExchange<R> {
     pub fn take_delta(&mut self, d: &LogDelta<R>) -> (DeltaOutcome, &[R]) {
         let outcome = self.on_delta(d);
         let new = match &outcome {
-            DeltaOutcome::Appended { owner, new } if *owner != self.own => self
-                .log(*owner)
-                .get(new.start as usize..new.end as usize)
-                .unwrap_or_default(),
+            DeltaOutcome::Appended { owner, new } if *owner != self.own => {
+                let base = self.base(*owner);
+                self.log(*owner)
+                    .get((new.start - base) as usize..(new.end - base) as usize)
+                    .unwrap_or_default()
+            }
             _ => &[],
         };
         (outcome, new)
     }
 
-    /// Drops `owner`'s records from index `len` on (records found to be corrupt); our next
-    /// handshake asks for them again. Our own log is never cut.
+    /// Drops `owner`'s records from index `len` on (records found to be corrupt; never below
+    /// our base); our next handshake asks for them again. Our own log is never cut.
     pub fn truncate(&mut self, owner: RobotId, len: u32) {
         if owner != self.own {
+            let base = self.base(owner);
             if let Some(log) = self.logs.get_mut(&owner) {
-                log.truncate(len as usize);
+                log.truncate(len.saturating_sub(base) as usize);
             }
         }
     }
 
-    /// The prefix of `owner`'s log we hold (empty for an owner we have not heard of).
+    /// The records of `owner`'s log we hold, from index [`Self::base`] on (empty for an owner we
+    /// have not heard of).
     pub fn log(&self, owner: RobotId) -> &[R] {
         self.logs.get(&owner).map_or(&[], Vec::as_slice)
     }
@@ -221,15 +294,17 @@ impl<R: Clone> LogExchange<R> {
     }
 
     /// What we hold that `peer` lacks by S, weighed per owner by `weigh` (given the lacking
-    /// suffix of that owner's log; e.g. its encoded bytes); `None` before the peer's handshake.
+    /// records of that owner's log we hold; e.g. their encoded bytes); `None` before the peer's
+    /// handshake.
     pub fn backlog(&self, peer: RobotId, weigh: impl Fn(RobotId, &[R]) -> u64) -> Option<u64> {
         let row = self.sent.get(&peer)?;
         Some(
             self.logs
                 .iter()
                 .map(|(&owner, log)| {
-                    let known = row.get(&owner).copied().unwrap_or(0) as usize;
-                    log.get(known..).map_or(0, |rest| weigh(owner, rest))
+                    let known = row.get(&owner).copied().unwrap_or(0);
+                    let from = known.saturating_sub(self.base(owner)) as usize;
+                    log.get(from..).map_or(0, |rest| weigh(owner, rest))
                 })
                 .sum(),
         )
@@ -268,7 +343,7 @@ impl<R: Clone> Handshake for LogExchange<R> {
             knowledge: self
                 .logs
                 .iter()
-                .map(|(&owner, log)| (owner, len_u32(log)))
+                .map(|(&owner, log)| (owner, self.base(owner).saturating_add(len_u32(log))))
                 .collect(),
         }
     }
@@ -303,32 +378,41 @@ impl<R: Clone> Handshake for LogExchange<R> {
     /// How many records we hold that `peer` lacks by S — the per-peer backlog; `None` before
     /// the peer's handshake.
     fn lag(&self, peer: RobotId) -> Option<u64> {
-        self.backlog(peer, |_, recs| recs.len() as u64)
+        let row = self.sent.get(&peer)?;
+        Some(
+            self.logs
+                .keys()
+                .map(|&owner| {
+                    let known = row.get(&owner).copied().unwrap_or(0);
+                    u64::from(self.len(owner).saturating_sub(known))
+                })
+                .sum(),
+        )
     }
 
     fn forget(&mut self, owner: RobotId) {
         if owner != self.own {
             self.logs.remove(&owner);
+            self.base.remove(&owner);
         }
     }
 }
 
-/// One delta of `owner`'s records from `start` on, as many as fit into `budget_bytes`; returns it,
-/// its size, and whether a record was left out for lack of budget.
+/// One delta of `owner`'s records `rest`, which start at index `start`, as many as fit into
+/// `budget_bytes`; returns it, its size, and whether a record was left out for lack of budget.
 ///
 /// A delta's size grows with every record it carries, so the largest run that fits is found by
 /// bisection: O(log n) encodings of at most n records, where adding one record at a time would
 /// encode the growing delta n times (quadratic in a long suffix, as after a long separation on
 /// an unlimited link).
-fn fill<R: Clone>(
+pub(crate) fn fill<R: Clone>(
     me: RobotId,
     owner: RobotId,
     start: u32,
-    log: &[R],
+    rest: &[R],
     budget_bytes: usize,
     size_of: &impl Fn(&LogDelta<R>) -> usize,
 ) -> (LogDelta<R>, usize, bool) {
-    let rest = log.get(start as usize..).unwrap_or_default();
     let delta = |n: usize| LogDelta {
         from: me,
         owner,

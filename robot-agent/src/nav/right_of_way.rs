@@ -284,6 +284,8 @@ mod tests {
         let mut s = Scenario::default();
         s.sensor.max_range_m = 2.0;
         s.coordination.strategy = Strategy::Decentralized;
+        // Messages one by one (no step frames), so that only the targets are handed over.
+        s.clock.markers = false;
         let info = map(truth.width(), truth.height());
         let world = crate::testutil::world_info(&s, info, 2);
         let mut agents = [Agent::new(0, world.clone(), &s), Agent::new(1, world, &s)];

@@ -8,10 +8,11 @@
 //!    its zenoh session is up: the peer's radio liveliness token is seen (after the token of an
 //!    earlier session, cut by netem, has gone) and zenoh lists a session to the peer itself
 //!    (a token can also arrive through a third robot).
-//! 3. The robot decides, then sends its traffic of t and last a [`Mark`] of t to each neighbour.
-//! 4. It waits for the mark of t from every neighbour. One link is one ordered stream, so by then
-//!    it holds everything they sent in t; nothing of t+1 can have come, because no robot gets
-//!    the scan of t+1 before every robot sent its command for t, which each sends only now.
+//! 3. The robot decides, then sends its traffic of t to each neighbour as one frame
+//!    ([`proto::msg::Frame`]), which ends with the step: its [`Mark`].
+//! 4. It waits for the frame of t from every neighbour: then it holds everything they sent in
+//!    t; nothing of t+1 can have come, because no robot gets the scan of t+1 before every robot
+//!    sent its command for t, which each sends only now.
 //! 5. It takes what arrived since its last step, sender by sender in id order (each sender's
 //!    messages in the order sent), sends its command and telemetry for t. Answers that taking
 //!    them produces (a handshake after a gap) go out with its traffic of t+1.
@@ -26,6 +27,16 @@ use std::collections::{BTreeMap, BTreeSet};
 use proto::msg::{LinkPlan, RobotId, Scan, Step};
 
 use crate::radio::station::Msg;
+
+/// The end of a neighbour's traffic of a step, as its frame says: `from` sent `sent` messages
+/// in `step` (the frame's that decoded). Once a robot holds a neighbour's mark of a step and
+/// that many of its messages, it holds everything the neighbour sent it in the step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Mark {
+    pub from: RobotId,
+    pub step: Step,
+    pub sent: u32,
+}
 
 /// One robot's bookkeeping of the lockstep protocol.
 #[derive(Debug, Default)]
@@ -61,17 +72,15 @@ impl Lockstep {
         self.plans.insert(plan.step, plan);
     }
 
-    /// A radio message arrived: a marker is noted, anything else waits to be taken.
+    /// A radio message arrived: it waits to be taken.
     pub fn on_radio(&mut self, m: Msg) {
-        match m {
-            Msg::Mark(m) => {
-                self.marks.entry(m.step).or_default().insert(m.from, m.sent);
-            }
-            m => {
-                *self.undated.entry(m.from()).or_default() += 1;
-                self.inbox.push((None, m));
-            }
-        }
+        *self.undated.entry(m.from()).or_default() += 1;
+        self.inbox.push((None, m));
+    }
+
+    /// A neighbour's traffic of a step ended (its frame arrived, after its messages).
+    pub fn on_mark(&mut self, m: Mark) {
+        self.marks.entry(m.step).or_default().insert(m.from, m.sent);
     }
 
     /// A peer's radio liveliness token appeared (`up`) or vanished.
@@ -207,7 +216,7 @@ impl Lockstep {
 mod tests {
     use super::*;
     use proto::geom::Pose;
-    use proto::msg::{Hello, Mark, MoveOutcome, PlannedLink};
+    use proto::msg::{Hello, MoveOutcome, PlannedLink};
 
     fn scan(step: Step) -> Scan {
         Scan {
@@ -226,8 +235,8 @@ mod tests {
         })
     }
 
-    fn mark(from: RobotId, step: Step, sent: u32) -> Msg {
-        Msg::Mark(Mark { from, step, sent })
+    fn mark(from: RobotId, step: Step, sent: u32) -> Mark {
+        Mark { from, step, sent }
     }
 
     #[test]
@@ -247,11 +256,11 @@ mod tests {
         l.on_sessions([1, 2].into());
         assert!(l.linked(&nb));
         // A marker of step 3 can come before the robot starts step 3; one of step 2 is old.
-        l.on_radio(mark(1, 3, 0));
-        l.on_radio(mark(2, 2, 0));
+        l.on_mark(mark(1, 3, 0));
+        l.on_mark(mark(2, 2, 0));
         assert!(!l.marked(3, &nb));
         // A marker that counts a message not yet here does not complete the step.
-        l.on_radio(mark(2, 3, 1));
+        l.on_mark(mark(2, 3, 1));
         assert!(!l.marked(3, &nb));
         l.on_radio(hello(2, 0));
         assert!(l.marked(3, &nb));
@@ -266,7 +275,7 @@ mod tests {
         for (from, n) in [(2, 0), (1, 1), (2, 2), (0, 3), (1, 4)] {
             l.on_radio(hello(from, n));
         }
-        l.on_radio(mark(1, 0, 2));
+        l.on_mark(mark(1, 0, 2));
         let plan = LinkPlan::plain(0, &[(0, 3), (1, 3), (2, 3)]);
         let order: Vec<Msg> = l.take(3, 0, &plan);
         assert_eq!(
