@@ -283,6 +283,15 @@ impl Radio {
         p.bytes.len()
     }
 
+    /// What the messages queued for `peer`'s frame take in it.
+    fn queued_cost(&self, peer: RobotId) -> usize {
+        self.queued.get(&peer).map_or(0, |q| {
+            q.iter()
+                .map(|(_, p)| p.bytes.len() + record_overhead(p.bytes.len()))
+                .sum()
+        })
+    }
+
     /// Counts packet `p` as sent, by package type.
     fn count(&mut self, p: &Packet) {
         let c = &mut self.counters;
@@ -294,9 +303,12 @@ impl Radio {
 
     /// Framed (lockstep with step markers): this step's frame to every neighbour — the
     /// messages queued for it, in the order sent, and the step marker — counted (the frame's
-    /// own bytes as `mark`), with its framing taken off the link's budget. Messages queued for
-    /// a robot that is no longer a neighbour are dropped uncounted: nothing carries them.
-    /// Unframed: nothing.
+    /// own bytes as `mark`), with its framing taken off the link's budget. A frame never
+    /// exceeds netem's credit for the link: netem would hold the rest of it, and with it the
+    /// marker, until a step that cannot begin before the marker arrives. Messages beyond the
+    /// credit stay queued, in order, for the next step's frame (the header always goes).
+    /// Messages queued for a robot that is no longer a neighbour are dropped uncounted: nothing
+    /// carries them. Unframed: nothing.
     pub fn frames(&mut self, step: Step) -> Vec<Outgoing> {
         if !self.framed {
             return Vec::new();
@@ -306,7 +318,31 @@ impl Radio {
         let mut out = Vec::with_capacity(peers.len());
         for peer in peers {
             let key = proto::keys::radio_frame(peer);
-            let packets = queued.remove(&peer).unwrap_or_default();
+            let mut packets = queued.remove(&peer).unwrap_or_default();
+            if let Some(&credit) = self.credit.get(&peer) {
+                let credit = credit as usize;
+                let limit = credit.saturating_sub(
+                    WIRE_OVERHEAD_BYTES + key.len() + 8 + fragments_framing(credit),
+                );
+                let empty = Frame {
+                    from: self.id,
+                    step,
+                    records: Vec::new(),
+                };
+                // The header, and a record count that may take two bytes more.
+                let mut size = encode(&empty).len() + 2;
+                let fit = packets
+                    .iter()
+                    .take_while(|(_, p)| {
+                        size += p.bytes.len() + record_overhead(p.bytes.len());
+                        size <= limit
+                    })
+                    .count();
+                let later = packets.split_off(fit);
+                if !later.is_empty() {
+                    self.queued.insert(peer, later);
+                }
+            }
             let mut carried = 0;
             for (_, p) in &packets {
                 self.count(p);
@@ -431,10 +467,14 @@ impl Radio {
             }
             let budget = self.pacer.available(peer);
             // netem's credit, on the wire: what is left after the frame's header and zenoh's
-            // framing of it (every fragment's), and the messages outside the budget.
+            // framing of it (every fragment's), what waits for the frame already (answers,
+            // greetings, what the last frame could not carry) and the messages outside the
+            // budget.
+            let waiting = self.queued_cost(peer);
             let mut room = self.credit.get(&peer).map(|&c| {
                 (c.saturating_sub(MARK_RESERVE_BYTES) as usize)
                     .saturating_sub(fragments_framing(c as usize))
+                    .saturating_sub(waiting)
             });
             let mut spent = 0usize;
             for p in mine.into_iter().chain(&targ).chain(&hello) {
@@ -622,6 +662,45 @@ mod tests {
         let empty = other.receive("frame", &next[0].bytes);
         assert!(empty.msgs.is_empty());
         assert_eq!(empty.end.map(|m| (m.step, m.sent)), Some((6, 0)));
+    }
+
+    /// A frame never exceeds netem's credit (netem would hold its marker): what does not fit
+    /// goes in the next frames, in order.
+    #[test]
+    fn a_frame_stays_within_the_credit_and_the_rest_follows_in_order() {
+        let (s, world) = world();
+        let mut radio = Radio::new(0, &s, &world);
+        let mut sharing = crate::exchange::sharing::new(&s, 0, 0, &world, None);
+        radio.link_up(1, sharing.as_mut(), 0, None);
+        let targ = |i: i32| {
+            Msg::Target(Target {
+                from: 0,
+                step: 3,
+                cell: Some(Cell::new(i, i)),
+            })
+        };
+        for i in 0..10 {
+            radio.send_one(1, &targ(i));
+        }
+        let mut other = Radio::new(1, &s, &world);
+        let mut got = Vec::new();
+        for step in 3..20 {
+            radio.set_credit(1, Some(60));
+            let frames = radio.frames(step);
+            let f = &frames[0];
+            assert!(
+                f.bytes.len() + WIRE_OVERHEAD_BYTES + f.key.len() <= 60,
+                "{} bytes",
+                f.bytes.len()
+            );
+            let r = other.receive("frame", &f.bytes);
+            assert_eq!(r.end.map(|m| m.sent as usize), Some(r.msgs.len()));
+            got.extend(r.msgs);
+        }
+        let mut want = vec![Msg::Hello(sharing.knowledge())];
+        want.extend((0..10).map(targ));
+        assert_eq!(got, want, "the greeting, then the targets in order");
+        assert_eq!(radio.queued_cost(1), 0);
     }
 
     #[test]
