@@ -26,17 +26,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use proto::msg::{LinkPlan, RobotId, Scan, Step};
 
-use crate::radio::station::Msg;
-
-/// The end of a neighbour's traffic of a step, as its frame says: `from` sent `sent` messages
-/// in `step` (the frame's that decoded). Once a robot holds a neighbour's mark of a step and
-/// that many of its messages, it holds everything the neighbour sent it in the step.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Mark {
-    pub from: RobotId,
-    pub step: Step,
-    pub sent: u32,
-}
+use crate::radio::station::{Mark, Msg};
 
 /// One robot's bookkeeping of the lockstep protocol.
 #[derive(Debug, Default)]

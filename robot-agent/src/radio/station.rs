@@ -29,7 +29,6 @@ use proto::scenario::Scenario;
 
 use crate::coord::{Addressed, CoordMsg, To};
 use crate::exchange::sharing::{Share, Sharing};
-use crate::radio::lockstep::Mark;
 use crate::radio::pacing::Pacer;
 
 /// How many steps of unused radio budget a neighbour's credit can hold. Without step markers
@@ -146,6 +145,16 @@ impl Msg {
                 .or_else(|| Share::decode(kind, bytes).map(|r| r.map(Msg::Share))),
         }
     }
+}
+
+/// The end of a neighbour's traffic of a step, as its frame says: `from` sent `sent` messages
+/// in `step` (the frame's that decoded). Once a robot holds a neighbour's mark of a step and
+/// that many of its messages, it holds everything the neighbour sent it in the step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Mark {
+    pub from: RobotId,
+    pub step: Step,
+    pub sent: u32,
 }
 
 /// What one radio payload held: its messages, and for a step's frame its end (lockstep).
