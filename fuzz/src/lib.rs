@@ -24,6 +24,7 @@ use std::path::Path;
 
 use proto::geom::{LaserSpec, MapInfo, Pose};
 use proto::grid::Grid;
+use proto::keys::RADIO_KINDS;
 use proto::msg::{
     decode, Cmd, Control, LinkPlan, LinkReport, MoveOutcome, ProcessOrder, Scan, Status,
     Telemetry, TruthMap, WorldInfo,
@@ -115,10 +116,6 @@ pub fn sim_plane(data: &[u8]) {
     let _ = Grid::from_rle(data);
 }
 
-/// The radio payload kinds a robot takes (the last segment of `radio/<to>/<kind>`).
-pub const RADIO_KINDS: [&str; 11] = [
-    "hello", "targ", "frame", "team", "bid", "task", "role", "move", "delta", "ops", "patch",
-];
 
 const STRATEGIES: [Strategy; 6] = [
     Strategy::Decentralized,
@@ -330,7 +327,7 @@ mod tests {
                         let mut payloads = vec![(kind.clone(), o.bytes.clone())];
                         if let Ok(f) = decode::<proto::msg::Frame>(&o.bytes) {
                             for (k, b) in f.records {
-                                let Some(k) = proto::keys::RADIO_KINDS.get(usize::from(k)) else {
+                                let Some(k) = RADIO_KINDS.get(usize::from(k)) else {
                                     continue;
                                 };
                                 payloads.push((k.to_string(), b));

@@ -34,15 +34,40 @@ pub struct LogExchange<R> {
     /// [`proto::msg::log_owner`] of its life (a restarted robot holds its earlier lives' logs
     /// like anyone else's).
     own: RobotId,
-    /// Per owner, the part of its log we hold: records from its base on (our own log is
-    /// complete).
-    logs: BTreeMap<RobotId, Vec<R>>,
-    /// Per owner, the index of the first record we hold (missing: 0): the state at it came as a
-    /// whole ([`LogExchange::install`]).
-    base: BTreeMap<RobotId, u32>,
+    /// Per owner, the part of its log we hold (our own log is complete).
+    logs: BTreeMap<RobotId, Held<R>>,
     /// S[peer][owner]: how far we believe `peer` knows `owner`'s log. A peer has a row only after
     /// its handshake; an owner missing from a row counts as known up to 0.
     sent: BTreeMap<RobotId, BTreeMap<RobotId, u32>>,
+}
+
+/// The part of one owner's log we hold: its records from index `base` on (0 unless the state at
+/// `base` came as a whole, [`LogExchange::install`]).
+#[derive(Clone, Debug)]
+struct Held<R> {
+    base: u32,
+    records: Vec<R>,
+}
+
+impl<R> Default for Held<R> {
+    fn default() -> Self {
+        Held {
+            base: 0,
+            records: Vec::new(),
+        }
+    }
+}
+
+impl<R> Held<R> {
+    /// How many records of the log we know of.
+    fn end(&self) -> u32 {
+        self.base.saturating_add(len_u32(&self.records))
+    }
+
+    /// The records from log index `from` on (`None` below the base: we do not hold them).
+    fn since(&self, from: u32) -> Option<&[R]> {
+        self.records.get(from.checked_sub(self.base)? as usize..)
+    }
 }
 
 /// What became of a received [`LogDelta`].
@@ -78,8 +103,7 @@ impl<R: Clone> LogExchange<R> {
         LogExchange {
             me,
             own,
-            logs: BTreeMap::from([(own, Vec::new())]),
-            base: BTreeMap::new(),
+            logs: BTreeMap::from([(own, Held::default())]),
             sent: BTreeMap::new(),
         }
     }
@@ -87,14 +111,12 @@ impl<R: Clone> LogExchange<R> {
     /// The index of the first record of `owner`'s log we hold (0 unless a snapshot was
     /// installed).
     pub fn base(&self, owner: RobotId) -> u32 {
-        self.base.get(&owner).copied().unwrap_or(0)
+        self.logs.get(&owner).map_or(0, |h| h.base)
     }
 
     /// How many records of `owner`'s log we know of: our base and the records held after it.
     pub fn len(&self, owner: RobotId) -> u32 {
-        self.base(owner).saturating_add(len_u32(
-            self.logs.get(&owner).map_or(&[][..], Vec::as_slice),
-        ))
+        self.logs.get(&owner).map_or(0, Held::end)
     }
 
     /// From now on we hold `owner`'s log from index `at` on, and nothing before: the state at
@@ -103,8 +125,13 @@ impl<R: Clone> LogExchange<R> {
         if owner == self.own || at <= self.len(owner) {
             return;
         }
-        self.logs.insert(owner, Vec::new());
-        self.base.insert(owner, at);
+        self.logs.insert(
+            owner,
+            Held {
+                base: at,
+                records: Vec::new(),
+            },
+        );
     }
 
     /// How far we believe `peer` knows `owner`'s log (`None` before its handshake).
@@ -134,7 +161,7 @@ impl<R: Clone> LogExchange<R> {
 
     /// Appends a record to our own log.
     pub fn record_own(&mut self, rec: R) {
-        self.logs.entry(self.own).or_default().push(rec);
+        self.logs.entry(self.own).or_default().records.push(rec);
     }
 
     /// The deltas to send `peer` now, within `budget_bytes` as measured by `size_of` (the size of
@@ -170,11 +197,11 @@ impl<R: Clone> LogExchange<R> {
         let mut order: Vec<(u64, RobotId, u32)> = self
             .logs
             .iter()
-            .filter_map(|(&owner, log)| {
+            .filter_map(|(&owner, held)| {
                 let known = row.get(&owner).copied().unwrap_or(0);
-                let base = self.base.get(&owner).copied().unwrap_or(0);
-                let lag = u64::from((base + len_u32(log)).saturating_sub(known));
-                (lag > 0 && known >= base && !skip.contains(&owner)).then_some((lag, owner, known))
+                let lag = u64::from(held.end().saturating_sub(known));
+                (lag > 0 && known >= held.base && !skip.contains(&owner))
+                    .then_some((lag, owner, known))
             })
             .collect();
         let (me, own) = (self.me, self.own);
@@ -183,15 +210,14 @@ impl<R: Clone> LogExchange<R> {
         let mut out = Vec::new();
         let mut used = 0usize;
         for (_, owner, start) in order {
-            let Some(log) = self.logs.get(&owner) else {
+            let Some(rest) = self.logs.get(&owner).and_then(|h| h.since(start)) else {
                 continue;
             };
-            let base = self.base.get(&owner).copied().unwrap_or(0);
             let (delta, size, full) = fill(
                 me,
                 owner,
                 start,
-                log.get((start - base) as usize..).unwrap_or_default(),
+                rest,
                 budget_bytes.saturating_sub(used),
                 &size_of,
             );
@@ -227,9 +253,8 @@ impl<R: Clone> LogExchange<R> {
         if d.owner == self.own {
             return DeltaOutcome::Duplicate;
         }
-        let base = self.base(d.owner);
-        let log = self.logs.entry(d.owner).or_default();
-        let have = base.saturating_add(len_u32(log));
+        let held = self.logs.entry(d.owner).or_default();
+        let have = held.end();
         if d.start > have {
             return DeltaOutcome::Gap {
                 owner: d.owner,
@@ -242,7 +267,7 @@ impl<R: Clone> LogExchange<R> {
         }
         // `have - start < records.len()` because `end > have`.
         let skip = (have - d.start) as usize;
-        log.extend(
+        held.records.extend(
             d.records
                 .iter()
                 .skip(skip)
@@ -251,7 +276,7 @@ impl<R: Clone> LogExchange<R> {
         );
         DeltaOutcome::Appended {
             owner: d.owner,
-            new: have..base.saturating_add(len_u32(log)),
+            new: have..held.end(),
         }
     }
 
@@ -260,12 +285,11 @@ impl<R: Clone> LogExchange<R> {
     pub fn take_delta(&mut self, d: &LogDelta<R>) -> (DeltaOutcome, &[R]) {
         let outcome = self.on_delta(d);
         let new = match &outcome {
-            DeltaOutcome::Appended { owner, new } if *owner != self.own => {
-                let base = self.base(*owner);
-                self.log(*owner)
-                    .get((new.start - base) as usize..(new.end - base) as usize)
-                    .unwrap_or_default()
-            }
+            DeltaOutcome::Appended { owner, new } if *owner != self.own => self
+                .logs
+                .get(owner)
+                .and_then(|h| h.since(new.start))
+                .map_or(&[][..], |r| &r[..r.len().min(new.len())]),
             _ => &[],
         };
         (outcome, new)
@@ -275,9 +299,8 @@ impl<R: Clone> LogExchange<R> {
     /// our base); our next handshake asks for them again. Our own log is never cut.
     pub fn truncate(&mut self, owner: RobotId, len: u32) {
         if owner != self.own {
-            let base = self.base(owner);
-            if let Some(log) = self.logs.get_mut(&owner) {
-                log.truncate(len.saturating_sub(base) as usize);
+            if let Some(h) = self.logs.get_mut(&owner) {
+                h.records.truncate(len.saturating_sub(h.base) as usize);
             }
         }
     }
@@ -285,7 +308,7 @@ impl<R: Clone> LogExchange<R> {
     /// The records of `owner`'s log we hold, from index [`Self::base`] on (empty for an owner we
     /// have not heard of).
     pub fn log(&self, owner: RobotId) -> &[R] {
-        self.logs.get(&owner).map_or(&[], Vec::as_slice)
+        self.logs.get(&owner).map_or(&[], |h| h.records.as_slice())
     }
 
     /// The owners whose logs we hold (at least ourselves), in id order.
@@ -301,10 +324,10 @@ impl<R: Clone> LogExchange<R> {
         Some(
             self.logs
                 .iter()
-                .map(|(&owner, log)| {
+                .map(|(&owner, h)| {
                     let known = row.get(&owner).copied().unwrap_or(0);
-                    let from = known.saturating_sub(self.base(owner)) as usize;
-                    log.get(from..).map_or(0, |rest| weigh(owner, rest))
+                    let from = known.saturating_sub(h.base) as usize;
+                    h.records.get(from..).map_or(0, |rest| weigh(owner, rest))
                 })
                 .sum(),
         )
@@ -343,7 +366,7 @@ impl<R: Clone> Handshake for LogExchange<R> {
             knowledge: self
                 .logs
                 .iter()
-                .map(|(&owner, log)| (owner, self.base(owner).saturating_add(len_u32(log))))
+                .map(|(&owner, h)| (owner, h.end()))
                 .collect(),
         }
     }
@@ -381,10 +404,10 @@ impl<R: Clone> Handshake for LogExchange<R> {
         let row = self.sent.get(&peer)?;
         Some(
             self.logs
-                .keys()
-                .map(|&owner| {
-                    let known = row.get(&owner).copied().unwrap_or(0);
-                    u64::from(self.len(owner).saturating_sub(known))
+                .iter()
+                .map(|(owner, h)| {
+                    let known = row.get(owner).copied().unwrap_or(0);
+                    u64::from(h.end().saturating_sub(known))
                 })
                 .sum(),
         )
@@ -393,7 +416,6 @@ impl<R: Clone> Handshake for LogExchange<R> {
     fn forget(&mut self, owner: RobotId) {
         if owner != self.own {
             self.logs.remove(&owner);
-            self.base.remove(&owner);
         }
     }
 }

@@ -96,6 +96,8 @@ pub enum Msg {
 #[derive(Clone)]
 struct Packet {
     key: fn(RobotId) -> String,
+    /// Its key's kind, as a frame's record names it (its index in [`RADIO_KINDS`]).
+    kind: u8,
     bytes: Vec<u8>,
     /// Its bytes by package type.
     by_type: Vec<(Traffic, usize)>,
@@ -127,8 +129,13 @@ impl Msg {
             Msg::Coord(m) => vec![(m.traffic(), n)],
             Msg::Share(m) => m.by_type(n),
         };
+        let kind = proto::keys::radio_kind(&key(0))
+            .and_then(|k| RADIO_KINDS.iter().position(|&r| r == k))
+            .and_then(|i| u8::try_from(i).ok())
+            .unwrap_or(u8::MAX);
         Packet {
             key,
+            kind,
             bytes,
             by_type,
         }
@@ -188,9 +195,9 @@ pub struct Radio {
     counters: Counters,
     /// Lockstep with step markers: a step's messages leave in one [`Frame`] per neighbour.
     framed: bool,
-    /// Framed: per addressee, the messages of this step waiting for its frame (with their
-    /// kinds' indices in [`RADIO_KINDS`]), in the order sent.
-    queued: HashMap<RobotId, Vec<(u8, Packet)>>,
+    /// Framed: per addressee, the messages of this step waiting for its frame, in the order
+    /// sent.
+    queued: HashMap<RobotId, Vec<Packet>>,
     /// An undecodable payload was logged already.
     logged_bad: bool,
     /// Lockstep: per neighbour, what netem's budget can carry in this step (the plan's credit).
@@ -274,19 +281,14 @@ impl Radio {
     /// what it costs the link: its payload, and framed its record in the frame (the frame's
     /// own cost is taken by [`Radio::frames`]).
     fn send(&mut self, to: RobotId, p: &Packet, out: &mut Vec<Outgoing>) -> usize {
-        let key = (p.key)(to);
         if self.framed {
-            let kind = proto::keys::radio_kind(&key)
-                .and_then(|k| RADIO_KINDS.iter().position(|&r| r == k))
-                .and_then(|i| u8::try_from(i).ok())
-                .unwrap_or(u8::MAX);
-            self.queued.entry(to).or_default().push((kind, p.clone()));
+            self.queued.entry(to).or_default().push(p.clone());
             return p.bytes.len() + record_overhead(p.bytes.len());
         }
         self.count(p);
         out.push(Outgoing {
             to,
-            key,
+            key: (p.key)(to),
             bytes: p.bytes.clone(),
         });
         p.bytes.len()
@@ -296,7 +298,7 @@ impl Radio {
     fn queued_cost(&self, peer: RobotId) -> usize {
         self.queued.get(&peer).map_or(0, |q| {
             q.iter()
-                .map(|(_, p)| p.bytes.len() + record_overhead(p.bytes.len()))
+                .map(|p| p.bytes.len() + record_overhead(p.bytes.len()))
                 .sum()
         })
     }
@@ -342,7 +344,7 @@ impl Radio {
                 let mut size = encode(&empty).len() + 2;
                 let fit = packets
                     .iter()
-                    .take_while(|(_, p)| {
+                    .take_while(|p| {
                         size += p.bytes.len() + record_overhead(p.bytes.len());
                         size <= limit
                     })
@@ -352,16 +354,17 @@ impl Radio {
                     self.queued.insert(peer, later);
                 }
             }
-            let mut carried = 0;
-            for (_, p) in &packets {
+            // The records were paid for when offered; the frame pays its header and framing.
+            let (mut inner, mut carried) = (0, 0);
+            for p in &packets {
                 self.count(p);
+                inner += p.bytes.len();
                 carried += p.bytes.len() + record_overhead(p.bytes.len());
             }
-            let inner: usize = packets.iter().map(|(_, p)| p.bytes.len()).sum();
             let frame = Frame {
                 from: self.id,
                 step,
-                records: packets.into_iter().map(|(k, p)| (k, p.bytes)).collect(),
+                records: packets.into_iter().map(|p| (p.kind, p.bytes)).collect(),
             };
             let bytes = encode(&frame);
             let own = bytes.len() - inner;
