@@ -120,10 +120,15 @@ pub fn radio_targ(to: RobotId) -> String {
     format!("radio/{to}/targ")
 }
 
+/// Radio: relay-tree routes ([`crate::msg::Routes`]) addressed to robot `to`.
+pub fn radio_route(to: RobotId) -> String {
+    format!("radio/{to}/route")
+}
+
 /// Radio: a step's frame ([`crate::msg::Frame`]: its messages and its marker, lockstep with step
-/// markers) addressed to robot `to`: the robot's radio address itself, the shortest key, since
-/// zenoh sends a message's key in full with every message and a frame is one message per link
-/// and step. Its kind is `frame`.
+/// markers) addressed to robot `to`: the robot's radio address itself. Its kind is `frame`.
+/// (zenoh sends a declared key's string once per session, then its id: shortening the radio
+/// plane's keys from `radio/` to `r/` saved 208 of the default run's 145 948 wire bytes.)
 pub fn radio_frame(to: RobotId) -> String {
     format!("radio/{to}")
 }
@@ -131,6 +136,7 @@ pub fn radio_frame(to: RobotId) -> String {
 /// Every `<kind>` a `radio/<to>/<kind>` key of ours has (one per `radio_*` function above).
 pub const RADIO_KINDS: &[&str] = &[
     "hello", "delta", "ops", "patch", "team", "bid", "role", "move", "task", "targ", "frame",
+    "route",
 ];
 
 /// Everything on the radio addressed to robot `to` (`radio/<to>` and `radio/<to>/<kind>`).
@@ -178,7 +184,7 @@ mod tests {
         assert_eq!(radio_kind(&radio_hello(3)), Some("hello"));
         assert_eq!(radio_kind(&radio_ops(3)), Some("ops"));
         assert_eq!(radio_kind(&radio_team(0)), Some("team"));
-        let ours: [fn(RobotId) -> String; 11] = [
+        let ours: [fn(RobotId) -> String; 12] = [
             radio_hello,
             radio_delta,
             radio_ops,
@@ -190,6 +196,7 @@ mod tests {
             radio_task,
             radio_targ,
             radio_frame,
+            radio_route,
         ];
         let kinds: Vec<_> = ours.iter().map(|f| f(3)).collect();
         let kinds: Vec<_> = kinds.iter().filter_map(|k| radio_kind(k)).collect();

@@ -14,7 +14,7 @@ use crate::geom::{LaserSpec, MapInfo, Metres, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 14;
+pub const PROTOCOL_VERSION: u16 = 15;
 
 pub use crate::ids::{RobotId, Step};
 
@@ -591,6 +591,38 @@ impl From<ProcessOrder> for crate::process::ProcessAction {
 pub struct Hello {
     pub from: RobotId,
     pub knowledge: Vec<(RobotId, u32)>,
+    /// `true`: the receiver's belief of what the sender holds becomes exactly this (on link-up,
+    /// after a gap, and periodically where messages can be lost); `false`: it only rises to it
+    /// (lockstep's periodic handshake, sent while the receiver's traffic of the same step is
+    /// on its way and arrives).
+    pub reset: bool,
+}
+
+/// Radio: how a robot is connected to the writers of the logs it knows of (the relay tree,
+/// docs/design.md §4.4), sent to a neighbour when it changes and in full when a link comes up
+/// (`conn`). Only what changed since the last `Routes` to that neighbour is listed.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Routes {
+    pub from: RobotId,
+    pub routes: Vec<Route>,
+}
+
+/// One log owner's entry in [`Routes`]: the sender is `hops` radio hops from the robot that
+/// writes `owner`'s log, and takes that log's records from its neighbour `via` (0 hops: it
+/// writes the log itself, `via` is the sender). [`Route::NONE`] hops: it knows no way to the
+/// writer any more. `have`, when `via` is new: how many records of the log the sender holds,
+/// so that the robot it takes the log from now knows where to go on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Route {
+    pub owner: RobotId,
+    pub hops: u8,
+    pub via: RobotId,
+    pub have: Option<u32>,
+}
+
+impl Route {
+    /// `hops` of an owner whose writer the sender no longer reaches.
+    pub const NONE: u8 = u8::MAX;
 }
 
 /// Radio: the target a robot chose (thesis `targ`), sent to the robots in range when it changes
@@ -1145,6 +1177,7 @@ mod tests {
         round_trip(Hello {
             from: 1,
             knowledge: vec![(0, 5), (1, 7)],
+            reset: true,
         });
         round_trip(PatchDelta {
             from: 1,

@@ -391,6 +391,16 @@ pub fn radio_peer(
         RADIO_BATCH_BYTES
     };
     set(&mut c, "transport/link/tx/batch_size", &batch.to_string())?;
+    if lockstep {
+        // A lockstep link carries a frame a step, each with zenoh's sequence number: 8 bits
+        // (TCP keeps the order) save 3.2 bytes a frame over the default 32, 3 % of the
+        // default run's wire bytes.
+        set(
+            &mut c,
+            "transport/link/tx/sequence_number_resolution",
+            "\"8bit\"",
+        )?;
+    }
     let lease = if lockstep {
         LOCKSTEP_RADIO_LEASE_MS
     } else {
@@ -448,7 +458,8 @@ fn addressed_only(me: crate::msg::RobotId, team: u16) -> String {
         ),
         format!(
             "{{id:\"for_me\",messages:[\"put\",\"delete\"],flows:[\"ingress\"],\
-             permission:\"allow\",key_exprs:[\"radio/{me}/**\"]}}"
+             permission:\"allow\",key_exprs:[\"{}\"]}}",
+            crate::keys::radio_inbox(me)
         ),
     ];
     let mut subjects = Vec::new();
@@ -456,7 +467,8 @@ fn addressed_only(me: crate::msg::RobotId, team: u16) -> String {
     for j in (0..team).filter(|&j| j != me) {
         rules.push(format!(
             "{{id:\"to_{j}\",messages:[\"put\",\"delete\"],flows:[\"egress\"],\
-             permission:\"allow\",key_exprs:[\"radio/{j}/**\"]}}"
+             permission:\"allow\",key_exprs:[\"{}\"]}}",
+            crate::keys::radio_inbox(j)
         ));
         subjects.push(format!("{{id:\"peer_{j}\",zids:[\"{}\"]}}", radio_zid(j)));
         policies.push(format!(

@@ -289,6 +289,19 @@ pub struct Exchange {
     /// save point (a snapshot) instead of the history, when that is fewer ops (docs/design.md
     /// §4.4); `false`: the thesis's exchange, log suffixes only.
     pub snapshots: bool,
+    /// How a log's records travel beyond its writer's neighbours (docs/design.md §4.4): `tree`,
+    /// each robot takes each owner's records from one neighbour, the one nearest the owner's
+    /// writer; `flood`, the thesis's Algorithm 8: every neighbour that holds records a peer
+    /// lacks sends them.
+    pub relay: Relay,
+}
+
+/// [`Exchange::relay`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Relay {
+    Tree,
+    Flood,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -612,6 +625,7 @@ impl Default for Exchange {
             hello_every_steps: 10,
             edge_bounds: true,
             snapshots: true,
+            relay: Relay::Tree,
         }
     }
 }

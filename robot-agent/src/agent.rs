@@ -12,9 +12,10 @@
 use proto::geom::{Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{Cmd, RobotId, Scan, Step, Telemetry, WorldInfo};
-use proto::scenario::Scenario;
+use proto::scenario::{Relay, Scenario};
 
 use crate::coord::{self, Coordinator, Heard, Situation, Status, Steer};
+use crate::exchange::relay::RelayTree;
 use crate::exchange::sharing::{self, Sharing};
 use crate::mapping::grid::Evidence;
 use crate::nav::plan;
@@ -42,6 +43,9 @@ pub struct Agent {
     known: usize,
     /// What it shares and how peers' shares reach its planning grid (by exchange mode).
     sharing: Box<dyn Sharing>,
+    /// Which neighbour sends it each owner's log, and to which it sends (`exchange.relay =
+    /// "tree"`; `None`: the thesis's flooding).
+    relay: Option<RelayTree>,
     /// How it picks its target (by coordination strategy).
     coordinator: Box<dyn Coordinator>,
     /// Other robots' announced targets.
@@ -83,6 +87,7 @@ impl Agent {
             own_evidence: Evidence::new(&empty),
             own_changed: Vec::new(),
             sharing: sharing::new(s, id, own_log, &world, station::budget_per_step(s, &world)),
+            relay: (s.exchange.relay == Relay::Tree).then(|| RelayTree::new(id, own_log)),
             life,
             broken_recovery: std::env::var(crate::exchange::transitive::BROKEN_RECOVERY_ENV)
                 .is_ok_and(|v| v == "forget-earlier-lives"),
@@ -235,17 +240,41 @@ impl Agent {
             neighbours: self.radio.neighbours(),
             backlog: self.radio.backlog(),
         });
+        let mut routes = Vec::new();
+        if let Some(tree) = &mut self.relay {
+            let neighbours = self.radio.neighbours();
+            tree.update(neighbours);
+            for &peer in neighbours {
+                self.sharing
+                    .handshake_mut()
+                    .leave_out(peer, tree.left_out(peer));
+            }
+            let held = self.sharing.knowledge().knowledge;
+            let have = |owner| held.iter().find(|k| k.0 == owner).map_or(0, |k| k.1);
+            routes = tree.announcements(neighbours, have);
+        }
         let sharing = self.sharing.as_mut();
-        self.radio.step(self.step, self.target, &coord, sharing)
+        self.radio
+            .step(self.step, self.target, &coord, &routes, sharing)
     }
 
     /// A peer's radio liveliness token appeared: greet it with our knowledge vector and target.
     pub fn link_up(&mut self, peer: RobotId) -> Vec<Outgoing> {
+        if let Some(tree) = self
+            .relay
+            .as_mut()
+            .filter(|_| !self.radio.neighbours().contains(&peer))
+        {
+            tree.link_up(peer);
+        }
         let sharing = self.sharing.as_mut();
         self.radio.link_up(peer, sharing, self.step, self.target)
     }
 
     pub fn link_down(&mut self, peer: RobotId) {
+        if let Some(tree) = &mut self.relay {
+            tree.link_down(peer);
+        }
         self.radio.link_down(peer, self.sharing.as_mut());
     }
 
@@ -305,6 +334,17 @@ impl Agent {
     pub fn take(&mut self, m: Msg) -> Vec<Outgoing> {
         match m {
             Msg::Hello(h) => self.sharing.on_hello(&h),
+            Msg::Routes(r) => {
+                if let Some(tree) = &mut self.relay {
+                    tree.on_routes(&r);
+                    for route in &r.routes {
+                        if let Some(have) = route.have {
+                            let ex = self.sharing.handshake_mut();
+                            ex.holds(r.from, route.owner, have);
+                        }
+                    }
+                }
+            }
             Msg::Target(t) => self.heard.on_target(self.id, &t),
             Msg::Coord(m) => self.coordinator.on_message(self.id, &m),
             Msg::Share(share) => {

@@ -14,6 +14,8 @@ pub mod oplog;
 pub mod polygon;
 /// `raw-scans`: the baseline, per-owner logs of laser scans.
 pub mod raw_scans;
+/// The relay tree: from which neighbour a robot takes each owner's log.
+pub mod relay;
 /// What a robot shares over the radio: the exchange modes behind one interface.
 pub mod sharing;
 /// The splitting frequency s from the bandwidth: eq. 5.5/5.6 or closed loop (§5.3).

@@ -21,7 +21,7 @@
 //! approximation meanwhile. Corrupted ops that happen to apply cannot be told from good ones
 //! (the op encoding carries no checksum).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 use proto::msg::{Hello, LogDelta, OpChunk, RobotId, View};
@@ -233,6 +233,9 @@ impl ApproxExchange {
             let Some(known) = self.logs.known(peer, owner) else {
                 return Vec::new();
             };
+            if !self.logs.sends(peer, owner) {
+                continue;
+            }
             let job = match self.sending.remove(&(peer, owner)) {
                 Some(job) if known < job.at => Some(job),
                 _ => self.snapshot_for(owner, known),
@@ -519,6 +522,18 @@ impl Handshake for ApproxExchange {
         self.drop_sending(peer);
     }
 
+    /// A snapshot under way to `peer` of an owner it now takes from another robot is dropped
+    /// (were it taken up again, the peer would have dropped its parts meanwhile).
+    fn leave_out(&mut self, peer: RobotId, owners: BTreeSet<RobotId>) {
+        self.sending
+            .retain(|&(p, owner), _| p != peer || !owners.contains(&owner));
+        self.logs.leave_out(peer, owners);
+    }
+
+    fn holds(&mut self, peer: RobotId, owner: RobotId, at: u32) {
+        self.logs.holds(peer, owner, at);
+    }
+
     fn forget(&mut self, owner: RobotId) {
         if owner != self.own() {
             self.logs.forget(owner);
@@ -571,6 +586,7 @@ mod tests {
     use super::*;
     use crate::exchange::mapper::Mapper;
     use crate::exchange::oplog::OpLog;
+    use crate::exchange::relay::RelayTree;
     use proptest::prelude::*;
     use proto::grid::{Cell, Grid};
     use proto::msg::encode;
@@ -836,8 +852,9 @@ mod tests {
         /// with a dropped link, once the robots stay connected (a chain, each robot reaching the
         /// others only through relays) every robot ends with every other owner's approximation in
         /// full detail: the transitive exchange delivers every log whole, eventually. With
-        /// snapshots or without, what a robot shows of an owner at any time is exactly what
-        /// replaying the owner's whole log up to the save point shown gives.
+        /// snapshots or without, relayed along the relay tree or flooded, what a robot shows of
+        /// an owner at any time is exactly what replaying the owner's whole log up to the save
+        /// point shown gives.
         #[test]
         fn every_approximation_arrives_in_full_detail_eventually(
             robots in 3usize..6,
@@ -848,6 +865,7 @@ mod tests {
             snapshots in any::<bool>(),
             churn in any::<bool>(),
             burst in 1usize..30,
+            tree in any::<bool>(),
         ) {
             let (ops, states) = if churn { churn_log() } else { owner_log() };
             let mut full = OpLog::new();
@@ -855,33 +873,60 @@ mod tests {
             let mut xs: Vec<ApproxExchange> = (0..robots)
                 .map(|r| ApproxExchange::new(r as RobotId).with_snapshots(snapshots))
                 .collect();
+            let mut trees: Vec<Option<RelayTree>> = (0..robots)
+                .map(|r| tree.then(|| RelayTree::new(r as RobotId, r as RobotId)))
+                .collect();
             let pairs: Vec<(usize, usize)> = (0..robots)
                 .flat_map(|a| (a + 1..robots).map(move |b| (a, b)))
                 .collect();
             let mut up = vec![false; pairs.len()];
-            // One round: links change, owners append a step of their log, every up link carries
-            // one budget each way; on a link going down this round, its chunks are lost.
+            // One round (a lockstep step): links change, owners append a step of their log, the
+            // relay tree is brought up to date, every up link carries one budget each way, and the
+            // routes told arrive with it; on a link going down this round, its chunks are lost.
             let mut written = vec![0usize; robots];
-            let round = |xs: &mut Vec<ApproxExchange>, up: &mut Vec<bool>, want: &[bool], budget: usize,
-                         lose: bool, written: &mut Vec<usize>| -> Result<(), TestCaseError> {
+            let round = |xs: &mut Vec<ApproxExchange>, trees: &mut Vec<Option<RelayTree>>,
+                         up: &mut Vec<bool>, want: &[bool], budget: usize, lose: bool,
+                         written: &mut Vec<usize>| -> Result<(), TestCaseError> {
                 for (r, x) in xs.iter_mut().enumerate() {
                     let next = (written[r] + burst + r).min(ops.len());
                     x.record_own(&ops[written[r]..next]);
                     written[r] = next;
                 }
+                let now: Vec<bool> = (0..pairs.len()).map(|k| want.get(k).copied().unwrap_or(false)).collect();
+                let mut neighbours = vec![BTreeSet::new(); xs.len()];
                 for (k, &(a, b)) in pairs.iter().enumerate() {
-                    let now = want.get(k).copied().unwrap_or(false);
-                    if now && !up[k] {
-                        xs[a].link_up(b as RobotId);
-                        xs[b].link_up(a as RobotId);
+                    if now[k] && !up[k] {
+                        for (x, y) in [(a, b), (b, a)] {
+                            xs[x].link_up(y as RobotId);
+                            if let Some(t) = trees[x].as_mut() {
+                                t.link_up(y as RobotId);
+                            }
+                        }
                         let (ha, hb) = (xs[a].knowledge(), xs[b].knowledge());
                         xs[a].on_hello(&hb);
                         xs[b].on_hello(&ha);
                     }
-                    if now || up[k] {
+                    if now[k] || up[k] {
+                        neighbours[a].insert(b as RobotId);
+                        neighbours[b].insert(a as RobotId);
+                    }
+                }
+                let mut told = Vec::new();
+                for (r, t) in trees.iter_mut().enumerate() {
+                    let Some(t) = t.as_mut() else { continue };
+                    t.update(&neighbours[r]);
+                    for &p in &neighbours[r] {
+                        xs[r].leave_out(p, t.left_out(p));
+                    }
+                    let held = xs[r].knowledge().knowledge;
+                    let have = |o| held.iter().find(|k| k.0 == o).map_or(0, |k| k.1);
+                    told.extend(t.announcements(&neighbours[r], have));
+                }
+                for (k, &(a, b)) in pairs.iter().enumerate() {
+                    if now[k] || up[k] {
                         for (from, to) in [(a, b), (b, a)] {
                             let out = xs[from].outgoing(to as RobotId, budget, size);
-                            if !now && lose {
+                            if !now[k] && lose {
                                 continue;
                             }
                             for c in out {
@@ -895,11 +940,29 @@ mod tests {
                             }
                         }
                     }
-                    if !now && up[k] {
-                        xs[a].link_down(b as RobotId);
-                        xs[b].link_down(a as RobotId);
+                    if !now[k] && up[k] {
+                        for (x, y) in [(a, b), (b, a)] {
+                            xs[x].link_down(y as RobotId);
+                            if let Some(t) = trees[x].as_mut() {
+                                t.link_down(y as RobotId);
+                            }
+                        }
                     }
-                    up[k] = now;
+                    up[k] = now[k];
+                }
+                for (to, routes) in told {
+                    let to = usize::from(to);
+                    let linked = pairs.iter().zip(up.iter()).any(|(&(a, b), &u)| {
+                        u && (a, b) == (to.min(usize::from(routes.from)), to.max(usize::from(routes.from)))
+                    });
+                    if let (true, Some(t)) = (linked, trees[to].as_mut()) {
+                        t.on_routes(&routes);
+                        for r in &routes.routes {
+                            if let Some(have) = r.have {
+                                xs[to].holds(routes.from, r.owner, have);
+                            }
+                        }
+                    }
                 }
                 Ok(())
             };
@@ -914,13 +977,13 @@ mod tests {
                 Ok(())
             };
             for (links, budget, lose) in &rounds {
-                round(&mut xs, &mut up, links, *budget, *lose, &mut written)?;
+                round(&mut xs, &mut trees, &mut up, links, *budget, *lose, &mut written)?;
                 replayed(&xs)?;
             }
             // Then a chain 0 – 1 – … – n−1 and nothing else, at a small budget.
             let chain: Vec<bool> = pairs.iter().map(|&(a, b)| b == a + 1).collect();
             for _ in 0..400 {
-                round(&mut xs, &mut up, &chain, 64, false, &mut written)?;
+                round(&mut xs, &mut trees, &mut up, &chain, 64, false, &mut written)?;
             }
             replayed(&xs)?;
             let last = states.last().cloned().unwrap_or_default();

@@ -165,6 +165,7 @@ mod tests {
         Hello {
             from,
             knowledge: knowledge.to_vec(),
+            reset: true,
         }
     }
 

@@ -20,7 +20,7 @@
 //! [`crate::exchange::raw_scans`] instantiates it with laser scans (the baseline); its tests exercise this
 //! module.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::ops::Range;
 
 use proto::msg::{Hello, LogDelta, RobotId};
@@ -39,6 +39,9 @@ pub struct LogExchange<R> {
     /// S[peer][owner]: how far we believe `peer` knows `owner`'s log. A peer has a row only after
     /// its handshake; an owner missing from a row counts as known up to 0.
     sent: BTreeMap<RobotId, BTreeMap<RobotId, u32>>,
+    /// Per peer, the owners whose records it takes from another neighbour (the relay tree,
+    /// [`crate::exchange::relay`]): we send it none of them, and they are no backlog of ours.
+    left_out: BTreeMap<RobotId, BTreeSet<RobotId>>,
 }
 
 /// The part of one owner's log we hold: its records from index `base` on (0 unless the state at
@@ -105,6 +108,7 @@ impl<R: Clone> LogExchange<R> {
             own,
             logs: BTreeMap::from([(own, Held::default())]),
             sent: BTreeMap::new(),
+            left_out: BTreeMap::new(),
         }
     }
 
@@ -132,6 +136,11 @@ impl<R: Clone> LogExchange<R> {
                 records: Vec::new(),
             },
         );
+    }
+
+    /// Whether `owner`'s records go to `peer` from us (not left out, [`Handshake::leave_out`]).
+    pub fn sends(&self, peer: RobotId, owner: RobotId) -> bool {
+        !self.left_out.get(&peer).is_some_and(|o| o.contains(&owner))
     }
 
     /// How far we believe `peer` knows `owner`'s log (`None` before its handshake).
@@ -200,7 +209,7 @@ impl<R: Clone> LogExchange<R> {
             .filter_map(|(&owner, held)| {
                 let known = row.get(&owner).copied().unwrap_or(0);
                 let lag = u64::from(held.end().saturating_sub(known));
-                (lag > 0 && known >= held.base && !skip.contains(&owner))
+                (lag > 0 && known >= held.base && !skip.contains(&owner) && self.sends(peer, owner))
                     .then_some((lag, owner, known))
             })
             .collect();
@@ -324,6 +333,7 @@ impl<R: Clone> LogExchange<R> {
         Some(
             self.logs
                 .iter()
+                .filter(|&(&owner, _)| self.sends(peer, owner))
                 .map(|(&owner, h)| {
                     let known = row.get(&owner).copied().unwrap_or(0);
                     let from = known.saturating_sub(h.base) as usize;
@@ -345,6 +355,12 @@ pub trait Handshake {
     fn link_up(&mut self, peer: RobotId);
     /// The link to `peer` went down.
     fn link_down(&mut self, peer: RobotId);
+    /// From now on `owners`' records go to `peer` from another robot, never from us (the relay
+    /// tree, [`crate::exchange::relay`]); the set replaces the one before.
+    fn leave_out(&mut self, peer: RobotId, owners: BTreeSet<RobotId>);
+    /// `peer` says it holds `owner`'s log up to `at` (the relay tree's routes carry it): S is
+    /// raised to it.
+    fn holds(&mut self, peer: RobotId, owner: RobotId, at: u32);
     /// How many records we hold that `peer` lacks; `None` before its handshake.
     fn lag(&self, peer: RobotId) -> Option<u64>;
     /// Drops everything we hold of `owner`'s log (never our own). Only the deliberately broken
@@ -368,17 +384,20 @@ impl<R: Clone> Handshake for LogExchange<R> {
                 .iter()
                 .map(|(&owner, h)| (owner, h.end()))
                 .collect(),
+            reset: true,
         }
     }
 
     /// Takes a peer's handshake as the truth about what it holds: its S row becomes exactly the
-    /// listed indices (owners it does not list are known up to 0). If an owner is listed twice,
-    /// the larger index counts. A handshake claiming to come from ourselves is ignored.
+    /// listed indices (owners it does not list are known up to 0), or with `reset` off only
+    /// rises to them. If an owner is listed twice, the larger index counts. A handshake
+    /// claiming to come from ourselves is ignored.
     fn on_hello(&mut self, h: &Hello) {
         if h.from == self.me {
             return;
         }
-        let mut row = BTreeMap::new();
+        let kept = self.sent.remove(&h.from).filter(|_| !h.reset);
+        let mut row = kept.unwrap_or_default();
         for &(owner, index) in &h.knowledge {
             let known = row.entry(owner).or_insert(0);
             *known = index.max(*known);
@@ -390,12 +409,26 @@ impl<R: Clone> Handshake for LogExchange<R> {
     /// any S row from an earlier contact is forgotten.
     fn link_up(&mut self, peer: RobotId) {
         self.sent.remove(&peer);
+        self.left_out.remove(&peer);
     }
 
     /// The link to `peer` went down: forget its S row, since we cannot know which of the messages
     /// in flight arrived. The next handshake re-establishes it.
     fn link_down(&mut self, peer: RobotId) {
         self.sent.remove(&peer);
+        self.left_out.remove(&peer);
+    }
+
+    fn holds(&mut self, peer: RobotId, owner: RobotId, at: u32) {
+        self.sent_up_to(peer, owner, at);
+    }
+
+    fn leave_out(&mut self, peer: RobotId, owners: BTreeSet<RobotId>) {
+        if owners.is_empty() {
+            self.left_out.remove(&peer);
+        } else {
+            self.left_out.insert(peer, owners);
+        }
     }
 
     /// How many records we hold that `peer` lacks by S — the per-peer backlog; `None` before
@@ -405,6 +438,7 @@ impl<R: Clone> Handshake for LogExchange<R> {
         Some(
             self.logs
                 .iter()
+                .filter(|&(&owner, _)| self.sends(peer, owner))
                 .map(|(owner, h)| {
                     let known = row.get(owner).copied().unwrap_or(0);
                     u64::from(h.end().saturating_sub(known))

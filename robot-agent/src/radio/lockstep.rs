@@ -222,6 +222,7 @@ mod tests {
         Msg::Hello(Hello {
             from,
             knowledge: vec![(from, n)],
+            reset: true,
         })
     }
 

@@ -22,8 +22,8 @@ use proto::geom::LaserSpec;
 use proto::grid::Cell;
 use proto::keys::RADIO_KINDS;
 use proto::msg::{
-    decode, encode, DecodeError, Frame, Hello, RobotId, ScanDelta, ScanRecord, Step, Target,
-    Traffic, WorldInfo,
+    decode, encode, DecodeError, Frame, Hello, RobotId, Routes, ScanDelta, ScanRecord, Step,
+    Target, Traffic, WorldInfo,
 };
 use proto::scenario::Scenario;
 
@@ -37,10 +37,14 @@ use crate::radio::pacing::Pacer;
 /// in one (a log entry larger than one step's budget goes whole, and never starves).
 pub const BURST_STEPS: usize = 4;
 
-/// What zenoh adds on the wire to one radio message besides its key, with batching off (lockstep
-/// with step markers): the TCP link's length prefix, the frame and the put headers, the key's
-/// length. zenoh sends the key in full with every message. Measured: an empty [`Frame`] (5 bytes)
-/// to `radio/1` is 17–18 bytes on the wire. With step markers pacing counts it once per link and
+/// What zenoh adds on the wire to one radio message, with batching off (lockstep with step
+/// markers): the TCP link's length prefix, the transport frame with its sequence number, the
+/// push with its key's declared id and QoS, the put's header and length. Measured: an empty
+/// [`Frame`] (5 bytes) to `radio/1` is 17–18 bytes on the wire with zenoh's default 32-bit
+/// sequence numbers, and a frame 3.2 bytes less with the 8-bit ones lockstep radio sessions
+/// use (`proto::node`); pacing reckons it as this constant plus the key's length (13 for
+/// `radio/1`; the key's string itself crosses once per session, when zenoh declares it), a
+/// little more than it is. With step markers pacing counts it once per link and
 /// step, so that a link's bytes on the wire, not only its payload, stay within its rate (netem
 /// lets every step's traffic through, so nothing else would keep the wire rate).
 pub const WIRE_OVERHEAD_BYTES: usize = 6;
@@ -90,6 +94,8 @@ pub enum Msg {
     Coord(CoordMsg),
     /// What the exchange shares.
     Share(Share),
+    /// The relay tree's routes (`conn`).
+    Routes(Routes),
 }
 
 /// A message encoded once, ready for any addressee.
@@ -111,6 +117,7 @@ impl Msg {
             Msg::Target(t) => t.from,
             Msg::Coord(c) => c.from(),
             Msg::Share(s) => s.from(),
+            Msg::Routes(r) => r.from,
         }
     }
 
@@ -121,10 +128,11 @@ impl Msg {
             Msg::Target(m) => (proto::keys::radio_targ, encode(m)),
             Msg::Coord(m) => (m.key(), m.encode()),
             Msg::Share(m) => (m.key(), m.encode()),
+            Msg::Routes(m) => (proto::keys::radio_route, encode(m)),
         };
         let n = bytes.len();
         let by_type = match self {
-            Msg::Hello(_) => vec![(Traffic::Conn, n)],
+            Msg::Hello(_) | Msg::Routes(_) => vec![(Traffic::Conn, n)],
             Msg::Target(_) => vec![(Traffic::Targ, n)],
             Msg::Coord(m) => vec![(m.traffic(), n)],
             Msg::Share(m) => m.by_type(n),
@@ -147,6 +155,7 @@ impl Msg {
         match kind {
             "hello" => Some(decode(bytes).map(Msg::Hello)),
             "targ" => Some(decode(bytes).map(Msg::Target)),
+            "route" => Some(decode(bytes).map(Msg::Routes)),
             _ => CoordMsg::decode(kind, bytes)
                 .map(|r| r.map(Msg::Coord))
                 .or_else(|| Share::decode(kind, bytes).map(|r| r.map(Msg::Share))),
@@ -447,32 +456,44 @@ impl Radio {
     }
 
     /// Messages to send after step `step`'s decision (`target`): the strategy's messages
-    /// `coord`, the target when it changed, periodic handshakes, and the log suffixes each
-    /// neighbour lacks, within the per-link budget.
+    /// `coord`, the relay tree's `routes` per neighbour, the target when it changed, periodic
+    /// handshakes, and the log suffixes each neighbour lacks, within the per-link budget.
     pub fn step(
         &mut self,
         step: Step,
         target: Option<Cell>,
         coord: &[Addressed],
+        routes: &[(RobotId, Routes)],
         sharing: &mut dyn Sharing,
     ) -> Vec<Outgoing> {
         let mut out = Vec::new();
         let peers: Vec<RobotId> = self.neighbours.iter().copied().collect();
         self.pacer.at_step(step);
-        let hello = step
-            .is_multiple_of(self.hello_every_steps)
-            .then(|| Msg::Hello(sharing.knowledge()).pack());
+        // Framed, nothing is lost while a link is up, and what we sent in the step the peer's
+        // handshake was made in arrives with it: the periodic handshake only raises what we
+        // believe the peer holds (reset, it would undo that step's sending, which then went
+        // again).
+        let hello = step.is_multiple_of(self.hello_every_steps).then(|| {
+            let mut h = sharing.knowledge();
+            h.reset = !self.framed;
+            Msg::Hello(h).pack()
+        });
         let targ = (self.announced != Some(target)).then(|| self.target_msg(step, target).pack());
         self.announced = Some(target);
         let coord: Vec<(&To, Packet)> = coord
             .iter()
             .map(|a| (&a.to, Msg::Coord(a.msg.clone()).pack()))
             .collect();
+        let routes: Vec<(RobotId, Packet)> = routes
+            .iter()
+            .map(|(to, r)| (*to, Msg::Routes(r.clone()).pack()))
+            .collect();
         for &peer in &peers {
             let mine: Vec<&Packet> = coord
                 .iter()
                 .filter(|(to, _)| matches!(to, To::Neighbours) || **to == To::Robot(peer))
                 .map(|(_, p)| p)
+                .chain(routes.iter().filter(|(to, _)| *to == peer).map(|(_, p)| p))
                 .collect();
             if hello.is_none() && targ.is_none() && mine.is_empty() && !sharing.has_pending(peer) {
                 continue;
@@ -604,7 +625,7 @@ mod tests {
         let mut radio = Radio::new(0, &s, &world);
         let mut sharing = crate::exchange::sharing::new(&s, 0, 0, &world, None);
         let mut out = radio.link_up(1, sharing.as_mut(), 0, None);
-        out.extend(radio.step(0, Some(Cell::new(3, 4)), &[], sharing.as_mut()));
+        out.extend(radio.step(0, Some(Cell::new(3, 4)), &[], &[], sharing.as_mut()));
         assert!(radio.frames(0).is_empty(), "no frames without step markers");
         let sent: usize = out.iter().map(|o| o.bytes.len()).sum();
         let c = radio.counters();
@@ -629,7 +650,7 @@ mod tests {
         assert!(radio.link_up(1, sharing.as_mut(), 0, None).is_empty());
         assert!(radio.link_up(2, sharing.as_mut(), 0, None).is_empty());
         let target = Some(Cell::new(3, 4));
-        assert!(radio.step(5, target, &[], sharing.as_mut()).is_empty());
+        assert!(radio.step(5, target, &[], &[], sharing.as_mut()).is_empty());
         // A message to a robot that is not a neighbour is dropped, uncounted.
         radio.send_one(7, &Msg::Hello(sharing.knowledge()));
         let frames = radio.frames(5);
@@ -827,11 +848,11 @@ mod tests {
             budgets: Vec::new(),
         };
         radio.link_up(1, &mut sharing, 0, None);
-        radio.step(1, None, &[], &mut sharing);
+        radio.step(1, None, &[], &[], &mut sharing);
         let own = sharing.budgets.pop().expect("offered");
         assert!(own > 200, "the pacer's own budget: {own}");
         radio.set_credit(1, Some(150));
-        radio.step(2, None, &[], &mut sharing);
+        radio.step(2, None, &[], &[], &mut sharing);
         let capped = sharing.budgets.pop().expect("offered");
         assert!(
             capped <= payload_within(150 - MARK_RESERVE_BYTES as usize, 2),
@@ -839,10 +860,10 @@ mod tests {
         );
         assert!(capped > 0);
         radio.set_credit(1, Some(10));
-        radio.step(3, None, &[], &mut sharing);
+        radio.step(3, None, &[], &[], &mut sharing);
         assert_eq!(sharing.budgets.pop(), Some(0));
         radio.set_credit(1, None);
-        radio.step(4, None, &[], &mut sharing);
+        radio.step(4, None, &[], &[], &mut sharing);
         assert!(sharing.budgets.pop().is_some_and(|b| b > 150));
     }
 
