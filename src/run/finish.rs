@@ -427,11 +427,13 @@ pub fn write_tables(dir: &Path, rec: &Record) -> anyhow::Result<()> {
     write_links(dir, &rec.links)
 }
 
-/// `truth.png` with every trajectory, `robot_<id>.png` per robot, and every robot's final
-/// planning grid and G_s as maps (`grids/robot_<id>_{planning,own}.pgm`).
+/// `truth.png` with every trajectory, `robot_<id>.png` per robot, every robot's final
+/// planning grid and G_s as maps (`grids/robot_<id>_{planning,own}.pgm`), and the map the team
+/// has to learn (`grids/truth_reachable.pgm`, [`crate::score::floor`]).
 pub fn write_pictures(
     dir: &Path,
     run_truth: (&Grid, proto::geom::MapInfo),
+    reachable: &Grid,
     rec: &Record,
     progress: &mut Progress,
 ) -> anyhow::Result<()> {
@@ -458,6 +460,10 @@ pub fn write_pictures(
     }
     let grids = dir.join("grids");
     std::fs::create_dir_all(&grids).context("creating grids/")?;
+    write_pgm(
+        &grids.join("truth_reachable.pgm"),
+        &crate::score::floor::reachable_map(truth, reachable),
+    )?;
     for (id, (planning, t)) in &rec.eval.last {
         write_pgm(
             &grids.join(format!("robot_{id}_planning.pgm")),

@@ -59,6 +59,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     rec.log = Some(log);
     let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
+    let reachable = run.reachable.clone();
     let (processes, memory) = finish::stop(run, &mut rec, &mut progress).await;
     for e in spawn::clean_hosts(&plan) {
         progress.event(&format!("swarm run: {e}"));
@@ -77,7 +78,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     finish::write_tables(&plan.dir, &rec)?;
     crate::rundir::tables::write_rows(&plan.dir.join("processes.csv"), processes)?;
     crate::rundir::tables::write_rows(&plan.dir.join("memory.csv"), memory)?;
-    finish::write_pictures(&plan.dir, (&truth, info), &rec, &mut progress)?;
+    finish::write_pictures(&plan.dir, (&truth, info), &reachable, &rec, &mut progress)?;
     summary.run_digest = run_digest(&plan.dir)?;
     summary.deterministic = summary.nondeterministic.is_empty();
     write_summary(&plan.dir, &summary)?;

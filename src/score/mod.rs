@@ -10,3 +10,5 @@ pub mod connectivity;
 pub mod evaluate;
 /// Map fidelity: whether what a robot's planning grid believes free is free in the truth.
 pub mod fidelity;
+/// The map the team has to learn, for the information floor of a run's radio bytes.
+pub mod floor;
