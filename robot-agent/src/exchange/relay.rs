@@ -214,7 +214,13 @@ mod tests {
     /// its ways from what it heard, then tells its neighbours, who take it before the next.
     fn settle(n: u16, links: &[(u16, u16)], rounds: usize) -> Vec<RelayTree> {
         let mut trees: Vec<RelayTree> = (0..n).map(|i| RelayTree::new(i, i)).collect();
-        let nb = neighbours(n, links);
+        run(&mut trees, links, rounds);
+        trees
+    }
+
+    /// `rounds` lockstep steps of `trees` on the graph of `links`.
+    fn run(trees: &mut [RelayTree], links: &[(u16, u16)], rounds: usize) {
+        let nb = neighbours(trees.len() as u16, links);
         for _ in 0..rounds {
             let mut mail = Vec::new();
             for (i, t) in trees.iter_mut().enumerate() {
@@ -225,7 +231,6 @@ mod tests {
                 trees[usize::from(to)].on_routes(&r);
             }
         }
-        trees
     }
 
     fn neighbours(n: u16, links: &[(u16, u16)]) -> Vec<BTreeSet<RobotId>> {
@@ -297,18 +302,7 @@ mod tests {
         }
         // Robot 0 leaves: after at most MAX_HOPS rounds nobody has a way to it, and its log is
         // sent by whoever holds it (routes unknown).
-        let links = [(1, 2)];
-        let nb = neighbours(3, &links);
-        for _ in 0..=usize::from(MAX_HOPS) {
-            let mut mail = Vec::new();
-            for (i, t) in trees.iter_mut().enumerate() {
-                t.update(&nb[i]);
-                mail.extend(t.announcements(&nb[i], |_| 0));
-            }
-            for (to, r) in mail {
-                trees[usize::from(to)].on_routes(&r);
-            }
-        }
+        run(&mut trees, &[(1, 2)], usize::from(MAX_HOPS) + 1);
         assert_eq!(trees[1].way(0), None);
         assert_eq!(trees[2].way(0), None);
         assert!(trees[1].relays(2, 0) && trees[2].relays(1, 0));
