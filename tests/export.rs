@@ -1,6 +1,8 @@
-//! A run's step log and its MCAP: `swarm export-mcap` writes a file an MCAP reader opens, with a
-//! message per robot report and per link step as the run's tables count them; a cut or foreign
-//! run directory gives an error naming the file.
+//! A run's step log and its MCAP: `swarm export-mcap` writes a file the official MCAP reader (the
+//! `mcap` crate, with chunk CRCs checked) opens, in log-time order, every channel in the schema
+//! Foxglove's SDK ships for its type and every message decoding in it, with a message per robot
+//! report and per link step as the run's tables count them; a cut or foreign run directory gives
+//! an error naming the file.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
@@ -36,12 +38,7 @@ fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
         .expect("swarm export-mcap runs");
     assert!(export.status.success(), "{}", stderr(&export));
     let bytes = std::fs::read(run.join("run.mcap")).expect("run.mcap is written");
-    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
-    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
-        let m = m.expect("every message reads");
-        serde_json::from_slice::<serde_json::Value>(&m.data).expect("JSON messages");
-        *counts.entry(m.channel.topic.clone()).or_default() += 1;
-    }
+    let counts = read_checked(&bytes);
     let metrics = csv(&run.join("metrics.csv"));
     for robot in 0..3 {
         let rows = metrics
@@ -60,6 +57,9 @@ fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
     }
     let steps: BTreeSet<String> = metrics.iter().map(|r| r["step"].clone()).collect();
     assert_eq!(counts.get("/robots"), Some(&(steps.len() as u64)));
+    assert_eq!(counts.get("/trajectories"), Some(&(steps.len() as u64)));
+    assert_eq!(counts.get("/stats"), Some(&(steps.len() as u64)));
+    assert!(counts.get("/tf").is_some_and(|&n| n >= steps.len() as u64));
     let link_steps: BTreeSet<String> = csv(&run.join("links.csv"))
         .iter()
         .map(|r| r["step"].clone())
@@ -80,4 +80,79 @@ fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
     let e = fails_naming(&["export-mcap"], &run, "steps.log");
     assert!(e.contains("cut short"), "{e}");
     fails_naming(&["export-mcap"], dir.path(), "steps.log");
+}
+
+/// Reads an MCAP as Foxglove would: chunk CRCs checked, `log_time` never going back, each
+/// channel's schema the one Foxglove's SDK ships for its type (protobuf), and every message of
+/// a well-known type decoding in it. The messages per topic.
+pub fn read_checked(bytes: &[u8]) -> BTreeMap<String, u64> {
+    use foxglove::messages as fx;
+    use foxglove::Encode;
+    use swarm::view::foxglove::{LinkBytes, RunStats};
+
+    let schemas: BTreeMap<&str, foxglove::Schema> = [
+        ("/map/truth", fx::Grid::get_schema()),
+        ("/tf", fx::FrameTransforms::get_schema()),
+        ("/robots", fx::SceneUpdate::get_schema()),
+        ("/trajectories", fx::SceneUpdate::get_schema()),
+        ("/links", fx::SceneUpdate::get_schema()),
+        ("/links/bytes", LinkBytes::get_schema()),
+        ("/stats", RunStats::get_schema()),
+    ]
+    .into_iter()
+    .map(|(t, s)| (t, s.expect("a schema")))
+    .collect();
+    let (grid, pose) = (
+        fx::Grid::get_schema().expect("a schema"),
+        fx::PoseInFrame::get_schema().expect("a schema"),
+    );
+    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+    let mut last = 0u64;
+    let crc = mcap::read::Options::ValidateChunkCrcs.into();
+    for m in mcap::MessageStream::new_with_options(bytes, crc).expect("an MCAP file") {
+        let m = m.expect("every message reads, its chunk's CRC right");
+        let topic = m.channel.topic.as_str();
+        assert!(
+            m.log_time >= last,
+            "{topic}: log_time {} after {last}",
+            m.log_time
+        );
+        last = m.log_time;
+        assert_eq!(m.channel.message_encoding, "protobuf", "{topic}");
+        let want = if topic.ends_with("/grid") {
+            &grid
+        } else if topic.ends_with("/pose") {
+            &pose
+        } else {
+            schemas
+                .get(topic)
+                .unwrap_or_else(|| panic!("an unexpected topic {topic}"))
+        };
+        let have = m
+            .channel
+            .schema
+            .as_ref()
+            .expect("every channel has a schema");
+        assert_eq!(have.name, want.name, "{topic}");
+        assert_eq!(have.encoding, want.encoding, "{topic}");
+        assert_eq!(&have.data[..], &want.data[..], "{topic}: the SDK's schema");
+        let data: &[u8] = &m.data;
+        let decoded = match have.name.as_str() {
+            "foxglove.Grid" => <fx::Grid as prost::Message>::decode(data).map(|g| {
+                assert!(
+                    g.row_stride > 0 && g.data.len() % g.row_stride as usize == 0,
+                    "{topic}"
+                );
+            }),
+            "foxglove.PoseInFrame" => <fx::PoseInFrame as prost::Message>::decode(data).map(drop),
+            "foxglove.SceneUpdate" => <fx::SceneUpdate as prost::Message>::decode(data).map(drop),
+            "foxglove.FrameTransforms" => {
+                <fx::FrameTransforms as prost::Message>::decode(data).map(drop)
+            }
+            _ => Ok(()),
+        };
+        decoded.unwrap_or_else(|e| panic!("{topic}: {e}"));
+        *counts.entry(topic.to_string()).or_default() += 1;
+    }
+    counts
 }

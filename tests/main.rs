@@ -13,6 +13,7 @@ mod cli;
 mod confine;
 mod determinism;
 mod export;
+mod foxglove_live;
 mod hosts;
 mod layout;
 mod lifecycle;

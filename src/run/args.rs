@@ -26,6 +26,12 @@ pub struct RunArgs {
     /// address is printed and written to the run directory as `view.addr`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:0")]
     pub view: Option<std::net::SocketAddr>,
+    /// Serve the run live over the Foxglove WebSocket protocol at ADDR (default
+    /// 127.0.0.1:8765, where Foxglove looks first; port 0: a free port): in Foxglove, "Open
+    /// connection", "Foxglove WebSocket", ws://ADDR; the layout assets/foxglove/layout.json shows
+    /// it as the web viewer does. The address is written to the run directory as `foxglove.addr`.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<std::net::SocketAddr>,
 }
 
 impl RunArgs {
@@ -46,6 +52,9 @@ impl RunArgs {
         }
         if let Some(v) = self.view {
             a.push(format!("--view={v}"));
+        }
+        if let Some(v) = self.foxglove {
+            a.push(format!("--foxglove={v}"));
         }
         // Last, after `--`: a scenario path that starts with `-` is not taken for a flag.
         if let Some(s) = &self.scenario {
@@ -81,6 +90,7 @@ mod tests {
             quiet: true,
             hosts: Some(PathBuf::from("lab/hosts.toml")),
             view: Some("127.0.0.1:0".parse().expect("an address")),
+            foxglove: Some("127.0.0.1:8765".parse().expect("an address")),
         };
         let bare = RunArgs {
             scenario: None,
@@ -89,6 +99,7 @@ mod tests {
             quiet: false,
             hosts: None,
             view: None,
+            foxglove: None,
         };
         for args in [full, bare] {
             let argv = ["run".to_string()].into_iter().chain(args.to_argv());

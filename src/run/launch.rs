@@ -11,6 +11,7 @@ use crate::run::progress::Progress;
 use crate::rundir::steplog::StepLogWriter;
 use crate::rundir::summary::{run_digest, write_summary};
 use crate::score::evaluate::Evaluator;
+use crate::view::foxglove;
 use crate::view::server::{live, Feed, NetemApi, Viewer};
 
 /// Runs one scenario to the end. The caller turns the outcome into an exit code.
@@ -56,6 +57,10 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         Some(addr) => Some(start_viewer(addr, &plan, &run, &mut log, &mut progress).await?),
         None => None,
     };
+    let foxglove = match args.foxglove {
+        Some(addr) => Some(start_foxglove(addr, &plan, &mut log, &mut progress).await?),
+        None => None,
+    };
     rec.log = Some(log);
     let exit_reason = follow::follow(&plan, &mut run, &mut rec, &mut progress).await?;
     let (truth, info) = (run.truth_grid.clone(), run.truth.map);
@@ -70,6 +75,14 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     }
     if let Some((viewer, feed)) = viewer {
         stop_viewer(viewer, &feed, &mut progress);
+    }
+    if let Some(server) = foxglove {
+        let clients = server.clients();
+        let counts = server.stop().await;
+        let sent: u64 = counts.values().sum();
+        progress.event(&format!(
+            "swarm run: Foxglove server logged {sent} messages ({clients} clients connected at the end)"
+        ));
     }
     let up = rec.links.up_by_step();
     finish::score_contact(&plan, &mut rec, &up);
@@ -111,8 +124,27 @@ async fn start_viewer(
     std::fs::write(plan.dir.join("view.addr"), format!("{}\n", viewer.addr))?;
     progress.event(&format!("swarm run: viewer at http://{}/", viewer.addr));
     let f = feed.clone();
-    log.tee = Some(Box::new(move |r| f.push(r.clone())));
+    log.tees.push(Box::new(move |r| f.push(r.clone())));
     Ok((viewer, feed))
+}
+
+/// Serves the run over the Foxglove WebSocket protocol at `addr` and tees the step log into
+/// it; the address goes to the run directory's `foxglove.addr`.
+async fn start_foxglove(
+    addr: SocketAddr,
+    plan: &prepare::Plan,
+    log: &mut StepLogWriter,
+    progress: &mut Progress,
+) -> anyhow::Result<foxglove::Server> {
+    let name = format!("swarm-explore: {}", plan.name);
+    let server = foxglove::Server::start(addr, log.header(), Default::default(), &name).await?;
+    std::fs::write(plan.dir.join("foxglove.addr"), format!("{}\n", server.addr))?;
+    progress.event(&format!(
+        "swarm run: Foxglove WebSocket at ws://{} (Foxglove: Open connection)",
+        server.addr
+    ));
+    log.tees.push(Box::new(server.feed()));
+    Ok(server)
 }
 
 /// Ends the viewer's feed, says how many frames it sent, and stops serving.

@@ -215,8 +215,8 @@ pub struct StepLogWriter {
     /// Bytes written so far.
     pub bytes: u64,
     header: Header,
-    /// Gets every record written after the header (the live viewer).
-    pub tee: Option<Tee>,
+    /// Get every record written after the header (the live viewers: the page, Foxglove).
+    pub tees: Vec<Tee>,
 }
 
 impl StepLogWriter {
@@ -245,7 +245,7 @@ impl StepLogWriter {
             last: BTreeMap::new(),
             bytes: 0,
             header: header.clone(),
-            tee: None,
+            tees: Vec::new(),
         };
         w.write(&Record::Header(header))?;
         Ok(w)
@@ -264,7 +264,7 @@ impl StepLogWriter {
             .and_then(|()| self.out.write_all(&bytes))
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", self.path.display()))?;
         self.bytes += 4 + bytes.len() as u64;
-        if let Some(tee) = &mut self.tee {
+        for tee in &mut self.tees {
             tee(r);
         }
         Ok(())
@@ -374,7 +374,7 @@ impl StepLogWriter {
 }
 
 /// A step log read back: its header and records in order.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub struct StepLog {
     pub header: Header,
     pub records: Vec<Record>,

@@ -436,6 +436,7 @@ impl Plan {
             quiet: true,
             hosts: None,
             view: None,
+            foxglove: None,
         };
         let mut cmd = Command::new(exe);
         cmd.arg("run").args(args.to_argv());

@@ -56,6 +56,14 @@ pub struct ViewArgs {
     /// Where to serve the page (port 0: any free port; the address is printed).
     #[arg(long, default_value = "127.0.0.1:0")]
     pub addr: SocketAddr,
+    /// Also replay the run over the Foxglove WebSocket protocol at ADDR (default
+    /// 127.0.0.1:8765; port 0: a free port), from the first client's connect and again for
+    /// the next after the end.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<SocketAddr>,
+    /// Steps per second of the Foxglove replay.
+    #[arg(long, default_value_t = 10.0, value_name = "N")]
+    pub rate: f64,
 }
 
 /// How the live viewer reaches netem's API.
@@ -289,6 +297,28 @@ pub async fn live(
 /// `swarm view RUN_DIR`: serves the replay until interrupted.
 pub async fn replay(args: &ViewArgs) -> anyhow::Result<()> {
     let log = crate::rundir::steplog::read(&args.run_dir)?;
+    if !(args.rate.is_finite() && args.rate > 0.0) {
+        anyhow::bail!("--rate {}: steps per second must be above 0", args.rate);
+    }
+    let foxglove = match args.foxglove {
+        Some(addr) => {
+            let (tx, rx) = tokio::sync::oneshot::channel();
+            let (log, rate) = (log.clone(), args.rate);
+            let name = format!("swarm-explore replay: {}", args.run_dir.display());
+            let task = tokio::spawn(async move {
+                crate::view::foxglove::Server::replay(addr, &log, rate, &name, |a| {
+                    let _ = tx.send(a);
+                })
+                .await
+            });
+            match rx.await {
+                Ok(a) => println!("Foxglove WebSocket replay at ws://{a}"),
+                Err(_) => return task.await?,
+            }
+            Some(task)
+        }
+        None => None,
+    };
     let app = Arc::new(App {
         truth_png: truth_png(&log.header)?,
         timeline: Mutex::new(Timeline::of(log.header, log.records)),
@@ -302,6 +332,9 @@ pub async fn replay(args: &ViewArgs) -> anyhow::Result<()> {
     );
     tokio::signal::ctrl_c().await?;
     viewer.stop();
+    if let Some(t) = foxglove {
+        t.abort();
+    }
     Ok(())
 }
 

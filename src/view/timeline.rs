@@ -90,7 +90,7 @@ pub struct Timeline {
 
 /// `up`, `blackhole` (up but held), or why it is down: `range`, `fault`, `dead` (`down` if
 /// netem did not say).
-fn link_state(l: &LinkStep) -> &'static str {
+pub(crate) fn link_state(l: &LinkStep) -> &'static str {
     match (l.up, l.cut) {
         (true, Some(proto::msg::LinkCut::Blackhole)) => "blackhole",
         (true, _) => "up",
@@ -346,7 +346,7 @@ impl Timeline {
 }
 
 /// The team's payload bytes per class: the sum over robot lives of each one's latest totals.
-fn team_bytes(sent: &BTreeMap<(RobotId, u16), Vec<u64>>) -> Vec<(&'static str, u64)> {
+pub(crate) fn team_bytes(sent: &BTreeMap<(RobotId, u16), Vec<u64>>) -> Vec<(&'static str, u64)> {
     Traffic::ALL
         .iter()
         .enumerate()
