@@ -25,5 +25,6 @@ mod process_faults;
 mod roles;
 mod runs;
 mod sweep;
+mod toxiproxy_client;
 mod view;
 mod wire;

@@ -440,6 +440,15 @@ mod tests {
                 r#"{"name":"lat","type":"latency","stream":"downstream","toxicity":1.0,"attributes":{"latency":200,"jitter":20}}"#,
             ),
             ("patch", r#"{"attributes":{"rate":500}}"#),
+            (
+                "slicer",
+                r#"{"name":"s","type":"slicer","stream":"upstream","attributes":{"average_size":16,"size_variation":4,"delay":10}}"#,
+            ),
+            ("slow_close", r#"{"type":"slow_close","attributes":{"delay":1500}}"#),
+            (
+                "update",
+                r#"{"name":"r0-r1","listen":"127.0.0.1:4000","upstream":"127.0.0.1:4001","enabled":false}"#,
+            ),
             ("kill", r#"{"kind":"kill","restart_after":3}"#),
             ("empty", ""),
         ] {

@@ -89,8 +89,18 @@ impl std::fmt::Debug for DirCounters {
 impl DirCounters {
     /// Records one write of `n` bytes to the receiver.
     pub fn delivered(&self, n: usize) {
+        self.sent(n);
+        self.wrote();
+    }
+
+    /// `n` bytes written earlier reached the receiver (the kernel sent them).
+    pub fn sent(&self, n: usize) {
         self.bytes_total.fetch_add(n as u64, Relaxed);
         self.bytes_step.fetch_add(n as u64, Relaxed);
+    }
+
+    /// One write to the receiver (its bytes count once [`DirCounters::sent`]).
+    pub fn wrote(&self) {
         self.chunks_total.fetch_add(1, Relaxed);
     }
 
@@ -260,10 +270,11 @@ impl Reservation {
         &self.buf.counters
     }
 
-    /// The bytes were handed to the kernel: free their room without counting them yet; the
-    /// returned counters are where to count them once the kernel has sent them
-    /// ([`DirCounters::delivered`]) or to lose them ([`DirCounters::lost`]).
+    /// The bytes were handed to the kernel in one write: count the write, free their room
+    /// without counting the bytes yet; the returned counters are where to count them once the
+    /// kernel has sent them ([`DirCounters::sent`]) or to lose them ([`DirCounters::lost`]).
     pub fn into_kernel(mut self) -> Arc<DirCounters> {
+        self.buf.counters.wrote();
         self.buf.release(self.n, self.filled, false);
         self.n = 0;
         self.delivered = true;

@@ -8,15 +8,19 @@
 //! = b → a), with a `toxicity` (the probability that it applies to a given connection). Toxic
 //! types keep toxiproxy's names and attributes where they exist — `latency {latency, jitter}`
 //! (ms), `bandwidth {rate}` (KB/s; we also accept `rate_bytes_per_s`), `timeout {timeout}` (ms;
-//! 0 = blackhole: stall without closing), `reset_peer {timeout}`, `limit_data {bytes}` — plus our
-//! `corrupt {probability}`. A toxic's times are simulated milliseconds, its rates bytes per
-//! simulated second (`clock.rs`).
+//! 0 = blackhole: stall without closing), `reset_peer {timeout}`, `limit_data {bytes}`,
+//! `slicer {average_size, size_variation, delay}` (bytes; the delay between slices in µs),
+//! `slow_close {delay}` (ms) — plus our `corrupt {probability}`. A toxic's times are simulated
+//! (milliseconds, a slicer's microseconds), its rates bytes per simulated second (`clock.rs`).
 //!
 //! Deviations from toxiproxy, on purpose: `timeout` *stalls* (bytes stay buffered and flow again
 //! when the toxic goes) instead of discarding them, because discarding bytes from the middle of a
 //! TCP stream breaks its framing rather than simulating a dead radio; a `bandwidth` toxic
 //! *replaces* the link's own rate (it may raise it), while a shared medium always applies on top;
-//! and a toxic may also name `stream = "both"`.
+//! a toxic may also name `stream = "both"`; a `slicer` draws each slice's size uniformly in
+//! `average_size ± size_variation` (toxiproxy halves a write recursively around the average; the
+//! sizes spread alike) and refuses `average_size = 0` (which never terminates in toxiproxy); and
+//! with step markers a slicer's delay is dropped like the link's latency is (`link.rs`).
 //!
 //! `fold` turns a link's base parameters and its toxics into the `DirShape` of one connection
 //! direction; the pipeline reads it from a `watch`, so changes reach live connections at once.
@@ -27,7 +31,7 @@ use proto::msg::{RobotId, Step};
 use serde::{Deserialize, Serialize};
 
 use crate::accounting::Dir;
-use crate::shaping::{Budget, DirShape, Limit, Rng};
+use crate::shaping::{Budget, DirShape, Limit, Rng, Slicing};
 
 /// An unordered robot pair, written `(lower, higher)`.
 pub type Pair = (RobotId, RobotId);
@@ -88,6 +92,15 @@ pub enum ToxicKind {
     LimitData { bytes: u64 },
     /// Flip one bit in a byte with this probability.
     Corrupt { probability: f64 },
+    /// Write what arrives in slices of `average_size ± size_variation` bytes, `delay_us`
+    /// (simulated) apart.
+    Slicer {
+        average_size: u64,
+        size_variation: u64,
+        delay_us: u64,
+    },
+    /// Pass the sender's close (FIN) on `delay_ms` (simulated) after it came.
+    SlowClose { delay_ms: u64 },
 }
 
 impl ToxicKind {
@@ -100,6 +113,8 @@ impl ToxicKind {
             ToxicKind::ResetPeer { .. } => "reset_peer",
             ToxicKind::LimitData { .. } => "limit_data",
             ToxicKind::Corrupt { .. } => "corrupt",
+            ToxicKind::Slicer { .. } => "slicer",
+            ToxicKind::SlowClose { .. } => "slow_close",
         }
     }
 }
@@ -149,6 +164,15 @@ pub struct Attributes {
     pub bytes: Option<u64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub probability: Option<f64>,
+    /// `slicer`: the mean slice, bytes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub average_size: Option<u64>,
+    /// `slicer`: how far a slice's size may be from the mean, bytes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size_variation: Option<u64>,
+    /// `slicer`: µs between slices; `slow_close`: ms before the close is passed on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub delay: Option<u64>,
 }
 
 /// Longest latency, jitter or timeout a toxic may ask for: one simulated day.
@@ -198,10 +222,30 @@ impl TryFrom<ToxicWire> for Toxic {
                 }
                 ToxicKind::Corrupt { probability: p }
             }
+            Some("slicer") => {
+                let average_size = a.average_size.unwrap_or(0);
+                if average_size == 0 {
+                    return Err("attribute average_size must be at least 1 (bytes)".into());
+                }
+                let delay_us = a.delay.unwrap_or(0);
+                if delay_us > MAX_TOXIC_MS.saturating_mul(1000) {
+                    return Err(format!(
+                        "attribute delay = {delay_us} µs is more than {MAX_TOXIC_MS} ms"
+                    ));
+                }
+                ToxicKind::Slicer {
+                    average_size,
+                    size_variation: a.size_variation.unwrap_or(0),
+                    delay_us,
+                }
+            }
+            Some("slow_close") => ToxicKind::SlowClose {
+                delay_ms: ms("delay", a.delay)?,
+            },
             Some(other) => {
                 return Err(format!(
                     "invalid toxic type {other:?} (supported: latency, bandwidth, timeout, \
-                     reset_peer, limit_data, corrupt)"
+                     reset_peer, limit_data, slicer, slow_close, corrupt)"
                 ))
             }
             None => return Err("missing required field: type".into()),
@@ -249,6 +293,16 @@ impl From<Toxic> for ToxicWire {
             }
             ToxicKind::LimitData { bytes } => a.bytes = Some(bytes),
             ToxicKind::Corrupt { probability } => a.probability = Some(probability),
+            ToxicKind::Slicer {
+                average_size,
+                size_variation,
+                delay_us,
+            } => {
+                a.average_size = Some(average_size);
+                a.size_variation = Some(size_variation);
+                a.delay = Some(delay_us);
+            }
+            ToxicKind::SlowClose { delay_ms } => a.delay = Some(delay_ms),
         }
         ToxicWire {
             name: Some(t.name),
@@ -300,6 +354,9 @@ impl Toxic {
         a.timeout = p.timeout.or(a.timeout);
         a.bytes = p.bytes.or(a.bytes);
         a.probability = p.probability.or(a.probability);
+        a.average_size = p.average_size.or(a.average_size);
+        a.size_variation = p.size_variation.or(a.size_variation);
+        a.delay = p.delay.or(a.delay);
         Toxic::try_from(w)
     }
 }
@@ -403,8 +460,10 @@ impl Fault {
     /// Why this fault's effect on the robots is not in the step plans of a lockstep run with
     /// markers (so it depends on timing); `None` if it is. The plan carries which links are up,
     /// their rate, latency and jitter, and stalls; a reset, a toxic that closes connections
-    /// after some time or bytes, corruption, and a toxic that hits only some connections
-    /// (toxicity below 1) are not.
+    /// after some time or bytes, a delayed close, corruption, and a toxic that hits only some
+    /// connections (toxicity below 1) are not. A `slicer` is inside: with markers it only cuts
+    /// writes smaller (its delay is dropped, `link.rs`), and a step's frames still all arrive
+    /// within the step.
     pub fn outside_plan(&self) -> Option<&'static str> {
         match self {
             Fault::Reset { .. } => Some("a reset closes sessions the plan keeps up"),
@@ -419,6 +478,9 @@ impl Fault {
                     ToxicKind::ResetPeer { .. } => Some("reset_peer closes connections"),
                     ToxicKind::LimitData { .. } => Some("limit_data closes connections"),
                     ToxicKind::Corrupt { .. } => Some("corrupt bytes break messages and sessions"),
+                    ToxicKind::SlowClose { .. } => {
+                        Some("slow_close holds a closing connection open on the clock")
+                    }
                     _ => None,
                 }
             }
@@ -537,6 +599,25 @@ fn fold_with(
             ToxicKind::Corrupt { probability } => {
                 s.corrupt_probability = 1.0 - (1.0 - s.corrupt_probability) * (1.0 - probability);
             }
+            ToxicKind::Slicer {
+                average_size,
+                size_variation,
+                delay_us,
+            } => {
+                // Slices of slices are as small as the finer slicer makes them.
+                if s.slicer.is_none_or(|x| average_size < x.average_size) {
+                    s.slicer = Some(Slicing {
+                        average_size,
+                        size_variation,
+                        delay_ns: delay_us.saturating_mul(1000),
+                    });
+                }
+            }
+            ToxicKind::SlowClose { delay_ms } => {
+                s.close_delay_ns = s
+                    .close_delay_ns
+                    .saturating_add(delay_ms.saturating_mul(1_000_000));
+            }
         }
     }
     if !rate_toxic {
@@ -624,7 +705,16 @@ mod tests {
     #[test]
     fn bad_toxics_are_refused_with_a_reason() {
         for (json, needle) in [
-            (r#"{"type":"slicer"}"#, "invalid toxic type"),
+            (r#"{"type":"explode"}"#, "invalid toxic type"),
+            (r#"{"type":"slicer"}"#, "average_size"),
+            (
+                r#"{"type":"slicer","attributes":{"average_size":1,"delay":999999999999}}"#,
+                "delay",
+            ),
+            (
+                r#"{"type":"slow_close","attributes":{"delay":999999999999}}"#,
+                "delay",
+            ),
             (r#"{"attributes":{}}"#, "type"),
             (
                 r#"{"type":"corrupt","attributes":{"probability":2}}"#,
@@ -641,6 +731,86 @@ mod tests {
             let e = parse(json).unwrap_err();
             assert!(e.contains(needle), "{json}: {e}");
         }
+    }
+
+    #[test]
+    fn slicer_and_slow_close_take_toxiproxys_attributes_and_units() {
+        let t = parse(
+            r#"{"name":"s","type":"slicer","stream":"upstream",
+                "attributes":{"average_size":64,"size_variation":16,"delay":250}}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            t.kind,
+            ToxicKind::Slicer {
+                average_size: 64,
+                size_variation: 16,
+                delay_us: 250
+            }
+        );
+        let v = serde_json::to_value(&t).unwrap();
+        assert_eq!(
+            v["attributes"],
+            serde_json::json!({"average_size": 64, "size_variation": 16, "delay": 250})
+        );
+        assert_eq!(parse(&v.to_string()).unwrap(), t);
+        // toxiproxy's default variation and delay are 0.
+        let plain = parse(r#"{"type":"slicer","attributes":{"average_size":8}}"#).unwrap();
+        assert_eq!(plain.name, "slicer_downstream");
+        let p: ToxicWire = serde_json::from_str(r#"{"attributes":{"delay":5}}"#).unwrap();
+        assert_eq!(
+            t.patched(p).unwrap().kind,
+            ToxicKind::Slicer {
+                average_size: 64,
+                size_variation: 16,
+                delay_us: 5
+            }
+        );
+        let c = parse(r#"{"type":"slow_close","attributes":{"delay":1500}}"#).unwrap();
+        assert_eq!(c.kind, ToxicKind::SlowClose { delay_ms: 1500 });
+        assert_eq!(c.name, "slow_close_downstream");
+        assert_eq!(
+            serde_json::to_value(&c).unwrap()["attributes"],
+            serde_json::json!({"delay": 1500})
+        );
+        // Folded: the finer slicer wins, in µs turned ns; slow closes add up.
+        let mk = |kind, id| ActiveToxic {
+            toxic: Toxic::both(kind),
+            id,
+            budgets: [None, None],
+        };
+        let toxics = [
+            mk(
+                ToxicKind::Slicer {
+                    average_size: 100,
+                    size_variation: 0,
+                    delay_us: 1,
+                },
+                1,
+            ),
+            mk(
+                ToxicKind::Slicer {
+                    average_size: 10,
+                    size_variation: 2,
+                    delay_us: 3,
+                },
+                2,
+            ),
+            mk(ToxicKind::SlowClose { delay_ms: 2 }, 3),
+            mk(ToxicKind::SlowClose { delay_ms: 5 }, 4),
+        ];
+        let s = fold(&BaseShape::default(), &toxics, 0, Dir::AtoB);
+        assert_eq!(
+            s.slicer,
+            Some(Slicing {
+                average_size: 10,
+                size_variation: 2,
+                delay_ns: 3000
+            })
+        );
+        assert_eq!(s.close_delay_ns, 7_000_000);
+        let none = fold(&BaseShape::default(), &[], 0, Dir::AtoB);
+        assert_eq!((none.slicer, none.close_delay_ns), (None, 0));
     }
 
     #[test]
@@ -845,6 +1015,14 @@ mod tests {
             Fault::blackhole(pair),
             Fault::bandwidth(pair, 300),
             Fault::latency(None, 2500, 400),
+            Fault::SetToxic {
+                pair,
+                toxic: Toxic::both(ToxicKind::Slicer {
+                    average_size: 10,
+                    size_variation: 5,
+                    delay_us: 100,
+                }),
+            },
         ] {
             assert_eq!(inside.outside_plan(), None, "{inside:?}");
         }
@@ -868,6 +1046,10 @@ mod tests {
             Fault::SetToxic {
                 pair,
                 toxic: partial,
+            },
+            Fault::SetToxic {
+                pair,
+                toxic: Toxic::both(ToxicKind::SlowClose { delay_ms: 100 }),
             },
         ] {
             assert!(outside.outside_plan().is_some(), "{outside:?}");

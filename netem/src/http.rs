@@ -9,9 +9,20 @@
 //! ours: `GET /metrics` (Prometheus text) and `GET /links` (the telemetry rows as JSON, without
 //! resetting the per-step counters), and `POST /processes/{name}` (a process fault — kill,
 //! restart, freeze, thaw — handed on to the launcher; see [`process_fault`]). Proxies
-//! are fixed by the scenario: creating or deleting one is `405`. Like toxiproxy, requests from
-//! browsers (`User-Agent: Mozilla/…`) are refused, so that a web page cannot drive the API (the
-//! run's viewer forwards a click from its own server instead).
+//! are fixed by the scenario: creating or deleting one (`POST /proxies`, `POST /populate`,
+//! `DELETE /proxies/{name}`) is `405`, and an update that would move one (another `listen` or
+//! `upstream`) or rename it is `409` — the body is well-formed and toxiproxy would honour it, but
+//! it conflicts with the proxy as the scenario fixed it; nothing of such an update is applied.
+//! Like toxiproxy, requests from browsers (`User-Agent: Mozilla/…`) are refused, so that a web
+//! page cannot drive the API (the run's viewer forwards a click from its own server instead).
+//!
+//! When the run set a token, every request carries it in one of three ways ([`gate`]):
+//! `Authorization: Bearer <token>`; `Authorization: Basic` whose password (any user name) or whose
+//! user name (empty password) is the token — what Go's net/http, Python's requests and curl send
+//! for a base URL `http://:<token>@host:port`; or a base URL whose path starts `/token/<token>`
+//! (`http://host:port/token/<token>`: toxiproxy's clients append `/proxies…` to their base URL,
+//! and fetch-based ones such as toxiproxy-node-client refuse credentials in a URL). Tokens are
+//! compared in time independent of where they differ.
 //!
 //! HTTP itself is axum's (on hyper): the request head is bounded by hyper, a body by
 //! [`MAX_BODY_BYTES`] (`413` past it). What is ours is what a request means: the routes below,
@@ -118,14 +129,54 @@ pub fn decode_only(body: &[u8]) {
     let _ = process_action(Process::Robot(0), body);
 }
 
+/// Whether `a` and `b` are equal, in time independent of where the first difference is.
+fn same(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
 /// Whether an `Authorization` header carries `Bearer <token>`, compared in time independent of
 /// where the first difference is.
 pub fn bearer_matches(header: Option<&str>, token: &str) -> bool {
     let Some(given) = header.and_then(|h| h.trim().strip_prefix("Bearer ")) else {
         return false;
     };
-    let (a, b) = (given.trim().as_bytes(), token.as_bytes());
-    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+    same(given.trim().as_bytes(), token.as_bytes())
+}
+
+/// Whether an `Authorization` header carries `Basic base64(user:password)` with the token as the
+/// password (any user name) or as the user name with an empty password: what HTTP clients send
+/// for a URL `http://:<token>@host` or `http://<token>@host`. Compared like [`bearer_matches`].
+pub fn basic_matches(header: Option<&str>, token: &str) -> bool {
+    use base64::Engine;
+    let Some(given) = header.and_then(|h| h.trim().strip_prefix("Basic ")) else {
+        return false;
+    };
+    let Ok(decoded) = base64::engine::general_purpose::STANDARD.decode(given.trim()) else {
+        return false;
+    };
+    let colon = decoded.iter().position(|&c| c == b':');
+    let (user, password) = match colon {
+        Some(i) => (&decoded[..i], &decoded[i + 1..]),
+        None => (&decoded[..], &[][..]),
+    };
+    let (token, empty) = (token.as_bytes(), password.is_empty());
+    // Both compared, whatever the first says.
+    let by_password = same(password, token);
+    let by_user = same(user, token) & empty;
+    !token.is_empty() & (by_password | by_user)
+}
+
+/// The path prefix that carries the token in a base URL: `/token/<token>/…`.
+pub const TOKEN_PREFIX: &str = "/token/";
+
+/// A path that starts with [`TOKEN_PREFIX`]: the token it names and the rest of the path
+/// (`/` if none); `None` for any other path.
+pub fn split_token_path(path: &str) -> Option<(&str, &str)> {
+    let rest = path.strip_prefix(TOKEN_PREFIX)?;
+    Some(match rest.find('/') {
+        Some(i) => (&rest[..i], &rest[i..]),
+        None => (rest, "/"),
+    })
 }
 
 /// A request refused: its status and why (sent in toxiproxy's error shape).
@@ -151,14 +202,65 @@ fn body_json<T: serde::de::DeserializeOwned>(body: &[u8]) -> Result<T, Refusal> 
     serde_json::from_slice(body).map_err(bad_body)
 }
 
-/// The body of `POST|PATCH /proxies/{name}`.
+/// The body of `POST|PATCH /proxies/{name}`. toxiproxy's clients send the whole proxy back
+/// (`name`, `listen`, `upstream`, `enabled`); only `enabled` may change here.
 #[derive(serde::Deserialize)]
 pub struct ProxyUpdate {
     pub enabled: Option<bool>,
+    pub name: Option<String>,
+    pub listen: Option<String>,
+    pub upstream: Option<String>,
 }
 
-/// The API's routes on `shared`: every request passes [`gate`] first.
-pub(crate) fn router(shared: Arc<Shared>) -> Router {
+impl ProxyUpdate {
+    /// Why this update cannot be made to the proxy `name` on `listen` forwarding to `upstream`
+    /// (which the scenario fixed), if it cannot: it names another name or address. An address
+    /// equal to the proxy's, written otherwise (`127.0.0.1:08474`), is the same.
+    pub fn refusal(
+        &self,
+        name: &str,
+        listen: std::net::SocketAddr,
+        upstream: std::net::SocketAddr,
+    ) -> Option<String> {
+        let moved = |given: &Option<String>, fixed: std::net::SocketAddr| {
+            given
+                .as_deref()
+                .is_some_and(|g| g.trim().parse::<std::net::SocketAddr>().ok() != Some(fixed))
+        };
+        if self.name.as_deref().is_some_and(|n| n != name) {
+            Some(format!(
+                "proxy {name} cannot be renamed: its name is its robot pair's"
+            ))
+        } else if moved(&self.listen, listen) {
+            Some(format!(
+                "proxy {name} listens on {listen}, fixed by the scenario (the lower robot's radio \
+                 connects there): it cannot move to {:?}; leave listen out or send it unchanged",
+                self.listen.as_deref().unwrap_or_default()
+            ))
+        } else if moved(&self.upstream, upstream) {
+            Some(format!(
+                "proxy {name} forwards to {upstream}, the higher robot's radio listener, fixed \
+                 by the scenario: it cannot forward to {:?}; leave upstream out or send it \
+                 unchanged",
+                self.upstream.as_deref().unwrap_or_default()
+            ))
+        } else {
+            None
+        }
+    }
+}
+
+/// The API on `shared`: [`gate`] around the routes. The routes are the fallback of an outer
+/// router that has no routes of its own, so the gate runs before they route and can take a
+/// token off the path first (a layer on the routes themselves would run after routing).
+pub(crate) fn app(shared: Arc<Shared>) -> Router {
+    Router::new()
+        .fallback_service(router(Arc::clone(&shared)))
+        .layer(middleware::from_fn_with_state(shared, gate))
+}
+
+/// The API's routes on `shared`.
+fn router(shared: Arc<Shared>) -> Router {
     Router::new()
         .route("/proxies", get(list).post(fixed))
         .route("/populate", post(fixed))
@@ -181,15 +283,31 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/processes/{name}", post(process_fault))
         .method_not_allowed_fallback(not_allowed)
         .fallback(not_found)
-        .layer(middleware::from_fn_with_state(Arc::clone(&shared), gate))
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
         .with_state(shared)
 }
 
 /// Refuses browsers (`403`, as toxiproxy does) and, when the run set a token, requests without
-/// it (`401`); logs what it lets through.
-async fn gate(State(sh): Sh, req: Request, next: Next) -> Response {
-    if let Some(refused) = refused(&sh, req.headers()) {
+/// it (`401`); takes a token off the path (`/token/<token>/…`, also when the run set none);
+/// logs what it lets through (without the token).
+async fn gate(State(sh): Sh, mut req: Request, next: Next) -> Response {
+    let path_token = match split_token_path(req.uri().path()) {
+        Some((token, rest)) => {
+            let token = token.to_string();
+            let query = req
+                .uri()
+                .query()
+                .map(|q| format!("?{q}"))
+                .unwrap_or_default();
+            match format!("{rest}{query}").parse::<axum::http::Uri>() {
+                Ok(uri) => *req.uri_mut() = uri,
+                Err(e) => return error(StatusCode::BAD_REQUEST, &format!("bad path: {e}")),
+            }
+            Some(token)
+        }
+        None => None,
+    };
+    if let Some(refused) = refused(&sh, req.headers(), path_token.as_deref()) {
         return refused;
     }
     let (method, uri) = (req.method().clone(), req.uri().clone());
@@ -198,19 +316,29 @@ async fn gate(State(sh): Sh, req: Request, next: Next) -> Response {
     response
 }
 
-/// Why [`gate`] refuses a request with these headers, if it does.
-fn refused(sh: &Shared, headers: &axum::http::HeaderMap) -> Option<Response> {
+/// Why [`gate`] refuses a request with these headers (and the token its path carried), if it
+/// does.
+fn refused(
+    sh: &Shared,
+    headers: &axum::http::HeaderMap,
+    path_token: Option<&str>,
+) -> Option<Response> {
     let header = |h: HeaderName| headers.get(h).and_then(|v| v.to_str().ok());
     if header(USER_AGENT).is_some_and(|ua| ua.starts_with("Mozilla/")) {
         return Some(error(StatusCode::FORBIDDEN, "User agent not allowed"));
     }
-    match &sh.api_token {
-        Some(token) if !bearer_matches(header(AUTHORIZATION), token) => Some(error(
-            StatusCode::UNAUTHORIZED,
-            "this API needs \"Authorization: Bearer <token>\" (the run's netem.token)",
-        )),
-        _ => None,
+    let token = sh.api_token.as_deref()?;
+    let auth = header(AUTHORIZATION);
+    let by_path = path_token.is_some_and(|p| same(p.as_bytes(), token.as_bytes()));
+    if by_path | bearer_matches(auth, token) | basic_matches(auth, token) {
+        return None;
     }
+    Some(error(
+        StatusCode::UNAUTHORIZED,
+        "this API needs the run's token (netem.token): \"Authorization: Bearer <token>\", \
+         Basic auth with the token as password (a base URL http://:<token>@host:port), or a base \
+         URL http://host:port/token/<token>",
+    ))
 }
 
 async fn fixed() -> Response {
@@ -253,6 +381,9 @@ async fn update(State(sh): Sh, Path(name): Path<String>, body: Bytes) -> Respons
             Ok(u) => u,
             Err(r) => return r.into_response(),
         };
+        if let Some(why) = upd.refusal(&l.name, l.listen, l.params.target) {
+            return error(StatusCode::CONFLICT, &why);
+        }
         let pair = (l.params.a, l.params.b);
         let fault = match upd.enabled {
             Some(false) => Some(Fault::Cut { pair }),
@@ -349,11 +480,17 @@ async fn version() -> Response {
     )
 }
 
-async fn metrics(State(sh): Sh) -> Response {
-    let text = crate::metrics::render(&sh.snapshots(), sh.step(), sh.now());
+/// `GET /metrics`: OpenMetrics, or the classic text format when `Accept` prefers it
+/// ([`crate::metrics::Format::negotiate`]).
+async fn metrics(State(sh): Sh, headers: axum::http::HeaderMap) -> Response {
+    let accept = headers
+        .get(axum::http::header::ACCEPT)
+        .and_then(|v| v.to_str().ok());
+    let format = crate::metrics::Format::negotiate(accept);
+    let text = crate::metrics::render(format, &sh.snapshots(), sh.step(), sh.now());
     (
         StatusCode::OK,
-        [(CONTENT_TYPE, crate::metrics::CONTENT_TYPE)],
+        [(CONTENT_TYPE, format.content_type())],
         text,
     )
         .into_response()
@@ -451,7 +588,7 @@ pub(crate) fn serve(
 ) -> JoinHandle<()> {
     tokio::spawn(async move {
         let (mut stop, mut grace) = (shutdown.clone(), shutdown);
-        let server = axum::serve(listener, router(shared))
+        let server = axum::serve(listener, app(shared))
             .with_graceful_shutdown(async move { stopped(&mut stop).await });
         tokio::select! {
             r = server => if let Err(e) = r {
@@ -490,6 +627,47 @@ mod tests {
     }
 
     #[test]
+    fn basic_auth_carries_the_token_as_password_or_user_name() {
+        use base64::Engine;
+        let t = "0123456789abcdef0123456789abcdef";
+        let basic = |s: &str| {
+            format!(
+                "Basic {}",
+                base64::engine::general_purpose::STANDARD.encode(s)
+            )
+        };
+        for good in [
+            format!(":{t}"),
+            format!("user:{t}"),
+            format!("{t}:"),
+            t.to_string(),
+        ] {
+            assert!(basic_matches(Some(&basic(&good)), t), "{good}");
+        }
+        for bad in [
+            format!("{t}:{t}x"),
+            format!("{t}x:"),
+            format!(":{}", &t[1..]),
+            ":".to_string(),
+            String::new(),
+        ] {
+            assert!(!basic_matches(Some(&basic(&bad)), t), "{bad}");
+        }
+        assert!(!basic_matches(Some("Basic ***"), t));
+        assert!(!basic_matches(None, t));
+        assert!(
+            !basic_matches(Some(&basic(":")), ""),
+            "an empty token never matches"
+        );
+        assert_eq!(
+            split_token_path("/token/abc/proxies/r0-r1"),
+            Some(("abc", "/proxies/r0-r1"))
+        );
+        assert_eq!(split_token_path("/token/abc"), Some(("abc", "/")));
+        assert_eq!(split_token_path("/proxies"), None);
+    }
+
+    #[test]
     fn bodies_decode_totally() {
         for body in [
             &b""[..],
@@ -500,6 +678,9 @@ mod tests {
             b"{\"enabled\": 3}",
             b"{\"type\":\"latency\",\"attributes\":{\"latency\":-1}}",
             b"{\"kind\":\"kill\",\"restart_after\":18446744073709551616}",
+            b"{\"type\":\"slicer\",\"attributes\":{\"average_size\":0,\"size_variation\":18446744073709551615}}",
+            b"{\"type\":\"slow_close\",\"attributes\":{\"delay\":-5}}",
+            b"{\"listen\":7,\"upstream\":null,\"name\":[]}",
         ] {
             decode_only(body);
         }
@@ -519,6 +700,10 @@ mod tests {
         use tokio::net::TcpStream;
 
         async fn netem() -> Netem {
+            netem_with(None).await
+        }
+
+        async fn netem_with(token: Option<&str>) -> Netem {
             let target: SocketAddr = "127.0.0.1:9".parse().unwrap();
             let pair = |a, b| PairSpec {
                 a,
@@ -535,6 +720,7 @@ mod tests {
             };
             let mut cfg = NetemConfig::new(vec![pair(0, 1), pair(0, 2), pair(1, 2)], radio);
             cfg.http = Some("127.0.0.1:0".parse().unwrap());
+            cfg.api_token = token.map(str::to_string);
             let n = start(cfg).await.unwrap();
             n.on_step(0, &[]);
             n
@@ -765,18 +951,29 @@ mod tests {
             assert_eq!(st, 200, "{body}");
             assert_eq!(json(&body)["name"], "bandwidth_downstream");
             assert_eq!(json(&body)["attributes"]["rate_bytes_per_s"], 2000);
-            assert_eq!(
-                call(
-                    &n,
-                    "POST",
-                    "/proxies/r0-r1/toxics",
-                    r#"{"type":"slicer"}"#,
-                    ""
-                )
-                .await
-                .0,
-                400
-            );
+            // toxiproxy's slicer and slow_close, with its attributes; a slicer without a size
+            // is refused with the reason.
+            let slicer = r#"{"name":"cut","type":"slicer","attributes":{"average_size":32,"size_variation":8,"delay":100}}"#;
+            let (st, body) = call(&n, "POST", "/proxies/r0-r1/toxics", slicer, "").await;
+            assert_eq!(st, 200, "{body}");
+            assert_eq!(json(&body)["attributes"]["size_variation"], 8);
+            let slow = r#"{"type":"slow_close","stream":"upstream","attributes":{"delay":1500}}"#;
+            let (st, body) = call(&n, "POST", "/proxies/r0-r1/toxics", slow, "").await;
+            assert_eq!(st, 200, "{body}");
+            assert_eq!(json(&body)["name"], "slow_close_upstream");
+            assert_eq!(json(&body)["attributes"]["delay"], 1500);
+            let (st, body) = call(
+                &n,
+                "POST",
+                "/proxies/r0-r1/toxics",
+                r#"{"type":"slicer"}"#,
+                "",
+            )
+            .await;
+            assert_eq!(st, 400);
+            assert!(json(&body)["error"]
+                .as_str()
+                .is_some_and(|e| e.contains("average_size")));
             assert_eq!(
                 call(&n, "DELETE", "/proxies/r0-r1/toxics/lag", "", "")
                     .await
@@ -799,6 +996,145 @@ mod tests {
             let v = json(&body);
             assert_eq!(v["r1-r2"]["enabled"], true);
             assert_eq!(v["r0-r1"]["toxics"].as_array().unwrap().len(), 0);
+            n.shutdown().await;
+        }
+
+        #[tokio::test]
+        async fn an_update_that_moves_or_renames_a_proxy_is_refused_and_changes_nothing() {
+            let n = netem().await;
+            let (_, body) = call(&n, "GET", "/proxies/r0-r1", "", "").await;
+            let p = json(&body);
+            let (listen, upstream) = (
+                p["listen"].as_str().unwrap(),
+                p["upstream"].as_str().unwrap(),
+            );
+            // What toxiproxy's clients send: the whole proxy back, with `enabled` changed.
+            let same = serde_json::json!({"name": "r0-r1", "listen": listen, "upstream": upstream, "enabled": false});
+            let (st, body) = call(&n, "POST", "/proxies/r0-r1", &same.to_string(), "").await;
+            assert_eq!(st, 200, "{body}");
+            assert!(!n.snapshot()[0].up);
+            for body in [
+                serde_json::json!({"listen": "127.0.0.1:1", "enabled": true}),
+                serde_json::json!({"listen": "nowhere", "enabled": true}),
+                serde_json::json!({"upstream": "127.0.0.1:10", "enabled": true}),
+                serde_json::json!({"name": "r0-r2", "enabled": true}),
+            ] {
+                let (st, text) = call(&n, "POST", "/proxies/r0-r1", &body.to_string(), "").await;
+                assert_eq!(st, 409, "{body}: {text}");
+                let e = json(&text);
+                assert_eq!(e["status"], 409);
+                assert!(
+                    e["error"].as_str().is_some_and(|e| e.contains("r0-r1")),
+                    "{text}"
+                );
+                assert!(
+                    !n.snapshot()[0].up,
+                    "a refused update changed the link: {body}"
+                );
+            }
+            let (_, body) = call(&n, "GET", "/proxies/r0-r1", "", "").await;
+            assert_eq!(json(&body)["listen"], listen);
+            n.shutdown().await;
+        }
+
+        #[tokio::test]
+        async fn the_token_passes_as_bearer_basic_or_base_url_path() {
+            use base64::Engine;
+            let t = "0123456789abcdef0123456789abcdef";
+            let n = netem_with(Some(t)).await;
+            let b64 = |s: &str| base64::engine::general_purpose::STANDARD.encode(s);
+            let get = |path: &'static str, auth: String| {
+                let n = &n;
+                async move { call(n, "GET", path, "", &auth).await.0 }
+            };
+            assert_eq!(get("/proxies", String::new()).await, 401);
+            for ok in [
+                format!("Authorization: Bearer {t}\r\n"),
+                format!("Authorization: Basic {}\r\n", b64(&format!(":{t}"))),
+                format!(
+                    "Authorization: Basic {}\r\n",
+                    b64(&format!("toxiproxy:{t}"))
+                ),
+                format!("Authorization: Basic {}\r\n", b64(&format!("{t}:"))),
+            ] {
+                assert_eq!(get("/proxies", ok.clone()).await, 200, "{ok}");
+            }
+            for bad in [
+                format!("Authorization: Basic {}\r\n", b64(&format!("{t}:x"))),
+                format!("Authorization: Basic {}\r\n", b64("x:0123456789abcdef")),
+                format!("Authorization: Basic {t}\r\n"),
+                "Authorization: Basic !!!\r\n".to_string(),
+                format!("Authorization: Bearer {}\r\n", b64(&format!(":{t}"))),
+            ] {
+                assert_eq!(get("/proxies", bad.clone()).await, 401, "{bad}");
+            }
+            // The token as the base URL's path: every route under it, the token not routed.
+            let (st, body) = call(&n, "GET", &format!("/token/{t}/proxies/r0-r1"), "", "").await;
+            assert_eq!(st, 200, "{body}");
+            assert_eq!(json(&body)["name"], "r0-r1");
+            let (st, _) = call(
+                &n,
+                "POST",
+                &format!("/token/{t}/proxies/r0-r1/toxics"),
+                r#"{"type":"latency","attributes":{"latency":10}}"#,
+                "",
+            )
+            .await;
+            assert_eq!(st, 200);
+            assert_eq!(
+                call(&n, "GET", &format!("/token/{t}/nothing"), "", "")
+                    .await
+                    .0,
+                404
+            );
+            assert_eq!(call(&n, "GET", &format!("/token/{t}"), "", "").await.0, 404);
+            let (st, body) = call(&n, "GET", &format!("/token/{t}/metrics?x=1"), "", "").await;
+            assert_eq!(st, 200, "{body}");
+            for bad in [
+                "/token/0123456789abcdef0123456789abcdee/proxies",
+                "/token//proxies",
+                "/token/proxies",
+                "/tokens/0123456789abcdef0123456789abcdef/proxies",
+            ] {
+                assert_eq!(call(&n, "GET", bad, "", "").await.0, 401, "{bad}");
+            }
+            n.shutdown().await;
+            // Without a token the prefix is taken off and the request served.
+            let n = netem().await;
+            assert_eq!(
+                call(&n, "GET", "/token/anything/proxies", "", "").await.0,
+                200
+            );
+            n.shutdown().await;
+        }
+
+        #[tokio::test]
+        async fn metrics_negotiate_the_format() {
+            let n = netem().await;
+            let content_type = |accept: &'static str| {
+                let n = &n;
+                async move {
+                    let out = send(
+                        n,
+                        &render("GET", "/metrics", &[("Accept".into(), accept.into())], b""),
+                    )
+                    .await;
+                    let text = String::from_utf8_lossy(&out).to_ascii_lowercase();
+                    let (_, body) = answer(&out);
+                    let ct = text
+                        .lines()
+                        .find_map(|l| l.strip_prefix("content-type: ").map(str::to_string));
+                    (ct.unwrap_or_default(), body)
+                }
+            };
+            let (ct, body) = content_type("*/*").await;
+            assert!(ct.starts_with("application/openmetrics-text"), "{ct}");
+            assert!(body.contains("# TYPE netem_link_bytes counter") && body.ends_with("# EOF\n"));
+            let (ct, body) = content_type("text/plain;version=0.0.4;q=1,*/*;q=0.1").await;
+            assert_eq!(ct, "text/plain; version=0.0.4; charset=utf-8");
+            assert!(
+                body.contains("# TYPE netem_link_bytes_total counter") && !body.contains("# EOF")
+            );
             n.shutdown().await;
         }
 
@@ -853,6 +1189,8 @@ mod tests {
                 "robot-0",
                 "netem",
                 "populate",
+                "token",
+                "0123",
                 "x",
                 "%41",
                 "%ff",
@@ -869,6 +1207,9 @@ mod tests {
                     r#"{"name":"lag","type":"latency"}"#,
                     r#"{"type":"bandwidth","attributes":{"rate":1}}"#,
                     r#"{"kind":"kill"}"#,
+                    r#"{"type":"slicer","attributes":{"average_size":1}}"#,
+                    r#"{"type":"slow_close","attributes":{"delay":10}}"#,
+                    r#"{"listen":"127.0.0.1:1","enabled":true}"#,
                     "{}",
                     "",
                 ])

@@ -59,7 +59,8 @@ pub struct LinkParams {
     pub seed: u64,
     /// Lockstep with step markers: latency is announced in the step's plan and carried out by
     /// the receiving robot (it acts on a message `delay` steps after it was sent); the link
-    /// forwards at once, so that what a step carries never depends on when netem read it.
+    /// forwards at once, so that what a step carries never depends on when netem read it (a
+    /// slicer still cuts writes, without its delay).
     pub markers: bool,
 }
 
@@ -592,10 +593,20 @@ impl Link {
     }
 
     fn shape(&self, toxics: &[ActiveToxic], conn: u64, dir: Dir) -> DirShape {
-        let mut s = faults::fold(&self.params.base[dir.index()], toxics, conn, dir);
-        if self.params.markers {
+        Link::shape_with(&self.params, toxics, conn, dir)
+    }
+
+    /// The shape of direction `dir` of connection `conn` of a link with `params`.
+    fn shape_with(params: &LinkParams, toxics: &[ActiveToxic], conn: u64, dir: Dir) -> DirShape {
+        let mut s = faults::fold(&params.base[dir.index()], toxics, conn, dir);
+        if params.markers {
             s.latency_ns = 0;
             s.jitter_ns = 0;
+            // Time stands still within a step: spaced slices would each wait for a step, and
+            // the receiver, which waits for the whole frame, for ever. The cutting stays.
+            if let Some(sl) = s.slicer.as_mut() {
+                sl.delay_ns = 0;
+            }
         }
         s
     }
@@ -1083,6 +1094,90 @@ pub(crate) mod tests {
         assert!(
             link.snapshot().dirs[1].lost_bytes_total >= 3,
             "the stalled bytes are lost"
+        );
+    }
+
+    /// Through a real link: a slicer cuts a write into many on the receiving socket, and a
+    /// slow_close passes the sender's FIN on only when the simulated clock reaches its delay;
+    /// with step markers the slicer's delay is dropped.
+    #[tokio::test]
+    async fn slicer_cuts_writes_and_slow_close_delays_the_fin_by_simulated_time() {
+        let clock = SimClock::lockstep();
+        let (link, mut acc, _stop) = link_with(Default::default(), clock.clone(), 8192).await;
+        let (mut a, mut b) = connect(&link, &mut acc).await;
+        let toxic = |kind, stream, id| ActiveToxic {
+            toxic: Toxic {
+                name: format!("t{id}"),
+                kind,
+                stream,
+                toxicity: 1.0,
+            },
+            id,
+            budgets: [None, None],
+        };
+        link.set_toxics(vec![
+            toxic(
+                faults::ToxicKind::Slicer {
+                    average_size: 10,
+                    size_variation: 0,
+                    delay_us: 0,
+                },
+                faults::Stream::Upstream,
+                1,
+            ),
+            toxic(
+                faults::ToxicKind::SlowClose { delay_ms: 2000 },
+                faults::Stream::Upstream,
+                2,
+            ),
+        ]);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        a.write_all(&[9u8; 1000]).await.unwrap();
+        assert_eq!(read_exact_timeout(&mut b, 1000).await, vec![9u8; 1000]);
+        let d = link.snapshot().dirs[0];
+        assert_eq!(d.bytes_total, 1000);
+        assert!(
+            d.chunks_total >= 100,
+            "{} writes, of 10 bytes at most",
+            d.chunks_total
+        );
+        a.shutdown().await.unwrap();
+        // Let netem see the FIN at time 0 (passed on at 2 s).
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        clock.advance_to(SimTime::from_secs_f64(1.0));
+        assert!(
+            !ends_within(&mut b, Duration::from_millis(100)).await,
+            "the FIN waits for the clock"
+        );
+        clock.advance_to(SimTime::from_secs_f64(2.0));
+        assert!(
+            ends_within(&mut b, Duration::from_secs(2)).await,
+            "then it passes"
+        );
+        // The other direction is untouched: b still reaches a, unsliced.
+        b.write_all(&[7u8; 500]).await.unwrap();
+        assert_eq!(read_exact_timeout(&mut a, 500).await, vec![7u8; 500]);
+        assert!(link.snapshot().dirs[1].chunks_total <= 2);
+
+        // With markers a slicer's delay is dropped: a second's delay would hold every slice.
+        let mut markers = link.params.clone();
+        markers.markers = true;
+        let spaced = [toxic(
+            faults::ToxicKind::Slicer {
+                average_size: 10,
+                size_variation: 0,
+                delay_us: 1_000_000,
+            },
+            faults::Stream::Both,
+            3,
+        )];
+        let plain = faults::fold(&markers.base[0], &spaced, 0, Dir::AtoB);
+        assert_eq!(plain.slicer.map(|s| s.delay_ns), Some(1_000_000_000));
+        assert_eq!(
+            Link::shape_with(&markers, &spaced, 0, Dir::AtoB)
+                .slicer
+                .map(|s| (s.average_size, s.delay_ns)),
+            Some((10, 0))
         );
     }
 

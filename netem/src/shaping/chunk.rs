@@ -133,6 +133,19 @@ pub struct DirShape {
     /// Blackhole: nothing is written, nothing closed; the buffer fills and the sender stalls.
     pub stalled: bool,
     pub limit: Option<Limit>,
+    /// `slicer`: writes cut smaller, and spaced.
+    pub slicer: Option<Slicing>,
+    /// `slow_close`: how long (simulated ns) the sender's close waits before it is passed on.
+    pub close_delay_ns: u64,
+}
+
+/// How a `slicer` toxic cuts a direction's writes: slices of `average_size ± size_variation`
+/// bytes (at least one), `delay_ns` of simulated time apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Slicing {
+    pub average_size: u64,
+    pub size_variation: u64,
+    pub delay_ns: u64,
 }
 
 /// A small deterministic PRNG (SplitMix64) for jitter and corruption: no dependency, and a run

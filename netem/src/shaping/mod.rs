@@ -17,6 +17,10 @@ pub(crate) mod harness;
 pub mod latency;
 /// The pipeline: source, stages, sink, one future per direction.
 pub mod pipeline;
+/// Cutting writes into smaller, spaced ones (`slicer`).
+pub mod slicer;
+/// Passing the sender's close on late (`slow_close`).
+pub mod slow_close;
 
 pub use budget::Budget;
-pub use chunk::{Chunk, DirShape, Limit, Rng, CHUNK_MAX};
+pub use chunk::{Chunk, DirShape, Limit, Rng, Slicing, CHUNK_MAX};

@@ -5,9 +5,9 @@
 //! current parameters from a `watch` of `DirShape` so that faults apply to live connections:
 //!
 //! ```text
-//! socket ─► source ─► corrupt ─► bandwidth ─► latency ─► sink ─► socket
-//!           (reserve,  (flip     (governor    (hold until  (stall gate,
-//!            read)      bits)     budget)      due)         limit_data, write)
+//! socket ─► source ─► corrupt ─► bandwidth ─► latency ─► slicer ─► slow_close ─► sink ─► socket
+//!           (reserve,  (flip     (governor    (hold until  (cut     (hold the     (stall gate,
+//!            read)      bits)     budget)      due)         writes)  sender's FIN)  limit_data, write)
 //! ```
 //!
 //! Stages are joined into one future per direction (`pipeline`); the channels between them are
@@ -24,7 +24,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::accounting::Buffer;
 use crate::shaping::chunk::{Chunk, DirShape, Rng, CHUNK_MAX, IN_FLIGHT_CHUNKS};
-use crate::shaping::{bandwidth, corrupt, latency};
+use crate::shaping::{bandwidth, corrupt, latency, slicer, slow_close};
 use proto::clock::SimClock;
 
 /// How the reading end of a pipeline finished.
@@ -180,7 +180,7 @@ impl Pending {
         let sent = self.bytes - unsent;
         if sent > 0 {
             if let Some(c) = &self.counters {
-                c.delivered(sent);
+                c.sent(sent);
             }
             self.bytes = unsent;
         }
@@ -399,7 +399,8 @@ pub async fn sink<W: AsyncWrite + Unsent + Unpin>(
     SinkEnd::Eof
 }
 
-/// Runs one direction: `reader` → corrupt → bandwidth → latency → `writer`, until the sender's
+/// Runs one direction: `reader` → corrupt → bandwidth → latency → slicer → slow_close →
+/// `writer`, until the sender's
 /// EOF has been delivered, a write fails, or `limit_data` is reached. Dropping the future drops
 /// every byte in flight (counted as lost).
 pub async fn pipeline<R, W>(
@@ -419,22 +420,29 @@ where
     let (tx_corrupt, rx_corrupt) = mpsc::channel(4);
     let (tx_shaped, rx_shaped) = mpsc::channel(IN_FLIGHT_CHUNKS);
     let (tx_due, rx_due) = mpsc::channel(4);
+    let (tx_sliced, rx_sliced) = mpsc::channel(4);
+    let (tx_out, rx_out) = mpsc::channel(4);
     let mut rng = Rng::new(seed);
     let stages = {
         let (s1, s2, s3) = (shape.clone(), shape.clone(), shape.clone());
+        let (s4, s5) = (shape.clone(), shape.clone());
+        // Drawn in this order so that the older stages' seeds stay what they were.
         let (r1, r2) = (Rng::new(rng.next_u64()), Rng::new(rng.next_u64()));
+        let r3 = Rng::new(rng.next_u64());
         let clock = clock.clone();
         async move {
-            let (end, (), (), ()) = tokio::join!(
+            let (end, (), (), (), (), ()) = tokio::join!(
                 source(reader, tx_read, buffer, clock.clone()),
                 corrupt::corrupt(rx_read, tx_corrupt, s1, r1),
                 bandwidth::bandwidth(rx_corrupt, tx_shaped, s2, clock.clone()),
-                latency::latency(rx_shaped, tx_due, s3, clock, r2),
+                latency::latency(rx_shaped, tx_due, s3, clock.clone(), r2),
+                slicer::slicer(rx_due, tx_sliced, s4, clock.clone(), r3),
+                slow_close::slow_close(rx_sliced, tx_out, s5, clock),
             );
             end
         }
     };
-    let sink = sink(rx_due, writer, shape, gate);
+    let sink = sink(rx_out, writer, shape, gate);
     tokio::pin!(stages, sink);
     let mut source_end = None;
     loop {
