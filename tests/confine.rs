@@ -3,7 +3,9 @@
 //! login joins a real run: it receives robot 1's scans (its session works) but not robot 3's,
 //! its commands for robot 3 never reach anyone, and its order to stop the run is dropped. A
 //! process without a login, or with a wrong password, cannot join at all. An `observer` login
-//! (read-only, written by the launcher) watches the same keys as the positive control.
+//! (read-only, written by the launcher) watches the same keys as the positive control. Every
+//! refused login is in the world-server's log, once per address and then counted, and an
+//! attacked run has the digest of a quiet one.
 
 use std::path::Path;
 use std::process::Command;
@@ -17,7 +19,10 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 use zenoh::Session;
 
-use crate::support::{kill, run_args, summary_typed, wait_file, Launcher, TempDir, SWARM};
+use crate::support::{
+    kill, run_args, stderr, summary_typed, swarm_run, wait_file, wait_for_step, Launcher, TempDir,
+    SWARM,
+};
 
 type Sub = Subscriber<FifoChannelHandler<Sample>>;
 
@@ -185,5 +190,142 @@ async fn a_rogue_with_robot_1s_login_cannot_see_or_move_robot_3_nor_stop_the_run
     assert!(
         !world_log.contains("panicked"),
         "world-server log: {world_log}"
+    );
+}
+
+/// One login attempt (no retry), as zenoh id `zid` when given.
+async fn knock(endpoint: &str, credentials: Option<&Path>, zid: Option<&str>) -> bool {
+    let mut cfg = login(endpoint, credentials)
+        .client(0)
+        .expect("client config");
+    if let Some(zid) = zid {
+        cfg.insert_json5("id", &format!("{zid:?}"))
+            .expect("a zenoh id");
+    }
+    zenoh::open(cfg).await.is_ok()
+}
+
+/// Issue #38: refused logins leave a trace an operator can read — the world-server logs who
+/// (the zenoh id), from where and why, the first refusal from an address at once and later ones
+/// only counted — and leave the run as it was: an attacked run has the digest of a quiet one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn refused_logins_are_logged_once_per_address_and_change_nothing() {
+    // Explored in about 200 steps: a run of a second or two, long enough for the intruder to
+    // knock during it, and a function of its scenario. (It ends explored, not at max_steps:
+    // links.csv's last step of a run stopped at max_steps can differ between two quiet runs.)
+    let sets = [
+        "world.map=office",
+        "world.width_m=30",
+        "world.height_m=20",
+        "robots.count=2",
+        "max_steps=2000",
+        "clock.step_timeout_ms=10000",
+    ];
+    let quiet_dir = TempDir::new("refusals-quiet");
+    let quiet_run = quiet_dir.path().join("run");
+    let (out, quiet, _quiet_dir) = tokio::task::spawn_blocking(move || {
+        let (out, run) = swarm_run(&quiet_dir, None, &sets, Duration::from_secs(180));
+        (out, summary_typed(&run), quiet_dir)
+    })
+    .await
+    .expect("the quiet run");
+    assert!(out.status.success(), "{}", stderr(&out));
+
+    let dir = TempDir::new("refusals");
+    let run = dir.path().join("run");
+    let mut cmd = Command::new(SWARM);
+    run_args(&mut cmd, &run, &sets);
+    let mut launcher = Launcher::spawn(cmd);
+    let endpoint = wait_file(&run.join("sim.endpoint"), Duration::from_secs(30));
+    let secrets = run.join("secrets");
+    wait_for_step(&run, 1, Duration::from_secs(60));
+
+    // The intruder: robot 1's name with a wrong password, first once alone (the line logged at
+    // once), then again, as an unknown user, and without a login, all from 127.0.0.1.
+    let forged = dir.path().join("forged");
+    std::fs::write(&forged, "robot-1:00000000000000000000000000000000\n").expect("forged login");
+    let stranger = dir.path().join("stranger");
+    std::fs::write(&stranger, "mallory:00000000000000000000000000000000\n").expect("a login");
+    let zid = "5ca1ab1e0ddba11";
+    assert!(!knock(&endpoint, Some(&forged), Some(zid)).await);
+    let (a, b, c, d, e) = tokio::join!(
+        knock(&endpoint, Some(&forged), None),
+        knock(&endpoint, Some(&forged), None),
+        knock(&endpoint, Some(&forged), None),
+        knock(&endpoint, Some(&stranger), None),
+        knock(&endpoint, None, None),
+    );
+    assert!(!(a || b || c || d || e), "an intruder joined");
+    // The positive control: a login of the run still joins.
+    assert!(
+        knock(&endpoint, Some(&secrets.join("observer")), None).await,
+        "the observer's login was refused"
+    );
+    assert!(
+        launcher
+            .child
+            .as_mut()
+            .and_then(|c| c.try_wait().ok())
+            .flatten()
+            .is_none(),
+        "the run ended before the intruder was done"
+    );
+
+    let out = launcher.wait_output(Duration::from_secs(180));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let log = std::fs::read_to_string(run.join("logs/world-server.log")).expect("its log");
+    let first: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("refused login from "))
+        .collect();
+    assert_eq!(first.len(), 1, "one line at once for 127.0.0.1:\n{log}");
+    assert!(
+        first[0].contains("refused login from 127.0.0.1:")
+            && first[0].contains(&format!("(zenoh id {zid}): wrong password")),
+        "{}",
+        first[0]
+    );
+    // The other five only counted, by reason, in one line every 10 s (and one at the end).
+    let mut counted = std::collections::BTreeMap::new();
+    let count_lines: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("refused logins from "))
+        .collect();
+    for line in &count_lines {
+        assert!(line.contains("refused logins from 127.0.0.1: "), "{line}");
+        let by = line
+            .split_once(" more (")
+            .and_then(|(_, r)| r.split_once(')'))
+            .map_or("", |(by, _)| by);
+        for item in by.split(", ") {
+            let (reason, n) = item.rsplit_once(' ').expect("reason count");
+            *counted.entry(reason.to_string()).or_insert(0) += n.parse::<u32>().expect("a count");
+        }
+    }
+    assert!(
+        (1..=2).contains(&count_lines.len()),
+        "{count_lines:?}\n{log}"
+    );
+    let want: std::collections::BTreeMap<String, u32> = [
+        ("no login offered", 1),
+        ("unknown user", 1),
+        ("wrong password", 3),
+    ]
+    .into_iter()
+    .map(|(r, n)| (r.to_string(), n))
+    .collect();
+    assert_eq!(counted, want, "{log}");
+
+    let s = summary_typed(&run);
+    assert!(s.deterministic && quiet.deterministic, "{s:?}");
+    assert_eq!(s.exit_reason, proto::exit::ExitReason::Explored, "{s:?}");
+    let differ: Vec<&str> = swarm::rundir::summary::DIGESTED
+        .iter()
+        .copied()
+        .filter(|f| std::fs::read(run.join(f)).ok() != std::fs::read(quiet_run.join(f)).ok())
+        .collect();
+    assert_eq!(
+        s.run_digest, quiet.run_digest,
+        "the intruder changed the run: {differ:?} differ"
     );
 }

@@ -22,6 +22,7 @@ mod netem;
 mod pack;
 mod polygon;
 mod process_faults;
+mod robot_map;
 mod roles;
 mod runs;
 mod sweep;

@@ -227,6 +227,15 @@ pub fn entry<E: std::fmt::Display>(
     body: impl std::future::Future<Output = Result<std::process::ExitCode, E>>,
 ) -> std::process::ExitCode {
     init_logging();
+    entry_logged(name, body)
+}
+
+/// [`entry`] for a process that installed its own `tracing` subscriber ([`stderr_log`] and
+/// layers of its own).
+pub fn entry_logged<E: std::fmt::Display>(
+    name: &str,
+    body: impl std::future::Future<Output = Result<std::process::ExitCode, E>>,
+) -> std::process::ExitCode {
     match tokio::runtime::Runtime::new() {
         Ok(runtime) => outcome(name, runtime.block_on(body)),
         Err(e) => outcome(name, Err(format!("cannot start the runtime: {e}"))),
@@ -245,15 +254,26 @@ pub fn outcome<E: std::fmt::Display>(
     })
 }
 
-/// Logs to stderr; `RUST_LOG` overrides the default (`warn`, zenoh's own messages from `error`).
+/// Logs to stderr ([`stderr_log`]).
 pub fn init_logging() {
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let _ = tracing_subscriber::registry().with(stderr_log()).try_init();
+}
+
+/// The stderr log as a layer with its own filter: `RUST_LOG`, or by default `warn` (zenoh's own
+/// messages from `error`). A process adds layers of its own beside it, each with its own filter.
+pub fn stderr_log<S>() -> impl tracing_subscriber::Layer<S> + Send + Sync
+where
+    S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+{
+    use tracing_subscriber::Layer;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,zenoh=error"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
+    tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_target(false)
-        .try_init();
+        .with_filter(filter)
 }
 
 /// Errors while building a zenoh configuration.

@@ -21,14 +21,14 @@ use proto::msg::Step;
 
 use crate::process::children::{MemoryRow, ProcessRow};
 use crate::run::progress::Progress;
+use crate::rundir::grids::write_map;
 use crate::rundir::render::{robot_colour, Picture};
 use crate::rundir::summary::{
     bytes_by_type, coverage_steps, traffic_shares, AwarenessSummary, CommLevel, LostLog, Summary,
     SCHEMA_VERSION,
 };
 use crate::rundir::tables::{
-    link_totals_wire, write_links, write_metrics, write_pgm, write_saves_and_views, write_traffic,
-    MetricsRow,
+    link_totals_wire, write_links, write_metrics, write_saves_and_views, write_traffic, MetricsRow,
 };
 use crate::score::awareness::{mean_of_step_means, steps_since_base};
 use crate::score::connectivity::UpLinks;
@@ -428,8 +428,9 @@ pub fn write_tables(dir: &Path, rec: &Record) -> anyhow::Result<()> {
 }
 
 /// `truth.png` with every trajectory, `robot_<id>.png` per robot, every robot's final
-/// planning grid and G_s as maps (`grids/robot_<id>_{planning,own}.pgm`), and the map the team
-/// has to learn (`grids/truth_reachable.pgm`, [`crate::score::floor`]).
+/// planning grid and G_s as maps (`grids/robot_<id>_{planning,own}.pgm`, each with its
+/// map_server YAML), and the map the team has to learn (`grids/truth_reachable.pgm` and `.yaml`,
+/// [`crate::score::floor`]).
 pub fn write_pictures(
     dir: &Path,
     run_truth: (&Grid, proto::geom::MapInfo),
@@ -460,20 +461,26 @@ pub fn write_pictures(
     }
     let grids = dir.join("grids");
     std::fs::create_dir_all(&grids).context("creating grids/")?;
-    write_pgm(
+    write_map(
         &grids.join("truth_reachable.pgm"),
         &crate::score::floor::reachable_map(truth, reachable),
+        info,
     )?;
     for (id, (planning, t)) in &rec.eval.last {
-        write_pgm(
+        // The evaluator keeps only planning grids of the truth's size; a robot's own grid is
+        // what it reported, and one that does not fit the frame is reported, not written.
+        write_map(
             &grids.join(format!("robot_{id}_planning.pgm")),
             &planning.to_grid(),
+            info,
         )?;
-        match Grid::from_rle(&t.own_rle) {
-            Ok(own) => write_pgm(&grids.join(format!("robot_{id}_own.pgm")), &own)?,
-            Err(e) => progress.event(&format!(
-                "swarm run: robot {id}'s own grid is unreadable: {e}"
-            )),
+        let own = Grid::from_rle(&t.own_rle)
+            .map_err(anyhow::Error::from)
+            .and_then(|own| write_map(&grids.join(format!("robot_{id}_own.pgm")), &own, info));
+        if let Err(e) = own {
+            progress.event(&format!(
+                "swarm run: robot {id}'s own grid is not written: {e:#}"
+            ));
         }
     }
     Ok(())

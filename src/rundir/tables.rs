@@ -1,6 +1,5 @@
 //! The run directory's tables (`metrics.csv`, `links.csv`, `saves.csv`, `views.csv`,
-//! `traffic.csv`, …) as serde rows, and the robots' grids as PGM. Each row type is written and read
-//! back through the same type.
+//! `traffic.csv`, …) as serde rows. Each row type is written and read back through the same type.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -471,25 +470,6 @@ pub fn read_rows<R: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<
     r.deserialize()
         .collect::<Result<_, _>>()
         .with_context(context)
-}
-
-/// Writes `grid` as a map_server PGM (P5; free 254, occupied 0, unknown 205; the top row is the
-/// largest y), so that a robot's final map can be loaded like any other map.
-pub fn write_pgm(path: &Path, grid: &proto::grid::Grid) -> anyhow::Result<()> {
-    use proto::grid::{Cell, Occ};
-    let (w, h) = (grid.width(), grid.height());
-    let mut out = format!("P5\n{w} {h}\n255\n").into_bytes();
-    out.reserve(w as usize * h as usize);
-    for y in (0..h as i32).rev() {
-        for x in 0..w as i32 {
-            out.push(match grid.get(Cell::new(x, y)) {
-                Occ::Free => 254,
-                Occ::Occupied => 0,
-                Occ::Unknown => 205,
-            });
-        }
-    }
-    std::fs::write(path, out).with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]

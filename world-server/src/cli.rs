@@ -7,9 +7,10 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 use proto::confine::Principal;
-use proto::node::{close_quickly, entry, zerr, ScenarioArgs, ZenohArgs};
+use proto::node::{close_quickly, entry_logged, stderr_log, zerr, ScenarioArgs, ZenohArgs};
 use proto::scenario::Scenario;
 
+use crate::refusals::{Refusals, REPORT_EVERY};
 use crate::scenario::resolve;
 use crate::server::{serve, End, ServeOpts};
 use crate::world::World;
@@ -81,10 +82,23 @@ async fn run(args: Args) -> anyhow::Result<End> {
     Ok(end)
 }
 
-/// The whole process: one tokio runtime, logging, exit code.
+/// The whole process: one tokio runtime, logging (stderr, and the sim plane's refused logins:
+/// [`crate::refusals`]), exit code.
 pub fn main(args: Args) -> ExitCode {
-    entry("world-server", async {
-        let end = run(args).await?;
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let refusals = Refusals::default();
+    let _ = tracing_subscriber::registry()
+        .with(stderr_log())
+        .with(refusals.layer())
+        .try_init();
+    entry_logged("world-server", async {
+        let reporter = tokio::spawn(refusals.clone().report(REPORT_EVERY));
+        let end = run(args).await;
+        reporter.abort();
+        // The refusals counted since the last report, so that none goes unlogged.
+        refusals.flush();
+        let end = end?;
         tracing::info!("world-server ended: {end:?}");
         anyhow::Ok(ExitCode::SUCCESS)
     })

@@ -1,7 +1,8 @@
 //! `world-server`: the simulated world of swarm-explore (docs/design.md §3).
 //!
 //! Pure modules (no I/O but reading map files): [`map`], [`generate`], [`reachable`], [`laser`],
-//! [`motion`], [`world`]. The zenoh side: [`server`]; the command line: [`cli`].
+//! [`motion`], [`world`]. The zenoh side: [`server`], and the refused logins it logs
+//! ([`refusals`]); the command line: [`cli`].
 
 /// Command line and process entry.
 pub mod cli;
@@ -17,6 +18,8 @@ pub mod map;
 pub mod motion;
 /// The reachable free region and spawn placement.
 pub mod reachable;
+/// Refused logins on the sim plane, in the log: once per address, then counted.
+pub mod refusals;
 /// A scenario made ready to run: file or default, overrides, the map found, the range.
 pub mod scenario;
 /// The clock and the sim-plane protocol over zenoh.
