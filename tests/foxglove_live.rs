@@ -225,3 +225,55 @@ fn foxglove_s_own_libraries_read_the_live_run_and_its_mcap() {
     let file = node_check("mcap", &run.join("run.mcap").to_string_lossy());
     assert_all_read(&file, "@mcap/core");
 }
+
+#[test]
+fn swarm_view_replays_a_finished_run_to_a_foxglove_client() {
+    use std::io::{BufRead, BufReader};
+    let dir = TempDir::new("foxglove-replay");
+    let (out, run) = crate::support::swarm_run(
+        &dir,
+        None,
+        &["max_steps=30", "clock.step_timeout_ms=10000"],
+        Duration::from_secs(120),
+    );
+    assert!(
+        out.status.code().is_some_and(|c| c == 0 || c == 2),
+        "{}",
+        stderr(&out)
+    );
+    let mut cmd = Command::new(SWARM);
+    cmd.arg("view")
+        .arg(&run)
+        .args(["--addr=127.0.0.1:0", "--foxglove=127.0.0.1:0", "--rate=100"]);
+    let mut view = Launcher::spawn(cmd);
+    let stdout = view
+        .child
+        .as_mut()
+        .and_then(|c| c.stdout.take())
+        .expect("swarm view's stdout");
+    let mut lines = BufReader::new(stdout).lines();
+    let addr: SocketAddr = lines
+        .find_map(|l| {
+            l.ok()?
+                .strip_prefix("Foxglove WebSocket replay at ws://")
+                .map(str::to_string)
+        })
+        .expect("swarm view prints the Foxglove address")
+        .parse()
+        .expect("an address");
+    // 30 steps at 100 a second: the play is over in well under 5 s; the server stays up.
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    let (counts, topics) = rt.block_on(follow(addr, Duration::from_secs(5)));
+    drop(view);
+    assert_eq!(topics.len(), 7 + 2 * usize::from(ROBOTS), "{topics:?}");
+    let silent: Vec<&String> = topics.iter().filter(|t| !counts.contains_key(*t)).collect();
+    assert!(silent.is_empty(), "no message on {silent:?}: {counts:?}");
+    // The play repeats while a client stays: each play sends the truth again.
+    assert!(
+        counts.get("/map/truth").is_some_and(|&n| n >= 1),
+        "{counts:?}"
+    );
+}

@@ -70,7 +70,7 @@ pub struct LinkStat {
 }
 
 /// A step's series, as the web viewer's charts draw them: plottable as `/stats.coverage_pct`,
-/// `/stats.robots[:]{robot==0}.coverage_pct`, `/stats.bytes_by_class[:]{class=="map"}.bytes`.
+/// `/stats.robots[:]{robot==0}.coverage_pct`, `/stats.bytes_by_class[:]{class=="ins"}.bytes`.
 #[derive(foxglove::Encode, Clone, Debug, PartialEq)]
 pub struct RunStats {
     pub step: u32,
@@ -762,8 +762,8 @@ impl Server {
     }
 
     /// Replays `log` to the clients at `steps_per_second`, from the first client's connect, and
-    /// again for the next client after the end (each play a new session, so Foxglove starts
-    /// afresh); until `stop` resolves.
+    /// again from the start after the end while a client is connected (each play a new session,
+    /// so Foxglove starts afresh); until the task is dropped.
     pub async fn replay(
         addr: std::net::SocketAddr,
         log: &crate::rundir::steplog::StepLog,
@@ -813,4 +813,47 @@ pub fn last_reports(log: &crate::rundir::steplog::StepLog) -> BTreeMap<RobotId, 
         }
     }
     last
+}
+
+#[cfg(test)]
+mod tests {
+    /// The layout shipped for Foxglove names only topics a run has.
+    #[test]
+    fn the_shipped_layout_names_only_topics_a_run_has() {
+        let layout: serde_json::Value =
+            serde_json::from_str(include_str!("../../assets/foxglove/layout.json"))
+                .expect("the layout is JSON");
+        let fixed = [
+            "/map/truth",
+            "/tf",
+            "/robots",
+            "/trajectories",
+            "/links",
+            "/links/bytes",
+            "/stats",
+        ];
+        let known = |t: &str| {
+            fixed.contains(&t)
+                || t.strip_prefix("/robot_")
+                    .and_then(|r| r.split_once('/'))
+                    .is_some_and(|(id, kind)| {
+                        id.parse::<u16>().is_ok() && ["grid", "pose"].contains(&kind)
+                    })
+        };
+        let mut named = Vec::new();
+        for panel in layout["configById"].as_object().expect("panels").values() {
+            if let Some(topics) = panel["topics"].as_object() {
+                named.extend(topics.keys().cloned());
+            }
+            for p in panel["paths"].as_array().into_iter().flatten() {
+                let v = p["value"].as_str().expect("a path");
+                let topic = v.split(['.', '[']).next().unwrap_or(v);
+                named.push(topic.to_string());
+            }
+        }
+        assert!(!named.is_empty());
+        for t in &named {
+            assert!(known(t), "the layout names {t}, which no run publishes");
+        }
+    }
 }

@@ -57,8 +57,8 @@ pub struct ViewArgs {
     #[arg(long, default_value = "127.0.0.1:0")]
     pub addr: SocketAddr,
     /// Also replay the run over the Foxglove WebSocket protocol at ADDR (default
-    /// 127.0.0.1:8765; port 0: a free port), from the first client's connect and again for
-    /// the next after the end.
+    /// 127.0.0.1:8765; port 0: a free port), from the first client's connect, and again from
+    /// the start after the end while a client is connected.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
     pub foxglove: Option<SocketAddr>,
     /// Steps per second of the Foxglove replay.
