@@ -183,73 +183,7 @@ impl TryFrom<ToxicWire> for Toxic {
     type Error = String;
 
     fn try_from(w: ToxicWire) -> Result<Toxic, String> {
-        let a = &w.attributes;
-        let ms = |key: &str, v: Option<u64>| -> Result<u64, String> {
-            let v = v.unwrap_or(0);
-            if v > MAX_TOXIC_MS {
-                Err(format!(
-                    "attribute {key} = {v} ms is more than {MAX_TOXIC_MS} ms"
-                ))
-            } else {
-                Ok(v)
-            }
-        };
-        let kind = match w.kind.as_deref() {
-            Some("latency") => ToxicKind::Latency {
-                latency_ms: ms("latency", a.latency)?,
-                jitter_ms: ms("jitter", a.jitter)?,
-            },
-            Some("bandwidth") => ToxicKind::Bandwidth {
-                rate_bytes_per_s: match (a.rate_bytes_per_s, a.rate) {
-                    (Some(r), _) => r,
-                    (None, Some(kb)) => kb.saturating_mul(1000),
-                    (None, None) => 0,
-                },
-            },
-            Some("timeout") => ToxicKind::Timeout {
-                timeout_ms: ms("timeout", a.timeout)?,
-            },
-            Some("reset_peer") => ToxicKind::ResetPeer {
-                timeout_ms: ms("timeout", a.timeout)?,
-            },
-            Some("limit_data") => ToxicKind::LimitData {
-                bytes: a.bytes.unwrap_or(0),
-            },
-            Some("corrupt") => {
-                let p = a.probability.unwrap_or(0.0);
-                if !(0.0..=1.0).contains(&p) {
-                    return Err(format!("attribute probability = {p} is not in [0, 1]"));
-                }
-                ToxicKind::Corrupt { probability: p }
-            }
-            Some("slicer") => {
-                let average_size = a.average_size.unwrap_or(0);
-                if average_size == 0 {
-                    return Err("attribute average_size must be at least 1 (bytes)".into());
-                }
-                let delay_us = a.delay.unwrap_or(0);
-                if delay_us > MAX_TOXIC_MS.saturating_mul(1000) {
-                    return Err(format!(
-                        "attribute delay = {delay_us} µs is more than {MAX_TOXIC_MS} ms"
-                    ));
-                }
-                ToxicKind::Slicer {
-                    average_size,
-                    size_variation: a.size_variation.unwrap_or(0),
-                    delay_us,
-                }
-            }
-            Some("slow_close") => ToxicKind::SlowClose {
-                delay_ms: ms("delay", a.delay)?,
-            },
-            Some(other) => {
-                return Err(format!(
-                    "invalid toxic type {other:?} (supported: latency, bandwidth, timeout, \
-                     reset_peer, limit_data, slicer, slow_close, corrupt)"
-                ))
-            }
-            None => return Err("missing required field: type".into()),
-        };
+        let kind = toxic_kind(w.kind.as_deref(), &w.attributes)?;
         let stream = w.stream.unwrap_or(Stream::Downstream);
         let toxicity = w.toxicity.unwrap_or(1.0);
         if !(0.0..=1.0).contains(&toxicity) {
@@ -271,6 +205,76 @@ impl TryFrom<ToxicWire> for Toxic {
             toxicity,
         })
     }
+}
+
+/// A toxic's kind from its `type` and attributes, each attribute checked.
+fn toxic_kind(kind: Option<&str>, a: &Attributes) -> Result<ToxicKind, String> {
+    let ms = |key: &str, v: Option<u64>| -> Result<u64, String> {
+        let v = v.unwrap_or(0);
+        if v > MAX_TOXIC_MS {
+            Err(format!(
+                "attribute {key} = {v} ms is more than {MAX_TOXIC_MS} ms"
+            ))
+        } else {
+            Ok(v)
+        }
+    };
+    Ok(match kind {
+        Some("latency") => ToxicKind::Latency {
+            latency_ms: ms("latency", a.latency)?,
+            jitter_ms: ms("jitter", a.jitter)?,
+        },
+        Some("bandwidth") => ToxicKind::Bandwidth {
+            rate_bytes_per_s: match (a.rate_bytes_per_s, a.rate) {
+                (Some(r), _) => r,
+                (None, Some(kb)) => kb.saturating_mul(1000),
+                (None, None) => 0,
+            },
+        },
+        Some("timeout") => ToxicKind::Timeout {
+            timeout_ms: ms("timeout", a.timeout)?,
+        },
+        Some("reset_peer") => ToxicKind::ResetPeer {
+            timeout_ms: ms("timeout", a.timeout)?,
+        },
+        Some("limit_data") => ToxicKind::LimitData {
+            bytes: a.bytes.unwrap_or(0),
+        },
+        Some("corrupt") => {
+            let p = a.probability.unwrap_or(0.0);
+            if !(0.0..=1.0).contains(&p) {
+                return Err(format!("attribute probability = {p} is not in [0, 1]"));
+            }
+            ToxicKind::Corrupt { probability: p }
+        }
+        Some("slicer") => {
+            let average_size = a.average_size.unwrap_or(0);
+            if average_size == 0 {
+                return Err("attribute average_size must be at least 1 (bytes)".into());
+            }
+            let delay_us = a.delay.unwrap_or(0);
+            if delay_us > MAX_TOXIC_MS.saturating_mul(1000) {
+                return Err(format!(
+                    "attribute delay = {delay_us} µs is more than {MAX_TOXIC_MS} ms"
+                ));
+            }
+            ToxicKind::Slicer {
+                average_size,
+                size_variation: a.size_variation.unwrap_or(0),
+                delay_us,
+            }
+        }
+        Some("slow_close") => ToxicKind::SlowClose {
+            delay_ms: ms("delay", a.delay)?,
+        },
+        Some(other) => {
+            return Err(format!(
+                "invalid toxic type {other:?} (supported: latency, bandwidth, timeout, \
+                 reset_peer, limit_data, slicer, slow_close, corrupt)"
+            ))
+        }
+        None => return Err("missing required field: type".into()),
+    })
 }
 
 impl From<Toxic> for ToxicWire {

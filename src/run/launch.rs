@@ -77,12 +77,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         stop_viewer(viewer, &feed, &mut progress);
     }
     if let Some(server) = foxglove {
-        let clients = server.clients();
-        let counts = server.stop().await;
-        let sent: u64 = counts.values().sum();
-        progress.event(&format!(
-            "swarm run: Foxglove server logged {sent} messages ({clients} clients connected at the end)"
-        ));
+        stop_foxglove(server, &mut progress).await;
     }
     let up = rec.links.up_by_step();
     finish::score_contact(&plan, &mut rec, &up);
@@ -145,6 +140,15 @@ async fn start_foxglove(
     ));
     log.tees.push(Box::new(server.feed()));
     Ok(server)
+}
+
+/// Sends the Foxglove server's last messages and stops it, saying how many it logged.
+async fn stop_foxglove(server: foxglove::Server, progress: &mut Progress) {
+    let clients = server.clients();
+    let sent: u64 = server.stop().await.values().sum();
+    progress.event(&format!(
+        "swarm run: the Foxglove server logged {sent} messages ({clients} clients connected at the end)"
+    ));
 }
 
 /// Ends the viewer's feed, says how many frames it sent, and stops serving.
