@@ -129,17 +129,7 @@ fn a_live_run_reaches_a_foxglove_client_on_every_channel_and_stays_the_same_run(
         "{}",
         stderr(&out)
     );
-    let mut want: BTreeSet<String> = [
-        "/map/truth",
-        "/tf",
-        "/robots",
-        "/trajectories",
-        "/links",
-        "/links/bytes",
-        "/stats",
-    ]
-    .map(String::from)
-    .into();
+    let mut want: BTreeSet<String> = swarm::view::foxglove::TEAM_TOPICS.map(String::from).into();
     for r in 0..ROBOTS {
         want.insert(format!("/robot_{r}/grid"));
         want.insert(format!("/robot_{r}/pose"));
@@ -193,7 +183,11 @@ fn node_check(mode: &str, arg: &str) -> serde_json::Value {
 
 fn assert_all_read(v: &serde_json::Value, what: &str) {
     let topics = v["topics"].as_object().expect("topics");
-    assert_eq!(topics.len(), 7 + 2 * usize::from(ROBOTS), "{what}: {v}");
+    assert_eq!(
+        topics.len(),
+        swarm::view::foxglove::TEAM_TOPICS.len() + 2 * usize::from(ROBOTS),
+        "{what}: {v}"
+    );
     for (topic, t) in topics {
         assert!(
             t["messages"].as_u64().is_some_and(|n| n > 0),
@@ -268,7 +262,11 @@ fn swarm_view_replays_a_finished_run_to_a_foxglove_client() {
         .expect("a runtime");
     let (counts, topics) = rt.block_on(follow(addr, Duration::from_secs(5)));
     drop(view);
-    assert_eq!(topics.len(), 7 + 2 * usize::from(ROBOTS), "{topics:?}");
+    assert_eq!(
+        topics.len(),
+        swarm::view::foxglove::TEAM_TOPICS.len() + 2 * usize::from(ROBOTS),
+        "{topics:?}"
+    );
     let silent: Vec<&String> = topics.iter().filter(|t| !counts.contains_key(*t)).collect();
     assert!(silent.is_empty(), "no message on {silent:?}: {counts:?}");
     // The play repeats while a client stays: each play sends the truth again.

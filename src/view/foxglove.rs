@@ -41,6 +41,17 @@ use proto::msg::{RobotId, Step};
 use crate::rundir::steplog::{Grids, Header, LinkStep, Record, RobotStep};
 use crate::view::timeline::{link_state, team_bytes};
 
+/// The topics of the team (besides each robot's `/robot_<i>/grid` and `/robot_<i>/pose`).
+pub const TEAM_TOPICS: [&str; 7] = [
+    "/map/truth",
+    "/tf",
+    "/robots",
+    "/trajectories",
+    "/links",
+    "/links/bytes",
+    "/stats",
+];
+
 /// A robot's grid goes out every this many of its reports (and at its last, when known).
 pub const GRID_EVERY: u32 = 10;
 /// A robot's path goes out in pieces of this many reports; a finished piece stays drawn.
@@ -823,17 +834,8 @@ mod tests {
         let layout: serde_json::Value =
             serde_json::from_str(include_str!("../../assets/foxglove/layout.json"))
                 .expect("the layout is JSON");
-        let fixed = [
-            "/map/truth",
-            "/tf",
-            "/robots",
-            "/trajectories",
-            "/links",
-            "/links/bytes",
-            "/stats",
-        ];
         let known = |t: &str| {
-            fixed.contains(&t)
+            super::TEAM_TOPICS.contains(&t)
                 || t.strip_prefix("/robot_")
                     .and_then(|r| r.split_once('/'))
                     .is_some_and(|(id, kind)| {
