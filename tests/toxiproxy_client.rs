@@ -22,6 +22,8 @@ const CLIENT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/clients/toxipro
 /// One phase as the script reports it.
 struct Phase {
     link: (u64, u64),
+    /// The step before the fault went on, and the step once `on` (maybe several calls) returned.
+    before: u64,
     after: u64,
     removed_before: u64,
     removed_after: u64,
@@ -69,6 +71,7 @@ fn drive(base: &str, limit: Duration) -> HashMap<String, Phase> {
                 .expect("a link name");
             let phase = Phase {
                 link: (a, b),
+                before: n("before"),
                 after: n("after"),
                 removed_before: n("removed_before"),
                 removed_after: n("removed_after"),
@@ -159,15 +162,17 @@ fn toxiproxys_node_client_drives_every_toxic_through_a_run() {
         "nothing crossed after the enable"
     );
 
-    // latency 3 s both ways: the first steps under it are silent, later ones carry bytes.
+    // latency 3 s both ways: the first steps under it are silent, later ones carry bytes. Its
+    // `on` is four API calls, over which the run may go on for some steps (a loaded machine):
+    // the silence is looked for from the first step after the first call.
     let p = phase("latency");
-    let silent = (p.after + 1..=p.after + 2)
+    let silent = (p.before + 1..=p.after + 2)
         .filter(|&s| bytes(row(s, p.link)) == 0.0)
         .count();
     assert!(
         silent >= 1,
         "latency: {:?}",
-        (p.after + 1..=p.after + 3)
+        (p.before + 1..=p.after + 3)
             .map(|s| row(s, p.link))
             .collect::<Vec<_>>()
     );
