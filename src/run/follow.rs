@@ -270,17 +270,10 @@ impl Record {
     }
 
     /// Drops what was recorded after the last step (the world may have run ahead while the
-    /// launcher waited for the last step's reports). A run stopped at `max_steps` also loses
-    /// netem's report of its last step: the world opens no step after it, so the robots' traffic
-    /// of that step is counted up to wherever the stop finds it — not the same in two runs of
-    /// one scenario (the report would make `links.csv`, and `run_digest`, differ).
+    /// launcher waited for the last step's reports).
     pub fn truncate(&mut self) {
-        if let Some((e, reason)) = self.end {
-            let last = match reason {
-                ExitReason::MaxSteps => e.saturating_sub(1),
-                _ => e,
-            };
-            self.links.truncate(last);
+        if let Some((e, _)) = self.end {
+            self.links.truncate(e);
         }
     }
 
