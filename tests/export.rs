@@ -85,7 +85,7 @@ fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
 /// Reads an MCAP as Foxglove would: chunk CRCs checked, `log_time` never going back, each
 /// channel's schema the one Foxglove's SDK ships for its type (protobuf), and every message of
 /// a well-known type decoding in it. The messages per topic.
-pub fn read_checked(bytes: &[u8]) -> BTreeMap<String, u64> {
+fn read_checked(bytes: &[u8]) -> BTreeMap<String, u64> {
     use foxglove::messages as fx;
     use foxglove::Encode;
     use swarm::view::foxglove::{LinkBytes, RunStats};
@@ -136,23 +136,28 @@ pub fn read_checked(bytes: &[u8]) -> BTreeMap<String, u64> {
         assert_eq!(have.name, want.name, "{topic}");
         assert_eq!(have.encoding, want.encoding, "{topic}");
         assert_eq!(&have.data[..], &want.data[..], "{topic}: the SDK's schema");
-        let data: &[u8] = &m.data;
-        let decoded = match have.name.as_str() {
-            "foxglove.Grid" => <fx::Grid as prost::Message>::decode(data).map(|g| {
-                assert!(
-                    g.row_stride > 0 && g.data.len() % g.row_stride as usize == 0,
-                    "{topic}"
-                );
-            }),
-            "foxglove.PoseInFrame" => <fx::PoseInFrame as prost::Message>::decode(data).map(drop),
-            "foxglove.SceneUpdate" => <fx::SceneUpdate as prost::Message>::decode(data).map(drop),
-            "foxglove.FrameTransforms" => {
-                <fx::FrameTransforms as prost::Message>::decode(data).map(drop)
-            }
-            _ => Ok(()),
-        };
-        decoded.unwrap_or_else(|e| panic!("{topic}: {e}"));
+        decode_well_known(topic, &have.name, &m.data);
         *counts.entry(topic.to_string()).or_default() += 1;
     }
     counts
+}
+
+/// Decodes a message of one of Foxglove's well-known types with the SDK's own protobuf types
+/// (a grid also whole rows); panics naming `topic` if it does not decode. Other types pass.
+pub fn decode_well_known(topic: &str, schema_name: &str, data: &[u8]) {
+    use foxglove::messages as fx;
+    use prost::Message;
+    let decoded = match schema_name {
+        "foxglove.Grid" => fx::Grid::decode(data).map(|g| {
+            assert!(
+                g.row_stride > 0 && g.data.len() % g.row_stride as usize == 0,
+                "{topic}"
+            );
+        }),
+        "foxglove.PoseInFrame" => fx::PoseInFrame::decode(data).map(drop),
+        "foxglove.SceneUpdate" => fx::SceneUpdate::decode(data).map(drop),
+        "foxglove.FrameTransforms" => fx::FrameTransforms::decode(data).map(drop),
+        _ => Ok(()),
+    };
+    decoded.unwrap_or_else(|e| panic!("{topic}: {e}"));
 }

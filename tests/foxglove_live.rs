@@ -10,7 +10,6 @@ use std::net::SocketAddr;
 use std::process::Command;
 use std::time::Duration;
 
-use foxglove::messages as fx;
 use futures_util::{SinkExt, StreamExt};
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::Message;
@@ -90,20 +89,7 @@ async fn follow(addr: SocketAddr, limit: Duration) -> (BTreeMap<String, u64>, BT
                 let sub = u32::from_le_bytes(b[1..5].try_into().expect("4 bytes"));
                 let c = &channels[&subscriptions[&sub]];
                 let data = &b[13..];
-                let decoded = match c.schema_name.as_str() {
-                    "foxglove.Grid" => <fx::Grid as prost::Message>::decode(data).map(drop),
-                    "foxglove.PoseInFrame" => {
-                        <fx::PoseInFrame as prost::Message>::decode(data).map(drop)
-                    }
-                    "foxglove.SceneUpdate" => {
-                        <fx::SceneUpdate as prost::Message>::decode(data).map(drop)
-                    }
-                    "foxglove.FrameTransforms" => {
-                        <fx::FrameTransforms as prost::Message>::decode(data).map(drop)
-                    }
-                    _ => Ok(()),
-                };
-                decoded.unwrap_or_else(|e| panic!("{}: {e}", c.topic));
+                crate::export::decode_well_known(&c.topic, &c.schema_name, data);
                 *counts.entry(c.topic.clone()).or_default() += 1;
             }
             Message::Close(_) => break,

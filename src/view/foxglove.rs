@@ -6,17 +6,8 @@
 //! Foxglove connects to, live while a run goes (`swarm run --foxglove`) or replaying a finished
 //! one (`swarm view RUN_DIR --foxglove`).
 //!
-//! | topic | schema | when |
-//! |---|---|---|
-//! | `/map/truth` | `foxglove.Grid` | once, at step 0 (and to each live client that subscribes) |
-//! | `/robot_<i>/grid` | `foxglove.Grid` (ROS occupancy values: -1, 0, 100) | every [`GRID_EVERY`] reports of robot i, and at its last |
-//! | `/robot_<i>/pose` | `foxglove.PoseInFrame` | every report of robot i (metrics.csv's rows) |
-//! | `/tf` | `foxglove.FrameTransforms` (`map` → `robot_<i>`, where the world has it) | every step of the world's status |
-//! | `/robots` | `foxglove.SceneUpdate` (an arrow, the id and a line to the target per robot) | every step with reports |
-//! | `/trajectories` | `foxglove.SceneUpdate` (each robot's path, in pieces of [`TRAIL_PIECE`] reports) | every step with reports |
-//! | `/links` | `foxglove.SceneUpdate` (a line per link that is up, wider with more bytes) | every step netem reported (links.csv's steps) |
-//! | `/links/bytes` | `swarm.LinkBytes` (per link: state, bytes each way, queued) | with `/links` |
-//! | `/stats` | `swarm.RunStats` (best coverage, largest backlog, team bytes per traffic class, per robot coverage and bytes) | every step with reports |
+//! The topics, their schemas and when each is sent are listed once, for users, in
+//! docs/guide/viewer.md; [`TEAM_TOPICS`] and `Channels` are what the code publishes.
 //!
 //! Times are the run's simulated clock (step × `clock.step_seconds`, from 0). Messages leave in
 //! log-time order: a step's messages wait until the records of the step after next come (the
