@@ -294,7 +294,7 @@ mod tests {
     #[test]
     #[ignore]
     fn write_seed_corpus() {
-        use proto::msg::{encode, LinkCut, LinkState, OpChunk, PlannedLink, RobotStatus};
+        use proto::msg::{encode, LinkAir, LinkCut, LinkState, NodeAir, OpChunk, PlannedLink, RobotStatus};
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         // Radio: three robots of each strategy and exchange mode talking for a few steps.
         let mut seen = std::collections::BTreeSet::new();
@@ -404,9 +404,14 @@ mod tests {
             queued_bytes: 0,
             connected: true,
             cut: None,
+            air: Some(LinkAir { share: [Some(100), Some(60)], airtime: [80, 0], lost: [false, true], delivery: [0.9, 0.9] }),
         };
         let cut = LinkState { a: 0, b: 2, up: false, connected: false, cut: Some(LinkCut::Fault), ..state.clone() };
-        write("sim_plane", "link-report", &encode(&LinkReport { step: 5, links: vec![state, cut] }));
+        write("sim_plane", "link-report", &encode(&LinkReport {
+                step: 5,
+                links: vec![state, cut],
+                nodes: vec![NodeAir { id: 0, share: 100, airtime: 120, utilisation: 0.3, frames_lost: 1, retransmitted: 20 }],
+            }));
         // Scenarios: the embedded default and every shipped scenario, plus faults of each kind.
         write("scenario", "default.toml", &std::fs::read(root.join("configs/default.toml")).expect("default.toml"));
         for e in std::fs::read_dir(root.join("configs/scenarios")).expect("configs/scenarios").flatten() {

@@ -55,6 +55,12 @@ pub(crate) struct Shared {
     /// The index in `links` of each pair (lower id first).
     pub(crate) by_pair: HashMap<Pair, usize>,
     pub(crate) radio: Radio,
+    /// `airtime`: the radio whose range is the interference range (`None`: the links' own).
+    pub(crate) interference: Option<Radio>,
+    /// The shared channel and lost frames, step by step (lockstep with markers).
+    pub(crate) channel: Mutex<crate::channel::Channel>,
+    /// Each node's use of the channel in the last step closed.
+    pub(crate) nodes_air: Mutex<Vec<proto::msg::NodeAir>>,
     pub(crate) step_seconds: f64,
     /// See [`NetemConfig::markers`](crate::NetemConfig::markers).
     pub(crate) markers: bool,

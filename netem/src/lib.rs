@@ -3,7 +3,7 @@
 //! A byte-level proxy, not a simulator: one TCP listener per unordered robot pair {a, b}
 //! (a < b). Robot a's radio session connects to it; netem forwards to robot b's radio listener,
 //! and every byte the robots exchange crosses it. Per link and direction netem shapes the bytes
-//! on the *simulated* clock (bandwidth per link or one shared medium, latency, jitter), cuts the
+//! on the *simulated* clock (bandwidth per link, or one channel shared in airtime, latency, jitter, lost frames), cuts the
 //! link when the radio model says the robots are out of range, injects faults (toxiproxy's
 //! toxics, over a toxiproxy-compatible HTTP API too), and counts what crossed. Only [`node`]
 //! touches zenoh: it reads poses from the sim plane, calls [`Netem::on_step`] and publishes the
@@ -21,6 +21,10 @@
 
 /// Byte counters per link and direction, and the bounded per-connection buffer.
 pub mod accounting;
+/// Airtime on one shared channel: max-min fair shares over the interference graph (pure).
+pub mod airtime;
+/// The channel step by step in lockstep: shares and lost frames for the plan, use for the tables.
+pub mod channel;
 /// Command line and process entry.
 pub mod cli;
 /// The state the handle, the HTTP API and the tasks share; applying faults to links.
@@ -40,7 +44,8 @@ pub mod metrics;
 pub mod netem;
 /// netem on the sim plane: poses in, link reports out.
 pub mod node;
-/// Radio models: always, disk, log-distance path loss with walls on the truth map.
+/// Radio models: always, disk, log-distance path loss with walls on the truth map; shadowing,
+/// fading and the seeded loss draws.
 pub mod radio;
 /// The per-direction pipeline of network effects (corrupt, bandwidth, latency) and its harness.
 pub mod shaping;

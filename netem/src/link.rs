@@ -140,6 +140,9 @@ pub struct Link {
     refused_total: AtomicU64,
     /// Per direction, what the link's budget can still carry (lockstep with markers).
     credit: Mutex<[Option<Credit>; 2]>,
+    /// Per direction, the step's airtime share and whether its frame is lost (netem's
+    /// [`Channel`](crate::channel::Channel)).
+    air: Mutex<[AirPlan; 2]>,
     /// Connections through the link that reached robot b (see [`Link::serve`]).
     through: watch::Sender<usize>,
     /// netem's stop: the accept loop ends and connections held ([`Link::hold`]) end at once —
@@ -174,6 +177,16 @@ impl Credit {
         let level = (before - bytes as f64 + rate as f64 * step_seconds).clamp(0.0, burst as f64);
         Credit { level }
     }
+}
+
+/// A direction's part of the shared channel in a step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AirPlan {
+    /// The airtime share with the frame header's allowance, bytes: a cap on the credit
+    /// (`None`: the channel is not shared).
+    pub credit: Option<u32>,
+    /// The frame of the step is lost once: its receiver acts on it a step later.
+    pub lost: bool,
 }
 
 /// A copy of a link's state and counters.
@@ -228,6 +241,7 @@ impl Link {
             established_total: AtomicU64::new(0),
             refused_total: AtomicU64::new(0),
             credit: Mutex::new([None, None]),
+            air: Mutex::new([AirPlan::default(); 2]),
             through: watch::Sender::new(0),
             shutdown,
         })
@@ -632,10 +646,16 @@ impl Link {
         }
     }
 
+    /// The step's airtime shares and lost frames, per direction.
+    pub fn set_air(&self, air: [AirPlan; 2]) {
+        *lock(&self.air) = air;
+    }
+
     /// The link as a step's plan announces it (steps of `step_ns`), if it is up: per direction
     /// its own rate (a shared medium aside) and its latency with the jitter at the most,
-    /// rounded up to whole steps; held if either direction is stalled. Every toxic counts,
-    /// whatever its toxicity.
+    /// rounded up to whole steps, one more if its frame of the step is lost; its credit, within
+    /// its airtime share on a shared channel; held if either direction is stalled. Every toxic
+    /// counts, whatever its toxicity.
     pub fn planned(&self, step_ns: u64) -> Option<PlannedLink> {
         if !self.is_up() {
             return None;
@@ -653,13 +673,19 @@ impl Link {
             let ns = s.latency_ns.saturating_add(s.jitter_ns);
             u32::try_from(ns.div_ceil(step_ns.max(1))).unwrap_or(u32::MAX)
         };
+        let air = *lock(&self.air);
+        let credit = lock(&self.credit).map(|c| c.map(|c| c.level.floor() as u32));
+        let credit = [0, 1].map(|i| match (credit[i], air[i].credit) {
+            (Some(c), Some(s)) => Some(c.min(s)),
+            (c, s) => c.or(s),
+        });
         Some(PlannedLink {
             a: self.params.a,
             b: self.params.b,
             rate: [rate(&shapes[0]), rate(&shapes[1])],
-            delay: [delay(&shapes[0]), delay(&shapes[1])],
+            delay: [0, 1].map(|i| delay(&shapes[i]).saturating_add(u32::from(air[i].lost))),
             held: shapes.iter().any(|s| s.stalled),
-            credit: lock(&self.credit).map(|c| c.map(|c| c.level.floor() as u32)),
+            credit,
         })
     }
 }

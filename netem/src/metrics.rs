@@ -454,6 +454,7 @@ mod tests {
             distance_m: 12.5,
             walls: None,
             signal_dbm: None,
+            margin_db: None,
         });
         render(
             format,

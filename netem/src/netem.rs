@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use proto::geom::{MapInfo, Pose};
 use proto::grid::Grid;
-use proto::msg::{LinkPlan, ProcessOrder, RobotId, Step};
+use proto::msg::{LinkAir, LinkPlan, NodeAir, ProcessOrder, RobotId, Step};
 use proto::scenario::{
     Clock, ClockMode, Medium, Netem as ScenarioNetem, Radio as ScenarioRadio, RadioModel,
 };
@@ -25,10 +25,12 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use crate::accounting::Dir;
+use crate::channel::{Channel, ChannelConfig, OpenLink};
 use crate::control::{
     burst_seconds, lock, NetemError, ProcessDesk, Shared, StepState, PROCESS_ORDERS_QUEUED,
 };
 use crate::faults::{self, BaseShape, Fault, Pair, ScheduledFault};
+use crate::link::AirPlan;
 use crate::link::{Link, LinkParams, LinkSnapshot, LinkState};
 use crate::radio::{Model, PathLoss, Radio};
 use crate::shaping::Budget;
@@ -126,6 +128,13 @@ fn validate(cfg: &NetemConfig) -> Result<(), NetemError> {
     cfg.clock.validate().map_err(scenario)?;
     cfg.radio.validate().map_err(scenario)?;
     cfg.netem.validate().map_err(scenario)?;
+    if !cfg.clock.marked() && (cfg.radio.medium == Medium::Airtime || cfg.radio.lossy()) {
+        return bad(
+            "radio.medium = \"airtime\", radio.frame_loss and radio.fading_db act through the step \
+             plan: they need lockstep with markers"
+                .into(),
+        );
+    }
     let mut seen = HashMap::new();
     for p in &cfg.pairs {
         if p.a >= p.b {
@@ -177,6 +186,27 @@ fn radio_model(cfg: &NetemConfig) -> Model {
     }
 }
 
+/// Link (a, b)'s use of the channel from the directions of a step that closed.
+fn link_air(
+    air: &std::collections::BTreeMap<crate::channel::Dir, crate::channel::DirAir>,
+    a: RobotId,
+    b: RobotId,
+) -> Option<LinkAir> {
+    let ab = air.get(&(a, b));
+    let ba = air.get(&(b, a));
+    if ab.is_none() && ba.is_none() {
+        return None;
+    }
+    let d = |x: Option<&crate::channel::DirAir>| x.copied().unwrap_or_default();
+    let (ab, ba) = (d(ab), d(ba));
+    Some(LinkAir {
+        share: [ab.share, ba.share],
+        airtime: [ab.airtime, ba.airtime],
+        lost: [ab.lost, ba.lost],
+        delivery: [ab.delivery as f32, ba.delivery as f32],
+    })
+}
+
 /// How long [`Netem::shutdown`] waits for connections to end by themselves before it resets them.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(1);
 
@@ -196,7 +226,22 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         .await?
         .into_iter()
         .unzip();
-    let radio = Radio::new(radio_model(&cfg), cfg.truth.map(Arc::new));
+    let radio = Radio::new(radio_model(&cfg), cfg.truth.map(Arc::new))
+        .with_shadowing(cfg.seed, cfg.radio.shadowing_db);
+    let interference = (cfg.radio.medium == Medium::Airtime)
+        .then_some(cfg.radio.interference_range_m)
+        .flatten()
+        .map(|r| radio.with_range(r));
+    let channel = Channel::new(ChannelConfig {
+        capacity: cfg
+            .radio
+            .allocates_airtime(&cfg.clock)
+            .then(|| rate as f64 * cfg.clock.step_seconds),
+        everyone_hears: cfg.radio.medium == Medium::Shared,
+        frame_loss: cfg.radio.frame_loss,
+        fading_db: cfg.radio.fading_db,
+        seed: cfg.seed,
+    });
     let mut faults = cfg.faults;
     faults.sort_by_key(|f| f.step);
     // Faults scheduled for step 0 hold from the start, before any robot can connect.
@@ -210,6 +255,9 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
             .collect(),
         links,
         radio,
+        interference,
+        channel: Mutex::new(channel),
+        nodes_air: Mutex::new(Vec::new()),
         step_seconds: cfg.clock.step_seconds,
         markers: cfg.clock.marked(),
         steps: Mutex::new(StepState {
@@ -258,8 +306,12 @@ async fn bind_links(
 ) -> Result<Vec<(Arc<Link>, TcpListener)>, NetemError> {
     let rate = cfg.radio.bandwidth_bytes_per_s;
     let burst = |rate| burst_seconds(rate, cfg.clock.step_seconds, cfg.clock.marked());
-    let medium = (rate > 0 && cfg.radio.medium == Medium::Shared)
-        .then(|| Budget::new(rate, burst(rate), true, clock.clone()));
+    // In lockstep with markers a shared channel is netem's step plan (`channel`), not a budget
+    // that would hold markers back; `airtime` exists only there.
+    let medium = (rate > 0
+        && cfg.radio.medium == Medium::Shared
+        && !cfg.radio.allocates_airtime(&cfg.clock))
+    .then(|| Budget::new(rate, burst(rate), true, clock.clone()));
     let ns = |ms: f64| (ms * 1e6).round() as u64;
     let mut links = Vec::new();
     for (i, p) in cfg.pairs.iter().enumerate() {
@@ -361,6 +413,13 @@ impl Netem {
                 (l.snapshot(), bytes)
             })
             .collect();
+        let carried = (self.shared.links.iter().zip(&before))
+            .flat_map(|(l, (_, bytes))| {
+                let (a, b) = (l.params.a, l.params.b);
+                [((a, b), bytes[0]), ((b, a), bytes[1])]
+            })
+            .collect();
+        let (nodes, air) = lock(&self.shared.channel).close(&carried);
         self.update_links(step, poses);
         let rows = self
             .shared
@@ -394,10 +453,15 @@ impl Netem {
                     distance_m: was.distance_m,
                     signal_dbm: was.signal_dbm,
                     walls: was.walls,
+                    air: link_air(&air, l.params.a, l.params.b),
                     ..now
                 }
             })
             .collect();
+        if ending.is_some() {
+            *lock(&self.shared.nodes_air) = nodes;
+        }
+        self.open_channel(step);
         self.advance_clock(step);
         if ending.is_some() {
             rows
@@ -414,6 +478,53 @@ impl Netem {
         LinkPlan {
             step: sh.step().unwrap_or(0),
             links: sh.links.iter().filter_map(|l| l.planned(step_ns)).collect(),
+        }
+    }
+
+    /// Each node's use of the radio channel in the last step [`Self::advance`] closed (empty
+    /// unless the channel is shared or lossy).
+    pub fn nodes_air(&self) -> Vec<NodeAir> {
+        lock(&self.shared.nodes_air).clone()
+    }
+
+    /// The channel's shares and lost frames of `step`, onto the links the plan reads.
+    fn open_channel(&self, step: Step) {
+        let sh = &self.shared;
+        let poses = lock(&sh.steps).poses.clone();
+        let nodes: Vec<RobotId> = (poses.iter())
+            .filter(|(_, (_, alive))| *alive)
+            .map(|(id, _)| *id)
+            .collect();
+        let links: Vec<OpenLink> = (sh.links.iter())
+            .map(|l| {
+                let snap = l.snapshot();
+                OpenLink {
+                    a: l.params.a,
+                    b: l.params.b,
+                    usable: snap.up && !snap.held,
+                    margin_db: snap.verdict.and_then(|v| v.margin_db),
+                }
+            })
+            .collect();
+        let hear = |a: RobotId, b: RobotId| match (poses.get(&a), poses.get(&b)) {
+            (Some((pa, _)), Some((pb, _))) => match &sh.interference {
+                Some(r) => r.evaluate_pair((a, b), pa, pb).in_range,
+                None => sh.radio.evaluate_pair((a, b), pa, pb).in_range,
+            },
+            _ => false,
+        };
+        let air = lock(&sh.channel).open(step, &nodes, hear, &links);
+        for l in &sh.links {
+            let (a, b) = (l.params.a, l.params.b);
+            let plan = |d| {
+                air.get(&d).map_or(AirPlan::default(), |x| AirPlan {
+                    credit: x
+                        .share
+                        .map(|s| s.saturating_add(proto::msg::MARK_RESERVE_BYTES)),
+                    lost: x.lost,
+                })
+            };
+            l.set_air([plan((a, b)), plan((b, a))]);
         }
     }
 
@@ -450,7 +561,9 @@ impl Netem {
             let pa = poses.get(&l.params.a);
             let pb = poses.get(&l.params.b);
             let verdict = match (pa, pb) {
-                (Some((a, _)), Some((b, _))) => Some(sh.radio.evaluate(a, b)),
+                (Some((a, _)), Some((b, _))) => {
+                    Some(sh.radio.evaluate_pair((l.params.a, l.params.b), a, b))
+                }
                 _ => None,
             };
             let alive = pa.is_none_or(|p| p.1) && pb.is_none_or(|p| p.1);

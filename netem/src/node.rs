@@ -48,6 +48,7 @@ fn state(t: &LinkTelemetry) -> LinkState {
         queued_bytes: t.queued_bytes,
         connected: t.connections > 0,
         cut: cut(t),
+        air: t.air,
     }
 }
 
@@ -107,7 +108,7 @@ pub async fn follow(
                     sim.put(keys::plan(id), encode(&plan)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
                 }
                 if let (Some(prev), false) = (last, rows.is_empty()) {
-                    let report = LinkReport { step: prev, links: rows.iter().map(state).collect() };
+                    let report = LinkReport { step: prev, links: rows.iter().map(state).collect(), nodes: netem.nodes_air() };
                     sim.put(keys::NETEM_LINKS, encode(&report)).congestion_control(CongestionControl::Block).await.map_err(zerr)?;
                 }
                 last = Some(st.step);

@@ -41,6 +41,8 @@ pub struct LinkTelemetry {
     pub toxics: usize,
     /// Up but held (a blackhole).
     pub held: bool,
+    /// Its use of the shared or lossy channel in the step (`None`: neither, or not usable).
+    pub air: Option<proto::msg::LinkAir>,
 }
 
 /// The row of link snapshot `s` at `step`, with `step_bytes` as the step's bytes (a→b, b→a).
@@ -75,5 +77,6 @@ pub(crate) fn telemetry_row(
         refused_total: s.refused_total,
         toxics: s.toxics.len(),
         held: s.held,
+        air: None,
     }
 }

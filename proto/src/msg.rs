@@ -14,7 +14,7 @@ use crate::geom::{LaserSpec, MapInfo, Metres, Pose};
 use crate::grid::Cell;
 
 /// Bumped whenever any message below changes shape.
-pub const PROTOCOL_VERSION: u16 = 15;
+pub const PROTOCOL_VERSION: u16 = 16;
 
 pub use crate::ids::{RobotId, Step};
 
@@ -458,6 +458,12 @@ impl PlannedLink {
     }
 }
 
+/// Of a link's credit, what a robot leaves for its [`Frame`]: the frame's header (the step
+/// marker) with zenoh's framing, and a margin for the framing it does not foresee (sequence
+/// numbers grow). On a shared channel netem gives each frame this much on top of its airtime
+/// share: the marker is the lockstep protocol's, not the radio's, and costs no airtime.
+pub const MARK_RESERVE_BYTES: u32 = 48;
+
 /// Radio, lockstep with step markers: everything `from` sends one neighbour in `step`, as one
 /// message, and the end of it (the step marker). zenoh's framing and the marker are paid once per
 /// link and step, not once per message. Each record is a radio kind (its index in
@@ -476,6 +482,39 @@ pub struct Frame {
 pub struct LinkReport {
     pub step: Step,
     pub links: Vec<LinkState>,
+    /// Each live node's use of the radio channel, when netem shares it or loses frames
+    /// (`radio.medium` `shared`/`airtime`, `radio.frame_loss`, `radio.fading_db`); else empty.
+    pub nodes: Vec<NodeAir>,
+}
+
+/// One node's use of the radio channel in a step (docs/guide/radio.md).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NodeAir {
+    pub id: RobotId,
+    /// The airtime shares of its links, bytes (0 when the channel is not shared).
+    pub share: u64,
+    /// The airtime it used: its frames' bytes beyond their headers, and frames it sent again.
+    pub airtime: u64,
+    /// The airtime of every sender it hears (itself included) over the channel's capacity: how
+    /// busy the channel was where it is (0 when the channel is not shared).
+    pub utilisation: f32,
+    /// Its frames lost in the step (each sent again in the next).
+    pub frames_lost: u32,
+    /// The bytes of its frames sent again in the step.
+    pub retransmitted: u64,
+}
+
+/// One link's use of the radio channel in a step, `[a → b, b → a]`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkAir {
+    /// The airtime share of each direction, bytes (`None`: the channel is not shared).
+    pub share: [Option<u32>; 2],
+    /// The airtime each direction used (its bytes beyond the frame header).
+    pub airtime: [u64; 2],
+    /// Each direction's frame of the step was lost (and sent again in the next).
+    pub lost: [bool; 2],
+    /// The probability that each direction's frame is delivered.
+    pub delivery: [f32; 2],
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -495,6 +534,9 @@ pub struct LinkState {
     pub connected: bool,
     /// Why the link is down (`up` false), or that it is up but held (a blackhole).
     pub cut: Option<LinkCut>,
+    /// Its use of the radio channel, when netem shares it or loses frames; `None` otherwise or
+    /// when the link carried nothing in the step.
+    pub air: Option<LinkAir>,
 }
 
 /// Why a link carries nothing in a step, as netem says.
@@ -1172,6 +1214,20 @@ mod tests {
                 queued_bytes: 7,
                 connected: true,
                 cut: Some(LinkCut::Blackhole),
+                air: Some(LinkAir {
+                    share: [Some(120), None],
+                    airtime: [100, 0],
+                    lost: [true, false],
+                    delivery: [0.75, 0.5],
+                }),
+            }],
+            nodes: vec![NodeAir {
+                id: 2,
+                share: 120,
+                airtime: 140,
+                utilisation: 0.5,
+                frames_lost: 1,
+                retransmitted: 40,
             }],
         });
         round_trip(Hello {

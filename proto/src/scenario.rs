@@ -176,6 +176,21 @@ pub struct Radio {
     /// `None`: the threshold at which the free-space range is `range_m`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pathloss_threshold_dbm: Option<f64>,
+    /// `airtime`: how far a sender's transmission occupies the channel (its carrier-sense
+    /// range), in metres, by the same model as the links (`pathloss`: the free-space range of
+    /// the threshold it gives, walls shorten it); `None`: exactly the nodes it can talk to.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub interference_range_m: Option<f64>,
+    /// The probability that a step's frame on a link is lost once (and sent again a step
+    /// later), whatever the signal, in [0, 1).
+    pub frame_loss: f64,
+    /// `pathloss`: σ of the log-normal shadowing, dB: each robot pair's signal is off the
+    /// model's by a fixed draw from N(0, σ²) (seeded by the scenario's seed and the pair).
+    pub shadowing_db: f64,
+    /// `pathloss`: σ of the fading around the (shadowed) signal in each step, dB: a frame is
+    /// delivered with probability Φ(margin / σ), the margin being the signal above the
+    /// threshold; 0: no fading.
+    pub fading_db: f64,
 }
 
 /// netem's own knobs (the link emulator's process, not the radio it emulates).
@@ -235,7 +250,40 @@ impl Radio {
                 "must be a finite number",
             ));
         }
+        if let Some(r) = self.interference_range_m {
+            positive("radio.interference_range_m", r)?;
+        }
+        if !(0.0..1.0).contains(&self.frame_loss) {
+            return Err(invalid(
+                "radio.frame_loss",
+                self.frame_loss,
+                "must be in [0, 1)",
+            ));
+        }
+        for (key, v) in [
+            ("radio.shadowing_db", self.shadowing_db),
+            ("radio.fading_db", self.fading_db),
+        ] {
+            if !(v.is_finite() && (0.0..=40.0).contains(&v)) {
+                return Err(invalid(key, v, "must be in [0, 40] dB"));
+            }
+            if v > 0.0 && self.model != RadioModel::Pathloss {
+                return Err(invalid(key, v, "needs radio.model = \"pathloss\" (or 0)"));
+            }
+        }
         Ok(())
+    }
+
+    /// Whether frames can be lost (`frame_loss` or fading): netem draws a loss per link,
+    /// direction and step.
+    pub fn lossy(&self) -> bool {
+        self.frame_loss > 0.0 || self.fading_db > 0.0
+    }
+
+    /// Whether netem allocates the channel's airtime step by step (`shared` and `airtime` in
+    /// lockstep with markers, with a rate): its plan's credits are the senders' shares.
+    pub fn allocates_airtime(&self, clock: &Clock) -> bool {
+        clock.marked() && self.bandwidth_bytes_per_s > 0 && self.medium != Medium::PerLink
     }
 }
 
@@ -274,6 +322,7 @@ pub enum RadioModel {
 pub enum Medium {
     PerLink,
     Shared,
+    Airtime,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -614,6 +663,10 @@ impl Default for Radio {
             pathloss_wall_attenuation_db: 3.1,
             pathloss_max_walls: 4,
             pathloss_threshold_dbm: None,
+            interference_range_m: None,
+            frame_loss: 0.0,
+            shadowing_db: 0.0,
+            fading_db: 0.0,
         }
     }
 }
@@ -840,6 +893,7 @@ impl Scenario {
         s.validate_robots()?;
         s.validate_sensor()?;
         s.radio.validate()?;
+        s.validate_channel()?;
         s.netem.validate()?;
         s.validate_supervise()?;
         s.process_faults()?;
@@ -854,6 +908,34 @@ impl Scenario {
         s.validate_roles()?;
         s.validate_pack()?;
         s.validate_base_station()
+    }
+
+    /// `radio.medium = "airtime"` and lossy links act through the step plan: lockstep with
+    /// markers only.
+    fn validate_channel(&self) -> Result<(), ScenarioError> {
+        if self.clock.marked() {
+            return Ok(());
+        }
+        if self.radio.medium == Medium::Airtime {
+            return Err(invalid(
+                "radio.medium",
+                "\"airtime\"",
+                "needs clock.mode = \"lockstep\" with clock.markers = true (use \"shared\" or \"per-link\")",
+            ));
+        }
+        if self.radio.lossy() {
+            let (key, v) = if self.radio.frame_loss > 0.0 {
+                ("radio.frame_loss", self.radio.frame_loss)
+            } else {
+                ("radio.fading_db", self.radio.fading_db)
+            };
+            return Err(invalid(
+                key,
+                v,
+                "frames are lost through the step plan: needs clock.mode = \"lockstep\" with clock.markers = true (or 0)",
+            ));
+        }
+        Ok(())
     }
 
     /// `[world]`: a map named, a resolution and an extent in range.

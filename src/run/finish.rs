@@ -28,7 +28,8 @@ use crate::rundir::summary::{
     SCHEMA_VERSION,
 };
 use crate::rundir::tables::{
-    link_totals_wire, write_links, write_metrics, write_saves_and_views, write_traffic, MetricsRow,
+    link_totals_wire, write_channel, write_links, write_metrics, write_saves_and_views,
+    write_traffic, MetricsRow,
 };
 use crate::score::awareness::{mean_of_step_means, steps_since_base};
 use crate::score::connectivity::UpLinks;
@@ -424,7 +425,8 @@ pub fn write_tables(dir: &Path, rec: &Record) -> anyhow::Result<()> {
     write_metrics(dir, &rec.eval.rows)?;
     write_traffic(dir, &rec.eval.rows)?;
     write_saves_and_views(dir, &rec.eval.saves, &rec.eval.views)?;
-    write_links(dir, &rec.links)
+    write_links(dir, &rec.links)?;
+    write_channel(dir, &rec.links)
 }
 
 /// `truth.png` with every trajectory, `robot_<id>.png` per robot, every robot's final

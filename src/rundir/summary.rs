@@ -178,11 +178,22 @@ pub const DIGESTED: [&str; 5] = [
     "views.csv",
 ];
 
-/// sha256 over the [`DIGESTED`] tables and `grids/*.pgm`, each as its name, length and bytes, in
+/// Tables a run writes only with some scenarios (a shared or lossy channel), digested when
+/// they are there (after [`DIGESTED`], before the grids) and not named when they are not, so
+/// that runs without them keep their digests.
+pub const DIGESTED_IF_PRESENT: [&str; 2] = ["channel_nodes.csv", "channel_links.csv"];
+
+/// sha256 over the [`DIGESTED`] tables, those of [`DIGESTED_IF_PRESENT`] there are, and
+/// `grids/*.pgm`, each as its name, length and bytes, in
 /// a fixed order (a missing table counts as empty).
 pub fn run_digest(dir: &Path) -> anyhow::Result<String> {
     use sha2::{Digest, Sha256};
     let mut names: Vec<String> = DIGESTED.iter().map(|s| s.to_string()).collect();
+    names.extend(
+        (DIGESTED_IF_PRESENT.iter())
+            .filter(|n| dir.join(n).exists())
+            .map(|s| s.to_string()),
+    );
     if let Ok(rd) = std::fs::read_dir(dir.join("grids")) {
         let mut grids: Vec<String> = rd
             .filter_map(|e| e.ok())

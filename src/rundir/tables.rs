@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::Context;
-use proto::msg::{LinkReport, LinkState, RobotId, Step, Traffic};
+use proto::msg::{LinkReport, LinkState, NodeAir, RobotId, Step, Traffic};
 use serde::{Deserialize, Serialize};
 
 use crate::rundir::summary::*;
@@ -97,17 +97,23 @@ pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
 #[derive(Default)]
 pub struct LinkLog {
     reports: Vec<(Step, Box<[u8]>)>,
+    /// Each report's nodes' use of the channel (only when netem shares it or loses frames).
+    nodes: Vec<(Step, Vec<NodeAir>)>,
 }
 
 impl LinkLog {
     pub fn add(&mut self, r: LinkReport) {
         let packed = proto::msg::encode(&r.links).into_boxed_slice();
         self.reports.push((r.step, packed));
+        if !r.nodes.is_empty() {
+            self.nodes.push((r.step, r.nodes));
+        }
     }
 
     /// Drops the reports of steps after `last`.
     pub fn truncate(&mut self, last: Step) {
         self.reports.retain(|(s, _)| *s <= last);
+        self.nodes.retain(|(s, _)| *s <= last);
     }
 
     /// The latest step reported.
@@ -345,6 +351,80 @@ pub fn write_links(dir: &Path, log: &LinkLog) -> anyhow::Result<()> {
     write_rows(&dir.join("links.csv"), rows)
 }
 
+/// A row of `channel_nodes.csv`: one node's use of the radio channel during one step.
+#[derive(Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ChannelNodeCsv {
+    pub step: Step,
+    pub node: RobotId,
+    /// Its links' airtime shares, bytes (0: the channel is not shared).
+    pub share_bytes: u64,
+    /// Airtime used: frames beyond their headers, and frames sent again.
+    pub airtime_bytes: u64,
+    /// Airtime of every sender it hears, itself included, over the channel's capacity.
+    pub utilisation: Fixed<4>,
+    pub frames_lost: u32,
+    pub retransmitted_bytes: u64,
+}
+
+/// A row of `channel_links.csv`: one link's use of the channel during one step in which it
+/// could carry something (up and not held).
+#[derive(Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ChannelLinkCsv {
+    pub step: Step,
+    pub a: RobotId,
+    pub b: RobotId,
+    /// Airtime shares, bytes (empty: the channel is not shared).
+    pub share_a_to_b: Option<u32>,
+    pub share_b_to_a: Option<u32>,
+    pub airtime_a_to_b: u64,
+    pub airtime_b_to_a: u64,
+    pub lost_a_to_b: Flag,
+    pub lost_b_to_a: Flag,
+    pub delivery_a_to_b: Fixed<4>,
+    pub delivery_b_to_a: Fixed<4>,
+}
+
+/// `channel_nodes.csv` and `channel_links.csv`, when netem shared the channel or lost frames
+/// (`radio.medium` `shared`/`airtime`, `radio.frame_loss`, `radio.fading_db`); nothing
+/// otherwise.
+pub fn write_channel(dir: &Path, log: &LinkLog) -> anyhow::Result<()> {
+    if log.nodes.is_empty() {
+        return Ok(());
+    }
+    let mut nodes: Vec<ChannelNodeCsv> = (log.nodes.iter())
+        .flat_map(|(step, ns)| {
+            ns.iter().map(move |n| ChannelNodeCsv {
+                step: *step,
+                node: n.id,
+                share_bytes: n.share,
+                airtime_bytes: n.airtime,
+                utilisation: Fixed(f64::from(n.utilisation)),
+                frames_lost: n.frames_lost,
+                retransmitted_bytes: n.retransmitted,
+            })
+        })
+        .collect();
+    nodes.sort_by_key(|r| (r.step, r.node));
+    write_rows(&dir.join("channel_nodes.csv"), nodes)?;
+    let links = log.sorted_rows().filter_map(|(step, l)| {
+        let air = l.air?;
+        Some(ChannelLinkCsv {
+            step,
+            a: l.a,
+            b: l.b,
+            share_a_to_b: air.share[0],
+            share_b_to_a: air.share[1],
+            airtime_a_to_b: air.airtime[0],
+            airtime_b_to_a: air.airtime[1],
+            lost_a_to_b: Flag(air.lost[0]),
+            lost_b_to_a: Flag(air.lost[1]),
+            delivery_a_to_b: Fixed(f64::from(air.delivery[0])),
+            delivery_b_to_a: Fixed(f64::from(air.delivery[1])),
+        })
+    });
+    write_rows(&dir.join("channel_links.csv"), links)
+}
+
 /// A number written with `D` decimals (the precision the schema keeps).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Fixed<const D: usize>(pub f64);
@@ -516,6 +596,7 @@ mod tests {
             queued_bytes: 0,
             connected,
             cut: None,
+            air: None,
         }
     }
 
@@ -683,6 +764,7 @@ mod tests {
             log.add(LinkReport {
                 step: *step,
                 links: links.clone(),
+                nodes: Vec::new(),
             });
         }
         let added: Vec<(Step, LinkState)> = reports
@@ -720,6 +802,7 @@ mod tests {
             log.add(LinkReport {
                 step: step as Step,
                 links: vec![state(up, c)],
+                nodes: Vec::new(),
             });
         }
         let r = log.reconnects();

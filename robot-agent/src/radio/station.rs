@@ -216,10 +216,7 @@ pub struct Radio {
     nodes: usize,
 }
 
-/// Of a link's credit, what a robot leaves for its frame: the frame's header (the step marker)
-/// with zenoh's framing, and a margin for the framing it does not foresee (sequence numbers
-/// grow).
-pub const MARK_RESERVE_BYTES: u32 = 48;
+pub use proto::msg::MARK_RESERVE_BYTES;
 
 /// What a frame adds to a message of `len` bytes it carries: the kind's index and the length
 /// (a varint).
