@@ -84,6 +84,22 @@ fn malformed_scenarios_give_one_line_naming_the_key() {
         (vec!["--set", "world.map=no_such_map"], "no_such_map"),
         (vec!["--set", "clock.mode=\"sometimes\""], "sometimes"),
         (vec![file.to_str().expect("utf-8 path")], "radio.rnage_m"),
+        (vec!["--set", "radio.medium=wireless"], "wireless"),
+        (vec!["--set", "radio.frame_loss=1"], "radio.frame_loss"),
+        (vec!["--set", "radio.fading_db=3"], "radio.fading_db"),
+        (
+            vec!["--set", "radio.interference_range_m=0"],
+            "radio.interference_range_m",
+        ),
+        (
+            vec![
+                "--set",
+                "radio.medium=airtime",
+                "--set",
+                "clock.mode=realtime",
+            ],
+            "radio.medium",
+        ),
         (
             vec!["/nonexistent/scenario.toml"],
             "/nonexistent/scenario.toml",

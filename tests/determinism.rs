@@ -4,7 +4,8 @@
 //! machine, under a CPU hog on every core, and beside another run, every byte still crossing
 //! netem over real TCP. Checked on the default scenario and on 8 robots in the office with
 //! scheduled cut/restore, partition/heal, bandwidth change, latency and a blackhole
-//! (`configs/scenarios/faults.toml`).
+//! (`configs/scenarios/faults.toml`), and on 8 robots sharing one radio channel in airtime over
+//! lossy links and team-wide (`radio.medium`, issue #39).
 
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -17,16 +18,10 @@ use crate::support::{summary_typed, swarm_run, Launcher, TempDir, SWARM};
 /// The robots' tables and grids, compared file by file: the first difference, named by file and
 /// line.
 fn first_difference(a: &Path, b: &Path) -> Option<String> {
-    let mut names: Vec<String> = [
-        "links.csv",
-        "metrics.csv",
-        "traffic_by_type.csv",
-        "saves.csv",
-        "views.csv",
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect();
+    let mut names: Vec<String> = (swarm::rundir::summary::DIGESTED.iter())
+        .chain(&swarm::rundir::summary::DIGESTED_IF_PRESENT)
+        .map(|s| s.to_string())
+        .collect();
     if let Ok(rd) = std::fs::read_dir(a.join("grids")) {
         let mut g: Vec<String> = rd
             .filter_map(|e| e.ok())
@@ -167,6 +162,56 @@ fn eight_robots_under_scheduled_link_faults_give_the_same_run_every_time() {
         &[],
         Duration::from_secs(180),
         the_faults_happened,
+    );
+}
+
+/// One radio channel (issue #39): 8 robots in the office sharing it in airtime, on lossy links
+/// (path loss with shadowing and fading, and frames lost at random), and sharing one channel
+/// team-wide (`shared`): each the same run three ways, no step left to a timeout.
+#[test]
+fn a_shared_channel_and_lossy_links_give_the_same_run_every_time() {
+    let airtime = [
+        "robots.count=8",
+        "world.map=office",
+        "radio.medium=airtime",
+        "radio.model=pathloss",
+        "radio.shadowing_db=4",
+        "radio.fading_db=3",
+        "radio.frame_loss=0.05",
+    ];
+    same_run_three_ways(
+        "det-airtime",
+        None,
+        &airtime,
+        Duration::from_secs(240),
+        |run| the_channel_was_shared(run, true),
+    );
+    let shared = ["robots.count=8", "world.map=office", "radio.medium=shared"];
+    same_run_three_ways(
+        "det-shared",
+        None,
+        &shared,
+        Duration::from_secs(240),
+        |run| the_channel_was_shared(run, false),
+    );
+}
+
+/// The run's channel tables are there: shares on usable links, frames lost (when `lossy`) and
+/// none otherwise; no step was decided by a timeout.
+fn the_channel_was_shared(run: &Path, lossy: bool) {
+    let s = summary_typed(run);
+    assert!(s.deterministic && s.nondeterministic.is_empty(), "{s:?}");
+    let ch = s.channel.expect("summary.json's channel");
+    assert!(ch.airtime_bytes > 0 && ch.utilisation_mean > 0.0, "{ch:?}");
+    assert_eq!(ch.frames_lost > 0, lossy, "{ch:?}");
+    let text = std::fs::read_to_string(run.join("channel_links.csv")).expect("channel_links.csv");
+    let rows = text.lines().skip(1).count();
+    assert!(rows > 0, "channel_links.csv has rows");
+    assert!(
+        text.lines()
+            .skip(1)
+            .all(|l| !l.split(',').nth(3).unwrap_or("").is_empty()),
+        "every usable link has a share"
     );
 }
 

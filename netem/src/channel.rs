@@ -85,6 +85,19 @@ pub struct Channel {
     preload: BTreeMap<RobotId, (f64, u64)>,
     /// Per direction, from the step that closed: (share, airtime used).
     last: BTreeMap<Dir, (f64, u64)>,
+    /// Per node, over the run (for `/metrics`).
+    totals: BTreeMap<RobotId, NodeTotals>,
+}
+
+/// A node's use of the channel over the run, and in the last step closed.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NodeTotals {
+    pub airtime_bytes: u64,
+    pub frames_lost: u64,
+    pub retransmitted_bytes: u64,
+    /// In the last step closed.
+    pub share_bytes: u64,
+    pub utilisation: f64,
 }
 
 impl Channel {
@@ -97,6 +110,7 @@ impl Channel {
             dirs: BTreeMap::new(),
             preload: BTreeMap::new(),
             last: BTreeMap::new(),
+            totals: BTreeMap::new(),
         }
     }
 
@@ -105,6 +119,11 @@ impl Channel {
     pub fn active(&self) -> bool {
         let c = &self.cfg;
         c.capacity.is_some() || c.frame_loss > 0.0 || c.fading_db > 0.0
+    }
+
+    /// Each node's use of the channel so far (empty if the channel is idle).
+    pub fn totals(&self) -> &BTreeMap<RobotId, NodeTotals> {
+        &self.totals
     }
 
     /// The demand of direction `d` in the step that opens, bytes: all it gets if it is new or
@@ -238,7 +257,7 @@ impl Channel {
             *airtime.entry(*id).or_default() += again;
         }
         let cap = self.cfg.capacity;
-        let nodes = (self.nodes.iter().enumerate())
+        let nodes: Vec<NodeAir> = (self.nodes.iter().enumerate())
             .map(|(i, &id)| {
                 let heard: u64 = std::iter::once(i)
                     .chain(self.hears[i].iter().copied())
@@ -254,6 +273,14 @@ impl Channel {
                 }
             })
             .collect();
+        for n in &nodes {
+            let t = self.totals.entry(n.id).or_default();
+            t.airtime_bytes += n.airtime;
+            t.frames_lost += u64::from(n.frames_lost);
+            t.retransmitted_bytes += n.retransmitted;
+            t.share_bytes = n.share;
+            t.utilisation = f64::from(n.utilisation);
+        }
         self.preload = next.into_iter().filter(|(_, p)| p.0 > 0.0).collect();
         let dirs = self.dirs.iter().map(|(d, o)| (*d, o.air)).collect();
         (nodes, dirs)

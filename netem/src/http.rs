@@ -487,7 +487,8 @@ async fn metrics(State(sh): Sh, headers: axum::http::HeaderMap) -> Response {
         .get(axum::http::header::ACCEPT)
         .and_then(|v| v.to_str().ok());
     let format = crate::metrics::Format::negotiate(accept);
-    let text = crate::metrics::render(format, &sh.snapshots(), sh.step(), sh.now());
+    let nodes = lock(&sh.channel).totals().clone();
+    let text = crate::metrics::render(format, &sh.snapshots(), &nodes, sh.step(), sh.now());
     (
         StatusCode::OK,
         [(CONTENT_TYPE, format.content_type())],

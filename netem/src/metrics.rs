@@ -1,6 +1,7 @@
 //! The link counters for Prometheus (`GET /metrics`), so a Prometheus server, `promtool` or a
 //! plain `curl` can watch a run: bytes and chunks delivered per link and direction, bytes lost,
-//! bytes queued inside netem, and whether each link is up (docs/design.md §5 "Publishes per-step
+//! bytes queued inside netem, whether each link is up, and — when the radio channel is shared or
+//! lossy — each node's airtime, share, lost frames and how busy the channel is where it is (docs/design.md §5 "Publishes per-step
 //! link telemetry"; the per-step view itself goes through `Netem::telemetry`).
 //!
 //! Two expositions of the same families, chosen by the request's `Accept` ([`Format::negotiate`]):
@@ -26,9 +27,12 @@ use prometheus_client::metrics::gauge::ConstGauge;
 use prometheus_client::metrics::MetricType;
 use prometheus_client::registry::{Registry, Unit};
 
-use proto::msg::Step;
+use std::collections::BTreeMap;
+
+use proto::msg::{RobotId, Step};
 
 use crate::accounting::Dir;
+use crate::channel::NodeTotals;
 use crate::link::LinkSnapshot;
 use proto::clock::SimTime;
 
@@ -284,8 +288,68 @@ fn per_link() -> [PerLink; 8] {
     ]
 }
 
+type PerNode = (Desc, fn(&NodeTotals) -> Value);
+
+/// The families with a series per node, when the channel is shared or lossy
+/// (docs/guide/radio.md).
+fn per_node() -> [PerNode; 5] {
+    use MetricType::{Counter, Gauge};
+    [
+        (
+            (
+                "netem_node_airtime",
+                "Airtime the node used on the radio channel: its frames beyond their headers, and frames sent again.",
+                Counter,
+                Some(Unit::Bytes),
+            ),
+            |t| Value::Count(t.airtime_bytes),
+        ),
+        (
+            (
+                "netem_node_frames_lost",
+                "The node's frames lost once (each sent again a step later).",
+                Counter,
+                None,
+            ),
+            |t| Value::Count(t.frames_lost),
+        ),
+        (
+            (
+                "netem_node_retransmitted",
+                "Bytes of the node's frames sent again.",
+                Counter,
+                Some(Unit::Bytes),
+            ),
+            |t| Value::Count(t.retransmitted_bytes),
+        ),
+        (
+            (
+                "netem_node_airtime_share",
+                "The airtime shares of the node's links in the last step (0: the channel is not shared).",
+                Gauge,
+                Some(Unit::Bytes),
+            ),
+            |t| int(t.share_bytes),
+        ),
+        (
+            (
+                "netem_node_channel_busy",
+                "How busy the channel was where the node is in the last step: the airtime of every sender it hears, itself included, over the capacity.",
+                Gauge,
+                Some(Unit::Other("ratio".into())),
+            ),
+            |t| Value::Real(t.utilisation),
+        ),
+    ]
+}
+
 /// Every family of one scrape.
-fn families(links: &[LinkSnapshot], step: Option<Step>, now: SimTime) -> Vec<Family> {
+fn families(
+    links: &[LinkSnapshot],
+    nodes: &BTreeMap<RobotId, NodeTotals>,
+    step: Option<Step>,
+    now: SimTime,
+) -> Vec<Family> {
     let names: Vec<String> = links.iter().map(|l| label(&l.name)).collect();
     let mut out = Vec::new();
     for (desc, get) in per_dir() {
@@ -305,6 +369,14 @@ fn families(links: &[LinkSnapshot], step: Option<Step>, now: SimTime) -> Vec<Fam
             .filter_map(|(l, link)| Some((vec![("link", link.clone())], get(l)?)))
             .collect();
         out.push(Family { desc, samples });
+    }
+    if !nodes.is_empty() {
+        for (desc, get) in per_node() {
+            let samples = (nodes.iter())
+                .map(|(id, t)| (vec![("node", id.to_string())], get(t)))
+                .collect();
+            out.push(Family { desc, samples });
+        }
     }
     use MetricType::Gauge;
     out.push(Family {
@@ -397,9 +469,16 @@ fn classic(families: &[Family]) -> String {
     out
 }
 
-/// Renders every metric for `links` in `format`.
-pub fn render(format: Format, links: &[LinkSnapshot], step: Option<Step>, now: SimTime) -> String {
-    let families = families(links, step, now);
+/// Renders every metric for `links` and `nodes` (the channel's, empty if it is idle) in
+/// `format`.
+pub fn render(
+    format: Format,
+    links: &[LinkSnapshot],
+    nodes: &BTreeMap<RobotId, NodeTotals>,
+    step: Option<Step>,
+    now: SimTime,
+) -> String {
+    let families = families(links, nodes, step, now);
     match format {
         Format::Classic => classic(&families),
         Format::OpenMetrics => {
@@ -456,9 +535,20 @@ mod tests {
             signal_dbm: None,
             margin_db: None,
         });
+        let nodes = BTreeMap::from([(
+            3,
+            NodeTotals {
+                airtime_bytes: 900,
+                frames_lost: 2,
+                retransmitted_bytes: 80,
+                share_bytes: 150,
+                utilisation: 0.75,
+            },
+        )]);
         render(
             format,
             &[snapshot(), far],
+            &nodes,
             Some(5),
             SimTime::from_secs_f64(5.0),
         )
@@ -494,11 +584,13 @@ mod tests {
             !text.contains("netem_link_distance_meters{link=\"r0-r1\"}"),
             "unknown distance is omitted"
         );
+        assert!(text.contains("netem_node_airtime_bytes_total{node=\"3\"} 900\n"));
+        assert!(text.contains("netem_node_channel_busy_ratio{node=\"3\"} 0.75\n"));
         assert!(text.ends_with("# EOF\n"), "OpenMetrics ends with EOF");
         // Every sample line is `name{labels} value` or `name value`, every family typed and
         // helped once (a counter's family is its name without `_total`).
         let (types, helps) = declared(&text);
-        assert_eq!(types.len(), 15);
+        assert_eq!(types.len(), 20);
         assert_eq!(
             helps,
             types.iter().map(|(f, _)| f.clone()).collect::<Vec<_>>()
@@ -521,7 +613,7 @@ mod tests {
     fn the_classic_format_names_counter_families_with_total_and_types_every_sample() {
         let text = scrape(Format::Classic);
         let (types, helps) = declared(&text);
-        assert_eq!(types.len(), 15);
+        assert_eq!(types.len(), 20);
         assert_eq!(
             helps,
             types.iter().map(|(f, _)| f.clone()).collect::<Vec<_>>()
@@ -531,6 +623,7 @@ mod tests {
         assert!(text.contains("# TYPE netem_link_distance_meters gauge\n"));
         assert!(text.contains("netem_link_distance_meters{link=\"r0-r2\"} 12.5\n"));
         assert!(text.contains("netem_sim_time_seconds 5\n"));
+        assert!(text.contains("netem_node_frames_lost_total{node=\"3\"} 2\n"));
         assert!(!text.contains("# EOF") && !text.contains("# UNIT"));
         // Every sample belongs to the family typed by its own name; counters end `_total`,
         // and each family's samples follow its declaration.

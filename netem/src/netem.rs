@@ -811,6 +811,72 @@ mod tests {
         );
     }
 
+    /// A shared channel in the step plan (issue #39): 3 robots that hear each other and a pair
+    /// far from them on one 900 B/s channel. Each of the 3 gets a third of the channel, split
+    /// over its two links; each of the pair half, on its one link (spatial reuse); every credit
+    /// has the frame header's allowance on top. With `shared` all 5 take one channel.
+    #[tokio::test]
+    async fn airtime_shares_reach_the_plan_and_a_lost_frame_is_a_step_late() {
+        let plan_of = |medium, frame_loss| {
+            let r_radio = ScenarioRadio {
+                frame_loss,
+                ..radio(RadioModel::Disk, 10.0, 900, medium)
+            };
+            async move {
+                let r = robots(5).await;
+                let mut cfg = NetemConfig::new(all_pairs(&r), r_radio);
+                cfg.clock.markers = true;
+                let n = start(cfg).await.unwrap();
+                let poses = [
+                    (0, at(0.0, 0.0), true),
+                    (1, at(3.0, 0.0), true),
+                    (2, at(0.0, 3.0), true),
+                    (3, at(100.0, 0.0), true),
+                    (4, at(103.0, 0.0), true),
+                ];
+                let mut plans = Vec::new();
+                for step in 0..40 {
+                    n.advance(step, &poses);
+                    plans.push(n.plan());
+                }
+                plans
+            }
+        };
+        let reserve = proto::msg::MARK_RESERVE_BYTES;
+        let credit = |p: &LinkPlan, a, b| p.link(a, b).unwrap().credit_from(a).unwrap();
+        let plans = plan_of(Medium::Airtime, 0.0).await;
+        let p = &plans[0];
+        assert_eq!(
+            p.links.len(),
+            4,
+            "three links in the group, one in the pair"
+        );
+        assert_eq!(credit(p, 0, 1), 150 + reserve, "{p:?}");
+        assert_eq!(credit(p, 2, 1), 150 + reserve, "{p:?}");
+        assert_eq!(credit(p, 3, 4), 450 + reserve, "{p:?}");
+        assert!(p
+            .links
+            .iter()
+            .all(|l| l.delay == [0, 0] && l.rate == [None, None]));
+        let plans = plan_of(Medium::Shared, 0.0).await;
+        // 900 over five senders, 180 each: the group's split over two links.
+        assert_eq!(credit(&plans[0], 0, 1), 90 + reserve, "{:?}", plans[0]);
+        assert_eq!(credit(&plans[0], 4, 3), 180 + reserve, "{:?}", plans[0]);
+        // Lost frames: a step late, in both ways apart, at about the rate configured.
+        let plans = plan_of(Medium::PerLink, 0.5).await;
+        let late: usize = (plans.iter().flat_map(|p| &p.links))
+            .map(|l| l.delay.iter().filter(|&&d| d == 1).count())
+            .sum();
+        assert!(
+            (100..220).contains(&late),
+            "{late} of 320 frames late at 50 % loss"
+        );
+        assert!(plans
+            .iter()
+            .flat_map(|p| &p.links)
+            .all(|l| l.delay.iter().all(|&d| d <= 1)));
+    }
+
     #[tokio::test]
     async fn disk_range_cuts_holds_and_restores_a_link() {
         let mut r = robots(2).await;

@@ -192,6 +192,7 @@ pub fn summary(
             .links
             .last_step()
             .and_then(|reported| check_judgements(&eval.judged, up, reported)),
+        channel: rec.links.channel_summary(),
         failed_processes: rec.failed.clone(),
         process_events: rec.sup.events.clone(),
         logs_held_by_others: held_by_others(rec)

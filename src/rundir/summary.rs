@@ -76,6 +76,10 @@ pub struct Summary {
     /// `pack`: the leaders' judgements of their links against netem's; `null` for the others.
     #[serde(deserialize_with = "required")]
     pub link_judgement: Option<crate::score::connectivity::LinkJudgement>,
+    /// The radio channel when netem shared it or lost frames ([`ChannelSummary`]); `null`
+    /// otherwise (and in runs written before it existed).
+    #[serde(default)]
+    pub channel: Option<ChannelSummary>,
     pub failed_processes: Vec<String>,
     /// What was done to the processes — the scenario's process faults and supervised restarts —
     /// in order ([`crate::process::supervise::Event`]).
@@ -158,6 +162,23 @@ pub struct FidelitySummary {
     pub on_walls_pct_median: Option<f64>,
     #[serde(deserialize_with = "required")]
     pub on_walls_pct_worst: Option<f64>,
+}
+
+/// `channel` in `summary.json`, from `channel_nodes.csv` and `channel_links.csv`: how busy the
+/// shared channel was and how many frames were lost (docs/guide/radio.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelSummary {
+    /// The mean over steps and live nodes of the channel's utilisation where the node is.
+    pub utilisation_mean: f64,
+    /// The mean over steps of the busiest node's utilisation.
+    pub utilisation_busiest_mean: f64,
+    /// Airtime used by every node, bytes (frames beyond their headers, frames sent again).
+    pub airtime_bytes: u64,
+    pub frames_lost: u64,
+    /// Frames lost over the frames of links that could carry them (a link direction a step).
+    pub frames_lost_pct: f64,
+    pub retransmitted_bytes: u64,
 }
 
 /// `comm_level_pct` in `summary.json`.
@@ -337,6 +358,7 @@ impl Default for Summary {
             awareness: None,
             comm_level_pct: None,
             link_judgement: None,
+            channel: None,
             failed_processes: Vec::new(),
             process_events: Vec::new(),
             lost_logs: Vec::new(),
@@ -388,6 +410,7 @@ fn exemplar() -> Summary {
             on_walls_pct_worst: Some(0.0),
         },
         link_judgement: Some(crate::score::connectivity::LinkJudgement::default()),
+        channel: Some(ChannelSummary::default()),
         logs_held_by_others: one("<owner>"),
         logs_held_max: BTreeMap::from([("<node>".to_string(), one("<owner>"))]),
         ..Summary::default()

@@ -116,6 +116,33 @@ impl LinkLog {
         self.nodes.retain(|(s, _)| *s <= last);
     }
 
+    /// `summary.json`'s `channel`, when netem shared the channel or lost frames.
+    pub fn channel_summary(&self) -> Option<crate::rundir::summary::ChannelSummary> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let mut sum = crate::rundir::summary::ChannelSummary::default();
+        let (mut util, mut busiest, mut rows) = (0.0, 0.0, 0usize);
+        for (_, ns) in &self.nodes {
+            for n in ns {
+                util += f64::from(n.utilisation);
+                sum.airtime_bytes += n.airtime;
+                sum.frames_lost += u64::from(n.frames_lost);
+                sum.retransmitted_bytes += n.retransmitted;
+            }
+            rows += ns.len();
+            busiest += ns
+                .iter()
+                .map(|n| f64::from(n.utilisation))
+                .fold(0.0, f64::max);
+        }
+        sum.utilisation_mean = util / rows.max(1) as f64;
+        sum.utilisation_busiest_mean = busiest / self.nodes.len() as f64;
+        let frames = 2 * self.rows().filter(|(_, l)| l.air.is_some()).count();
+        sum.frames_lost_pct = 100.0 * sum.frames_lost as f64 / frames.max(1) as f64;
+        Some(sum)
+    }
+
     /// The latest step reported.
     pub fn last_step(&self) -> Option<Step> {
         self.reports.iter().map(|(s, _)| *s).max()

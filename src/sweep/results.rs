@@ -11,8 +11,9 @@ use crate::rundir::summary::{read_summary, Summary};
 
 /// The summary fields every sweep reports per run and aggregates per point. The `awareness`
 /// ones (de Hoog et al. 2010, Fig. 5) are empty in runs without a base station,
-/// `link_judgement` in runs of strategies other than `pack`.
-pub const FIELDS: [&str; 20] = [
+/// `link_judgement` in runs of strategies other than `pack`, `channel` in runs whose channel is
+/// neither shared nor lossy.
+pub const FIELDS: [&str; 22] = [
     "exploration_steps",
     "steps",
     "bytes_wire_total",
@@ -33,6 +34,8 @@ pub const FIELDS: [&str; 20] = [
     "fidelity.on_walls_pct_median",
     "collisions_walls",
     "collisions_robots",
+    "channel.utilisation_mean",
+    "channel.frames_lost_pct",
 ];
 
 /// One grid point: its overrides, as `KEY=VALUE`, in key order.
