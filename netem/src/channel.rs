@@ -156,17 +156,11 @@ impl Channel {
         let index: BTreeMap<RobotId, usize> =
             ids.iter().enumerate().map(|(i, &id)| (id, i)).collect();
         let n = ids.len();
-        let mut hears = vec![Vec::new(); n];
-        if self.cfg.capacity.is_some() {
-            for i in 0..n {
-                for j in i + 1..n {
-                    if self.cfg.everyone_hears || hear(ids[i], ids[j]) {
-                        hears[i].push(j);
-                        hears[j].push(i);
-                    }
-                }
-            }
-        }
+        let hears = if self.cfg.capacity.is_some() {
+            conflict_graph(&ids, self.cfg.everyone_hears, &mut hear)
+        } else {
+            vec![Vec::new(); n]
+        };
         // Each node's directions that it sends on, in id order.
         let mut out: Vec<Vec<(Dir, f64)>> = vec![Vec::new(); n];
         let mut usable: Vec<(Dir, Option<f64>)> = Vec::new();
@@ -285,4 +279,23 @@ impl Channel {
         let dirs = self.dirs.iter().map(|(d, o)| (*d, o.air)).collect();
         (nodes, dirs)
     }
+}
+/// Who hears whom among `ids` (indices into it), each pair asked once unless everyone hears
+/// everyone.
+fn conflict_graph(
+    ids: &[RobotId],
+    everyone_hears: bool,
+    hear: &mut impl FnMut(RobotId, RobotId) -> bool,
+) -> Vec<Vec<usize>> {
+    let n = ids.len();
+    let mut hears = vec![Vec::new(); n];
+    for i in 0..n {
+        for j in i + 1..n {
+            if everyone_hears || hear(ids[i], ids[j]) {
+                hears[i].push(j);
+                hears[j].push(i);
+            }
+        }
+    }
+    hears
 }

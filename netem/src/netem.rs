@@ -207,6 +207,20 @@ fn link_air(
     })
 }
 
+/// The radio channel the scenario gives: airtime shared (`shared`, `airtime`) or not, lossy or not.
+fn channel_config(cfg: &NetemConfig) -> ChannelConfig {
+    ChannelConfig {
+        capacity: cfg
+            .radio
+            .allocates_airtime(&cfg.clock)
+            .then_some(cfg.radio.bandwidth_bytes_per_s as f64 * cfg.clock.step_seconds),
+        everyone_hears: cfg.radio.medium == Medium::Shared,
+        frame_loss: cfg.radio.frame_loss,
+        fading_db: cfg.radio.fading_db,
+        seed: cfg.seed,
+    }
+}
+
 /// How long [`Netem::shutdown`] waits for connections to end by themselves before it resets them.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(1);
 
@@ -232,16 +246,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         .then_some(cfg.radio.interference_range_m)
         .flatten()
         .map(|r| radio.with_range(r));
-    let channel = Channel::new(ChannelConfig {
-        capacity: cfg
-            .radio
-            .allocates_airtime(&cfg.clock)
-            .then(|| rate as f64 * cfg.clock.step_seconds),
-        everyone_hears: cfg.radio.medium == Medium::Shared,
-        frame_loss: cfg.radio.frame_loss,
-        fading_db: cfg.radio.fading_db,
-        seed: cfg.seed,
-    });
+    let channel = Channel::new(channel_config(&cfg));
     let mut faults = cfg.faults;
     faults.sort_by_key(|f| f.step);
     // Faults scheduled for step 0 hold from the start, before any robot can connect.
