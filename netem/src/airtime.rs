@@ -69,18 +69,18 @@ fn fill(capacity: f64, hears: &[Vec<usize>], limit: &[f64], x: &mut [f64], load:
     let closed = |w: usize| std::iter::once(w).chain(hears[w].iter().copied());
     let mut active: Vec<bool> = (0..n).map(|u| limit[u] - x[u] > eps).collect();
     loop {
-        for w in 0..n {
-            if capacity - load[w] <= eps {
+        for (w, &l) in load.iter().enumerate() {
+            if capacity - l <= eps {
                 for u in closed(w) {
                     active[u] = false;
                 }
             }
         }
         let mut step = f64::INFINITY;
-        for w in 0..n {
+        for (w, &l) in load.iter().enumerate() {
             let k = closed(w).filter(|&u| active[u]).count();
             if k > 0 {
-                step = step.min((capacity - load[w]) / k as f64);
+                step = step.min((capacity - l) / k as f64);
             }
         }
         for u in (0..n).filter(|&u| active[u]) {

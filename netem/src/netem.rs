@@ -233,10 +233,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         .flatten()
         .map(|r| radio.with_range(r));
     let channel = Channel::new(ChannelConfig {
-        capacity: cfg
-            .radio
-            .allocates_airtime(&cfg.clock)
-            .then(|| rate as f64 * cfg.clock.step_seconds),
+        capacity: cfg.radio.channel_capacity(&cfg.clock),
         everyone_hears: cfg.radio.medium == Medium::Shared,
         frame_loss: cfg.radio.frame_loss,
         fading_db: cfg.radio.fading_db,
