@@ -1,8 +1,9 @@
 //! A run's step log and its MCAP: `swarm export-mcap` writes a file the official MCAP reader (the
 //! `mcap` crate, with chunk CRCs checked) opens, in log-time order, every channel in the schema
 //! Foxglove's SDK ships for its type and every message decoding in it, with a message per robot
-//! report and per link step as the run's tables count them; a cut or foreign run directory gives
-//! an error naming the file.
+//! report and per link step as the run's tables count them; on a shared channel that loses
+//! frames, each robot's airtime on `/stats` and the links that lost a frame on `/links`, as the
+//! channel's tables have them; a cut or foreign run directory gives an error naming the file.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
@@ -80,6 +81,124 @@ fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
     let e = fails_naming(&["export-mcap"], &run, "steps.log");
     assert!(e.contains("cut short"), "{e}");
     fails_naming(&["export-mcap"], dir.path(), "steps.log");
+}
+
+/// `/stats` as far as the channel test reads it: the fields' numbers are their places in
+/// `swarm::view::foxglove::RunStats` and `RobotStats` (the SDK's derive numbers them in order).
+#[derive(Clone, PartialEq, prost::Message)]
+struct StatsAir {
+    #[prost(uint32, tag = "1")]
+    step: u32,
+    #[prost(message, repeated, tag = "5")]
+    robots: Vec<RobotAir>,
+}
+
+#[derive(Clone, PartialEq, prost::Message)]
+struct RobotAir {
+    #[prost(uint32, tag = "1")]
+    robot: u32,
+    #[prost(uint64, tag = "8")]
+    airtime_share_bytes: u64,
+    #[prost(uint64, tag = "9")]
+    airtime_bytes: u64,
+    #[prost(float, tag = "10")]
+    channel_utilisation: f32,
+    #[prost(uint32, tag = "11")]
+    frames_lost: u32,
+}
+
+/// A run on a shared channel that loses frames: its MCAP's `/stats` has each robot's use of the
+/// channel as `channel_nodes.csv` has it, and `/links` marks links that lost a frame in a step
+/// `channel_links.csv` says one did, drawn in the lossy links' colour.
+#[test]
+fn the_mcap_of_a_run_on_a_lossy_shared_channel_shows_each_robots_airtime_and_lost_frames() {
+    use prost::Message;
+    let dir = TempDir::new("mcap-air");
+    let (out, run) = swarm_run(
+        &dir,
+        None,
+        &[
+            "world.map=office",
+            "world.width_m=14",
+            "world.height_m=10",
+            "robots.count=3",
+            "max_steps=40",
+            "clock.step_timeout_ms=10000",
+            "radio.medium=airtime",
+            "radio.frame_loss=0.2",
+            "clock.step_seconds=1.0",
+        ],
+        Duration::from_secs(300),
+    );
+    assert!(
+        out.status.code().is_some_and(|c| c == 0 || c == 2),
+        "{}",
+        stderr(&out)
+    );
+    let export = Command::new(SWARM)
+        .arg("export-mcap")
+        .arg(&run)
+        .output()
+        .expect("swarm export-mcap runs");
+    assert!(export.status.success(), "{}", stderr(&export));
+    let bytes = std::fs::read(run.join("run.mcap")).expect("run.mcap is written");
+    let nodes: BTreeMap<(String, String), u64> = csv(&run.join("channel_nodes.csv"))
+        .iter()
+        .map(|r| {
+            let airtime = r["airtime_bytes"].parse().expect("airtime_bytes");
+            ((r["step"].clone(), r["node"].clone()), airtime)
+        })
+        .collect();
+    let lost_steps: BTreeSet<String> = csv(&run.join("channel_links.csv"))
+        .iter()
+        .filter(|r| r["lost_a_to_b"] == "1" || r["lost_b_to_a"] == "1")
+        .map(|r| r["step"].clone())
+        .collect();
+    assert!(!lost_steps.is_empty(), "a frame lost in 40 steps at 20 %");
+    let (mut compared, mut shares, mut marked, mut lossy) = (0, 0, 0, 0);
+    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let m = m.expect("every message reads");
+        match m.channel.topic.as_str() {
+            "/stats" => {
+                let s = StatsAir::decode(&m.data[..]).expect("/stats decodes");
+                for r in &s.robots {
+                    let key = (s.step.to_string(), r.robot.to_string());
+                    if let Some(&airtime) = nodes.get(&key) {
+                        assert_eq!(
+                            r.airtime_bytes, airtime,
+                            "step {} robot {}",
+                            s.step, r.robot
+                        );
+                        compared += 1;
+                    }
+                    shares += usize::from(r.airtime_share_bytes > 0);
+                }
+            }
+            "/links" => {
+                let u = foxglove::messages::SceneUpdate::decode(&m.data[..]).expect("/links");
+                let step = m.log_time / 1_000_000_000; // one simulated second a step
+                for e in &u.entities {
+                    if e.texts.iter().any(|t| t.text == "lost") {
+                        assert!(lost_steps.contains(&step.to_string()), "step {step}");
+                        marked += 1;
+                    }
+                    let orange = |l: &foxglove::messages::LinePrimitive| {
+                        l.color.as_ref().is_some_and(|c| c.r > 0.9)
+                    };
+                    lossy += e.lines.iter().filter(|l| orange(l)).count();
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(
+        compared > 0 && shares > 0,
+        "{compared} robot steps compared, {shares} with a share"
+    );
+    assert!(
+        marked > 0 && lossy > 0,
+        "{marked} steps marked lost, {lossy} lossy lines"
+    );
 }
 
 /// Reads an MCAP as Foxglove would: chunk CRCs checked, `log_time` never going back, each

@@ -17,6 +17,15 @@ const LINK_STYLE = {
   fault: { colour: "rgba(210,30,30,0.9)", dash: [6, 3] },
   blackhole: { colour: "rgba(120,40,160,0.9)", dash: [2, 3] },
 };
+// An up link that may lose frames (netem's radio channel): long dashes, from green towards
+// orange as its lower delivery probability falls to 0.5 and below (a square root: a few % of
+// loss shows).
+const LOSSY_DASH = [10, 4];
+function lossyColour(delivery) {
+  const t = Math.sqrt(Math.max(0, Math.min(1, (1 - delivery) / 0.5)));
+  const mix = (a, b) => Math.round(a + (b - a) * t);
+  return `rgba(${mix(30, 235)},${mix(150, 120)},${mix(60, 0)},0.9)`;
+}
 const TYPE_COLOURS = { ins: "#4363d8", rep: "#3cb44b", del: "#e6194b", em: "#f58231", chg: "#911eb4",
   rm: "#42d4f4", conn: "#808080", targ: "#000000", save: "#9a6324", scan: "#469990", cells: "#800000",
   mark: "#bbbbbb", bid: "#f032e6", task: "#808000", role: "#000075", move: "#aaffc3" };
@@ -74,6 +83,7 @@ function draw() {
   const f = state.frame;
   if (!f) return;
   const at = new Map(f.robots.map((r) => [r.id, r]));
+  const lost = []; // the middles of links that lost a frame in the step
   // Links under robots (unless hidden: a big team's links hide its robots).
   for (const l of $("links").checked ? f.links : []) {
     const a = at.get(l.a), b = at.get(l.b);
@@ -81,13 +91,21 @@ function draw() {
     // Out of range: not drawn unless picked (most pairs of a team are).
     if ((l.state === "range" || l.state === "down") && !isSelectedLink(l)) continue;
     const st = LINK_STYLE[l.state] || LINK_STYLE.up;
+    const lossy = l.state === "up" && l.air && l.air.delivery < 1;
     const perSecond = (l.bytes_a_to_b + l.bytes_b_to_a) / state.info.step_seconds;
     g.lineWidth = 1 + Math.log2(1 + perSecond) / 2 + (isSelectedLink(l) ? 2 : 0);
-    g.strokeStyle = st.colour;
-    g.setLineDash(st.dash);
+    g.strokeStyle = lossy ? lossyColour(l.air.delivery) : st.colour;
+    g.setLineDash(lossy ? LOSSY_DASH : st.dash);
     g.beginPath(); g.moveTo(v.px(a.x), v.py(a.y)); g.lineTo(v.px(b.x), v.py(b.y)); g.stroke();
+    if (l.air && l.air.lost > 0) lost.push([(v.px(a.x) + v.px(b.x)) / 2, (v.py(a.y) + v.py(b.y)) / 2]);
   }
-  g.setLineDash([]);
+  // A frame lost in the step (delivered a step late): a red cross at the link's middle, over
+  // every link.
+  g.setLineDash([]); g.strokeStyle = "#d01010"; g.lineWidth = 2;
+  for (const [mx, my] of lost) {
+    g.beginPath(); g.moveTo(mx - 4, my - 4); g.lineTo(mx + 4, my + 4);
+    g.moveTo(mx - 4, my + 4); g.lineTo(mx + 4, my - 4); g.stroke();
+  }
   drawPolygons(g, v);
   if ($("trails").checked) {
     state.trails.forEach((t, id) => {
@@ -106,6 +124,7 @@ function draw() {
       g.setLineDash([]);
       g.strokeRect(v.px(r.target[0]) - 3, v.py(r.target[1]) - 3, 6, 6);
     }
+    if ($("channel").checked) drawShare(g, r, x, y, f.channel_capacity);
     g.fillStyle = r.alive ? colour(r.id) : "#777";
     g.beginPath(); g.arc(x, y, 6, 0, 2 * Math.PI); g.fill();
     g.strokeStyle = "#000"; g.lineWidth = state.selected && state.selected.robot === r.id ? 3 : 1;
@@ -114,6 +133,41 @@ function draw() {
     g.lineTo(x + 10 * Math.cos(r.theta), y - 10 * Math.sin(r.theta)); g.stroke();
     g.fillStyle = "#000"; g.fillText(String(r.id), x + 8, y - 8);
   }
+}
+
+// A robot's airtime share of a shared channel: a ring around it, filled clockwise from the top
+// in proportion to share / the channel's bytes a step (a full ring: the whole channel).
+function drawShare(g, r, x, y, capacity) {
+  if (!r.air || !capacity) return;
+  const part = Math.max(0, Math.min(1, r.air.share / capacity));
+  g.setLineDash([]); g.lineWidth = 3;
+  g.strokeStyle = "rgba(0,0,0,0.12)";
+  g.beginPath(); g.arc(x, y, 10, 0, 2 * Math.PI); g.stroke();
+  if (part > 0) {
+    g.strokeStyle = "rgba(20,40,120,0.85)";
+    g.beginPath(); g.arc(x, y, 10, -Math.PI / 2, -Math.PI / 2 + 2 * Math.PI * part); g.stroke();
+  }
+}
+
+// A robot's use of the radio channel in the frame's step, as rows of its panel.
+function airRows(air, capacity) {
+  if (!air) return "";
+  const pct = (x) => `${(100 * x).toFixed(1)} %`;
+  return `<tr><th>airtime share</th><td>${air.share} B${capacity ? ` (${pct(air.share / capacity)} of the channel)` : ""}</td></tr>
+      <tr><th>airtime used</th><td>${air.airtime} B</td></tr>
+      <tr><th>channel busy</th><td>${capacity ? pct(air.utilisation) : "–"}</td></tr>
+      <tr><th>frames lost / bytes sent again</th><td>${air.frames_lost} / ${air.retransmitted} B</td></tr>`;
+}
+
+// A link's use of the radio channel in the frame's step, as rows of its panel.
+function linkAirRows(x, a, b) {
+  if (!x) return "";
+  const share = (s) => (s == null ? "–" : `${s} B`);
+  const lost = [x.lost_a_to_b && `${a}→${b}`, x.lost_b_to_a && `${b}→${a}`].filter(Boolean);
+  return `<tr><th>delivery ${a}→${b} / ${b}→${a}</th><td>${x.delivery_a_to_b.toFixed(3)} / ${x.delivery_b_to_a.toFixed(3)}</td></tr>
+      <tr><th>frame lost this step</th><td id="link-lost">${lost.length ? lost.join(", ") : "none"}</td></tr>
+      <tr><th>airtime share ${a}→${b} / ${b}→${a}</th><td>${share(x.share_a_to_b)} / ${share(x.share_b_to_a)}</td></tr>
+      <tr><th>airtime used ${a}→${b} / ${b}→${a}</th><td>${x.airtime_a_to_b} B / ${x.airtime_b_to_a} B</td></tr>`;
 }
 
 // f_occ of an edge: occupied edges solid, free ones dashed, unknown ones dotted and faint.
@@ -197,6 +251,7 @@ async function showDetail() {
   if (sel.robot !== undefined) {
     let r;
     try { r = await getJson(`/api/robot/${sel.robot}${stepQ}`); } catch (e) { say(e.message); return; }
+    const mine = f.robots.find((x) => x.id === r.robot);
     const views = (r.views || []).map((w) =>
       `<tr><td>${w.owner}</td><td>${w.held}</td><td>${w.shown}</td></tr>`).join("");
     d.innerHTML = `<h3 style="color:${colour(r.robot)}">robot ${r.robot}</h3>
@@ -208,6 +263,7 @@ async function showDetail() {
       <tr><th>splitting frequency</th><td>${r.splits_per_step == null ? "–" : r.splits_per_step.toFixed(2)}</td></tr>
       <tr><th>largest backlog</th><td>${r.backlog_bytes} B</td></tr>
       <tr><th>bytes sent / received</th><td>${r.bytes_sent} / ${r.bytes_received}</td></tr>
+      ${airRows(mine && mine.air, f.channel_capacity)}
       </table>
       <p>planning grid (frontiers in red; believed free but not free in the world in magenta):</p>
       <img id="grid" alt="planning grid of robot ${r.robot}" src="/api/robot/${r.robot}/grid.png${stepQ}${stepQ ? "&" : "?"}t=${f.step}">
@@ -229,7 +285,8 @@ async function showDetail() {
       <tr><th>state</th><td id="link-state">${l.state}</td></tr>
       <tr><th>bytes ${a}→${b} this step</th><td>${l.bytes_a_to_b}</td></tr>
       <tr><th>bytes ${b}→${a} this step</th><td>${l.bytes_b_to_a}</td></tr>
-      <tr><th>queued</th><td>${l.queued_bytes} B</td></tr></table>${controls}`;
+      <tr><th>queued</th><td>${l.queued_bytes} B</td></tr>
+      ${linkAirRows(l.air, a, b)}</table>${controls}`;
     if (state.info.live) {
       const name = `r${a}-r${b}`;
       $("cut").onclick = () => post(`/api/link/${name}`, { enabled: false });
@@ -281,6 +338,8 @@ function show(frame) {
   if (frame.trails) state.trails = frame.trails;
   $("step").textContent = `step ${frame.step}`;
   $("coverage").textContent = `coverage ${frame.coverage_pct.toFixed(1)} %`;
+  // The channel's legend, once a frame says how the channel was used.
+  if (frame.robots.some((r) => r.air) || frame.links.some((l) => l.air)) $("channel-legend").hidden = false;
   draw(); drawCharts();
 }
 
@@ -348,7 +407,7 @@ async function main() {
   state.series = await getJson("/api/series");
   $("mode").textContent = state.info.live ? "live" : "replay";
   $("seek").hidden = state.info.live;
-  for (const id of ["truth", "trails", "links", "polygons"]) $(id).onchange = draw;
+  for (const id of ["truth", "trails", "links", "polygons", "channel"]) $(id).onchange = draw;
   $("map").onclick = (ev) => {
     const p = pick(ev);
     state.selected = p ? (p.robot !== undefined ? { robot: p.robot } : { link: p.link }) : null;
@@ -359,7 +418,8 @@ async function main() {
     const p = pick(ev);
     if (p && p.link) {
       const l = state.frame.links.find((x) => x.a === p.link[0] && x.b === p.link[1]);
-      $("map").title = l ? `r${l.a}-r${l.b}: ${l.state}, queued ${l.queued_bytes} B` : "";
+      const air = l && l.air ? `, delivery ${l.air.delivery.toFixed(2)}${l.air.lost ? `, ${l.air.lost} frame(s) lost` : ""}` : "";
+      $("map").title = l ? `r${l.a}-r${l.b}: ${l.state}, queued ${l.queued_bytes} B${air}` : "";
     } else $("map").title = p ? `robot ${p.robot}` : "";
   };
   if (state.info.live) {

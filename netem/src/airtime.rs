@@ -69,7 +69,7 @@ fn fill(capacity: f64, hears: &[Vec<usize>], limit: &[f64], x: &mut [f64], load:
     let closed = |w: usize| std::iter::once(w).chain(hears[w].iter().copied());
     let mut active: Vec<bool> = (0..n).map(|u| limit[u] - x[u] > eps).collect();
     loop {
-        for (w, l) in load.iter().enumerate() {
+        for (w, &l) in load.iter().enumerate() {
             if capacity - l <= eps {
                 for u in closed(w) {
                     active[u] = false;
@@ -77,7 +77,7 @@ fn fill(capacity: f64, hears: &[Vec<usize>], limit: &[f64], x: &mut [f64], load:
             }
         }
         let mut step = f64::INFINITY;
-        for (w, l) in load.iter().enumerate() {
+        for (w, &l) in load.iter().enumerate() {
             let k = closed(w).filter(|&u| active[u]).count();
             if k > 0 {
                 step = step.min((capacity - l) / k as f64);

@@ -210,10 +210,7 @@ fn link_air(
 /// The radio channel the scenario gives: airtime shared (`shared`, `airtime`) or not, lossy or not.
 fn channel_config(cfg: &NetemConfig) -> ChannelConfig {
     ChannelConfig {
-        capacity: cfg
-            .radio
-            .allocates_airtime(&cfg.clock)
-            .then_some(cfg.radio.bandwidth_bytes_per_s as f64 * cfg.clock.step_seconds),
+        capacity: cfg.radio.channel_capacity(&cfg.clock),
         everyone_hears: cfg.radio.medium == Medium::Shared,
         frame_loss: cfg.radio.frame_loss,
         fading_db: cfg.radio.fading_db,

@@ -285,6 +285,13 @@ impl Radio {
     pub fn allocates_airtime(&self, clock: &Clock) -> bool {
         clock.marked() && self.bandwidth_bytes_per_s > 0 && self.medium != Medium::PerLink
     }
+
+    /// The bytes the shared channel carries in a step when netem allocates its airtime
+    /// ([`Self::allocates_airtime`]): the rate over a step; `None` otherwise.
+    pub fn channel_capacity(&self, clock: &Clock) -> Option<f64> {
+        (self.allocates_airtime(clock))
+            .then_some(self.bandwidth_bytes_per_s as f64 * clock.step_seconds)
+    }
 }
 
 impl Netem {

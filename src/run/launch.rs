@@ -52,7 +52,8 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         &run.truth_grid,
         plan.robots(),
         plan.scenario.clock.step_seconds,
-    )?;
+    )?
+    .with_channel_capacity(plan.scenario.radio.channel_capacity(&plan.scenario.clock));
     let viewer = match args.view {
         Some(addr) => Some(start_viewer(addr, &plan, &run, &mut log, &mut progress).await?),
         None => None,

@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 
 use proto::geom::MapInfo;
 use proto::grid::{Grid, Occ};
-use proto::msg::{LinkReport, RobotId, Status, Step, Telemetry};
+use proto::msg::{LinkAir, LinkReport, NodeAir, RobotId, Status, Step, Telemetry};
 use serde::{Deserialize, Serialize};
 
 /// The file's name in a run directory.
@@ -65,6 +65,19 @@ pub enum Record {
     Links {
         step: Step,
         links: Vec<LinkStep>,
+    },
+    /// How step `step` used the radio channel, as netem reported it: written right after the
+    /// step's [`Record::Links`], only when netem shares the channel or loses frames. Last of the
+    /// variants, so logs written before it read as they did.
+    Channel {
+        step: Step,
+        /// Bytes the shared channel carries in a step; `None`: netem does not allocate its
+        /// airtime (lossy links on their own budgets).
+        capacity: Option<f64>,
+        /// Each live node's use of the channel.
+        nodes: Vec<NodeAir>,
+        /// Each link's use of it, `(a, b, air)`: only links that could carry something.
+        links: Vec<(RobotId, RobotId, LinkAir)>,
     },
 }
 
@@ -215,6 +228,8 @@ pub struct StepLogWriter {
     /// Bytes written so far.
     pub bytes: u64,
     header: Header,
+    /// Bytes the shared channel carries in a step, for [`Record::Channel`].
+    channel_capacity: Option<f64>,
     /// Get every record written after the header (the live viewers: the page, Foxglove).
     pub tees: Vec<Tee>,
 }
@@ -245,10 +260,18 @@ impl StepLogWriter {
             last: BTreeMap::new(),
             bytes: 0,
             header: header.clone(),
+            channel_capacity: None,
             tees: Vec::new(),
         };
         w.write(&Record::Header(header))?;
         Ok(w)
+    }
+
+    /// The shared channel's capacity, bytes a step, that [`Record::Channel`] records carry
+    /// (the scenario's [`proto::scenario::Radio::channel_capacity`]; `None`: not shared).
+    pub fn with_channel_capacity(mut self, capacity: Option<f64>) -> StepLogWriter {
+        self.channel_capacity = capacity;
+        self
     }
 
     /// The log's header.
@@ -344,6 +367,8 @@ impl StepLogWriter {
         self.write(&Record::Robot(r, grid))
     }
 
+    /// Writes netem's report of a step: its links, then how the step used the radio channel
+    /// when the report says (nodes on the channel, or links with their airtime or losses).
     pub fn links(&mut self, r: &LinkReport) -> anyhow::Result<()> {
         let links = r
             .links
@@ -361,6 +386,18 @@ impl StepLogWriter {
         self.write(&Record::Links {
             step: r.step,
             links,
+        })?;
+        let air: Vec<(RobotId, RobotId, LinkAir)> = (r.links.iter())
+            .filter_map(|l| Some((l.a, l.b, l.air?)))
+            .collect();
+        if r.nodes.is_empty() && air.is_empty() {
+            return Ok(());
+        }
+        self.write(&Record::Channel {
+            step: r.step,
+            capacity: self.channel_capacity,
+            nodes: r.nodes.clone(),
+            links: air,
         })
     }
 
@@ -652,6 +689,75 @@ mod tests {
         }
         std::fs::write(dir.join(FILE), b"PK\x03\x04 a zip file").expect("test");
         assert!(read(&dir).is_err());
+        std::fs::remove_dir_all(&dir).expect("test");
+    }
+
+    #[test]
+    fn the_channel_of_a_step_follows_its_links_only_when_netem_reports_it() {
+        let dir = std::env::temp_dir().join(format!("steplog-air-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("test");
+        let map = MapInfo::at_origin(4, 3, 0.5);
+        let truth = Grid::new(4, 3, Occ::Free);
+        let mut w = StepLogWriter::create(&dir, map, &truth, 3, 0.5)
+            .expect("test")
+            .with_channel_capacity(Some(500.0));
+        let link = |a, b, air| proto::msg::LinkState {
+            a,
+            b,
+            up: true,
+            distance_m: Some(2.0),
+            bytes_a_to_b: 40,
+            bytes_b_to_a: 0,
+            bytes_total: 40,
+            queued_bytes: 0,
+            connected: true,
+            cut: None,
+            air,
+        };
+        let air = LinkAir {
+            share: [Some(120), Some(80)],
+            airtime: [30, 0],
+            lost: [false, true],
+            delivery: [0.9, 0.6],
+        };
+        let node = NodeAir {
+            id: 1,
+            share: 200,
+            airtime: 30,
+            utilisation: 0.25,
+            frames_lost: 1,
+            retransmitted: 12,
+        };
+        // A step on a channel netem neither shares nor loses frames on: its links only.
+        w.links(&LinkReport {
+            step: 0,
+            links: vec![link(0, 1, None)],
+            nodes: vec![],
+        })
+        .expect("test");
+        w.links(&LinkReport {
+            step: 1,
+            links: vec![link(0, 1, Some(air)), link(0, 2, None)],
+            nodes: vec![node],
+        })
+        .expect("test");
+        w.finish().expect("test");
+        let log = read(&dir).expect("test");
+        assert_eq!(log.records.len(), 3, "{:?}", log.records);
+        assert!(matches!(log.records[0], Record::Links { step: 0, .. }));
+        assert!(matches!(log.records[1], Record::Links { step: 1, .. }));
+        assert_eq!(
+            log.records[2],
+            Record::Channel {
+                step: 1,
+                capacity: Some(500.0),
+                nodes: vec![node],
+                links: vec![(0, 1, air)],
+            }
+        );
+        // The last variant: every record of a log written before it keeps its tag.
+        let bytes = postcard::to_stdvec(&log.records[2]).expect("test");
+        assert_eq!(bytes[0], 4);
         std::fs::remove_dir_all(&dir).expect("test");
     }
 }

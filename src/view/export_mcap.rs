@@ -60,7 +60,9 @@ where
     for r in &log.records {
         let past_end = match r {
             Record::Poses { step, .. } => end.is_some_and(|e| *step > e.saturating_add(1)),
-            Record::Links { step, .. } => end.is_some_and(|e| *step > e),
+            Record::Links { step, .. } | Record::Channel { step, .. } => {
+                end.is_some_and(|e| *step > e)
+            }
             _ => false,
         };
         if !past_end {

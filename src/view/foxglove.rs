@@ -27,7 +27,7 @@ use foxglove::messages::{
 use foxglove::{Channel, Context, PartialMetadata};
 use proto::geom::MapInfo;
 use proto::grid::{Grid, Occ};
-use proto::msg::{RobotId, Step};
+use proto::msg::{LinkAir, NodeAir, RobotId, Step};
 
 use crate::rundir::steplog::{Grids, Header, LinkStep, Record, RobotStep};
 use crate::view::timeline::{link_state, team_bytes};
@@ -69,6 +69,11 @@ pub struct LinkStat {
     pub bytes_a_to_b: u64,
     pub bytes_b_to_a: u64,
     pub queued_bytes: u64,
+    /// The lower of its directions' probabilities that a frame is delivered (1 when netem
+    /// reported no use of the radio channel for it).
+    pub delivery: f32,
+    /// How many of its directions lost their frame of the step (each is delivered a step late).
+    pub frames_lost: u32,
 }
 
 /// A step's series, as the web viewer's charts draw them: plottable as `/stats.coverage_pct`,
@@ -102,6 +107,14 @@ pub struct RobotStats {
     pub bytes_received: u64,
     /// Polygon exchange: the splitting frequency for the next step (0 otherwise).
     pub splits_per_step: f32,
+    /// Its use of the radio channel in the step, when netem shares it or loses frames (0
+    /// otherwise): the airtime shares of its links, the airtime it used (bytes), how busy the
+    /// channel was where it is (the airtime of every sender it hears over the channel's
+    /// capacity), and its frames lost.
+    pub airtime_share_bytes: u64,
+    pub airtime_bytes: u64,
+    pub channel_utilisation: f32,
+    pub frames_lost: u32,
 }
 
 /// Messages written (or sent) per topic.
@@ -159,7 +172,11 @@ struct StepOut {
     grids: Vec<(RobotId, FoxGrid)>,
     robots: Vec<SceneEntity>,
     trails: Vec<SceneEntity>,
-    links: Option<(SceneUpdate, LinkBytes)>,
+    /// netem's links of the step, where the robots stood then; drawn when the step goes out,
+    /// with the channel's use of the step if it comes.
+    links: Option<(Vec<LinkStep>, Where, Timestamp)>,
+    /// How the step used the radio channel: per node, per link.
+    channel: Option<(Vec<NodeAir>, LinksAir)>,
     stats: Option<RunStats>,
 }
 
@@ -169,6 +186,9 @@ pub struct Latest {
     truth: Option<FoxGrid>,
     grids: BTreeMap<RobotId, FoxGrid>,
 }
+
+/// Each link's use of the radio channel in a step, `(a, b, air)` ([`Record::Channel`]).
+type LinksAir = Vec<(RobotId, RobotId, LinkAir)>;
 
 /// Where every robot stood at the last status of the world, to draw links.
 type Where = BTreeMap<RobotId, (f64, f64)>;
@@ -325,8 +345,15 @@ impl Scene {
             }
             Record::Links { step, links } => {
                 let ts = stamp(self.ns(*step));
-                let out = links_messages(*step, links, &self.at, ts);
-                self.pending.entry(*step).or_default().links = Some(out);
+                self.pending.entry(*step).or_default().links =
+                    Some((links.clone(), self.at.clone(), ts));
+                *step
+            }
+            Record::Channel {
+                step, nodes, links, ..
+            } => {
+                self.pending.entry(*step).or_default().channel =
+                    Some((nodes.clone(), links.clone()));
                 *step
             }
         };
@@ -375,7 +402,7 @@ impl Scene {
         self.flush_before(Step::MAX);
     }
 
-    fn log_step(&mut self, step: Step, out: StepOut) {
+    fn log_step(&mut self, step: Step, mut out: StepOut) {
         let ns = self.ns(step).max(self.logged_ns);
         self.logged_ns = ns;
         let meta = || PartialMetadata::with_log_time(ns);
@@ -415,7 +442,12 @@ impl Scene {
             );
             counted("/trajectories");
         }
-        if let Some((scene, bytes)) = out.links {
+        let (nodes, air) = out.channel.unwrap_or_default();
+        if let Some(stats) = &mut out.stats {
+            add_air(stats, &nodes);
+        }
+        if let Some((links, at, ts)) = out.links {
+            let (scene, bytes) = links_messages(step, &links, &air, &at, ts);
             c.links.log_with_meta(&scene, meta());
             counted("/links");
             c.link_bytes.log_with_meta(&bytes, meta());
@@ -647,19 +679,65 @@ fn add_stats(stats: &mut Option<RunStats>, rs: &RobotStep, by_class: Vec<(&str, 
         bytes_sent: rs.bytes_sent,
         bytes_received: rs.bytes_received,
         splits_per_step: rs.splits_per_step.unwrap_or(0.0),
+        airtime_share_bytes: 0,
+        airtime_bytes: 0,
+        channel_utilisation: 0.0,
+        frames_lost: 0,
     });
 }
 
-/// `/links` and `/links/bytes` of a step.
+/// Each robot's use of the radio channel in a step (`nodes`, netem's report) into its `/stats`.
+fn add_air(stats: &mut RunStats, nodes: &[NodeAir]) {
+    for r in &mut stats.robots {
+        if let Some(n) = nodes.iter().find(|n| u32::from(n.id) == r.robot) {
+            r.airtime_share_bytes = n.share;
+            r.airtime_bytes = n.airtime;
+            r.channel_utilisation = n.utilisation;
+            r.frames_lost = n.frames_lost;
+        }
+    }
+}
+
+/// A link that is up: green, wider with more bytes; orange to red when it may lose frames
+/// (redder the lower its delivery probability).
+fn link_colour(delivery: f32) -> Color {
+    if delivery < 1.0 {
+        Color {
+            r: 0.95,
+            g: 0.55 * f64::from(delivery.max(0.0)),
+            b: 0.1,
+            a: 0.9,
+        }
+    } else {
+        Color {
+            r: 0.1,
+            g: 0.6,
+            b: 0.2,
+            a: 0.8,
+        }
+    }
+}
+
+/// `/links` and `/links/bytes` of a step, with how its links used the radio channel (`air`):
+/// a link that may lose frames drawn in orange to red, one that lost a frame in the step marked
+/// "lost" at its middle.
 fn links_messages(
     step: Step,
     links: &[LinkStep],
+    air: &[(RobotId, RobotId, LinkAir)],
     at: &Where,
     ts: Timestamp,
 ) -> (SceneUpdate, LinkBytes) {
     let mut prims = Vec::new();
+    let mut texts = Vec::new();
     let mut stats = Vec::new();
     for l in links {
+        let x = air
+            .iter()
+            .find(|(a, b, _)| (*a, *b) == (l.a, l.b))
+            .map(|(_, _, x)| x);
+        let delivery = x.map_or(1.0, |x| x.delivery[0].min(x.delivery[1]));
+        let lost = x.map_or(0, |x| x.lost.iter().filter(|&&l| l).count() as u32);
         stats.push(LinkStat {
             name: format!("r{}-r{}", l.a, l.b),
             a: u32::from(l.a),
@@ -668,6 +746,8 @@ fn links_messages(
             bytes_a_to_b: l.bytes_a_to_b,
             bytes_b_to_a: l.bytes_b_to_a,
             queued_bytes: l.queued_bytes,
+            delivery,
+            frames_lost: lost,
         });
         if let (true, Some(&(ax, ay)), Some(&(bx, by))) = (l.up, at.get(&l.a), at.get(&l.b)) {
             // Wider with more bytes: 1 px idle, about 1 px more per doubling.
@@ -677,18 +757,28 @@ fn links_messages(
                 line_primitive::Type::LineList,
                 vec![point(ax, ay), point(bx, by)],
                 thickness,
-                Color {
-                    r: 0.1,
-                    g: 0.6,
-                    b: 0.2,
-                    a: 0.8,
-                },
+                link_colour(delivery),
             ));
+            if lost > 0 {
+                texts.push(TextPrimitive {
+                    pose: Some(pose((ax + bx) / 2.0, (ay + by) / 2.0, 0.0)),
+                    billboard: true,
+                    font_size: 12.0,
+                    scale_invariant: true,
+                    color: Some(Color {
+                        r: 0.85,
+                        g: 0.1,
+                        b: 0.1,
+                        a: 1.0,
+                    }),
+                    text: "lost".into(),
+                });
+            }
         }
     }
     let scene = SceneUpdate {
         deletions: vec![],
-        entities: vec![entity("links", ts, prims, vec![], vec![])],
+        entities: vec![entity("links", ts, prims, vec![], texts)],
     };
     (scene, LinkBytes { step, links: stats })
 }
@@ -784,7 +874,9 @@ impl Server {
             let mut at: Option<Step> = None;
             for r in &log.records {
                 let step = match r {
-                    Record::Poses { step, .. } | Record::Links { step, .. } => Some(*step),
+                    Record::Poses { step, .. }
+                    | Record::Links { step, .. }
+                    | Record::Channel { step, .. } => Some(*step),
                     Record::Robot(rs, _) => Some(rs.step),
                     Record::Header(_) => None,
                 };
@@ -819,6 +911,94 @@ pub fn last_reports(log: &crate::rundir::steplog::StepLog) -> BTreeMap<RobotId, 
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    fn link(a: RobotId, b: RobotId) -> LinkStep {
+        LinkStep {
+            a,
+            b,
+            up: true,
+            bytes_a_to_b: 10,
+            bytes_b_to_a: 0,
+            queued_bytes: 0,
+            cut: None,
+        }
+    }
+
+    #[test]
+    fn a_link_that_may_lose_frames_is_drawn_apart_and_one_that_lost_a_frame_marked() {
+        let at: Where = [(0, (0.0, 0.0)), (1, (2.0, 0.0)), (2, (0.0, 2.0))].into();
+        let air = LinkAir {
+            share: [None, None],
+            airtime: [10, 0],
+            lost: [false, true],
+            delivery: [0.5, 0.8],
+        };
+        let (scene, bytes) =
+            links_messages(7, &[link(0, 1), link(0, 2)], &[(0, 1, air)], &at, stamp(0));
+        let e = &scene.entities[0];
+        let colours: Vec<Color> = e.lines.iter().filter_map(|l| l.color).collect();
+        assert_eq!(colours[1], link_colour(1.0), "no air: as ever");
+        assert_ne!(colours[0], colours[1], "lossy: apart");
+        assert_eq!(colours[0], link_colour(0.5));
+        assert_eq!(e.texts.len(), 1, "one link lost a frame");
+        assert_eq!(
+            e.texts[0].pose.and_then(|p| p.position).map(|p| p.x),
+            Some(1.0)
+        );
+        let stat = |i: usize| (bytes.links[i].delivery, bytes.links[i].frames_lost);
+        assert_eq!((stat(0), stat(1)), ((0.5, 1), (1.0, 0)));
+    }
+
+    #[test]
+    fn a_robots_stats_carry_its_use_of_the_channel() {
+        let mut stats = RunStats {
+            step: 3,
+            coverage_pct: 0.0,
+            backlog_max_bytes: 0,
+            bytes_by_class: vec![],
+            robots: vec![],
+        };
+        let rs = RobotStep {
+            step: 3,
+            robot: 1,
+            life: 0,
+            x: 0.0,
+            y: 0.0,
+            theta: 0.0,
+            target: None,
+            idle: false,
+            known_cells: 0,
+            bytes_sent: 0,
+            bytes_received: 0,
+            splits_per_step: None,
+            backlog_bytes: 0,
+            sent_by_type: vec![],
+            views: vec![],
+            coverage_pct: None,
+        };
+        let mut some = Some(stats.clone());
+        add_stats(&mut some, &rs, vec![]);
+        stats = some.expect("test");
+        add_air(
+            &mut stats,
+            &[NodeAir {
+                id: 1,
+                share: 300,
+                airtime: 250,
+                utilisation: 0.8,
+                frames_lost: 2,
+                retransmitted: 40,
+            }],
+        );
+        let r = &stats.robots[0];
+        assert_eq!(
+            (r.airtime_share_bytes, r.airtime_bytes, r.frames_lost),
+            (300, 250, 2)
+        );
+        assert_eq!(r.channel_utilisation, 0.8);
+    }
+
     /// The layout shipped for Foxglove names only topics a run has.
     #[test]
     fn the_shipped_layout_names_only_topics_a_run_has() {

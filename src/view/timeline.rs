@@ -1,12 +1,13 @@
 //! A run step by step, from its step-log records ([`crate::rundir::steplog`]): what the viewer serves —
-//! a step's frame (robots, links, coverage, trajectories so far), the series its charts draw,
+//! a step's frame (robots, links, how they used the radio channel, coverage, trajectories so
+//! far), the series its charts draw,
 //! a robot's details and planning grid at a step. Fed record by record: live by the launcher as
 //! it writes `steps.log`, in a replay from the file, so both show the same thing.
 
 use std::collections::BTreeMap;
 
 use proto::grid::Grid;
-use proto::msg::{RobotId, Step, Traffic};
+use proto::msg::{LinkAir, NodeAir, RobotId, Step, Traffic};
 use serde::Serialize;
 
 use crate::rundir::steplog::{GridChange, Grids, Header, LinkStep, Record, RobotStep};
@@ -23,6 +24,10 @@ pub struct Frame {
     pub bytes_by_type: BTreeMap<&'static str, u64>,
     /// The largest backlog of any robot at this step, bytes.
     pub backlog_max: u64,
+    /// Bytes the shared channel carries in a step, when netem shares it (what a robot's
+    /// airtime share is a part of).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub channel_capacity: Option<f64>,
     /// Every robot's positions up to this step (only when asked for: a seek).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub trails: Option<Vec<Vec<(f32, f32)>>>,
@@ -37,6 +42,38 @@ pub struct RobotFrame {
     pub alive: bool,
     pub target: Option<(f32, f32)>,
     pub idle: bool,
+    /// Its use of the radio channel in the links' step, when netem reported it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub air: Option<RobotAir>,
+}
+
+/// A robot's use of the radio channel in a step ([`NodeAir`] without the id).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RobotAir {
+    /// The airtime shares of its links, bytes (0 when the channel is not shared).
+    pub share: u64,
+    /// The airtime it used, bytes (frames sent again included).
+    pub airtime: u64,
+    /// How busy the channel was where it is: the airtime of every sender it hears over the
+    /// channel's capacity (0 when the channel is not shared; above 1 while overruns are paid
+    /// back).
+    pub utilisation: f32,
+    /// Its frames lost in the step (each sent again in the next).
+    pub frames_lost: u32,
+    /// The bytes of its frames sent again in the step.
+    pub retransmitted: u64,
+}
+
+impl From<&NodeAir> for RobotAir {
+    fn from(n: &NodeAir) -> RobotAir {
+        RobotAir {
+            share: n.share,
+            airtime: n.airtime,
+            utilisation: n.utilisation,
+            frames_lost: n.frames_lost,
+            retransmitted: n.retransmitted,
+        }
+    }
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -48,6 +85,48 @@ pub struct LinkFrame {
     pub bytes_a_to_b: u64,
     pub bytes_b_to_a: u64,
     pub queued_bytes: u64,
+    /// Its use of the radio channel in the step, when netem reported it (the link could carry
+    /// something, and the channel is shared or lossy).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub air: Option<LinkAirFrame>,
+}
+
+/// A link's use of the radio channel in a step.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct LinkAirFrame {
+    /// The lower of its two directions' probabilities that a frame is delivered.
+    pub delivery: f32,
+    /// How many of its directions lost their frame of the step (0, 1 or 2; each is delivered a
+    /// step late).
+    pub lost: u8,
+    /// Each direction's probability that a frame is delivered, and whether its frame was lost.
+    pub delivery_a_to_b: f32,
+    pub delivery_b_to_a: f32,
+    pub lost_a_to_b: bool,
+    pub lost_b_to_a: bool,
+    /// Each direction's airtime share, bytes (`None`: the channel is not shared), and airtime
+    /// used.
+    pub share_a_to_b: Option<u32>,
+    pub share_b_to_a: Option<u32>,
+    pub airtime_a_to_b: u64,
+    pub airtime_b_to_a: u64,
+}
+
+impl From<&LinkAir> for LinkAirFrame {
+    fn from(a: &LinkAir) -> LinkAirFrame {
+        LinkAirFrame {
+            delivery: a.delivery[0].min(a.delivery[1]),
+            lost: a.lost.iter().filter(|&&l| l).count() as u8,
+            delivery_a_to_b: a.delivery[0],
+            delivery_b_to_a: a.delivery[1],
+            lost_a_to_b: a.lost[0],
+            lost_b_to_a: a.lost[1],
+            share_a_to_b: a.share[0],
+            share_b_to_a: a.share[1],
+            airtime_a_to_b: a.airtime[0],
+            airtime_b_to_a: a.airtime[1],
+        }
+    }
 }
 
 /// The charts' data: per step with reports.
@@ -74,6 +153,7 @@ struct StepAt {
     poses: Option<usize>,
     robots: Vec<usize>,
     links: Option<usize>,
+    channel: Option<usize>,
 }
 
 /// A run's records, indexed by step.
@@ -127,6 +207,7 @@ impl Timeline {
             Record::Header(_) => return,
             Record::Poses { step, .. } => self.steps.entry(*step).or_default().poses = Some(i),
             Record::Links { step, .. } => self.steps.entry(*step).or_default().links = Some(i),
+            Record::Channel { step, .. } => self.steps.entry(*step).or_default().channel = Some(i),
             Record::Robot(rs, _) => {
                 self.steps.entry(rs.step).or_default().robots.push(i);
                 self.reports.entry(rs.robot).or_default().push(i);
@@ -201,6 +282,7 @@ impl Timeline {
                         alive: p.alive,
                         target: None,
                         idle: false,
+                        air: None,
                     },
                 );
             }
@@ -214,31 +296,50 @@ impl Timeline {
                 alive: true,
                 target: None,
                 idle: false,
+                air: None,
             });
             (f.x, f.y, f.theta, f.target, f.idle) = (r.x, r.y, r.theta, r.target, r.idle);
         }
-        let links = self
+        // netem's latest report, and how its step used the channel (if it said).
+        let (links, channel) = self
             .steps
             .range(..=step)
             .rev()
-            .find_map(|(_, at)| at.links)
-            .and_then(|i| match &self.records[i] {
-                Record::Links { links, .. } => Some(links),
-                _ => None,
-            })
-            .map_or_else(Vec::new, |links| {
-                links
-                    .iter()
-                    .map(|l| LinkFrame {
-                        a: l.a,
-                        b: l.b,
-                        state: link_state(l),
-                        bytes_a_to_b: l.bytes_a_to_b,
-                        bytes_b_to_a: l.bytes_b_to_a,
-                        queued_bytes: l.queued_bytes,
-                    })
-                    .collect()
+            .find_map(|(_, at)| Some((at.links?, at.channel)))
+            .map_or((None, None), |(l, c)| {
+                (Some(&self.records[l]), c.map(|c| &self.records[c]))
             });
+        let (capacity, nodes, air) = match channel {
+            Some(Record::Channel {
+                capacity,
+                nodes,
+                links,
+                ..
+            }) => (*capacity, nodes.as_slice(), links.as_slice()),
+            _ => (None, &[][..], &[][..]),
+        };
+        for n in nodes {
+            if let Some(f) = robots.get_mut(&n.id) {
+                f.air = Some(n.into());
+            }
+        }
+        let air: BTreeMap<(RobotId, RobotId), &LinkAir> =
+            air.iter().map(|(a, b, x)| ((*a, *b), x)).collect();
+        let links = match links {
+            Some(Record::Links { links, .. }) => links
+                .iter()
+                .map(|l| LinkFrame {
+                    a: l.a,
+                    b: l.b,
+                    state: link_state(l),
+                    bytes_a_to_b: l.bytes_a_to_b,
+                    bytes_b_to_a: l.bytes_b_to_a,
+                    queued_bytes: l.queued_bytes,
+                    air: air.get(&(l.a, l.b)).map(|&x| x.into()),
+                })
+                .collect(),
+            _ => Vec::new(),
+        };
         let s = &self.series;
         let n = s.steps.partition_point(|&x| x <= step);
         let at = n.checked_sub(1);
@@ -255,6 +356,7 @@ impl Timeline {
                     .collect()
             }),
             backlog_max: at.map_or(0, |i| s.backlog_max[i]),
+            channel_capacity: capacity,
             trails: trails.then(|| self.trails(step)),
         }
     }
@@ -576,5 +678,60 @@ mod tests {
         );
         assert_eq!(d.frontier_cells, 2, "both free cells border unknown ones");
         assert!(t.robot(0, 2).is_some() && t.robot(7, 2).is_none());
+    }
+
+    #[test]
+    fn a_frame_shows_how_its_links_step_used_the_channel_when_netem_said() {
+        let (mut t, _) = timeline();
+        let node = |id, share, lost| NodeAir {
+            id,
+            share,
+            airtime: share / 2,
+            utilisation: 0.75,
+            frames_lost: lost,
+            retransmitted: 0,
+        };
+        t.push(Record::Channel {
+            step: 2,
+            capacity: Some(250.0),
+            nodes: vec![node(0, 120, 0), node(1, 80, 1)],
+            links: vec![(
+                0,
+                1,
+                LinkAir {
+                    share: [Some(120), Some(80)],
+                    airtime: [60, 40],
+                    lost: [false, true],
+                    delivery: [0.9, 0.6],
+                },
+            )],
+        });
+        let f = t.frame(2, false);
+        assert_eq!(f.channel_capacity, Some(250.0));
+        let air = f.robots[1].air.expect("robot 1's air");
+        assert_eq!((air.share, air.airtime, air.frames_lost), (80, 40, 1));
+        assert_eq!(air.utilisation, 0.75);
+        let l = f.links[0].air.expect("the link's air");
+        assert_eq!((l.delivery, l.lost), (0.6, 1));
+        assert_eq!((l.delivery_a_to_b, l.lost_b_to_a), (0.9, true));
+        assert_eq!((l.share_a_to_b, l.airtime_b_to_a), (Some(120), 40));
+        // A step before it has none, and the page's JSON leaves out what is absent.
+        let before = t.frame(1, false);
+        assert!(before.channel_capacity.is_none() && before.links[0].air.is_none());
+        assert!(before.robots.iter().all(|r| r.air.is_none()));
+        let json = serde_json::to_value(&before).expect("test");
+        assert!(json.get("channel_capacity").is_none(), "{json}");
+        assert!(json["links"][0].get("air").is_none() && json["robots"][0].get("air").is_none());
+        assert_eq!(
+            serde_json::to_value(&f).expect("test")["links"][0]["air"]["lost"],
+            1
+        );
+        // The next step's links, with no channel reported for it: no air from step 2.
+        t.push(Record::Links {
+            step: 3,
+            links: vec![],
+        });
+        let after = t.frame(3, false);
+        assert!(after.channel_capacity.is_none() && after.robots.iter().all(|r| r.air.is_none()));
     }
 }
