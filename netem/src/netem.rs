@@ -232,6 +232,7 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         tracing::warn!("path loss without a truth map: walls are not counted");
     }
     let rate = cfg.radio.bandwidth_bytes_per_s;
+    let channel = Channel::new(channel_config(&cfg));
     let (shutdown, shutdown_rx) = watch::channel(false);
     let (links, listeners): (Vec<_>, Vec<_>) = bind_links(&cfg, &clock, &shutdown_rx)
         .await?
@@ -243,7 +244,6 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
         .then_some(cfg.radio.interference_range_m)
         .flatten()
         .map(|r| radio.with_range(r));
-    let channel = Channel::new(channel_config(&cfg));
     let mut faults = cfg.faults;
     faults.sort_by_key(|f| f.step);
     // Faults scheduled for step 0 hold from the start, before any robot can connect.
