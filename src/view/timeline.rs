@@ -262,44 +262,7 @@ impl Timeline {
     /// The frame of `step` (the latest report of each robot up to it), with the trajectories up
     /// to it when `trails`.
     pub fn frame(&self, step: Step, trails: bool) -> Frame {
-        let mut robots: BTreeMap<RobotId, RobotFrame> = BTreeMap::new();
-        // Alive as the world's status of the step says; where, as the robot's report does.
-        if let Some(Record::Poses { robots: poses, .. }) = self
-            .steps
-            .range(..=step)
-            .rev()
-            .find_map(|(_, at)| at.poses)
-            .map(|i| &self.records[i])
-        {
-            for p in poses {
-                robots.insert(
-                    p.id,
-                    RobotFrame {
-                        id: p.id,
-                        x: p.x,
-                        y: p.y,
-                        theta: p.theta,
-                        alive: p.alive,
-                        target: None,
-                        idle: false,
-                        air: None,
-                    },
-                );
-            }
-        }
-        for r in self.robot_steps(step) {
-            let f = robots.entry(r.robot).or_insert(RobotFrame {
-                id: r.robot,
-                x: r.x,
-                y: r.y,
-                theta: r.theta,
-                alive: true,
-                target: None,
-                idle: false,
-                air: None,
-            });
-            (f.x, f.y, f.theta, f.target, f.idle) = (r.x, r.y, r.theta, r.target, r.idle);
-        }
+        let mut robots = self.robot_frames(step);
         // netem's latest report, and how its step used the channel (if it said).
         let (links, channel) = self
             .steps
@@ -323,30 +286,13 @@ impl Timeline {
                 f.air = Some(n.into());
             }
         }
-        let air: BTreeMap<(RobotId, RobotId), &LinkAir> =
-            air.iter().map(|(a, b, x)| ((*a, *b), x)).collect();
-        let links = match links {
-            Some(Record::Links { links, .. }) => links
-                .iter()
-                .map(|l| LinkFrame {
-                    a: l.a,
-                    b: l.b,
-                    state: link_state(l),
-                    bytes_a_to_b: l.bytes_a_to_b,
-                    bytes_b_to_a: l.bytes_b_to_a,
-                    queued_bytes: l.queued_bytes,
-                    air: air.get(&(l.a, l.b)).map(|&x| x.into()),
-                })
-                .collect(),
-            _ => Vec::new(),
-        };
         let s = &self.series;
         let n = s.steps.partition_point(|&x| x <= step);
         let at = n.checked_sub(1);
         Frame {
             step,
             robots: robots.into_values().collect(),
-            links,
+            links: link_frames(links, air),
             coverage_pct: at.map_or(0.0, |i| s.coverage[i]),
             bytes_by_type: at.map_or_else(BTreeMap::new, |i| {
                 s.bytes_by_type
@@ -359,6 +305,40 @@ impl Timeline {
             channel_capacity: capacity,
             trails: trails.then(|| self.trails(step)),
         }
+    }
+
+    /// Each robot at `step`: alive as the world's latest status says, where and what it does as
+    /// its own latest report says.
+    fn robot_frames(&self, step: Step) -> BTreeMap<RobotId, RobotFrame> {
+        let mut robots: BTreeMap<RobotId, RobotFrame> = BTreeMap::new();
+        let frame = |id, x, y, theta, alive| RobotFrame {
+            id,
+            x,
+            y,
+            theta,
+            alive,
+            target: None,
+            idle: false,
+            air: None,
+        };
+        if let Some(Record::Poses { robots: poses, .. }) = self
+            .steps
+            .range(..=step)
+            .rev()
+            .find_map(|(_, at)| at.poses)
+            .map(|i| &self.records[i])
+        {
+            for p in poses {
+                robots.insert(p.id, frame(p.id, p.x, p.y, p.theta, p.alive));
+            }
+        }
+        for r in self.robot_steps(step) {
+            let f = robots
+                .entry(r.robot)
+                .or_insert_with(|| frame(r.robot, r.x, r.y, r.theta, true));
+            (f.x, f.y, f.theta, f.target, f.idle) = (r.x, r.y, r.theta, r.target, r.idle);
+        }
+        robots
     }
 
     /// Every robot's positions from its reports up to `step`.
@@ -478,6 +458,27 @@ pub fn frontiers(g: &Grid) -> Vec<proto::grid::Cell> {
         }
     }
     out
+}
+
+/// netem's links as the viewer draws them, each with how it used the air (if the step said).
+fn link_frames(links: Option<&Record>, air: &[(RobotId, RobotId, LinkAir)]) -> Vec<LinkFrame> {
+    let air: BTreeMap<(RobotId, RobotId), &LinkAir> =
+        air.iter().map(|(a, b, x)| ((*a, *b), x)).collect();
+    match links {
+        Some(Record::Links { links, .. }) => links
+            .iter()
+            .map(|l| LinkFrame {
+                a: l.a,
+                b: l.b,
+                state: link_state(l),
+                bytes_a_to_b: l.bytes_a_to_b,
+                bytes_b_to_a: l.bytes_b_to_a,
+                queued_bytes: l.queued_bytes,
+                air: air.get(&(l.a, l.b)).map(|&x| x.into()),
+            })
+            .collect(),
+        _ => Vec::new(),
+    }
 }
 
 #[cfg(test)]
