@@ -70,6 +70,9 @@ pub struct NetemConfig {
     pub http: Option<SocketAddr>,
     /// The bearer token every API request must carry (`None`: none needed).
     pub api_token: Option<String>,
+    /// The largest message the robots' exchange sends whole (one scan's delta): a direction of
+    /// a shared channel may save up this much airtime, so that no message waits forever.
+    pub largest_message_bytes: u32,
 }
 
 impl NetemConfig {
@@ -88,6 +91,7 @@ impl NetemConfig {
             faults: Vec::new(),
             http: None,
             api_token: None,
+            largest_message_bytes: largest_message(&proto::scenario::Scenario::default()),
         }
     }
 
@@ -111,8 +115,14 @@ impl NetemConfig {
             faults,
             http,
             api_token: None,
+            largest_message_bytes: largest_message(s),
         })
     }
+}
+
+/// The largest message the exchange of scenario `s` sends whole: one scan's delta.
+fn largest_message(s: &proto::scenario::Scenario) -> u32 {
+    u32::try_from(proto::msg::largest_scan_delta_bytes(s.sensor.beams)).unwrap_or(u32::MAX)
 }
 
 /// A running netem.
@@ -215,6 +225,7 @@ fn channel_config(cfg: &NetemConfig) -> ChannelConfig {
         frame_loss: cfg.radio.frame_loss,
         fading_db: cfg.radio.fading_db,
         seed: cfg.seed,
+        save_min_bytes: f64::from(cfg.largest_message_bytes),
     }
 }
 
@@ -520,9 +531,10 @@ impl Netem {
             let (a, b) = (l.params.a, l.params.b);
             let plan = |d| {
                 air.get(&d).map_or(AirPlan::default(), |x| AirPlan {
-                    credit: x
-                        .share
-                        .map(|s| s.saturating_add(proto::msg::MARK_RESERVE_BYTES)),
+                    credit: x.share.map(|s| {
+                        s.saturating_add(x.saved)
+                            .saturating_add(proto::msg::MARK_RESERVE_BYTES)
+                    }),
                     lost: x.lost,
                 })
             };

@@ -918,6 +918,25 @@ pub struct LogDelta<R> {
 /// Radio, `raw-scans` exchange: a run of an owner's scan log.
 pub type ScanDelta = LogDelta<ScanRecord>;
 
+/// The encoded size of the largest delta that carries one scan of `beams` beams: the largest
+/// message an exchange sends whole (the robots' radio lets one through after quiet steps, and
+/// netem lets a direction of a shared channel save up this much airtime).
+pub fn largest_scan_delta_bytes(beams: u32) -> usize {
+    let worst = ScanDelta {
+        from: RobotId::MAX,
+        owner: RobotId::MAX,
+        start: u32::MAX,
+        records: vec![ScanRecord {
+            step: Step::MAX,
+            x_mm: i32::MIN,
+            y_mm: i32::MIN,
+            theta_mrad: i32::MIN,
+            ranges_cm: vec![u16::MAX; beams as usize],
+        }],
+    };
+    encode(&worst).len()
+}
+
 /// The cells of a robot's self-explored grid that one step changed, as shared in the
 /// `grid-snapshots` exchange (docs/design.md §4.8): `cells` is a run of varints, each
 /// `(index gap) << 2 | state`, the gap counted from the previous changed cell's row-major index

@@ -18,12 +18,10 @@
 
 use std::collections::{BTreeSet, HashMap};
 
-use proto::geom::LaserSpec;
 use proto::grid::Cell;
 use proto::keys::RADIO_KINDS;
 use proto::msg::{
-    decode, encode, DecodeError, Frame, Hello, RobotId, Routes, ScanDelta, ScanRecord, Step,
-    Target, Traffic, WorldInfo,
+    decode, encode, DecodeError, Frame, Hello, RobotId, Routes, Step, Target, Traffic, WorldInfo,
 };
 use proto::scenario::Scenario;
 
@@ -48,23 +46,6 @@ pub const BURST_STEPS: usize = 4;
 /// step, so that a link's bytes on the wire, not only its payload, stay within its rate (netem
 /// lets every step's traffic through, so nothing else would keep the wire rate).
 pub const WIRE_OVERHEAD_BYTES: usize = 6;
-
-/// The encoded size of the largest delta that carries one scan of `laser`.
-fn largest_delta_bytes(laser: &LaserSpec) -> usize {
-    let worst = ScanDelta {
-        from: RobotId::MAX,
-        owner: RobotId::MAX,
-        start: u32::MAX,
-        records: vec![ScanRecord {
-            step: Step::MAX,
-            x_mm: i32::MIN,
-            y_mm: i32::MIN,
-            theta_mrad: i32::MIN,
-            ranges_cm: vec![u16::MAX; laser.beams as usize],
-        }],
-    };
-    encode(&worst).len()
-}
 
 /// A link's budget in bytes per step in scenario `s` (`None`: unlimited).
 pub fn budget_per_step(s: &Scenario, world: &WorldInfo) -> Option<f64> {
@@ -253,7 +234,7 @@ impl Radio {
     pub fn new(id: RobotId, s: &Scenario, world: &WorldInfo) -> Radio {
         let burst_bytes = budget_per_step(s, world)
             .map_or(0, |b| (b * BURST_STEPS as f64) as u64)
-            .max(largest_delta_bytes(&world.laser) as u64);
+            .max(proto::msg::largest_scan_delta_bytes(world.laser.beams) as u64);
         Radio {
             id,
             hello_every_steps: s.exchange.hello_every_steps,
@@ -601,7 +582,7 @@ impl Radio {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proto::geom::MapInfo;
+    use proto::geom::{LaserSpec, MapInfo};
 
     fn world() -> (Scenario, WorldInfo) {
         let s = Scenario::default();
