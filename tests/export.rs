@@ -9,36 +9,11 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
 use std::time::Duration;
 
-use crate::support::{csv, fails_naming, stderr, swarm_run, TempDir, SWARM};
+use crate::support::{csv, export_mcap, fails_naming, stderr, swarm_run, TempDir, SWARM};
 
 #[test]
 fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
-    let dir = TempDir::new("mcap");
-    let (out, run) = swarm_run(
-        &dir,
-        None,
-        &[
-            "world.map=office",
-            "world.width_m=14",
-            "world.height_m=10",
-            "robots.count=3",
-            "max_steps=40",
-            "clock.step_timeout_ms=10000",
-        ],
-        Duration::from_secs(300),
-    );
-    assert!(
-        out.status.code().is_some_and(|c| c == 0 || c == 2),
-        "{}",
-        stderr(&out)
-    );
-    let export = Command::new(SWARM)
-        .arg("export-mcap")
-        .arg(&run)
-        .output()
-        .expect("swarm export-mcap runs");
-    assert!(export.status.success(), "{}", stderr(&export));
-    let bytes = std::fs::read(run.join("run.mcap")).expect("run.mcap is written");
+    let (dir, run, bytes) = office_run_exported("mcap", &[]);
     let counts = read_checked(&bytes);
     let metrics = csv(&run.join("metrics.csv"));
     for robot in 0..3 {
@@ -74,12 +49,27 @@ fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
     assert_eq!(counts.get("/links/bytes"), Some(&(link_steps.len() as u64)));
     assert_eq!(counts.get("/map/truth"), Some(&1));
 
-    // A cut step log, and a directory that is no run.
+    // A step log cut mid-record (a launcher killed) exports up to its last whole record and
+    // says where it was cut; a directory that is no run is refused.
     let log = run.join("steps.log");
     let whole = std::fs::read(&log).expect("steps.log");
-    std::fs::write(&log, &whole[..whole.len() - 3]).expect("cut steps.log");
-    let e = fails_naming(&["export-mcap"], &run, "steps.log");
-    assert!(e.contains("cut short"), "{e}");
+    std::fs::write(&log, &whole[..whole.len() * 2 / 3]).expect("cut steps.log");
+    let export = Command::new(SWARM)
+        .arg("export-mcap")
+        .arg(&run)
+        .output()
+        .expect("swarm export-mcap runs");
+    let said = stderr(&export);
+    assert!(export.status.success(), "{said}");
+    assert!(
+        said.contains("steps.log")
+            && said.contains("cut short at byte")
+            && said.contains("up to step"),
+        "{said}"
+    );
+    let torn = read_checked(&std::fs::read(run.join("run.mcap")).expect("run.mcap"));
+    let (before, after) = (counts["/robots"], torn["/robots"]);
+    assert!(after > 0 && after < before, "{after} of {before} steps");
     fails_naming(&["export-mcap"], dir.path(), "steps.log");
 }
 
@@ -113,35 +103,14 @@ struct RobotAir {
 #[test]
 fn the_mcap_of_a_run_on_a_lossy_shared_channel_shows_each_robots_airtime_and_lost_frames() {
     use prost::Message;
-    let dir = TempDir::new("mcap-air");
-    let (out, run) = swarm_run(
-        &dir,
-        None,
+    let (_dir, run, bytes) = office_run_exported(
+        "mcap-air",
         &[
-            "world.map=office",
-            "world.width_m=14",
-            "world.height_m=10",
-            "robots.count=3",
-            "max_steps=40",
-            "clock.step_timeout_ms=10000",
             "radio.medium=airtime",
             "radio.frame_loss=0.2",
             "clock.step_seconds=1.0",
         ],
-        Duration::from_secs(300),
     );
-    assert!(
-        out.status.code().is_some_and(|c| c == 0 || c == 2),
-        "{}",
-        stderr(&out)
-    );
-    let export = Command::new(SWARM)
-        .arg("export-mcap")
-        .arg(&run)
-        .output()
-        .expect("swarm export-mcap runs");
-    assert!(export.status.success(), "{}", stderr(&export));
-    let bytes = std::fs::read(run.join("run.mcap")).expect("run.mcap is written");
     let nodes: BTreeMap<(String, String), u64> = csv(&run.join("channel_nodes.csv"))
         .iter()
         .map(|r| {
@@ -279,4 +248,27 @@ pub fn decode_well_known(topic: &str, schema_name: &str, data: &[u8]) {
         _ => Ok(()),
     };
     decoded.unwrap_or_else(|e| panic!("{topic}: {e}"));
+}
+
+/// 40 steps of 3 robots in a 14 × 10 m office with `extra` settings, exported: the temporary
+/// directory (removed when dropped), the run directory in it and its `run.mcap`'s bytes.
+fn office_run_exported(name: &str, extra: &[&str]) -> (TempDir, std::path::PathBuf, Vec<u8>) {
+    let dir = TempDir::new(name);
+    let mut sets = vec![
+        "world.map=office",
+        "world.width_m=14",
+        "world.height_m=10",
+        "robots.count=3",
+        "max_steps=40",
+        "clock.step_timeout_ms=10000",
+    ];
+    sets.extend_from_slice(extra);
+    let (out, run) = swarm_run(&dir, None, &sets, Duration::from_secs(300));
+    assert!(
+        out.status.code().is_some_and(|c| c == 0 || c == 2),
+        "{}",
+        stderr(&out)
+    );
+    let bytes = export_mcap(&run);
+    (dir, run, bytes)
 }

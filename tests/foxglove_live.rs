@@ -196,12 +196,7 @@ fn foxglove_s_own_libraries_read_the_live_run_and_its_mcap() {
         stderr(&out)
     );
     assert_all_read(&live, "@foxglove/ws-protocol, live");
-    let export = Command::new(SWARM)
-        .arg("export-mcap")
-        .arg(&run)
-        .output()
-        .expect("swarm export-mcap runs");
-    assert!(export.status.success(), "{}", stderr(&export));
+    crate::support::export_mcap(&run);
     let file = node_check("mcap", &run.join("run.mcap").to_string_lossy());
     assert_all_read(&file, "@mcap/core");
 }

@@ -137,7 +137,7 @@ pub fn wait_file(path: &Path, wait: Duration) -> String {
 /// step of the run this way, never at a wall-clock moment.
 pub fn wait_for_step(run: &Path, step: u32, wait: Duration) -> u32 {
     poll(wait, Duration::from_millis(50), || {
-        let at = swarm::rundir::steplog::read_so_far(run)
+        let at = swarm::rundir::steplog::read(run)
             .ok()
             .and_then(|log| log.reached());
         at.filter(|&at| at >= step).ok_or_else(|| {
@@ -235,6 +235,17 @@ pub fn assert_killed_and_supervised(s: &Summary, processes: &[&str]) {
 /// `summary.json`, typed: a field missing, renamed or mistyped fails here, naming it.
 pub fn summary_typed(run: &Path) -> Summary {
     read_summary(run).unwrap_or_else(|e| panic!("{e:#}"))
+}
+
+/// `swarm export-mcap RUN`, which must succeed: the bytes of the `run.mcap` it writes.
+pub fn export_mcap(run: &Path) -> Vec<u8> {
+    let export = Command::new(SWARM)
+        .arg("export-mcap")
+        .arg(run)
+        .output()
+        .expect("swarm export-mcap runs");
+    assert!(export.status.success(), "{}", stderr(&export));
+    std::fs::read(run.join("run.mcap")).expect("run.mcap is written")
 }
 
 pub fn stderr(o: &Output) -> String {

@@ -7,9 +7,10 @@
 //! The launcher writes it as it takes the run's reports ([`StepLogWriter`]); `swarm view` and
 //! `swarm export-mcap` read it ([`read`]). The file is a sequence of records, each a
 //! little-endian `u32` length and the record in postcard; the first is a [`Header`]. Reading is
-//! total: a file that is not a step log, or one cut short, gives an error naming the file and
-//! where it stops — never a panic. [`read_so_far`] reads the whole records of a log still being
-//! written (the launcher flushes it at every step) or left cut short by a launcher that died.
+//! total: a file that is not a step log gives an error naming the file and where it stops — never
+//! a panic. A log cut short mid-record (a launcher that died) reads to its last whole record and
+//! says where it was cut ([`StepLog::cut`]); a log still being written (the
+//! launcher flushes it at every step) the same way: [`read`] is both.
 //!
 //! **Invariant:** replaying a robot's grid changes from its last whole grid gives exactly the
 //! grid it reported at that step (property-tested: [`diff`] then [`apply`]).
@@ -312,7 +313,7 @@ impl StepLogWriter {
         })?;
         // A step's world status comes before the step's reports: everything of the steps
         // before it is in, so the file holds whole steps for whoever reads it while the run
-        // goes on ([`read_so_far`]).
+        // goes on ([`read`]).
         self.out
             .flush()
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", self.path.display()))
@@ -415,9 +416,26 @@ impl StepLogWriter {
 pub struct StepLog {
     pub header: Header,
     pub records: Vec<Record>,
+    /// Where the file was cut short, if it was (a launcher that died mid-record): the records
+    /// are the whole ones before it.
+    pub cut: Option<String>,
 }
 
 impl StepLog {
+    /// What a reader of the log in `dir` tells its user if the log was cut short: where, and
+    /// what it shows of it.
+    pub fn cut_warning(&self, dir: &Path) -> Option<String> {
+        self.cut.as_ref().map(|at| {
+            format!(
+                "{}: {at}: the run's launcher stopped mid-record; reading the {} whole records \
+                 before it (up to step {})",
+                dir.join(FILE).display(),
+                self.records.len() + 1,
+                self.reached().map_or("none".into(), |s| s.to_string())
+            )
+        })
+    }
+
     /// The latest step whose world status the log holds: how far the run has come.
     pub fn reached(&self) -> Option<Step> {
         self.records
@@ -485,15 +503,10 @@ impl Grids {
     }
 }
 
-/// Reads `dir/steps.log`.
+/// Reads `dir/steps.log` to its last whole record: a log its launcher left cut short mid-record
+/// (killed) reads as far as it is whole, and says where it was cut ([`StepLog::cut`]); one that
+/// is not a step log, or is damaged before its end, is an error.
 pub fn read(dir: &Path) -> anyhow::Result<StepLog> {
-    read_with(dir, decode)
-}
-
-/// Reads `dir/steps.log` as far as it is written: every whole record of a log still being
-/// written (the launcher flushes it at each step's world status) or of one its launcher left
-/// cut short.
-pub fn read_so_far(dir: &Path) -> anyhow::Result<StepLog> {
     read_with(dir, decode_so_far)
 }
 
@@ -519,11 +532,13 @@ pub fn decode_so_far(bytes: &[u8]) -> Result<StepLog, String> {
 fn decode_records(mut bytes: &[u8], cut_tail_ok: bool) -> Result<StepLog, String> {
     let mut records = Vec::new();
     let mut at = 0usize;
+    let mut cut_at = None;
     while !bytes.is_empty() {
         let cut =
             |records: &Vec<Record>| format!("cut short at byte {at} (record {})", records.len());
         let Some((len, rest)) = bytes.split_first_chunk::<4>() else {
             if cut_tail_ok {
+                cut_at = Some(cut(&records));
                 break;
             }
             return Err(cut(&records));
@@ -537,6 +552,7 @@ fn decode_records(mut bytes: &[u8], cut_tail_ok: bool) -> Result<StepLog, String
         }
         let Some((body, rest)) = rest.split_at_checked(len) else {
             if cut_tail_ok {
+                cut_at = Some(cut(&records));
                 break;
             }
             return Err(cut(&records));
@@ -568,6 +584,7 @@ fn decode_records(mut bytes: &[u8], cut_tail_ok: bool) -> Result<StepLog, String
     Ok(StepLog {
         header,
         records: records.collect(),
+        cut: cut_at,
     })
 }
 
@@ -648,7 +665,7 @@ mod tests {
             missed: vec![],
         })
         .expect("test");
-        let so_far = read_so_far(&dir).expect("flushed at the step's status");
+        let so_far = read(&dir).expect("flushed at the step's status");
         assert_eq!((so_far.reached(), so_far.records.len()), (Some(1), 2));
         g.set(proto::grid::Cell::new(2, 1), Occ::Occupied);
         t.step = 1;
@@ -673,8 +690,19 @@ mod tests {
         );
         let bytes = std::fs::read(dir.join(FILE)).expect("test");
         std::fs::write(dir.join(FILE), &bytes[..bytes.len() - 1]).expect("test");
-        let e = read(&dir).expect_err("an error").to_string();
-        assert!(e.contains("steps.log") && e.contains("cut short"), "{e}");
+        let e = decode(&bytes[..bytes.len() - 1]).expect_err("an error");
+        assert!(e.contains("cut short"), "{e}");
+        // A reader reads it to its last whole record and says where it was cut.
+        let torn = read(&dir).expect("the whole records");
+        assert_eq!(torn.records.len(), log.records.len() - 1);
+        let w = torn.cut_warning(&dir).expect("a warning");
+        assert!(
+            w.contains("steps.log")
+                && w.contains("cut short at byte")
+                && w.contains("up to step 1"),
+            "{w}"
+        );
+        assert_eq!(log.cut, None);
         // Read so far: every whole record, at every cut.
         for cut in 0..bytes.len() {
             let whole = match decode_so_far(&bytes[..cut]) {

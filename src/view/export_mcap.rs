@@ -26,6 +26,9 @@ pub struct ExportArgs {
 /// Writes the MCAP of the run in `args.run_dir`; returns where and the messages per topic.
 pub fn export(args: &ExportArgs) -> anyhow::Result<(PathBuf, Counts)> {
     let log = steplog::read(&args.run_dir)?;
+    if let Some(w) = log.cut_warning(&args.run_dir) {
+        eprintln!("swarm: {w}");
+    }
     let out = args
         .out
         .clone()

@@ -297,6 +297,9 @@ pub async fn live(
 /// `swarm view RUN_DIR`: serves the replay until interrupted.
 pub async fn replay(args: &ViewArgs) -> anyhow::Result<()> {
     let log = crate::rundir::steplog::read(&args.run_dir)?;
+    if let Some(w) = log.cut_warning(&args.run_dir) {
+        eprintln!("swarm: {w}");
+    }
     if !(args.rate.is_finite() && args.rate > 0.0) {
         anyhow::bail!("--rate {}: steps per second must be above 0", args.rate);
     }
