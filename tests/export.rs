@@ -6,10 +6,9 @@
 //! channel's tables have them; a cut or foreign run directory gives an error naming the file.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::process::Command;
 use std::time::Duration;
 
-use crate::support::{csv, export_mcap, fails_naming, stderr, swarm_run, TempDir, SWARM};
+use crate::support::{csv, export_mcap, fails_naming, stderr, swarm_run, TempDir};
 
 #[test]
 fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
@@ -54,20 +53,14 @@ fn the_mcap_of_a_run_holds_every_report_and_link_step_of_its_tables() {
     let log = run.join("steps.log");
     let whole = std::fs::read(&log).expect("steps.log");
     std::fs::write(&log, &whole[..whole.len() * 2 / 3]).expect("cut steps.log");
-    let export = Command::new(SWARM)
-        .arg("export-mcap")
-        .arg(&run)
-        .output()
-        .expect("swarm export-mcap runs");
-    let said = stderr(&export);
-    assert!(export.status.success(), "{said}");
+    let (torn, said) = export_mcap(&run);
     assert!(
         said.contains("steps.log")
             && said.contains("cut short at byte")
             && said.contains("up to step"),
         "{said}"
     );
-    let torn = read_checked(&std::fs::read(run.join("run.mcap")).expect("run.mcap"));
+    let torn = read_checked(&torn);
     let (before, after) = (counts["/robots"], torn["/robots"]);
     assert!(after > 0 && after < before, "{after} of {before} steps");
     fails_naming(&["export-mcap"], dir.path(), "steps.log");
@@ -269,6 +262,6 @@ fn office_run_exported(name: &str, extra: &[&str]) -> (TempDir, std::path::PathB
         "{}",
         stderr(&out)
     );
-    let bytes = export_mcap(&run);
+    let (bytes, _) = export_mcap(&run);
     (dir, run, bytes)
 }

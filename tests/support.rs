@@ -237,15 +237,18 @@ pub fn summary_typed(run: &Path) -> Summary {
     read_summary(run).unwrap_or_else(|e| panic!("{e:#}"))
 }
 
-/// `swarm export-mcap RUN`, which must succeed: the bytes of the `run.mcap` it writes.
-pub fn export_mcap(run: &Path) -> Vec<u8> {
+/// `swarm export-mcap RUN`, which must succeed: the bytes of the `run.mcap` it writes, and what
+/// it said on stderr.
+pub fn export_mcap(run: &Path) -> (Vec<u8>, String) {
     let export = Command::new(SWARM)
         .arg("export-mcap")
         .arg(run)
         .output()
         .expect("swarm export-mcap runs");
-    assert!(export.status.success(), "{}", stderr(&export));
-    std::fs::read(run.join("run.mcap")).expect("run.mcap is written")
+    let said = stderr(&export);
+    assert!(export.status.success(), "{said}");
+    let bytes = std::fs::read(run.join("run.mcap")).expect("run.mcap is written");
+    (bytes, said)
 }
 
 pub fn stderr(o: &Output) -> String {

@@ -26,13 +26,11 @@
 
 use std::collections::BTreeMap;
 
+use proto::budget::SAVE_STEPS;
 use proto::msg::{NodeAir, RobotId, Step, MARK_RESERVE_BYTES};
 
 use crate::airtime::{allocate, split, Claim};
 
-/// How many steps of its share a direction of a shared channel may save (at least the largest
-/// message): the robots' radio keeps as many steps of unused budget on a link of its own.
-pub const SAVE_STEPS: f64 = 4.0;
 use crate::radio::{delivery, lost};
 
 /// A link direction: (from, to).
@@ -271,9 +269,9 @@ impl Channel {
             }
             if o.share.is_finite() {
                 carry.0 += (used as f64 - o.share).max(0.0);
-                let cap = (SAVE_STEPS * o.share).max(self.cfg.save_min_bytes);
+                let most = (f64::from(SAVE_STEPS) * o.share).max(self.cfg.save_min_bytes);
                 let had = self.saved.get(d).copied().unwrap_or(0.0);
-                let left = (had + o.share - used as f64).clamp(0.0, cap);
+                let left = (had + o.share - used as f64).clamp(0.0, most);
                 saved.insert(*d, left);
             }
             self.last.insert(*d, (o.share, used));
@@ -436,7 +434,7 @@ mod tests {
                 let mut bytes = BTreeMap::new();
                 for ((d, a), f) in air.iter().zip(u) {
                     let share = f64::from(a.share.unwrap());
-                    prop_assert!(f64::from(a.saved) <= (SAVE_STEPS * (share + 1.0)).max(740.0));
+                    prop_assert!(f64::from(a.saved) <= (f64::from(SAVE_STEPS) * (share + 1.0)).max(740.0));
                     let used = (f * f64::from(a.share.unwrap() + a.saved)).floor() as u64;
                     total += used;
                     bytes.insert(*d, used + u64::from(MARK_RESERVE_BYTES));

@@ -21,6 +21,12 @@ use governor::nanos::Nanos;
 use governor::state::{InMemoryState, NotKeyed};
 use governor::{Quota, RateLimiter};
 
+/// How many steps of unused radio budget a link direction keeps, and may spend at once after
+/// quiet steps (at least the largest message sent whole, [`crate::msg::largest_scan_delta_bytes`],
+/// so that none waits forever): a robot's pacing per neighbour (robot-agent's `radio::station`)
+/// and the airtime a direction saves on a shared channel (netem's `channel`).
+pub const SAVE_STEPS: u32 = 4;
+
 /// A simulated clock: nanoseconds since the start of the run.
 pub trait SimNow: Clone {
     fn now_ns(&self) -> u64;

@@ -507,10 +507,6 @@ impl Grids {
 /// (killed) reads as far as it is whole, and says where it was cut ([`StepLog::cut`]); one that
 /// is not a step log, or is damaged before its end, is an error.
 pub fn read(dir: &Path) -> anyhow::Result<StepLog> {
-    read_with(dir, decode_so_far)
-}
-
-fn read_with(dir: &Path, decode: fn(&[u8]) -> Result<StepLog, String>) -> anyhow::Result<StepLog> {
     let path = dir.join(FILE);
     let mut bytes = Vec::new();
     File::open(&path)
@@ -519,17 +515,9 @@ fn read_with(dir: &Path, decode: fn(&[u8]) -> Result<StepLog, String>) -> anyhow
     decode(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-/// Decodes a whole step log. Total: any bytes give a log or an error.
-pub fn decode(bytes: &[u8]) -> Result<StepLog, String> {
-    decode_records(bytes, false)
-}
-
-/// Decodes the whole records of a step log, leaving out a record cut short at its end. Total.
-pub fn decode_so_far(bytes: &[u8]) -> Result<StepLog, String> {
-    decode_records(bytes, true)
-}
-
-fn decode_records(mut bytes: &[u8], cut_tail_ok: bool) -> Result<StepLog, String> {
+/// Decodes the whole records of a step log, leaving out a record cut short at its end (and
+/// saying where, [`StepLog::cut`]). Total: any bytes give a log or an error.
+pub fn decode(mut bytes: &[u8]) -> Result<StepLog, String> {
     let mut records = Vec::new();
     let mut at = 0usize;
     let mut cut_at = None;
@@ -537,11 +525,8 @@ fn decode_records(mut bytes: &[u8], cut_tail_ok: bool) -> Result<StepLog, String
         let cut =
             |records: &Vec<Record>| format!("cut short at byte {at} (record {})", records.len());
         let Some((len, rest)) = bytes.split_first_chunk::<4>() else {
-            if cut_tail_ok {
-                cut_at = Some(cut(&records));
-                break;
-            }
-            return Err(cut(&records));
+            cut_at = Some(cut(&records));
+            break;
         };
         let len = u32::from_le_bytes(*len) as usize;
         if len > MAX_RECORD_BYTES {
@@ -551,11 +536,8 @@ fn decode_records(mut bytes: &[u8], cut_tail_ok: bool) -> Result<StepLog, String
             ));
         }
         let Some((body, rest)) = rest.split_at_checked(len) else {
-            if cut_tail_ok {
-                cut_at = Some(cut(&records));
-                break;
-            }
-            return Err(cut(&records));
+            cut_at = Some(cut(&records));
+            break;
         };
         let r: Record = postcard::from_bytes(body)
             .map_err(|e| format!("record {} at byte {at} does not decode: {e}", records.len()))?;
@@ -628,7 +610,6 @@ mod tests {
         #[test]
         fn any_bytes_decode_or_give_an_error(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
             let _ = decode(&bytes);
-            let _ = decode_so_far(&bytes);
         }
     }
 
@@ -690,8 +671,10 @@ mod tests {
         );
         let bytes = std::fs::read(dir.join(FILE)).expect("test");
         std::fs::write(dir.join(FILE), &bytes[..bytes.len() - 1]).expect("test");
-        let e = decode(&bytes[..bytes.len() - 1]).expect_err("an error");
-        assert!(e.contains("cut short"), "{e}");
+        let e = decode(&bytes[..bytes.len() - 1])
+            .expect("the whole records")
+            .cut;
+        assert!(e.as_ref().is_some_and(|e| e.contains("cut short")), "{e:?}");
         // A reader reads it to its last whole record and says where it was cut.
         let torn = read(&dir).expect("the whole records");
         assert_eq!(torn.records.len(), log.records.len() - 1);
@@ -705,7 +688,7 @@ mod tests {
         assert_eq!(log.cut, None);
         // Read so far: every whole record, at every cut.
         for cut in 0..bytes.len() {
-            let whole = match decode_so_far(&bytes[..cut]) {
+            let whole = match decode(&bytes[..cut]) {
                 Ok(l) => l.records.len() + 1,
                 Err(_) => 0,
             };

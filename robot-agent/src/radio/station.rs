@@ -4,7 +4,7 @@
 //! * Neighbours: the robots whose radio liveliness token this robot sees ([`Radio::link_up`],
 //!   [`Radio::link_down`]).
 //! * Pacing: per neighbour, a budget on the simulated clock of the link's bandwidth with bursts
-//!   of [`BURST_STEPS`] steps (and at least the largest single-scan delta), kept by
+//!   of [`proto::budget::SAVE_STEPS`] steps (and at least the largest single-scan delta), kept by
 //!   [`crate::radio::pacing::Pacer`]. On average a link is offered no more than its bandwidth, whatever
 //!   the robot would like to send, so queues in netem and the kernel stay short and keep-alives
 //!   are not stuck behind data. What does not fit waits in the exchange's logs: the backlog.
@@ -28,12 +28,6 @@ use proto::scenario::Scenario;
 use crate::coord::{Addressed, CoordMsg, To};
 use crate::exchange::sharing::{Share, Sharing};
 use crate::radio::pacing::Pacer;
-
-/// How many steps of unused radio budget a neighbour's credit can hold. Without step markers
-/// netem smooths what a burst offers over the following steps; with them a step's traffic
-/// crosses within the step, so after idle steps a link may carry up to this many steps' budget
-/// in one (a log entry larger than one step's budget goes whole, and never starves).
-pub const BURST_STEPS: usize = 4;
 
 /// What zenoh adds on the wire to one radio message, with batching off (lockstep with step
 /// markers): the TCP link's length prefix, the transport frame with its sequence number, the
@@ -233,7 +227,7 @@ impl Radio {
     /// Robot `id`'s radio in scenario `s` and `world`.
     pub fn new(id: RobotId, s: &Scenario, world: &WorldInfo) -> Radio {
         let burst_bytes = budget_per_step(s, world)
-            .map_or(0, |b| (b * BURST_STEPS as f64) as u64)
+            .map_or(0, |b| (b * f64::from(proto::budget::SAVE_STEPS)) as u64)
             .max(proto::msg::largest_scan_delta_bytes(world.laser.beams) as u64);
         Radio {
             id,
