@@ -95,7 +95,6 @@ struct RobotAir {
 /// `channel_links.csv` says one did, drawn in the lossy links' colour.
 #[test]
 fn the_mcap_of_a_run_on_a_lossy_shared_channel_shows_each_robots_airtime_and_lost_frames() {
-    use prost::Message;
     let (_dir, run, bytes) = office_run_exported(
         "mcap-air",
         &[
@@ -117,8 +116,25 @@ fn the_mcap_of_a_run_on_a_lossy_shared_channel_shows_each_robots_airtime_and_los
         .map(|r| r["step"].clone())
         .collect();
     assert!(!lost_steps.is_empty(), "a frame lost in 40 steps at 20 %");
+    the_stats_and_links_show_the_air(&bytes, &nodes, &lost_steps);
+    // netem's report of a step comes once the next step opens, later on a loaded machine: the
+    // same run with step 0's link and channel records written after step 6's still exports
+    // each robot's airtime at step 0.
+    late_netem_records(&run.join("steps.log"), 0, 6);
+    let (late, _) = export_mcap(&run);
+    the_stats_and_links_show_the_air(&late, &nodes, &lost_steps);
+}
+
+/// The MCAP `bytes` has each robot's airtime of `channel_nodes.csv` (`nodes`) in `/stats`, and
+/// marks lost frames only at `lost_steps`, in the lossy links' colour.
+fn the_stats_and_links_show_the_air(
+    bytes: &[u8],
+    nodes: &BTreeMap<(String, String), u64>,
+    lost_steps: &BTreeSet<String>,
+) {
+    use prost::Message;
     let (mut compared, mut shares, mut marked, mut lossy) = (0, 0, 0, 0);
-    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+    for m in mcap::MessageStream::new(bytes).expect("an MCAP file") {
         let m = m.expect("every message reads");
         match m.channel.topic.as_str() {
             "/stats" => {
@@ -161,6 +177,37 @@ fn the_mcap_of_a_run_on_a_lossy_shared_channel_shows_each_robots_airtime_and_los
         marked > 0 && lossy > 0,
         "{marked} steps marked lost, {lossy} lossy lines"
     );
+}
+
+/// Rewrites the step log at `path` with netem's records of step `step` moved after the last
+/// record of step `after`.
+fn late_netem_records(path: &std::path::Path, step: u32, after: u32) {
+    use swarm::rundir::steplog::Record;
+    let bytes = std::fs::read(path).expect("steps.log");
+    let mut records: Vec<Record> = Vec::new();
+    let mut rest = &bytes[..];
+    while let Some((len, tail)) = rest.split_first_chunk::<4>() {
+        let len = u32::from_le_bytes(*len) as usize;
+        records.push(postcard::from_bytes(&tail[..len]).expect("a record"));
+        rest = &tail[len..];
+    }
+    let netem = |r: &Record| matches!(r, Record::Links { .. } | Record::Channel { .. });
+    let (moved, mut kept): (Vec<Record>, Vec<Record>) = records
+        .into_iter()
+        .partition(|r| netem(r) && r.step() == Some(step));
+    assert!(!moved.is_empty(), "netem's records of step {step}");
+    let at = kept
+        .iter()
+        .rposition(|r| r.step() == Some(after))
+        .expect("records of the later step");
+    kept.splice(at + 1..at + 1, moved);
+    let mut out = Vec::new();
+    for r in &kept {
+        let body = postcard::to_stdvec(r).expect("encodes");
+        out.extend_from_slice(&(body.len() as u32).to_le_bytes());
+        out.extend_from_slice(&body);
+    }
+    std::fs::write(path, out).expect("steps.log rewritten");
 }
 
 /// Reads an MCAP as Foxglove would: chunk CRCs checked, `log_time` never going back, each

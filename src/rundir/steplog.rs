@@ -82,6 +82,19 @@ pub enum Record {
     },
 }
 
+impl Record {
+    /// The step the record is of (none for the header).
+    pub fn step(&self) -> Option<Step> {
+        match self {
+            Record::Poses { step, .. }
+            | Record::Links { step, .. }
+            | Record::Channel { step, .. } => Some(*step),
+            Record::Robot(rs, _) => Some(rs.step),
+            Record::Header(_) => None,
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Pose {
     pub id: RobotId,
@@ -422,6 +435,21 @@ pub struct StepLog {
 }
 
 impl StepLog {
+    /// How many steps behind the latest step written before it any record came (netem's
+    /// report of a step comes once the next step opens, and later on a loaded machine): how long
+    /// a reader that goes through the records in order must hold a step back to have all of it.
+    pub fn lateness(&self) -> Step {
+        let mut latest: Option<Step> = None;
+        let mut most = 0;
+        for s in self.records.iter().filter_map(Record::step) {
+            if let Some(l) = latest {
+                most = most.max(l.saturating_sub(s));
+            }
+            latest = latest.max(Some(s));
+        }
+        most
+    }
+
     /// What a reader of the log in `dir` tells its user if the log was cut short: where, and
     /// what it shows of it.
     pub fn cut_warning(&self, dir: &Path) -> Option<String> {

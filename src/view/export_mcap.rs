@@ -58,6 +58,7 @@ where
     let options = McapWriteOptions::new().compression(None).profile("");
     let mcap = McapWriter::with_options(options).context(&ctx).create(w)?;
     let mut scene = Scene::new(&ctx, &log.header, last_reports(log), true);
+    scene.hold_back(log.lateness());
     // The run's tables end at its last step with reports; so does the file.
     let end = log.last_step();
     for r in &log.records {

@@ -215,6 +215,8 @@ pub struct Scene {
     latest: Arc<Mutex<Latest>>,
     /// Robot grids are built only when some sink takes them (live: a subscribed client).
     always: bool,
+    /// A step's messages wait for records this many steps later ([`Scene::hold_back`]).
+    hold: Step,
 }
 
 impl Scene {
@@ -243,6 +245,7 @@ impl Scene {
             counts: Counts::new(),
             latest: Arc::default(),
             always,
+            hold: HOLD_STEPS,
         };
         s.log_truth(header);
         s
@@ -357,7 +360,7 @@ impl Scene {
                 *step
             }
         };
-        self.flush_before(step.saturating_sub(HOLD_STEPS));
+        self.flush_before(step.saturating_sub(self.hold));
         Ok(())
     }
 
@@ -395,6 +398,13 @@ impl Scene {
             let (s, out) = entry.remove_entry();
             self.log_step(s, out);
         }
+    }
+
+    /// Holds each step back until records `steps` steps later have come (at least
+    /// [`HOLD_STEPS`]): a finished run's [`StepLog::lateness`](crate::rundir::steplog::StepLog::lateness),
+    /// so that every record goes out with its step.
+    pub fn hold_back(&mut self, steps: Step) {
+        self.hold = steps.max(HOLD_STEPS);
     }
 
     /// Logs every step still gathered (the run has ended).
@@ -865,6 +875,7 @@ impl Server {
     ) -> anyhow::Result<()> {
         let last = last_reports(log);
         let server = Server::start(addr, &log.header, last, name).await?;
+        lock(&server.scene).hold_back(log.lateness());
         ready(server.addr);
         let pause = std::time::Duration::from_secs_f64(1.0 / steps_per_second.max(0.01));
         for play in 1u32.. {
@@ -873,13 +884,7 @@ impl Server {
             }
             let mut at: Option<Step> = None;
             for r in &log.records {
-                let step = match r {
-                    Record::Poses { step, .. }
-                    | Record::Links { step, .. }
-                    | Record::Channel { step, .. } => Some(*step),
-                    Record::Robot(rs, _) => Some(rs.step),
-                    Record::Header(_) => None,
-                };
+                let step = r.step();
                 if let (Some(s), Some(a)) = (step, at) {
                     if s > a {
                         tokio::time::sleep(pause * (s - a)).await;
