@@ -190,3 +190,82 @@ fn robots_and_netem_killed_from_outside_are_started_again_by_supervision() {
     crate::support::assert_killed_and_supervised(&s, &["robot-1", "netem"]);
     wait_gone(&all);
 }
+
+/// A launcher killed with SIGKILL mid-run (a lockstep run with a base station) leaves its tables
+/// holding every step it had closed — each step whole, the contact and communication columns
+/// filled in — and no `summary.json` (the run was cut); `swarm export-mcap` reads the step log
+/// up to its last whole record.
+#[test]
+fn a_launcher_killed_mid_run_leaves_its_tables_up_to_the_steps_it_took_in() {
+    use swarm::rundir::tables::{read_rows, LinkCsv, MetricsRow};
+    let dir = TempDir::new("kill-launcher-tables");
+    let run = dir.path().join("run");
+    let mut cmd = Command::new(SWARM);
+    cmd.args(["run", "--quiet", "--out"]).arg(&run);
+    for s in [
+        "world.map=office",
+        "world.width_m=24",
+        "world.height_m=16",
+        "robots.count=3",
+        "base_station.enabled=true",
+        "max_steps=5000",
+    ] {
+        cmd.arg("--set").arg(s);
+    }
+    let l = Launcher::spawn(cmd);
+    let kids = wait_for_children(&l, 5);
+    let at = wait_for_step(&run, 40, Duration::from_secs(120));
+    kill(l.pid, 9);
+    let _ = l.wait_output(Duration::from_secs(30));
+    wait_gone(&kids);
+    assert!(
+        !run.join("summary.json").exists(),
+        "a run cut short has no summary"
+    );
+    let metrics: Vec<MetricsRow> =
+        read_rows(&run.join("metrics.csv")).unwrap_or_else(|e| panic!("{e:#}"));
+    let last = metrics
+        .last()
+        .map(|r| r.step)
+        .expect("metrics.csv has rows");
+    // netem reports a step when the next one opens: the tables may lag the world by a step or two.
+    assert!(
+        last + 3 >= at,
+        "metrics.csv ends at step {last}, the run was at {at}"
+    );
+    for s in 0..=last {
+        let nodes: Vec<u16> = metrics
+            .iter()
+            .filter(|r| r.step == s)
+            .map(|r| r.robot)
+            .collect();
+        assert_eq!(
+            nodes,
+            [0, 1, 2, 3],
+            "step {s} of metrics.csv is whole, by robot"
+        );
+    }
+    for r in metrics.iter().filter(|r| r.robot != 3) {
+        assert!(
+            r.steps_since_base.is_some() && r.comm_level_pct.is_some(),
+            "the columns that need the step's links are filled in: {r:?}"
+        );
+    }
+    let links: Vec<LinkCsv> = read_rows(&run.join("links.csv")).unwrap_or_else(|e| panic!("{e:#}"));
+    for s in 0..=last {
+        assert_eq!(
+            links.iter().filter(|l| l.step == s).count(),
+            6,
+            "step {s} of links.csv has every pair of the 4 nodes"
+        );
+    }
+    assert!(links.iter().all(|l| l.step <= last));
+    let traffic = crate::support::csv(&run.join("traffic_by_type.csv"));
+    assert_eq!(
+        traffic.len(),
+        metrics.len(),
+        "traffic_by_type.csv has every row"
+    );
+    let (mcap, said) = crate::support::export_mcap(&run);
+    assert!(!mcap.is_empty(), "{said}");
+}

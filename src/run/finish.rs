@@ -27,13 +27,9 @@ use crate::rundir::summary::{
     bytes_by_type, coverage_steps, traffic_shares, AwarenessSummary, CommLevel, LostLog, Summary,
     SCHEMA_VERSION,
 };
-use crate::rundir::tables::{
-    link_totals_wire, write_channel, write_links, write_metrics, write_saves_and_views,
-    write_traffic, MetricsRow,
-};
-use crate::score::awareness::{mean_of_step_means, steps_since_base};
-use crate::score::connectivity::UpLinks;
-use crate::score::connectivity::{check_judgements, comm_level_pct};
+use crate::rundir::tables::{link_totals_wire, MetricsRow};
+use crate::score::awareness::mean_of_step_means;
+use crate::score::connectivity::check_judgements;
 use crate::score::evaluate::Evaluator;
 
 /// Tells everyone to stop, waits for every child (killing what does not stop), and collects the
@@ -62,7 +58,7 @@ pub async fn stop(
     // Link reports that arrived while the processes were stopping.
     while let Ok(Some(r)) = sim.link_reports.try_recv() {
         if let Ok(r) = decode::<LinkReport>(&r.payload().to_bytes()) {
-            rec.links.add(r);
+            rec.tables.report(r);
         }
     }
     for name in killed {
@@ -72,44 +68,6 @@ pub async fn stop(
     }
     proto::node::close_quickly(sim.session).await;
     (children.table(), children.memory().to_vec())
-}
-
-/// Sets every robot row's steps since its last contact with the base station (de Hoog et al.
-/// 2010, Fig. 5d), from the links netem reported up at each step. Done at the end: netem
-/// reports a step only once the next one opens, so the links of a step may come after its
-/// telemetry. Nothing without a base station.
-pub fn score_contact(plan: &Plan, rec: &mut Record, up: &UpLinks) {
-    let Some(base) = plan.scenario.base_id() else {
-        return;
-    };
-    let Some(last) = rec.eval.rows.iter().map(|r| r.step).max() else {
-        return;
-    };
-    let nodes = usize::from(plan.scenario.nodes());
-    let since = steps_since_base(nodes, base, up, last);
-    for row in rec.eval.rows.iter_mut().filter(|r| r.robot != base) {
-        row.steps_since_base = since
-            .get(row.step as usize)
-            .and_then(|n| n.get(usize::from(row.robot)))
-            .copied();
-    }
-}
-
-/// Sets every robot row's communication level (Rooker and Birk 2005, Fig. 6) from the links
-/// netem reported up at its step, like [`score_contact`] once they are all in. A step without
-/// links up has every robot alone.
-pub fn score_comm_level(plan: &Plan, rec: &mut Record, up: &UpLinks) {
-    let robots = usize::from(plan.scenario.robots.count);
-    let nodes = usize::from(plan.scenario.nodes());
-    let base = plan.scenario.base_id();
-    let mut level: BTreeMap<Step, f64> = BTreeMap::new();
-    for row in rec.eval.rows.iter_mut().filter(|r| Some(r.robot) != base) {
-        let pct = *level.entry(row.step).or_insert_with(|| {
-            let links = up.get(&row.step).map_or(&[][..], Vec::as_slice);
-            comm_level_pct(robots, nodes, links)
-        });
-        row.comm_level_pct = Some(pct);
-    }
 }
 
 /// `summary.json`'s `comm_level_pct`: the lowest and the mean over the steps.
@@ -125,16 +83,11 @@ fn comm_level(rows: &[MetricsRow]) -> Option<CommLevel> {
     })
 }
 
-/// `summary.json`'s content.
-/// `up`: the links netem reported up, by step ([`crate::rundir::LinkLog::up_by_step`]).
-pub fn summary(
-    plan: &Plan,
-    rec: &Record,
-    up: &UpLinks,
-    exit_reason: ExitReason,
-    started: Instant,
-) -> Summary {
+/// `summary.json`'s content, once every step is written.
+pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Instant) -> Summary {
     let eval = &rec.eval;
+    let rows = &rec.tables.rows;
+    let links = &rec.tables.links;
     let last = rec.last_status().cloned().unwrap_or(Status {
         step: 0,
         robots: Vec::new(),
@@ -152,7 +105,7 @@ pub fn summary(
         .chain(earlier.iter().map(|l| l.sent_by_type.clone()))
         .collect();
     let by_type = bytes_by_type(&per_robot_types);
-    let (backlog_max_bytes, backlog_mean_bytes) = backlogs(eval);
+    let (backlog_max_bytes, backlog_mean_bytes) = backlogs(rows);
     Summary {
         schema_version: SCHEMA_VERSION,
         complete: eval.exploration_step.is_some(),
@@ -181,18 +134,16 @@ pub fn summary(
         logs_held: logs_held(eval),
         collisions_robots: last.collisions_total,
         collisions_walls: last.blocked_total,
-        fidelity: crate::score::fidelity::summarize(&eval.rows, plan.robots()),
+        fidelity: crate::score::fidelity::summarize(rows, plan.robots()),
         distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
         radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
-        reconnect: (&rec.links.reconnects()).into(),
-        awareness: eval.base.map(|b| awareness(&eval.rows, b)),
-        comm_level_pct: comm_level(&eval.rows),
+        reconnect: (&links.reconnects()).into(),
+        awareness: eval.base.map(|b| awareness(rows, b)),
+        comm_level_pct: comm_level(rows),
         // Judgements of steps netem reported (the run's last step may have none).
-        link_judgement: rec
-            .links
-            .last_step()
-            .and_then(|reported| check_judgements(&eval.judged, up, reported)),
-        channel: rec.links.channel_summary(),
+        link_judgement: (links.last_step())
+            .and_then(|reported| check_judgements(&eval.judged, links.up_by_step(), reported)),
+        channel: links.channel_summary(),
         failed_processes: rec.failed.clone(),
         process_events: rec.sup.events.clone(),
         logs_held_by_others: held_by_others(rec)
@@ -214,10 +165,10 @@ pub fn summary(
 /// counters: then the reports, which span every life.
 fn wire_total(plan: &Plan, rec: &Record) -> u64 {
     if plan.scenario.clock.marked() || rec.sup.life(Process::Netem) > 0 {
-        rec.links.wire_total()
+        rec.tables.links.wire_total()
     } else {
         link_totals_wire(&plan.dir.join("link_totals.csv"))
-            .unwrap_or_else(|| rec.links.wire_total())
+            .unwrap_or_else(|| rec.tables.links.wire_total())
     }
 }
 
@@ -380,9 +331,8 @@ fn lost_logs(rec: &Record, alive: &[RobotId]) -> Vec<LostLog> {
 }
 
 /// The largest backlog over the run and its mean over robot-steps that had neighbours.
-fn backlogs(eval: &Evaluator) -> (u64, f64) {
-    let b: Vec<u64> = eval
-        .rows
+fn backlogs(rows: &[MetricsRow]) -> (u64, f64) {
+    let b: Vec<u64> = rows
         .iter()
         .filter(|r| r.neighbours > 0)
         .map(|r| r.backlog_bytes)
@@ -419,15 +369,6 @@ fn approx_error_avg(eval: &Evaluator) -> Option<f64> {
         .filter_map(|(_, t)| t.approx_error_avg)
         .collect();
     (!e.is_empty()).then(|| e.iter().sum::<f64>() / e.len() as f64)
-}
-
-/// Writes the run directory's tables (the summary is written apart).
-pub fn write_tables(dir: &Path, rec: &Record) -> anyhow::Result<()> {
-    write_metrics(dir, &rec.eval.rows)?;
-    write_traffic(dir, &rec.eval.rows)?;
-    write_saves_and_views(dir, &rec.eval.saves, &rec.eval.views)?;
-    write_links(dir, &rec.links)?;
-    write_channel(dir, &rec.links)
 }
 
 /// `truth.png` with every trajectory, `robot_<id>.png` per robot, every robot's final

@@ -18,11 +18,11 @@ use proto::scenario::{Process, ProcessAction};
 use super::prepare::Plan;
 use super::spawn::{last_log_line, respawn, Started};
 use super::steps::StepOrder;
+use super::tables::Tables;
 use crate::process::children::{describe, Children};
 use crate::process::supervise::{Action, Supervisor};
 use crate::run::progress::Progress;
 use crate::rundir::steplog::StepLogWriter;
-use crate::rundir::tables::LinkLog;
 use crate::score::evaluate::Evaluator;
 
 /// Steps every robot must be idle in a row before the run ends with `no-frontiers` or `stalled`
@@ -37,7 +37,8 @@ const SETTLE: Duration = Duration::from_secs(5);
 /// What the launcher saw of a run.
 pub struct Record {
     pub eval: Evaluator,
-    pub links: LinkLog,
+    /// The per-step tables, written as the steps close.
+    pub tables: Tables,
     /// Every child that exited during the run, described.
     pub failed: Vec<String>,
     /// Every status of the world, in step order.
@@ -47,6 +48,8 @@ pub struct Record {
     order: StepOrder,
     /// The step since which every live robot has been idle.
     idle_since: Option<u32>,
+    /// Realtime: the latest step whose telemetry was taken.
+    newest: Option<Step>,
     /// The run's last step and why it ended there, once the telemetry of a step decided it
     /// (exploration done, nothing left to explore, the step limit).
     pub end: Option<(Step, ExitReason)>,
@@ -79,18 +82,19 @@ pub struct Life {
 
 impl Record {
     /// `lockstep`: telemetry is taken a whole step at a time ([`StepOrder`]); else as it comes.
-    pub fn new(eval: Evaluator, lockstep: bool, sup: Supervisor) -> Record {
+    pub fn new(eval: Evaluator, tables: Tables, lockstep: bool, sup: Supervisor) -> Record {
         Record {
             sup,
             lives: BTreeMap::new(),
             held_max: BTreeMap::new(),
             eval,
-            links: LinkLog::default(),
+            tables,
             failed: Vec::new(),
             statuses: Vec::new(),
             lockstep,
             order: StepOrder::default(),
             idle_since: None,
+            newest: None,
             end: None,
             settled_in_time: true,
             log: None,
@@ -173,7 +177,9 @@ impl Record {
             // Realtime: reports are taken as they come (the run follows the wall clock anyway).
             if self.end.is_none() {
                 let step = t.step;
+                self.newest = Some(self.newest.map_or(step, |n| n.max(step)));
                 self.took(step, vec![t]);
+                self.write_closed_steps();
             }
             return;
         }
@@ -181,14 +187,54 @@ impl Record {
         self.take_complete_steps();
     }
 
+    /// A report of netem's of the links at a step.
+    fn on_link_report(&mut self, r: proto::msg::LinkReport) {
+        self.log(|w| w.links(&r));
+        self.tables.report(r);
+        self.write_closed_steps();
+    }
+
+    /// Writes the steps that are closed: their telemetry taken (lockstep: the whole step;
+    /// realtime: reports two steps on have come) and netem's report of them in — up to the
+    /// run's last step once it is known.
+    fn write_closed_steps(&mut self) {
+        let taken = if self.lockstep {
+            self.order.next().checked_sub(1)
+        } else {
+            self.newest.and_then(|n| n.checked_sub(2))
+        };
+        let Some(mut last) = taken.min(self.tables.links_through()) else {
+            return;
+        };
+        if let Some((end, _)) = self.end {
+            last = last.min(end);
+        }
+        if self.tables.next() <= last {
+            self.tables.write_through(last, &mut self.eval);
+        }
+    }
+
+    /// At the end: writes every step held (up to the run's last step, when it is known).
+    pub fn write_the_rest(&mut self) {
+        let held = self.tables.held_through(&self.eval);
+        let last = match self.end {
+            Some((end, _)) => Some(end),
+            None => held,
+        };
+        if let Some(last) = last {
+            self.tables.write_through(last, &mut self.eval);
+        }
+    }
+
     /// Lockstep: takes the steps that are complete, up to the last one once it is known.
     fn take_complete_steps(&mut self) {
         while self.lockstep && self.end.is_none_or(|(e, _)| self.order.next() <= e) {
             let Some((step, reports)) = self.order.take() else {
-                return;
+                break;
             };
             self.took(step, reports);
         }
+        self.write_closed_steps();
     }
 
     /// Evaluates reports of `step`; decides the end if they show it (exploration done, or every
@@ -263,7 +309,7 @@ impl Record {
         }
         let after = e.saturating_add(1);
         let status = self.statuses.iter().any(|s| s.step >= after);
-        let links = self.links.last_step().is_some_and(|s| s >= e);
+        let links = self.tables.reported().is_some_and(|s| s >= e);
         // netem reports a step when the next one opens; a run without links has no reports.
         let no_links = self.statuses.first().is_some_and(|s| s.robots.len() < 2);
         self.order.next() > e && status && (links || no_links)
@@ -273,7 +319,7 @@ impl Record {
     /// launcher waited for the last step's reports).
     pub fn truncate(&mut self) {
         if let Some((e, _)) = self.end {
-            self.links.truncate(e);
+            self.tables.truncate(e);
         }
     }
 
@@ -465,8 +511,7 @@ pub async fn follow(
                 })
             }
             r = sim.link_reports.recv_async() => received(message(r, "link report"), |r| {
-                rec.log(|w| w.links(&r));
-                rec.links.add(r);
+                rec.on_link_report(r)
             }),
             _ = tick.tick() => rec.tick(&mut run.children, plan, progress),
             _ = tokio::signal::ctrl_c() => {

@@ -4,6 +4,7 @@ use std::net::SocketAddr;
 use std::time::Instant;
 
 use crate::run::args::{Outcome, RunArgs};
+use crate::run::tables::Tables;
 use crate::run::{finish, follow, prepare, spawn};
 
 use crate::process::supervise::Supervisor;
@@ -45,7 +46,13 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         plan.scenario.supervise.clone(),
         plan.scenario.process_faults()?,
     );
-    let mut rec = follow::Record::new(eval, lockstep, sup);
+    let tables = Tables::create(
+        &plan.dir,
+        usize::from(plan.scenario.robots.count),
+        usize::from(plan.scenario.nodes()),
+        plan.scenario.base_id(),
+    )?;
+    let mut rec = follow::Record::new(eval, tables, lockstep, sup);
     let mut log = StepLogWriter::create(
         &plan.dir,
         run.truth.map,
@@ -71,6 +78,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         progress.event(&format!("swarm run: {e}"));
     }
     rec.truncate();
+    rec.write_the_rest();
     if let Some(Err(e)) = rec.log.take().map(StepLogWriter::finish) {
         progress.event(&format!("swarm run: {e:#}"));
     }
@@ -80,11 +88,8 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     if let Some(server) = foxglove {
         stop_foxglove(server, &mut progress).await;
     }
-    let up = rec.links.up_by_step();
-    finish::score_contact(&plan, &mut rec, &up);
-    finish::score_comm_level(&plan, &mut rec, &up);
-    let mut summary = finish::summary(&plan, &rec, &up, exit_reason, started);
-    finish::write_tables(&plan.dir, &rec)?;
+    rec.tables.check()?;
+    let mut summary = finish::summary(&plan, &rec, exit_reason, started);
     crate::rundir::tables::write_rows(&plan.dir.join("processes.csv"), processes)?;
     crate::rundir::tables::write_rows(&plan.dir.join("memory.csv"), memory)?;
     finish::write_pictures(&plan.dir, (&truth, info), &reachable, &rec, &mut progress)?;

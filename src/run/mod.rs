@@ -24,6 +24,8 @@ mod secrets;
 mod spawn;
 /// Telemetry taken a whole step at a time, in robot order (lockstep runs).
 mod steps;
+/// The per-step tables, written as the steps close.
+mod tables;
 
 pub use args::{Outcome, RunArgs};
 pub use launch::run;

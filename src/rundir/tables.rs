@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::Context;
-use proto::msg::{LinkReport, LinkState, NodeAir, RobotId, Step, Traffic};
+use proto::msg::{LinkState, NodeAir, RobotId, Step, Traffic};
 use serde::{Deserialize, Serialize};
 
 use crate::rundir::summary::*;
@@ -50,8 +50,8 @@ pub struct MetricsRow {
     /// later: tables written before them read back as empty (or 0).
     #[serde(serialize_with = "fixed_opt::<3, _>", default)]
     pub shared_pct: Option<f64>,
-    /// Fig. 5d: steps since this robot's last contact with the base station, set once the
-    /// run's links are all in; empty on the base station's rows and without a base station.
+    /// Fig. 5d: steps since this robot's last contact with the base station, set once netem's
+    /// report of the step is in; empty on the base station's rows and without a base station.
     #[serde(default)]
     pub steps_since_base: Option<Step>,
     /// Fig. 5a: the percentage of the reachable free cells that at least one robot knows (the
@@ -60,8 +60,8 @@ pub struct MetricsRow {
     #[serde(serialize_with = "fixed_opt::<3, _>", default)]
     pub team_pct: Option<f64>,
     /// Rooker and Birk 2005, Fig. 6: the percentage of robot pairs that can reach each other
-    /// over the step's links (netem's `up`), directly or through others, set once the run's
-    /// links are all in; empty on the base station's rows.
+    /// over the step's links (netem's `up`), directly or through others, set once netem's report
+    /// of the step is in; empty on the base station's rows.
     #[serde(serialize_with = "fixed_opt::<3, _>", default)]
     pub comm_level_pct: Option<f64>,
     /// Map fidelity ([`crate::score::fidelity`]): the cells the planning grid holds free, those
@@ -84,160 +84,258 @@ pub struct MetricsRow {
     pub sent_by_type: Vec<u64>,
 }
 
-/// `metrics.csv`: one row per robot and step, by step and robot.
-pub fn write_metrics(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
-    let mut sorted: Vec<&MetricsRow> = rows.iter().collect();
-    sorted.sort_by_key(|r| (r.step, r.robot));
-    write_table::<MetricsRow, _>(&dir.join("metrics.csv"), sorted)
+/// The run's per-step tables, written a step at a time as the run goes ([`StepTables::step`]):
+/// `metrics.csv` (by step and robot), `traffic_by_type.csv` (the same), `saves.csv` and
+/// `views.csv` (in the order reported), `links.csv` (by step and pair; a pair reported twice in
+/// a step in arrival order) and — when netem shares the channel or loses frames (`radio.medium`
+/// `shared`/`airtime`, `radio.frame_loss`, `radio.fading_db`) — `channel_nodes.csv` and
+/// `channel_links.csv`, created with the first step that has them.
+pub struct StepTables {
+    dir: std::path::PathBuf,
+    metrics: TableWriter,
+    traffic: TableWriter,
+    saves: TableWriter,
+    views: TableWriter,
+    links: TableWriter,
+    /// `channel_nodes.csv` and `channel_links.csv`, once a step had them.
+    channel: Option<(TableWriter, TableWriter)>,
+    /// Per robot, its payload per class as of its last row written (for the per-step
+    /// differences of `traffic_by_type.csv`).
+    sent: BTreeMap<RobotId, Vec<u64>>,
 }
 
-/// Every link report of a run, in arrival order, each kept packed (its links postcard-encoded:
-/// some 25 bytes a link instead of 64 — netem reports every pair every step, 8 100 of them at
-/// 128 robots, and the launcher holds the whole run until it ends).
+/// One step of the run for [`StepTables::step`].
 #[derive(Default)]
-pub struct LinkLog {
-    reports: Vec<(Step, Box<[u8]>)>,
-    /// Each report's nodes' use of the channel (only when netem shares it or loses frames).
-    nodes: Vec<(Step, Vec<NodeAir>)>,
+pub struct StepRows {
+    pub step: Step,
+    /// Its `metrics.csv` rows (any order: written by robot, robots reported twice in order).
+    pub metrics: Vec<MetricsRow>,
+    /// Save points and view changes reported at the step, in order.
+    pub saves: Vec<(RobotId, u32, u64)>,
+    pub views: Vec<(RobotId, proto::msg::View)>,
+    /// netem's link states of the step, in arrival order, and its nodes' use of the channel.
+    pub links: Vec<LinkState>,
+    pub nodes: Vec<NodeAir>,
 }
 
-impl LinkLog {
-    pub fn add(&mut self, r: LinkReport) {
-        let packed = proto::msg::encode(&r.links).into_boxed_slice();
-        self.reports.push((r.step, packed));
-        if !r.nodes.is_empty() {
-            self.nodes.push((r.step, r.nodes));
+impl StepTables {
+    /// Creates the tables (their headers) in `dir`.
+    pub fn create(dir: &Path) -> anyhow::Result<StepTables> {
+        let traffic_header = ["step", "robot"]
+            .into_iter()
+            .chain(Traffic::ALL.iter().map(|t| t.name()));
+        Ok(StepTables {
+            dir: dir.to_path_buf(),
+            metrics: TableWriter::create::<MetricsRow>(&dir.join("metrics.csv"))?,
+            // The class columns come from one list (serde names a sequence field's columns
+            // no way).
+            traffic: TableWriter::with_header(&dir.join("traffic_by_type.csv"), traffic_header)?,
+            saves: TableWriter::create::<SaveCsv>(&dir.join("saves.csv"))?,
+            views: TableWriter::create::<ViewCsv>(&dir.join("views.csv"))?,
+            links: TableWriter::create::<LinkCsv>(&dir.join("links.csv"))?,
+            channel: None,
+            sent: BTreeMap::new(),
+        })
+    }
+
+    /// Writes one step's rows and puts them on disk. A step is written once, after the steps
+    /// before it (a step written again comes after the later ones).
+    pub fn step(&mut self, mut s: StepRows) -> anyhow::Result<()> {
+        let step = s.step;
+        s.metrics.sort_by_key(|r| r.robot);
+        for r in &s.metrics {
+            self.metrics.row(r)?;
+        }
+        for r in &s.metrics {
+            let row = self.traffic_row(r);
+            self.traffic.row(row)?;
+        }
+        for &(robot, log_len, digest) in &s.saves {
+            self.saves.row(SaveCsv {
+                step,
+                robot,
+                log_len,
+                digest: Hex(digest),
+            })?;
+        }
+        for &(robot, v) in &s.views {
+            self.views.row(ViewCsv::of(step, robot, v))?;
+        }
+        s.links.sort_by_key(|l| (l.a, l.b));
+        for l in &s.links {
+            self.links.row(LinkCsv::of(step, l))?;
+        }
+        if !s.nodes.is_empty() && self.channel.is_none() {
+            self.channel = Some((
+                TableWriter::create::<ChannelNodeCsv>(&self.dir.join("channel_nodes.csv"))?,
+                TableWriter::create::<ChannelLinkCsv>(&self.dir.join("channel_links.csv"))?,
+            ));
+        }
+        if let Some((nodes, links)) = &mut self.channel {
+            s.nodes.sort_by_key(|n| n.id);
+            for n in &s.nodes {
+                nodes.row(ChannelNodeCsv::of(step, n))?;
+            }
+            for l in s.links.iter().filter_map(|l| ChannelLinkCsv::of(step, l)) {
+                links.row(l)?;
+            }
+            nodes.flush()?;
+            links.flush()?;
+        }
+        for t in [
+            &mut self.metrics,
+            &mut self.traffic,
+            &mut self.saves,
+            &mut self.views,
+            &mut self.links,
+        ] {
+            t.flush()?;
+        }
+        Ok(())
+    }
+
+    /// A robot's payload per class during the step of `r`: what it sent so far less what its
+    /// previous row had (a counter that fell — a restarted robot — counts from 0).
+    fn traffic_row(&mut self, r: &MetricsRow) -> TrafficCsv {
+        let prev = self.sent.insert(r.robot, r.sent_by_type.clone());
+        let bytes = (r.sent_by_type.iter().enumerate())
+            .map(|(i, &now)| {
+                let before = prev.as_ref().and_then(|p| p.get(i)).copied().unwrap_or(0);
+                now.saturating_sub(before)
+            })
+            .collect();
+        TrafficCsv {
+            step: r.step,
+            robot: r.robot,
+            bytes,
+        }
+    }
+}
+
+/// What `summary.json` needs of netem's link reports, tallied report by report as their steps
+/// are written ([`crate::run`]'s tables); the reports themselves are not kept (netem reports
+/// every pair in range every step: a run's reports grow with steps × pairs).
+#[derive(Default)]
+pub struct LinkTally {
+    /// Per pair: the totals of netem's earlier lives, and the current one's (a restarted netem
+    /// counts from zero again: a pair's total that falls starts a new count).
+    wire: BTreeMap<(RobotId, RobotId), (u64, u64)>,
+    /// Per pair: (connected once, up at its last report, the step it came back up if it waits
+    /// for a connection since).
+    reconnect: BTreeMap<(RobotId, RobotId), (bool, bool, Option<Step>)>,
+    reconnects: Reconnects,
+    /// Reports with their nodes' use of the channel (netem shares it or loses frames).
+    channel: Option<ChannelTally>,
+    /// The pairs up, per step.
+    up: BTreeMap<Step, Vec<(RobotId, RobotId)>>,
+    last: Option<Step>,
+}
+
+#[derive(Default)]
+struct ChannelTally {
+    sum: crate::rundir::summary::ChannelSummary,
+    /// Sum of every node's utilisation, and of each report's busiest; node rows; reports.
+    utilisation: f64,
+    busiest: f64,
+    rows: usize,
+    reports: usize,
+    /// Frames of links that could carry them (a link direction a step).
+    frames: usize,
+}
+
+impl LinkTally {
+    /// One report of netem's: the links of `step` and its nodes' use of the channel.
+    pub fn add(&mut self, step: Step, links: &[LinkState], nodes: &[NodeAir]) {
+        self.last = Some(self.last.map_or(step, |l| l.max(step)));
+        for l in links {
+            let (done, now) = self.wire.entry((l.a, l.b)).or_default();
+            if l.bytes_total < *now {
+                *done += *now;
+            }
+            *now = l.bytes_total;
+            self.reconnect_step(step, l);
+        }
+        let up = self.up.entry(step).or_default();
+        up.extend(links.iter().filter(|l| l.up).map(|l| (l.a, l.b)));
+        up.sort_unstable();
+        up.dedup();
+        if !nodes.is_empty() {
+            let c = self.channel.get_or_insert_with(ChannelTally::default);
+            for n in nodes {
+                c.utilisation += f64::from(n.utilisation);
+                c.sum.airtime_bytes += n.airtime;
+                c.sum.frames_lost += u64::from(n.frames_lost);
+                c.sum.retransmitted_bytes += n.retransmitted;
+            }
+            c.rows += nodes.len();
+            c.reports += 1;
+            c.busiest += (nodes.iter())
+                .map(|n| f64::from(n.utilisation))
+                .fold(0.0, f64::max);
+        }
+        if let Some(c) = &mut self.channel {
+            c.frames += 2 * links.iter().filter(|l| l.air.is_some()).count();
         }
     }
 
-    /// Drops the reports of steps after `last`.
-    pub fn truncate(&mut self, last: Step) {
-        self.reports.retain(|(s, _)| *s <= last);
-        self.nodes.retain(|(s, _)| *s <= last);
+    /// A pair's link at a step, for [`Reconnects`]: a link that had been connected, went down
+    /// and came back up waits from that step until a step ends with it connected (or it goes
+    /// down again first).
+    fn reconnect_step(&mut self, step: Step, l: &LinkState) {
+        let (was_connected, was_up, waiting) = self.reconnect.entry((l.a, l.b)).or_default();
+        if l.up && !*was_up && *was_connected {
+            *waiting = Some(step);
+        }
+        if let Some(since) = *waiting {
+            if l.up && l.connected {
+                self.reconnects.steps.push(step.saturating_sub(since));
+                *waiting = None;
+            } else if !l.up {
+                self.reconnects.lost_before_reconnect += 1;
+                *waiting = None;
+            }
+        }
+        *was_connected |= l.up && l.connected;
+        *was_up = l.up;
     }
 
     /// `summary.json`'s `channel`, when netem shared the channel or lost frames.
     pub fn channel_summary(&self) -> Option<crate::rundir::summary::ChannelSummary> {
-        if self.nodes.is_empty() {
-            return None;
-        }
-        let mut sum = crate::rundir::summary::ChannelSummary::default();
-        let (mut util, mut busiest, mut rows) = (0.0, 0.0, 0usize);
-        for (_, ns) in &self.nodes {
-            for n in ns {
-                util += f64::from(n.utilisation);
-                sum.airtime_bytes += n.airtime;
-                sum.frames_lost += u64::from(n.frames_lost);
-                sum.retransmitted_bytes += n.retransmitted;
-            }
-            rows += ns.len();
-            busiest += ns
-                .iter()
-                .map(|n| f64::from(n.utilisation))
-                .fold(0.0, f64::max);
-        }
-        sum.utilisation_mean = util / rows.max(1) as f64;
-        sum.utilisation_busiest_mean = busiest / self.nodes.len() as f64;
-        let frames = 2 * self.rows().filter(|(_, l)| l.air.is_some()).count();
-        sum.frames_lost_pct = 100.0 * sum.frames_lost as f64 / frames.max(1) as f64;
+        let c = self.channel.as_ref()?;
+        let mut sum = c.sum;
+        sum.utilisation_mean = c.utilisation / c.rows.max(1) as f64;
+        sum.utilisation_busiest_mean = c.busiest / c.reports as f64;
+        sum.frames_lost_pct = 100.0 * sum.frames_lost as f64 / c.frames.max(1) as f64;
         Some(sum)
     }
 
     /// The latest step reported.
     pub fn last_step(&self) -> Option<Step> {
-        self.reports.iter().map(|(s, _)| *s).max()
+        self.last
     }
 
-    /// The links of one packed report (it was encoded here: it decodes).
-    fn unpack(packed: &[u8]) -> Vec<LinkState> {
-        proto::msg::decode(packed).unwrap_or_default()
+    /// The pairs whose link was up, per step (sorted, so the same reports give the same map
+    /// whatever order they came in).
+    pub fn up_by_step(&self) -> &BTreeMap<Step, Vec<(RobotId, RobotId)>> {
+        &self.up
     }
 
-    /// Every link of every report, in arrival order.
-    pub fn rows(&self) -> impl Iterator<Item = (Step, LinkState)> + '_ {
-        self.reports
-            .iter()
-            .flat_map(|(step, packed)| Self::unpack(packed).into_iter().map(move |l| (*step, l)))
+    /// The pairs up at `step`.
+    pub fn up_at(&self, step: Step) -> &[(RobotId, RobotId)] {
+        self.up.get(&step).map_or(&[], Vec::as_slice)
     }
 
-    /// Every link, by step and pair (pairs reported twice in a step in arrival order), one
-    /// step unpacked at a time.
-    pub fn sorted_rows(&self) -> impl Iterator<Item = (Step, LinkState)> + '_ {
-        let mut by_step: BTreeMap<Step, Vec<&[u8]>> = BTreeMap::new();
-        for (step, packed) in &self.reports {
-            by_step.entry(*step).or_default().push(packed);
-        }
-        by_step.into_iter().flat_map(|(step, reports)| {
-            let mut links: Vec<LinkState> = reports.into_iter().flat_map(Self::unpack).collect();
-            links.sort_by_key(|l| (l.a, l.b));
-            links.into_iter().map(move |l| (step, l))
-        })
-    }
-
-    /// The pairs whose link was up, per step (sorted, so the same log gives the same map
-    /// whatever order the reports came in).
-    pub fn up_by_step(&self) -> BTreeMap<Step, Vec<(RobotId, RobotId)>> {
-        let mut up: BTreeMap<Step, Vec<(RobotId, RobotId)>> = BTreeMap::new();
-        for (step, l) in self.rows().filter(|(_, l)| l.up) {
-            up.entry(step).or_default().push((l.a, l.b));
-        }
-        for pairs in up.values_mut() {
-            pairs.sort_unstable();
-            pairs.dedup();
-        }
-        up
-    }
-
-    /// Bytes that crossed any link, both ways, up to the last report. A restarted netem counts
-    /// from zero again: a pair's total that falls starts a new count, added to the old one.
+    /// Bytes that crossed any link, both ways, up to the last report (every life of netem's).
     pub fn wire_total(&self) -> u64 {
-        // Per pair: the totals of netem's earlier lives, and the current one's.
-        let mut totals: BTreeMap<(u16, u16), (u64, u64)> = BTreeMap::new();
-        for (_, l) in self.rows() {
-            let (done, now) = totals.entry((l.a, l.b)).or_default();
-            if l.bytes_total < *now {
-                *done += *now;
-            }
-            *now = l.bytes_total;
-        }
-        totals.values().map(|(done, now)| done + now).sum()
+        self.wire.values().map(|(done, now)| done + now).sum()
     }
 
     /// How long links took to reconnect after coming back up (see [`Reconnects`]).
     pub fn reconnects(&self) -> Reconnects {
-        // Per pair: (step, up, connected).
-        type Rows = Vec<(Step, bool, bool)>;
-        let mut by_pair: BTreeMap<(u16, u16), Rows> = BTreeMap::new();
-        for (step, l) in self.rows() {
-            by_pair
-                .entry((l.a, l.b))
-                .or_default()
-                .push((step, l.up, l.connected));
-        }
-        let mut r = Reconnects::default();
-        for rows in by_pair.values_mut() {
-            rows.sort_by_key(|x| x.0);
-            // (step the link came back up, since when it waits); only after it had been
-            // connected once and then went down.
-            let (mut was_connected, mut was_up, mut waiting) = (false, false, None);
-            for &(step, up, connected) in rows.iter() {
-                if up && !was_up && was_connected {
-                    waiting = Some(step);
-                }
-                if let Some(since) = waiting {
-                    if up && connected {
-                        r.steps.push(step - since);
-                        waiting = None;
-                    } else if !up {
-                        r.lost_before_reconnect += 1;
-                        waiting = None;
-                    }
-                }
-                was_connected |= up && connected;
-                was_up = up;
-            }
-            r.pending_at_end += usize::from(waiting.is_some());
-        }
+        let mut r = self.reconnects.clone();
+        r.pending_at_end = (self.reconnect.values())
+            .filter(|(_, _, waiting)| waiting.is_some())
+            .count();
         r
     }
 }
@@ -263,31 +361,17 @@ pub struct ViewCsv {
     pub digest: Hex,
 }
 
-/// `saves.csv` and `views.csv` (polygon exchange): every save point of every robot's own log
-/// (its length and the digest of the approximation there), and every change of what a robot
-/// shows of another owner (ops held, ops shown — up to a save point — and the digest of what it
-/// shows). A view is atomic when its (owner, shown, digest) is one of the owner's save points.
-pub fn write_saves_and_views(
-    dir: &Path,
-    saves: &[(Step, RobotId, u32, u64)],
-    views: &[(Step, RobotId, proto::msg::View)],
-) -> anyhow::Result<()> {
-    let saves = saves.iter().map(|&(step, robot, log_len, digest)| SaveCsv {
-        step,
-        robot,
-        log_len,
-        digest: Hex(digest),
-    });
-    write_rows(&dir.join("saves.csv"), saves)?;
-    let views = views.iter().map(|&(step, robot, v)| ViewCsv {
-        step,
-        robot,
-        owner: v.owner,
-        held: v.held,
-        shown: v.shown,
-        digest: Hex(v.digest),
-    });
-    write_rows(&dir.join("views.csv"), views)
+impl ViewCsv {
+    fn of(step: Step, robot: RobotId, v: proto::msg::View) -> ViewCsv {
+        ViewCsv {
+            step,
+            robot,
+            owner: v.owner,
+            held: v.held,
+            shown: v.shown,
+            digest: Hex(v.digest),
+        }
+    }
 }
 
 /// A row of `traffic_by_type.csv`: the payload bytes a robot sent during a step, per traffic
@@ -297,46 +381,6 @@ pub struct TrafficCsv {
     pub step: Step,
     pub robot: RobotId,
     pub bytes: Vec<u64>,
-}
-
-/// `traffic_by_type.csv`: per step and robot, the payload bytes the robot sent during the step
-/// by traffic class (thesis Table 6.1's package types, `conn`, `targ`, and `scan`).
-pub fn write_traffic(dir: &Path, rows: &[MetricsRow]) -> anyhow::Result<()> {
-    let mut sorted: Vec<&MetricsRow> = rows.iter().collect();
-    sorted.sort_by_key(|r| (r.robot, r.step));
-    let mut before: Option<(u16, &[u64])> = None;
-    let mut out: Vec<TrafficCsv> = Vec::new();
-    for r in sorted {
-        let prev = before
-            .filter(|(robot, _)| *robot == r.robot)
-            .map(|(_, v)| v);
-        let bytes = (r.sent_by_type.iter().enumerate())
-            .map(|(i, &now)| now.saturating_sub(prev.and_then(|p| p.get(i)).copied().unwrap_or(0)))
-            .collect();
-        out.push(TrafficCsv {
-            step: r.step,
-            robot: r.robot,
-            bytes,
-        });
-        before = Some((r.robot, &r.sent_by_type));
-    }
-    out.sort_by_key(|t| (t.step, t.robot));
-    let path = dir.join("traffic_by_type.csv");
-    let context = || format!("writing {}", path.display());
-    // The header is written by hand: its class columns come from one list (serde names a
-    // sequence field's columns no way).
-    let mut w = csv::WriterBuilder::new()
-        .has_headers(false)
-        .from_path(&path)
-        .with_context(context)?;
-    let head = ["step", "robot"]
-        .into_iter()
-        .chain(Traffic::ALL.iter().map(|t| t.name()));
-    w.write_record(head).with_context(context)?;
-    for r in out {
-        w.serialize(r).with_context(context)?;
-    }
-    w.flush().with_context(context)
 }
 
 /// Bytes that crossed any link, both ways, from netem's `link_totals.csv` (`None` if it is
@@ -361,21 +405,21 @@ pub struct LinkCsv {
     pub bytes_total: u64,
 }
 
-/// `links.csv`: one row per step and robot pair.
-pub fn write_links(dir: &Path, log: &LinkLog) -> anyhow::Result<()> {
-    let rows = log.sorted_rows().map(|(step, l)| LinkCsv {
-        step,
-        a: l.a,
-        b: l.b,
-        up: Flag(l.up),
-        connected: Flag(l.connected),
-        distance_m: l.distance_m.map(Fixed),
-        bytes_a_to_b: l.bytes_a_to_b,
-        bytes_b_to_a: l.bytes_b_to_a,
-        queued_bytes: l.queued_bytes,
-        bytes_total: l.bytes_total,
-    });
-    write_rows(&dir.join("links.csv"), rows)
+impl LinkCsv {
+    fn of(step: Step, l: &LinkState) -> LinkCsv {
+        LinkCsv {
+            step,
+            a: l.a,
+            b: l.b,
+            up: Flag(l.up),
+            connected: Flag(l.connected),
+            distance_m: l.distance_m.map(Fixed),
+            bytes_a_to_b: l.bytes_a_to_b,
+            bytes_b_to_a: l.bytes_b_to_a,
+            queued_bytes: l.queued_bytes,
+            bytes_total: l.bytes_total,
+        }
+    }
 }
 
 /// A row of `channel_nodes.csv`: one node's use of the radio channel during one step.
@@ -391,6 +435,20 @@ pub struct ChannelNodeCsv {
     pub utilisation: Fixed<4>,
     pub frames_lost: u32,
     pub retransmitted_bytes: u64,
+}
+
+impl ChannelNodeCsv {
+    fn of(step: Step, n: &NodeAir) -> ChannelNodeCsv {
+        ChannelNodeCsv {
+            step,
+            node: n.id,
+            share_bytes: n.share,
+            airtime_bytes: n.airtime,
+            utilisation: Fixed(f64::from(n.utilisation)),
+            frames_lost: n.frames_lost,
+            retransmitted_bytes: n.retransmitted,
+        }
+    }
 }
 
 /// A row of `channel_links.csv`: one link's use of the channel during one step in which it
@@ -411,29 +469,9 @@ pub struct ChannelLinkCsv {
     pub delivery_b_to_a: Fixed<4>,
 }
 
-/// `channel_nodes.csv` and `channel_links.csv`, when netem shared the channel or lost frames
-/// (`radio.medium` `shared`/`airtime`, `radio.frame_loss`, `radio.fading_db`); nothing
-/// otherwise.
-pub fn write_channel(dir: &Path, log: &LinkLog) -> anyhow::Result<()> {
-    if log.nodes.is_empty() {
-        return Ok(());
-    }
-    let mut nodes: Vec<ChannelNodeCsv> = (log.nodes.iter())
-        .flat_map(|(step, ns)| {
-            ns.iter().map(move |n| ChannelNodeCsv {
-                step: *step,
-                node: n.id,
-                share_bytes: n.share,
-                airtime_bytes: n.airtime,
-                utilisation: Fixed(f64::from(n.utilisation)),
-                frames_lost: n.frames_lost,
-                retransmitted_bytes: n.retransmitted,
-            })
-        })
-        .collect();
-    nodes.sort_by_key(|r| (r.step, r.node));
-    write_rows(&dir.join("channel_nodes.csv"), nodes)?;
-    let links = log.sorted_rows().filter_map(|(step, l)| {
+impl ChannelLinkCsv {
+    /// The row of a link that could carry something (up and not held); `None` otherwise.
+    fn of(step: Step, l: &LinkState) -> Option<ChannelLinkCsv> {
         let air = l.air?;
         Some(ChannelLinkCsv {
             step,
@@ -448,8 +486,7 @@ pub fn write_channel(dir: &Path, log: &LinkLog) -> anyhow::Result<()> {
             delivery_a_to_b: Fixed(f64::from(air.delivery[0])),
             delivery_b_to_a: Fixed(f64::from(air.delivery[1])),
         })
-    });
-    write_rows(&dir.join("channel_links.csv"), links)
+    }
 }
 
 /// A number written with `D` decimals (the precision the schema keeps).
@@ -539,26 +576,56 @@ pub fn write_rows<R: Serialize + Default>(
     path: &Path,
     rows: impl IntoIterator<Item = R>,
 ) -> anyhow::Result<()> {
-    write_table::<R, R>(path, rows)
+    let mut w = TableWriter::create::<R>(path)?;
+    for r in rows {
+        w.row(r)?;
+    }
+    w.flush()
 }
 
-/// [`write_rows`] of rows of any form that serializes like `H` (borrowed rows, say), the header
-/// from `H`'s field names.
-fn write_table<H: Serialize + Default, R: Serialize>(
-    path: &Path,
-    rows: impl IntoIterator<Item = R>,
-) -> anyhow::Result<()> {
-    let context = || format!("writing {}", path.display());
-    let mut w = csv::Writer::from_path(path).with_context(context)?;
-    let mut empty = true;
-    for r in rows {
-        w.serialize(r).with_context(context)?;
-        empty = false;
+/// A table written row by row while a run goes on: its header at once, its rows as they come,
+/// on disk at each [`TableWriter::flush`] (a run cut short keeps what was flushed).
+pub struct TableWriter {
+    w: csv::Writer<std::fs::File>,
+    path: std::path::PathBuf,
+}
+
+impl TableWriter {
+    /// Creates (or empties) `path`, the header from `H`'s field names.
+    pub fn create<H: Serialize + Default>(path: &Path) -> anyhow::Result<TableWriter> {
+        TableWriter::with_header(path, header::<H>()?)
     }
-    if empty {
-        w.write_record(header::<H>()?).with_context(context)?;
+
+    /// Creates (or empties) `path` with the header given.
+    pub fn with_header<S: AsRef<[u8]>>(
+        path: &Path,
+        header: impl IntoIterator<Item = S>,
+    ) -> anyhow::Result<TableWriter> {
+        let context = || format!("writing {}", path.display());
+        let mut w = csv::WriterBuilder::new()
+            .has_headers(false)
+            .from_path(path)
+            .with_context(context)?;
+        w.write_record(header).with_context(context)?;
+        Ok(TableWriter {
+            w,
+            path: path.to_path_buf(),
+        })
     }
-    w.flush().with_context(context)
+
+    pub fn row(&mut self, r: impl Serialize) -> anyhow::Result<()> {
+        let path = &self.path;
+        self.w
+            .serialize(r)
+            .with_context(|| format!("writing {}", path.display()))
+    }
+
+    pub fn flush(&mut self) -> anyhow::Result<()> {
+        let path = &self.path;
+        self.w
+            .flush()
+            .with_context(|| format!("writing {}", path.display()))
+    }
 }
 
 /// The column names of a row type (serde's names of its fields, in order).
@@ -642,13 +709,18 @@ mod tests {
         };
         let dir = std::env::temp_dir().join(format!("swarm-traffic-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
-        let rows = [
-            row(1, 1, 5, 0),
-            row(0, 0, 10, 1),
-            row(1, 0, 25, 1),
-            row(0, 1, 2, 0),
-        ];
-        write_traffic(&dir, &rows).unwrap_or_else(|e| panic!("{e}"));
+        let mut t = StepTables::create(&dir).unwrap_or_else(|e| panic!("{e}"));
+        for (step, metrics) in [
+            (0, vec![row(0, 1, 2, 0), row(0, 0, 10, 1)]),
+            (1, vec![row(1, 1, 5, 0), row(1, 0, 25, 1)]),
+        ] {
+            t.step(StepRows {
+                step,
+                metrics,
+                ..StepRows::default()
+            })
+            .unwrap_or_else(|e| panic!("{e}"));
+        }
         let text = std::fs::read_to_string(dir.join("traffic_by_type.csv")).unwrap_or_default();
         let _ = std::fs::remove_dir_all(&dir);
         let got: Vec<&str> = text.lines().collect();
@@ -770,7 +842,7 @@ mod tests {
     }
 
     #[test]
-    fn the_packed_link_log_gives_back_every_link_and_sorts_by_step_and_pair() {
+    fn links_go_out_by_step_and_pair_and_the_tally_sums_every_life_of_netem() {
         let link = |a, b, total, d: Option<f64>| LinkState {
             a,
             b,
@@ -779,38 +851,59 @@ mod tests {
             cut: Some(proto::msg::LinkCut::Range),
             ..state(false, false)
         };
-        let reports = [
-            (3, vec![link(1, 2, 10, Some(2.345)), link(0, 1, 7, None)]),
-            (2, vec![link(0, 2, u64::MAX, Some(0.1))]),
-            // netem again (a restart): step 3 once more.
-            (3, vec![link(0, 1, 1, Some(1.0))]),
+        let dir = std::env::temp_dir().join(format!("swarm-links-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let mut t = StepTables::create(&dir).unwrap_or_else(|e| panic!("{e}"));
+        let mut tally = LinkTally::default();
+        // Step 3's reports in arrival order: netem, then netem again (a restart).
+        let steps = [
+            (2, vec![link(0, 2, 40, Some(0.1))]),
+            (
+                3,
+                vec![
+                    link(1, 2, 10, Some(2.345)),
+                    link(0, 1, 7, None),
+                    link(0, 1, 1, None),
+                ],
+            ),
             (4, vec![link(0, 1, 2, None)]),
         ];
-        let mut log = LinkLog::default();
-        for (step, links) in &reports {
-            log.add(LinkReport {
+        for (step, links) in &steps {
+            tally.add(*step, links, &[]);
+            t.step(StepRows {
                 step: *step,
                 links: links.clone(),
-                nodes: Vec::new(),
-            });
+                ..StepRows::default()
+            })
+            .unwrap_or_else(|e| panic!("{e}"));
         }
-        let added: Vec<(Step, LinkState)> = reports
+        let back: Vec<LinkCsv> =
+            read_rows(&dir.join("links.csv")).unwrap_or_else(|e| panic!("{e}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        let got: Vec<(Step, u16, u16, u64)> = back
             .iter()
-            .flat_map(|(s, ls)| ls.iter().map(move |l| (*s, l.clone())))
+            .map(|l| (l.step, l.a, l.b, l.bytes_total))
             .collect();
-        assert_eq!(log.rows().collect::<Vec<_>>(), added);
-        let mut sorted = added.clone();
-        sorted.sort_by_key(|(s, l)| (*s, l.a, l.b));
-        assert_eq!(log.sorted_rows().collect::<Vec<_>>(), sorted);
-        assert_eq!(log.last_step(), Some(4));
-        log.truncate(3);
-        assert_eq!(log.last_step(), Some(3));
-        assert_eq!(log.rows().count(), 4);
+        assert_eq!(
+            got,
+            [
+                (2, 0, 2, 40),
+                (3, 0, 1, 7),
+                (3, 0, 1, 1),
+                (3, 1, 2, 10),
+                (4, 0, 1, 2)
+            ]
+        );
+        assert_eq!(back[3].distance_m, Some(Fixed(2.345)));
+        assert_eq!(tally.last_step(), Some(4));
+        // (0,1): 7, then a new life's 1 and 2; (0,2) 40; (1,2) 10.
+        assert_eq!(tally.wire_total(), 7 + 2 + 40 + 10);
+        assert!(tally.channel_summary().is_none());
     }
 
     #[test]
     fn reconnects_count_steps_from_up_again_to_connected() {
-        let mut log = LinkLog::default();
+        let mut log = LinkTally::default();
         // (up, connected) per step: first connection (not counted), down, back up and
         // connected 2 steps later, down, up and connected at once, down, up but never again.
         let seq = [
@@ -826,11 +919,7 @@ mod tests {
             (true, false),
         ];
         for (step, &(up, c)) in seq.iter().enumerate() {
-            log.add(LinkReport {
-                step: step as Step,
-                links: vec![state(up, c)],
-                nodes: Vec::new(),
-            });
+            log.add(step as Step, &[state(up, c)], &[]);
         }
         let r = log.reconnects();
         assert_eq!(r.steps, vec![2, 0]);

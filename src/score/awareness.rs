@@ -14,7 +14,7 @@
 //!   how many robots know it, so that replacing one robot's grid is one pass over the cells and
 //!   the intersection's size is a counter — never a comparison of every pair of robots.
 //! * **Contact with the base station** (Fig. 5d): steps since a robot last had contact with
-//!   the base station, directly or carried by robots in between ([`steps_since_base`]). Contact
+//!   the base station, directly or carried by robots in between ([`Contact`]). Contact
 //!   is transitive within a step (a chain of up links is a multi-hop route) and carried over
 //!   time by mobile relays: a relay that touched the base at step 100 and meets the explorer at
 //!   step 150 brings the explorer the base's state of step 100.
@@ -23,8 +23,6 @@ use std::collections::BTreeMap;
 
 use proto::grid::{Cell, KnownPart, Occ, Rect};
 use proto::msg::{RobotId, Step};
-
-use crate::score::connectivity::UpLinks;
 
 /// The cells a robot knows (the evaluator's notion of coverage: reachable, and free or occupied
 /// in its planning grid), kept over the rectangle of its grid's known part — it knows none
@@ -226,25 +224,44 @@ pub fn shared_pcts(known: &[Known], cells: usize) -> Vec<f64> {
     (0..team).filter_map(|r| s.share_pct(r)).collect()
 }
 
-/// Per step `0..=last`, every node's steps since its last contact with the base station
-/// (Fig. 5d): `[s][node]`.
+/// Every node's last contact with the base station (Fig. 5d), taken one step at a time.
 ///
 /// Every node had contact at step 0 (the run starts at the base). At step s the base station's
 /// own contact is s; the nodes that links up at s connect, directly or through others, share
 /// the latest contact any of them has. A step without links carries nothing. Node ids from
 /// `nodes` on (and a `base` outside them) are ignored.
-pub fn steps_since_base(nodes: usize, base: RobotId, up: &UpLinks, last: Step) -> Vec<Vec<Step>> {
-    let mut contact: Vec<Step> = vec![0; nodes];
-    let mut out = Vec::with_capacity(last as usize + 1);
-    for s in 0..=last {
-        if let Some(c) = contact.get_mut(usize::from(base)) {
+pub struct Contact {
+    base: RobotId,
+    /// Per node, the step of its latest contact.
+    latest: Vec<Step>,
+    /// The next step to take.
+    next: Step,
+}
+
+impl Contact {
+    pub fn new(nodes: usize, base: RobotId) -> Contact {
+        Contact {
+            base,
+            latest: vec![0; nodes],
+            next: 0,
+        }
+    }
+
+    /// The next step to take.
+    pub fn next(&self) -> Step {
+        self.next
+    }
+
+    /// Takes the next step with the links up at it: every node's steps since its last contact.
+    pub fn step(&mut self, links: &[(RobotId, RobotId)]) -> Vec<Step> {
+        let s = self.next;
+        self.next = s.saturating_add(1);
+        if let Some(c) = self.latest.get_mut(usize::from(self.base)) {
             *c = s;
         }
-        let links = up.get(&s).map_or(&[][..], Vec::as_slice);
-        carry_contact(&mut contact, links);
-        out.push(contact.iter().map(|&c| s - c).collect());
+        carry_contact(&mut self.latest, links);
+        self.latest.iter().map(|&c| s - c).collect()
     }
-    out
 }
 
 /// Every node takes the latest contact of the component the links put it in.
@@ -283,7 +300,18 @@ pub fn mean_of_step_means(values: impl IntoIterator<Item = (Step, f64)>) -> Opti
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::score::connectivity::UpLinks;
     use proptest::prelude::*;
+
+    /// Per step `0..=last`, every node's steps since its last contact with the base station
+    /// (Fig. 5d): `[s][node]` ([`Contact`] over every step).
+    fn steps_since_base(nodes: usize, base: RobotId, up: &UpLinks, last: Step) -> Vec<Vec<Step>> {
+        let mut contact = Contact::new(nodes, base);
+        (0..=last)
+            .map(|s| contact.step(up.get(&s).map_or(&[][..], Vec::as_slice)))
+            .collect()
+    }
+
     use proto::grid::Grid;
 
     /// Known sets of hand-drawn grids over an all-reachable 4×1 world.

@@ -162,6 +162,11 @@ pub async fn serve(
         .history(true)
         .await
         .map_err(zerr)?;
+    // netem's link reports: the run's last step is over once netem reported it.
+    let links = session
+        .declare_subscriber(keys::NETEM_LINKS)
+        .await
+        .map_err(zerr)?;
     let _alive = session
         .liveliness()
         .declare_token(keys::WORLD_ALIVE)
@@ -182,6 +187,11 @@ pub async fn serve(
         return Ok(end);
     }
     let end = plane.run().await?;
+    if let End::Ended { step, .. } = end {
+        if plane.n >= 2 {
+            last_step_reported(&links, &ctl, step.saturating_sub(1)).await;
+        }
+    }
     if plane.bad.count > 0 {
         tracing::warn!(
             "{} bad inputs were rejected during the run",
@@ -195,6 +205,35 @@ pub async fn serve(
     tokio::time::sleep(Duration::from_millis(200)).await;
     queries.abort();
     Ok(end)
+}
+
+/// How long the world waits at the end for netem's report of the last step.
+const LAST_REPORT_WAIT: Duration = Duration::from_secs(5);
+
+/// Waits until netem reported step `last` (its links' bytes are counted), the launcher stopped
+/// the run, or [`LAST_REPORT_WAIT`] passed. The world's stop makes every robot close its radio
+/// sessions; sent before netem took the status that closes the last step, their closing frames
+/// would be counted in it as threads happen to run.
+async fn last_step_reported(links: &Sub, ctl: &Sub, last: Step) {
+    let deadline = Instant::now() + LAST_REPORT_WAIT;
+    loop {
+        tokio::select! {
+            r = links.recv_async() => match r {
+                Ok(r) => {
+                    let step = decode::<proto::msg::LinkReport>(&r.payload().to_bytes()).map(|r| r.step);
+                    if step.is_ok_and(|s| s >= last) {
+                        return;
+                    }
+                }
+                Err(_) => return,
+            },
+            _ = ctl.recv_async() => return,
+            _ = sleep_until(deadline) => {
+                tracing::warn!("netem did not report the last step ({last}) within {LAST_REPORT_WAIT:?}");
+                return;
+            }
+        }
+    }
 }
 
 /// A subscription of the sim plane, its samples queued.

@@ -1,0 +1,182 @@
+//! The run's per-step tables written while it goes ([`StepTables`]): a step is written once it
+//! is *closed* — its telemetry taken and netem's report of it in (netem reports a step when the
+//! next one opens) — with the columns that need the step's links filled in (steps since contact
+//! with the base station, the communication level). Its rows then leave the launcher's memory:
+//! what the summary needs of them is kept as tallies ([`LinkTally`]) or as the rows themselves
+//! ([`Tables::rows`]). A launcher killed mid-run leaves every step it closed on disk.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use proto::msg::{LinkReport, RobotId, Step};
+
+use crate::rundir::tables::{LinkTally, MetricsRow, StepRows, StepTables};
+use crate::score::awareness::Contact;
+use crate::score::connectivity::comm_level_pct;
+use crate::score::evaluate::Evaluator;
+
+pub struct Tables {
+    /// `None` once a write failed (the error is kept for the end; the run goes on).
+    out: Option<StepTables>,
+    error: Option<anyhow::Error>,
+    /// netem's reports of steps not written yet, in arrival order.
+    reports: BTreeMap<Step, Vec<LinkReport>>,
+    /// The latest step netem reported.
+    reported: Option<Step>,
+    /// The next step to write.
+    next: Step,
+    contact: Option<Contact>,
+    base: Option<RobotId>,
+    robots: usize,
+    nodes: usize,
+    /// What the summary needs of the reports written.
+    pub links: LinkTally,
+    /// Every `metrics.csv` row written.
+    pub rows: Vec<MetricsRow>,
+}
+
+impl Tables {
+    /// The tables of a run of `robots` robots and `nodes` nodes (the base station, if any, is
+    /// node `base`), in `dir`.
+    pub fn create(
+        dir: &Path,
+        robots: usize,
+        nodes: usize,
+        base: Option<RobotId>,
+    ) -> anyhow::Result<Tables> {
+        Ok(Tables {
+            out: Some(StepTables::create(dir)?),
+            error: None,
+            reports: BTreeMap::new(),
+            reported: None,
+            next: 0,
+            contact: base.map(|b| Contact::new(nodes, b)),
+            base,
+            robots,
+            nodes,
+            links: LinkTally::default(),
+            rows: Vec::new(),
+        })
+    }
+
+    /// A report of netem's, kept until its step is written.
+    pub fn report(&mut self, r: LinkReport) {
+        self.reported = Some(self.reported.map_or(r.step, |s| s.max(r.step)));
+        self.reports.entry(r.step).or_default().push(r);
+    }
+
+    /// The next step to write.
+    pub fn next(&self) -> Step {
+        self.next
+    }
+
+    /// The latest step netem reported.
+    pub fn reported(&self) -> Option<Step> {
+        self.reported
+    }
+
+    /// The steps netem's reports say are closed: up to its latest report (a run of fewer than
+    /// two nodes has no links, and no reports to wait for).
+    pub fn links_through(&self) -> Option<Step> {
+        if self.nodes < 2 {
+            Some(Step::MAX)
+        } else {
+            self.reported
+        }
+    }
+
+    /// Drops the reports of steps after `last` (netem may have reported steps beyond the
+    /// run's end while the launcher waited for the last one's reports).
+    pub fn truncate(&mut self, last: Step) {
+        self.reports.retain(|&s, _| s <= last);
+    }
+
+    /// The last step anything is held for (rows taken, reports in).
+    pub fn held_through(&self, eval: &Evaluator) -> Option<Step> {
+        let rows = eval.rows.iter().map(|r| r.step).max();
+        rows.max(self.reports.keys().next_back().copied())
+    }
+
+    /// Writes every step up to `last`: its rows taken out of `eval` (the `metrics.csv` rows,
+    /// save points and views of steps up to `last`), netem's reports of it. A step written
+    /// already whose rows or reports come only now (a realtime report that came late, netem
+    /// restarted) is written again, before the others, with what came.
+    pub fn write_through(&mut self, last: Step, eval: &mut Evaluator) {
+        let mut steps: BTreeMap<Step, StepRows> = BTreeMap::new();
+        fn at(steps: &mut BTreeMap<Step, StepRows>, s: Step) -> &mut StepRows {
+            steps.entry(s).or_insert_with(|| StepRows {
+                step: s,
+                ..StepRows::default()
+            })
+        }
+        let (now, later) = std::mem::take(&mut eval.rows)
+            .into_iter()
+            .partition(|r| r.step <= last);
+        eval.rows = later;
+        for r in now {
+            at(&mut steps, r.step).metrics.push(r);
+        }
+        for (s, robot, len, digest) in take_through(&mut eval.saves, last, |x| x.0) {
+            at(&mut steps, s).saves.push((robot, len, digest));
+        }
+        for (s, robot, v) in take_through(&mut eval.views, last, |x| x.0) {
+            at(&mut steps, s).views.push((robot, v));
+        }
+        let later = self.reports.split_off(&last.saturating_add(1));
+        for (s, reports) in std::mem::replace(&mut self.reports, later) {
+            let step = at(&mut steps, s);
+            for r in reports {
+                self.links.add(s, &r.links, &r.nodes);
+                step.links.extend(r.links);
+                step.nodes.extend(r.nodes);
+            }
+        }
+        // Steps without anything to write still carry the contact with the base station.
+        let mut since = BTreeMap::new();
+        for s in self.next..=last {
+            if let Some(c) = &mut self.contact {
+                since.insert(s, c.step(self.links.up_at(s)));
+            }
+        }
+        self.next = self.next.max(last.saturating_add(1));
+        for (s, mut step) in steps {
+            self.score(&mut step, since.get(&s).map(Vec::as_slice));
+            self.rows.extend(step.metrics.iter().cloned());
+            let Some(out) = &mut self.out else { continue };
+            if let Err(e) = out.step(step) {
+                tracing::warn!("{e:#}; no tables from here on");
+                self.error = Some(e);
+                self.out = None;
+            }
+        }
+    }
+
+    /// Fills in the columns of a step's robot rows that need its links: the steps since each
+    /// robot's last contact with the base station (`since`: with a base station, a step not
+    /// written before) and the
+    /// communication level (Rooker and Birk 2005, Fig. 6; a step without links up has every
+    /// robot alone).
+    fn score(&self, step: &mut StepRows, since: Option<&[Step]>) {
+        let level = comm_level_pct(self.robots, self.nodes, self.links.up_at(step.step));
+        for row in step
+            .metrics
+            .iter_mut()
+            .filter(|r| Some(r.robot) != self.base)
+        {
+            row.comm_level_pct = Some(level);
+            row.steps_since_base = since.and_then(|s| s.get(usize::from(row.robot)).copied());
+        }
+    }
+
+    /// The first error writing the tables, if one failed (written no more since).
+    pub fn check(&mut self) -> anyhow::Result<()> {
+        self.error.take().map_or(Ok(()), Err)
+    }
+}
+
+/// Takes out of `v` the items of steps up to `last` (the others stay), in order.
+fn take_through<T>(v: &mut Vec<T>, last: Step, step: impl Fn(&T) -> Step) -> Vec<T> {
+    let (now, later) = std::mem::take(v).into_iter().partition(|x| step(x) <= last);
+    *v = later;
+    now
+}
