@@ -104,6 +104,14 @@ impl Rect {
             .fold(None, |r, c| Rect::union_of(r, Some(Rect::cell(c))))
     }
 
+    /// Whether the two share a cell.
+    pub fn intersects(self, o: Rect) -> bool {
+        self.min.x <= o.max.x
+            && o.min.x <= self.max.x
+            && self.min.y <= o.max.y
+            && o.min.y <= self.max.y
+    }
+
     /// `by` cells more on every side.
     pub fn grown(self, by: i32) -> Rect {
         Rect {

@@ -148,7 +148,7 @@ impl Agent {
     /// step).
     fn build_planning(&mut self) {
         self.sharing
-            .planning_grid_into(&self.own, &mut self.planning);
+            .update_planning_grid(&self.own, &mut self.planning);
         let g = &self.planning;
         self.known = g.len() - g.count(Occ::Unknown);
     }

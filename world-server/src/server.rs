@@ -10,6 +10,7 @@
 //! Everything received is validated; bad input is counted and logged, never fatal.
 
 use std::collections::{HashMap, HashSet};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use proto::exit::ExitReason;
@@ -162,9 +163,20 @@ pub async fn serve(
         .history(true)
         .await
         .map_err(zerr)?;
-    // netem's link reports: the run's last step is over once netem reported it.
-    let links = session
+    // netem's link reports: the run's last step is over once netem reported it. Only the
+    // latest step is kept (a queue nobody reads during the run would fill and hold up the
+    // router).
+    let reported = std::sync::Arc::new(Reported::default());
+    let r = reported.clone();
+    let _links = session
         .declare_subscriber(keys::NETEM_LINKS)
+        .callback(move |s| {
+            if let Ok(report) = decode::<proto::msg::LinkReport>(&s.payload().to_bytes()) {
+                r.step
+                    .fetch_max(u64::from(report.step) + 1, Ordering::SeqCst);
+                r.changed.notify_one();
+            }
+        })
         .await
         .map_err(zerr)?;
     let _alive = session
@@ -189,7 +201,7 @@ pub async fn serve(
     let end = plane.run().await?;
     if let End::Ended { step, .. } = end {
         if plane.n >= 2 {
-            last_step_reported(&links, &ctl, step.saturating_sub(1)).await;
+            last_step_reported(&reported, &ctl, step.saturating_sub(1)).await;
         }
     }
     if plane.bad.count > 0 {
@@ -210,23 +222,22 @@ pub async fn serve(
 /// How long the world waits at the end for netem's report of the last step.
 const LAST_REPORT_WAIT: Duration = Duration::from_secs(5);
 
+/// The latest step netem reported (+ 1; 0: none yet), and a wake-up when it changes.
+#[derive(Default)]
+struct Reported {
+    step: AtomicU64,
+    changed: tokio::sync::Notify,
+}
+
 /// Waits until netem reported step `last` (its links' bytes are counted), the launcher stopped
 /// the run, or [`LAST_REPORT_WAIT`] passed. The world's stop makes every robot close its radio
 /// sessions; sent before netem took the status that closes the last step, their closing frames
 /// would be counted in it as threads happen to run.
-async fn last_step_reported(links: &Sub, ctl: &Sub, last: Step) {
+async fn last_step_reported(reported: &Reported, ctl: &Sub, last: Step) {
     let deadline = Instant::now() + LAST_REPORT_WAIT;
-    loop {
+    while reported.step.load(Ordering::SeqCst) <= u64::from(last) {
         tokio::select! {
-            r = links.recv_async() => match r {
-                Ok(r) => {
-                    let step = decode::<proto::msg::LinkReport>(&r.payload().to_bytes()).map(|r| r.step);
-                    if step.is_ok_and(|s| s >= last) {
-                        return;
-                    }
-                }
-                Err(_) => return,
-            },
+            _ = reported.changed.notified() => {}
             _ = ctl.recv_async() => return,
             _ = sleep_until(deadline) => {
                 tracing::warn!("netem did not report the last step ({last}) within {LAST_REPORT_WAIT:?}");

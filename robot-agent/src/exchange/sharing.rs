@@ -30,7 +30,7 @@ use crate::exchange::raw_scans::{scan_ranges, scan_record, RawScanExchange};
 use crate::exchange::splitting::{p_comm, SplittingFrequency};
 use crate::exchange::transitive::{DeltaOutcome, Handshake, LogExchange};
 use crate::mapping::grid::Evidence;
-use crate::mapping::merge::merge_into;
+use crate::mapping::merge::{merge_into, Merger};
 
 /// One message to a neighbour.
 #[derive(Clone, Debug, PartialEq)]
@@ -148,6 +148,12 @@ pub trait Sharing: Send {
     /// explored part of the map (what G_s, the peers' shares and `out` know).
     fn planning_grid_into(&self, own: &Grid, out: &mut Grid);
 
+    /// [`Sharing::planning_grid_into`] once a step, over the planning grid of the last call:
+    /// a mode may keep what it computed and redo only what changed since.
+    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) {
+        self.planning_grid_into(own, out);
+    }
+
     /// What waits for `peer`: encoded bytes of the log entries we hold that it lacks (`None`
     /// before its handshake).
     fn backlog_bytes(&self, peer: RobotId) -> Option<u64>;
@@ -223,6 +229,7 @@ pub fn new(
                 exchange: ApproxExchange::owning(me, own).with_snapshots(s.exchange.snapshots),
                 mapper: Box::new(mapper),
                 splitting,
+                merger: Merger::default(),
             })
         }
         ExchangeMode::GridSnapshots => Box::new(GridSnapshots {
@@ -319,6 +326,8 @@ pub struct Polygon {
     exchange: ApproxExchange,
     mapper: Box<Mapper>,
     splitting: SplittingFrequency,
+    /// The planning grid's painting of the peers' approximations, kept from step to step.
+    merger: Merger,
 }
 
 impl Sharing for Polygon {
@@ -354,6 +363,11 @@ impl Sharing for Polygon {
     fn planning_grid_into(&self, own: &Grid, out: &mut Grid) {
         let peers: Vec<_> = self.exchange.approximations().map(|(_, a)| a).collect();
         merge_into(out, own, &peers);
+    }
+
+    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) {
+        let peers: Vec<_> = self.exchange.approximations().collect();
+        self.merger.merge_into(out, own, &peers);
     }
 
     fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {

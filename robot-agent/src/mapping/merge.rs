@@ -24,9 +24,12 @@
 //! approximation, so they live in [`crate::mapping::render`]; this module is Algorithm 9 itself: paint the
 //! other robots' approximations, then let G_s win.
 
-use proto::grid::{Grid, Occ, Rect};
+use std::collections::BTreeMap;
 
-use crate::mapping::approx::{Approximation, Polygon};
+use proto::grid::{Grid, Occ, Rect};
+use proto::msg::RobotId;
+
+use crate::mapping::approx::{Approximation, ObjectId, Polygon};
 use crate::mapping::render::{paint, Bands};
 
 /// Algorithm 9: the planning grid from `own` (G_s) and other robots' approximations, all in
@@ -62,14 +65,207 @@ pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
         let mine = own.row(y, r.min.x, r.max.x);
         let row = out.row_mut(y, r.min.x, r.max.x);
         for ((dst, &s), &p) in row.iter_mut().zip(mine).zip(painted) {
-            // (7) every known cell of G_s overwrites; (6) undefined reads unknown.
-            *dst = match (s, p) {
-                (Occ::Free | Occ::Occupied, _) => s,
-                (_, Some(v)) => v,
-                (_, None) => Occ::Unknown,
-            };
+            *dst = planned(s, p);
         }
     }
+}
+
+/// Algorithm 9 kept from step to step: [`merge_into`] with the peers' painting (steps (1)–(5))
+/// kept over the whole grid and repainted only in the windows where an object changed — so a
+/// step costs what changed in the peers' approximations, not all of them (a robot holds every
+/// teammate's approximation it ever heard of).
+///
+/// A cell's painting depends only on the objects whose reach holds it (their cells, their
+/// edges, the bands within their edges' error bounds): an object that changed between two
+/// vertices it kept changes only cells within reach of its changed edges, old and new; so a
+/// window holding those, painted afresh with every object that reaches into it, is what painting
+/// everything would give there.
+#[derive(Default)]
+pub struct Merger {
+    width: u32,
+    height: u32,
+    /// Steps (1)–(5) of every approximation held, row-major over the whole grid.
+    painted: Vec<Option<Occ>>,
+    /// Per owner, the objects painted, each with its reach.
+    held: BTreeMap<RobotId, BTreeMap<ObjectId, (Polygon, Rect)>>,
+}
+
+impl Merger {
+    /// [`merge_into`] `out` (the last step's planning grid) from `own` and the approximations
+    /// of `others` (owner, approximation), repainting what changed since the last call.
+    pub fn merge_into(&mut self, out: &mut Grid, own: &Grid, others: &[(RobotId, &Approximation)]) {
+        if (self.width, self.height) != (own.width(), own.height()) {
+            *self = Merger {
+                width: own.width(),
+                height: own.height(),
+                painted: vec![None; own.len()],
+                held: BTreeMap::new(),
+            };
+        }
+        let mut dirty = Vec::new();
+        self.take(others, &mut dirty);
+        for w in coalesce(dirty) {
+            self.repaint(w);
+        }
+        let reach = (self.held.values().flat_map(|objects| objects.values()))
+            .fold(None, |r, (_, reach)| Rect::union_of(r, Some(*reach)));
+        let region = [own.known_bounds(), out.known_bounds()]
+            .into_iter()
+            .fold(reach, Rect::union_of)
+            .and_then(|r| r.within(own.width(), own.height()));
+        let Some(r) = region else {
+            return;
+        };
+        let w = self.width as usize;
+        for y in r.min.y..=r.max.y {
+            let row = y as usize * w;
+            let painted = &self.painted[row + r.min.x as usize..=row + r.max.x as usize];
+            let mine = own.row(y, r.min.x, r.max.x);
+            let dst = out.row_mut(y, r.min.x, r.max.x);
+            for ((dst, &s), &p) in dst.iter_mut().zip(mine).zip(painted) {
+                *dst = planned(s, p);
+            }
+        }
+    }
+
+    /// Takes the approximations of this step: the windows where they differ from those held
+    /// go to `dirty`, and they are held from now on.
+    fn take(&mut self, others: &[(RobotId, &Approximation)], dirty: &mut Vec<Rect>) {
+        let now: BTreeMap<RobotId, &Approximation> = others.iter().copied().collect();
+        // Owners no longer held: everything they painted.
+        self.held.retain(|owner, objects| {
+            let kept = now.contains_key(owner);
+            if !kept {
+                dirty.extend(objects.values().map(|(_, reach)| *reach));
+            }
+            kept
+        });
+        for (&owner, a) in &now {
+            let held = self.held.entry(owner).or_default();
+            held.retain(|id, (_, reach)| {
+                let kept = a.objects.contains_key(id);
+                if !kept {
+                    dirty.push(*reach);
+                }
+                kept
+            });
+            for (&id, poly) in &a.objects {
+                match held.get(&id) {
+                    Some((was, _)) if was == poly => {}
+                    was => {
+                        dirty.extend(changed_window(was.map(|w| &w.0), poly));
+                        match reach(poly) {
+                            Some(r) => {
+                                held.insert(id, (poly.clone(), r));
+                            }
+                            None => {
+                                held.remove(&id);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Paints window `w` afresh with every object that reaches into it.
+    fn repaint(&mut self, w: Rect) {
+        let Some(w) = w.within(self.width, self.height) else {
+            return;
+        };
+        let polys: Vec<Vec<&Polygon>> = (self.held.values())
+            .map(|objects| {
+                (objects.values())
+                    .filter(|(_, reach)| reach.intersects(w))
+                    .map(|(p, _)| p)
+                    .collect()
+            })
+            .collect();
+        let fresh = paint(&polys, w.min, w.width(), w.height(), Bands::Kept);
+        let (gw, ww) = (self.width as usize, w.width() as usize);
+        for (y, row) in (w.min.y..=w.max.y).zip(fresh.chunks(ww)) {
+            let at = y as usize * gw + w.min.x as usize;
+            self.painted[at..at + ww].copy_from_slice(row);
+        }
+    }
+}
+
+/// (7) every known cell of G_s overwrites; (6) undefined reads unknown.
+fn planned(own: Occ, painted: Option<Occ>) -> Occ {
+    match (own, painted) {
+        (Occ::Free | Occ::Occupied, _) => own,
+        (_, Some(v)) => v,
+        (_, None) => Occ::Unknown,
+    }
+}
+
+/// The cells an object can paint: its cells and edges, and the bands within its edges' error
+/// bounds ([`crate::mapping::render`]); `None` without vertices.
+fn reach(p: &Polygon) -> Option<Rect> {
+    let band = p.vertices.iter().map(|v| v.bound).max()?;
+    Some(p.cell_bounds()?.grown(band_cells(band)))
+}
+
+/// Cells within an error bound (half cells) of an edge, beyond the edge's own cells.
+fn band_cells(bound: u16) -> i32 {
+    i32::from(bound) / 2 + 1
+}
+
+/// The window where an object that was `was` (`None`: new) and is `now` paints differently:
+/// around the edges between the vertices both kept (a common run at the start and at the end
+/// of its vertex list), old and new; its whole reach, old and new, when nothing was kept.
+fn changed_window(was: Option<&Polygon>, now: &Polygon) -> Option<Rect> {
+    let whole = || Rect::union_of(was.and_then(reach), reach(now));
+    let Some(was) = was else {
+        return reach(now);
+    };
+    let (a, b) = (&was.vertices, &now.vertices);
+    if was.kind != now.kind || a.is_empty() || b.is_empty() {
+        return whole();
+    }
+    let n = a.len().min(b.len());
+    let head = a.iter().zip(b).take_while(|(x, y)| x == y).count().min(n);
+    let tail = (a.iter().rev().zip(b.iter().rev()))
+        .take_while(|(x, y)| x == y)
+        .count()
+        .min(n - head);
+    if head == 0 && tail == 0 {
+        return whole();
+    }
+    // The changed run of each list with the kept vertex on either side (cyclically): every
+    // edge that changed starts at one of them.
+    let mut vertices = Vec::new();
+    for v in [a, b] {
+        let len = v.len();
+        vertices.extend((head + len - 1..=2 * len - tail).map(|i| v[i % len]));
+    }
+    let band = vertices.iter().map(|v| v.bound).max().unwrap_or(0);
+    Rect::around(vertices.iter().map(|v| v.p.cell())).map(|r| r.grown(1 + band_cells(band)))
+}
+
+/// Windows merged where they overlap (each cell painted once per step).
+fn coalesce(mut ws: Vec<Rect>) -> Vec<Rect> {
+    let mut out: Vec<Rect> = Vec::with_capacity(ws.len());
+    while let Some(mut w) = ws.pop() {
+        // Grow w by every window it meets, until it meets none.
+        loop {
+            let before = out.len() + ws.len();
+            for list in [&mut out, &mut ws] {
+                list.retain(|o| {
+                    let meets = o.intersects(w);
+                    if meets {
+                        w = w.union(*o);
+                    }
+                    !meets
+                });
+            }
+            if out.len() + ws.len() == before {
+                break;
+            }
+        }
+        out.push(w);
+    }
+    out
 }
 
 #[cfg(test)]
@@ -215,6 +411,39 @@ mod tests {
             let (a, b) = (exact(&peer1), exact(&peer2));
             merge_into(&mut kept, &own1, &[&a, &b]);
             prop_assert_eq!(kept.to_ascii(), merge_every_cell(&own1, &[&a, &b]).to_ascii());
+        }
+
+        /// Kept from step to step over peers whose approximations grow, change in places,
+        /// come and go, the merger's planning grid is the merge of every cell at every step.
+        #[test]
+        fn the_merger_s_planning_grid_is_the_merge_of_every_cell_at_every_step(
+            peers in proptest::collection::vec(crate::testutil::arb_exploration(20, 5), 1..4),
+            own in crate::testutil::arb_exploration(20, 5),
+            s in prop_oneof![Just(0.0), Just(1.0), Just(4.0)],
+            gone in proptest::collection::vec(any::<bool>(), 5),
+        ) {
+            let size = |g: &[Grid]| g.last().map(|g| (g.width(), g.height()));
+            prop_assume!(peers.iter().all(|p| size(p) == size(&own)));
+            let mut axs: Vec<_> = peers.iter().map(|_| crate::mapping::approximator::Approximator::new()).collect();
+            let mut merger = Merger::default();
+            let mut kept = Grid::new(own[0].width(), own[0].height(), Occ::Unknown);
+            for step in 0..5 {
+                let own = &own[step.min(own.len() - 1)];
+                let approx: Vec<Approximation> = (peers.iter().zip(&mut axs))
+                    .map(|(p, ax)| {
+                        let g = &p[step.min(p.len() - 1)];
+                        ax.step(&Contours::extract(g), g, s).clone()
+                    })
+                    .collect();
+                // A peer is left out now and then (a restart dropped its replica).
+                let others: Vec<(RobotId, &Approximation)> = (approx.iter().enumerate())
+                    .filter(|(i, _)| !(gone[step] && *i == step % approx.len()))
+                    .map(|(i, a)| (i as RobotId, a))
+                    .collect();
+                merger.merge_into(&mut kept, own, &others);
+                let all: Vec<&Approximation> = others.iter().map(|o| o.1).collect();
+                prop_assert_eq!(kept.to_ascii(), merge_every_cell(own, &all).to_ascii(), "step {}", step);
+            }
         }
 
         /// A peer's approximation, at any splitting frequency, never makes a receiver believe

@@ -40,6 +40,16 @@ impl Canvas {
         }
     }
 
+    /// The part of `r` (grid frame) inside the window.
+    fn clip(&self, r: Rect) -> Option<Rect> {
+        let min = Cell::new(r.min.x.max(self.x0), r.min.y.max(self.y0));
+        let max = Cell::new(
+            r.max.x.min(self.x0 + self.width as i32 - 1),
+            r.max.y.min(self.y0 + self.height as i32 - 1),
+        );
+        (min.x <= max.x && min.y <= max.y).then_some(Rect { min, max })
+    }
+
     fn index(&self, c: Cell) -> Option<usize> {
         let (x, y) = (c.x - self.x0, c.y - self.y0);
         let inside = x >= 0 && y >= 0 && (x as u32) < self.width && (y as u32) < self.height;
@@ -167,32 +177,57 @@ fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>], bands: Bands) -> Canvas 
 
 /// Step (4) for one approximation: cells inside its inside objects that are undefined, or
 /// unknown but inside an odd number of its polygons, become free — with [`Bands::Kept`], none
-/// within an edge's error bound of it.
+/// within an edge's error bound of it. Only the cells of the window its polygons span are
+/// looked at (nothing outside them is inside one).
 fn free_inside(plan: &mut Canvas, a: &[&Polygon], bands: Bands) {
     const INSIDE: u8 = 1;
     const ODD: u8 = 2;
     const BAND: u8 = 4;
-    let mut flags = vec![0u8; plan.cells.len()];
+    let spans = a
+        .iter()
+        .fold(None, |r, o| Rect::union_of(r, o.cell_bounds()));
+    let Some(r) = spans.and_then(|r| plan.clip(r)) else {
+        return;
+    };
+    let (w, rw) = (plan.width as usize, r.width() as usize);
+    let (rx, ry) = ((r.min.x - plan.x0) as usize, (r.min.y - plan.y0) as usize);
+    // A canvas index as an index of the window `r` (`None` outside it).
+    let local = |k: usize| {
+        let (x, y) = (k % w, k / w);
+        (x >= rx && y >= ry && x < rx + rw).then(|| (y - ry) * rw + (x - rx))
+    };
+    let mut flags = vec![0u8; rw * r.height() as usize];
     for o in a {
         let bit = if o.kind == Kind::Inside { INSIDE } else { 0 };
-        plan.fill(o, |k| flags[k] = (flags[k] | bit) ^ ODD);
+        plan.fill(o, |k| {
+            if let Some(i) = local(k).filter(|&i| i < flags.len()) {
+                flags[i] = (flags[i] | bit) ^ ODD;
+            }
+        });
     }
     if bands == Bands::Kept {
         for o in a {
-            plan.bands(o, |k| flags[k] |= BAND);
+            plan.bands(o, |k| {
+                if let Some(i) = local(k).filter(|&i| i < flags.len()) {
+                    flags[i] |= BAND;
+                }
+            });
         }
     }
-    for (cell, f) in plan.cells.iter_mut().zip(flags) {
-        if f & BAND != 0 {
-            continue;
-        }
-        let free = match *cell {
-            None => f & INSIDE != 0,
-            Some(Occ::Unknown) => f & INSIDE != 0 && f & ODD != 0,
-            Some(_) => false,
-        };
-        if free {
-            *cell = Some(Occ::Free);
+    for (row, fs) in flags.chunks(rw).enumerate() {
+        let at = (ry + row) * w + rx;
+        for (cell, &f) in plan.cells[at..at + rw].iter_mut().zip(fs) {
+            if f & BAND != 0 {
+                continue;
+            }
+            let free = match *cell {
+                None => f & INSIDE != 0,
+                Some(Occ::Unknown) => f & INSIDE != 0 && f & ODD != 0,
+                Some(_) => false,
+            };
+            if free {
+                *cell = Some(Occ::Free);
+            }
         }
     }
 }
