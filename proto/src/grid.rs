@@ -99,9 +99,12 @@ impl Rect {
 
     /// The smallest rectangle holding every cell of `cells` (`None`: none).
     pub fn around(cells: impl IntoIterator<Item = Cell>) -> Option<Rect> {
-        cells
-            .into_iter()
-            .fold(None, |r, c| Rect::union_of(r, Some(Rect::cell(c))))
+        let mut cells = cells.into_iter();
+        let first = cells.next()?;
+        Some(cells.fold(Rect::cell(first), |r, c| Rect {
+            min: Cell::new(r.min.x.min(c.x), r.min.y.min(c.y)),
+            max: Cell::new(r.max.x.max(c.x), r.max.y.max(c.y)),
+        }))
     }
 
     /// Whether the two share a cell.

@@ -28,12 +28,26 @@ pub enum ApplyError {
 }
 
 /// A receiver's copy of one robot's approximation, built op by op.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct Replica {
     committed: Approximation,
+    /// [`Approximation::digest`] of `committed` (reported every step, changed only at a save).
+    committed_digest: u64,
     working: Approximation,
     selected: Option<(ObjectId, u32)>,
     poisoned: bool,
+}
+
+impl Default for Replica {
+    fn default() -> Replica {
+        Replica {
+            committed: Approximation::default(),
+            committed_digest: Approximation::default().digest(),
+            working: Approximation::default(),
+            selected: None,
+            poisoned: false,
+        }
+    }
 }
 
 impl Replica {
@@ -44,6 +58,11 @@ impl Replica {
     /// The approximation as of the last save point applied.
     pub fn committed(&self) -> &Approximation {
         &self.committed
+    }
+
+    /// [`Approximation::digest`] of [`Replica::committed`].
+    pub fn committed_digest(&self) -> u64 {
+        self.committed_digest
     }
 
     /// Forgets every op applied since the last save point, an error included: the replica is
@@ -102,6 +121,7 @@ impl Replica {
                 self.check_length()?;
                 self.selected = None;
                 self.committed = self.working.clone();
+                self.committed_digest = self.committed.digest();
             }
             Op::Insert { pos, v } => self.vertices(pos, 1)?.insert(pos as usize, v),
             Op::Replace { pos, v } => self.vertices(pos, 0)?[pos as usize] = v,

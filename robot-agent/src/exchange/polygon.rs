@@ -427,12 +427,12 @@ impl ApproxExchange {
     /// Per other owner: how many ops of its log we hold, how many of them the approximation we
     /// show reflects (up to the last save point), and that approximation's digest.
     pub fn views(&self) -> Vec<View> {
-        self.shown()
-            .map(|(owner, held, shown, a)| View {
+        (self.replicas.iter())
+            .map(|(&owner, f)| View {
                 owner,
-                held,
-                shown,
-                digest: a.digest(),
+                held: self.logs.len(owner),
+                shown: u32::try_from(f.shown).unwrap_or(u32::MAX),
+                digest: f.replica.committed_digest(),
             })
             .collect()
     }

@@ -29,7 +29,7 @@ use std::collections::BTreeMap;
 use proto::grid::{Grid, Occ, Rect};
 use proto::msg::RobotId;
 
-use crate::mapping::approx::{Approximation, ObjectId, Polygon};
+use crate::mapping::approx::{Approximation, ObjectId, Polygon, Vertex};
 use crate::mapping::render::{paint, Bands};
 
 /// Algorithm 9: the planning grid from `own` (G_s) and other robots' approximations, all in
@@ -153,7 +153,7 @@ impl Merger {
                 match held.get(&id) {
                     Some((was, _)) if was == poly => {}
                     was => {
-                        dirty.extend(changed_window(was.map(|w| &w.0), poly));
+                        dirty.extend(changed_windows(was.map(|w| &w.0), poly));
                         match reach(poly) {
                             Some(r) => {
                                 held.insert(id, (poly.clone(), r));
@@ -211,39 +211,65 @@ fn band_cells(bound: u16) -> i32 {
     i32::from(bound) / 2 + 1
 }
 
-/// The window where an object that was `was` (`None`: new) and is `now` paints differently:
-/// around the edges between the vertices both kept (a common run at the start and at the end
-/// of its vertex list), old and new; its whole reach, old and new, when nothing was kept.
-fn changed_window(was: Option<&Polygon>, now: &Polygon) -> Option<Rect> {
-    let whole = || Rect::union_of(was.and_then(reach), reach(now));
-    let Some(was) = was else {
-        return reach(now);
+/// The windows where an object that was `was` (`None`: new) and is `now` paints differently.
+///
+/// The two vertex lists are aligned by the vertices they share, in order; between two shared
+/// vertices the old chain of edges was replaced by the new one, and the cells whose painting
+/// changed lie around those two chains (what they enclose, their edges, their bands) — one
+/// window per replaced run, the run across the lists' ends included. Its whole reach, old and
+/// new, when nothing is shared.
+fn changed_windows(was: Option<&Polygon>, now: &Polygon) -> Vec<Rect> {
+    let whole = |was: Option<&Polygon>| Rect::union_of(was.and_then(reach), reach(now));
+    let Some(was) = was.filter(|w| w.kind == now.kind) else {
+        return whole(was).into_iter().collect();
     };
     let (a, b) = (&was.vertices, &now.vertices);
-    if was.kind != now.kind || a.is_empty() || b.is_empty() {
-        return whole();
+    let matched = align(a, b);
+    let (Some(&first), Some(&last)) = (matched.first(), matched.last()) else {
+        return whole(Some(was)).into_iter().collect();
+    };
+    let mut out = Vec::new();
+    // Between consecutive shared vertices (index pairs), and across the lists' ends.
+    let wrap = (last, (first.0 + a.len(), first.1 + b.len()));
+    for (p, q) in matched.windows(2).map(|w| (w[0], w[1])).chain([wrap]) {
+        if q.0 == p.0 + 1 && q.1 == p.1 + 1 {
+            continue; // the same edge
+        }
+        let chain = (p.0..=q.0)
+            .map(|i| a[i % a.len()])
+            .chain((p.1..=q.1).map(|j| b[j % b.len()]));
+        let band = chain.clone().map(|v| v.bound).max().unwrap_or(0);
+        out.extend(Rect::around(chain.map(|v| v.p.cell())).map(|r| r.grown(1 + band_cells(band))));
     }
-    let n = a.len().min(b.len());
-    let head = a.iter().zip(b).take_while(|(x, y)| x == y).count().min(n);
-    let tail = (a.iter().rev().zip(b.iter().rev()))
-        .take_while(|(x, y)| x == y)
-        .count()
-        .min(n - head);
-    if head == 0 && tail == 0 {
-        return whole();
-    }
-    // The changed run of each list with the kept vertex on either side (cyclically): every
-    // edge that changed starts at one of them.
-    let mut vertices = Vec::new();
-    for v in [a, b] {
-        let len = v.len();
-        vertices.extend((head + len - 1..=2 * len - tail).map(|i| v[i % len]));
-    }
-    let band = vertices.iter().map(|v| v.bound).max().unwrap_or(0);
-    Rect::around(vertices.iter().map(|v| v.p.cell())).map(|r| r.grown(1 + band_cells(band)))
+    out
 }
 
-/// Windows merged where they overlap (each cell painted once per step).
+/// How far [`align`] looks ahead for the next vertex both lists share.
+const ALIGN_AHEAD: usize = 48;
+
+/// Pairs of indices (into `a`, into `b`) of equal vertices, increasing in both: a greedy
+/// alignment that skips the fewest vertices (up to [`ALIGN_AHEAD`]) to the next shared one.
+fn align(a: &[Vertex], b: &[Vertex]) -> Vec<(usize, usize)> {
+    let (mut i, mut j) = (0, 0);
+    let mut out = Vec::new();
+    'walk: while i < a.len() && j < b.len() {
+        for d in 0..=ALIGN_AHEAD {
+            for di in 0..=d {
+                let (x, y) = (i + di, j + d - di);
+                if x < a.len() && y < b.len() && a[x] == b[y] {
+                    out.push((x, y));
+                    (i, j) = (x + 1, y + 1);
+                    continue 'walk;
+                }
+            }
+        }
+        break;
+    }
+    out
+}
+
+/// Windows merged where they overlap: each cell painted once per step, each object's
+/// vertices gone through once per window.
 fn coalesce(mut ws: Vec<Rect>) -> Vec<Rect> {
     let mut out: Vec<Rect> = Vec::with_capacity(ws.len());
     while let Some(mut w) = ws.pop() {

@@ -65,6 +65,14 @@ fn crossings(poly: &[QPoint], rows: Range<i32>) -> Vec<(i32, f64)> {
 /// ones — cost at most the box's size.
 pub fn edge(a: QPoint, b: QPoint, lo: Cell, hi: Cell, mut cell: impl FnMut(Cell)) {
     let (from, to) = (a.cell(), b.cell());
+    if from.x.max(to.x) < lo.x
+        || from.x.min(to.x) > hi.x
+        || from.y.max(to.y) < lo.y
+        || from.y.min(to.y) > hi.y
+    {
+        // The edge's cells lie between its ends' cells: none is in the box.
+        return;
+    }
     let (d_major, d_minor, steep) = {
         let (dx, dy) = (i64::from(to.x - from.x), i64::from(to.y - from.y));
         if dx.abs() >= dy.abs() {
