@@ -41,18 +41,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
             plan.ports.http_addr()
         );
     }
-    let lockstep = plan.scenario.clock.mode == proto::scenario::ClockMode::Lockstep;
-    let sup = Supervisor::new(
-        plan.scenario.supervise.clone(),
-        plan.scenario.process_faults()?,
-    );
-    let tables = Tables::create(
-        &plan.dir,
-        usize::from(plan.scenario.robots.count),
-        usize::from(plan.scenario.nodes()),
-        plan.scenario.base_id(),
-    )?;
-    let mut rec = follow::Record::new(eval, tables, lockstep, sup);
+    let mut rec = record(&plan, eval)?;
     let mut log = StepLogWriter::create(
         &plan.dir,
         run.truth.map,
@@ -100,6 +89,23 @@ pub async fn run(args: RunArgs) -> anyhow::Result<Outcome> {
         dir: plan.dir,
         summary,
     })
+}
+
+/// What the launcher records of the run: the evaluator's scores, the tables it writes as the
+/// steps close, the supervisor of process faults and restarts.
+fn record(plan: &prepare::Plan, eval: Evaluator) -> anyhow::Result<follow::Record> {
+    let lockstep = plan.scenario.clock.mode == proto::scenario::ClockMode::Lockstep;
+    let sup = Supervisor::new(
+        plan.scenario.supervise.clone(),
+        plan.scenario.process_faults()?,
+    );
+    let tables = Tables::create(
+        &plan.dir,
+        usize::from(plan.scenario.robots.count),
+        usize::from(plan.scenario.nodes()),
+        plan.scenario.base_id(),
+    )?;
+    Ok(follow::Record::new(eval, tables, lockstep, sup))
 }
 
 /// Serves the live viewer at `addr` and tees the step log into its feed; the address goes to
