@@ -48,11 +48,7 @@ pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
     let painted = others
         .iter()
         .fold(None, |r, a| Rect::union_of(r, a.cell_bounds()));
-    let region = [own.known_bounds(), out.known_bounds()]
-        .into_iter()
-        .fold(painted, Rect::union_of)
-        .and_then(|r| r.within(own.width(), own.height()));
-    let Some(r) = region else {
+    let Some(r) = region(painted, own, out) else {
         return;
     };
     let polys: Vec<Vec<&Polygon>> = others
@@ -68,6 +64,15 @@ pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
             *dst = planned(s, p);
         }
     }
+}
+
+/// The cells a merge writes: those `painted` spans, those G_s knows and those `out` knew (every
+/// other cell is and stays unknown), within the grid.
+fn region(painted: Option<Rect>, own: &Grid, out: &Grid) -> Option<Rect> {
+    [own.known_bounds(), out.known_bounds()]
+        .into_iter()
+        .fold(painted, Rect::union_of)
+        .and_then(|r| r.within(own.width(), own.height()))
 }
 
 /// Algorithm 9 kept from step to step: [`merge_into`] with the peers' painting (steps (1)–(5))
@@ -109,11 +114,7 @@ impl Merger {
         }
         let reach = (self.held.values().flat_map(|objects| objects.values()))
             .fold(None, |r, (_, reach)| Rect::union_of(r, Some(*reach)));
-        let region = [own.known_bounds(), out.known_bounds()]
-            .into_iter()
-            .fold(reach, Rect::union_of)
-            .and_then(|r| r.within(own.width(), own.height()));
-        let Some(r) = region else {
+        let Some(r) = region(reach, own, out) else {
             return;
         };
         let w = self.width as usize;
