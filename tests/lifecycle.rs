@@ -201,17 +201,18 @@ fn a_launcher_killed_mid_run_leaves_its_tables_up_to_the_steps_it_took_in() {
     let dir = TempDir::new("kill-launcher-tables");
     let run = dir.path().join("run");
     let mut cmd = Command::new(SWARM);
-    cmd.args(["run", "--quiet", "--out"]).arg(&run);
-    for s in [
-        "world.map=office",
-        "world.width_m=24",
-        "world.height_m=16",
-        "robots.count=3",
-        "base_station.enabled=true",
-        "max_steps=5000",
-    ] {
-        cmd.arg("--set").arg(s);
-    }
+    crate::support::run_args(
+        &mut cmd,
+        &run,
+        &[
+            "world.map=office",
+            "world.width_m=24",
+            "world.height_m=16",
+            "robots.count=3",
+            "base_station.enabled=true",
+            "max_steps=5000",
+        ],
+    );
     let l = Launcher::spawn(cmd);
     let kids = wait_for_children(&l, 5);
     let at = wait_for_step(&run, 40, Duration::from_secs(120));

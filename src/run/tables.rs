@@ -141,13 +141,14 @@ impl Tables {
         self.next = self.next.max(last.saturating_add(1));
         for (s, mut step) in steps {
             self.score(&mut step, since.get(&s).map(Vec::as_slice));
-            self.rows.extend(step.metrics.iter().cloned());
-            let Some(out) = &mut self.out else { continue };
-            if let Err(e) = out.step(step) {
-                tracing::warn!("{e:#}; no tables from here on");
-                self.error = Some(e);
-                self.out = None;
+            if let Some(out) = &mut self.out {
+                if let Err(e) = out.step(&mut step) {
+                    tracing::warn!("{e:#}; no tables from here on");
+                    self.error = Some(e);
+                    self.out = None;
+                }
             }
+            self.rows.append(&mut step.metrics);
         }
     }
 

@@ -140,7 +140,7 @@ impl StepTables {
 
     /// Writes one step's rows and puts them on disk. A step is written once, after the steps
     /// before it (a step written again comes after the later ones).
-    pub fn step(&mut self, mut s: StepRows) -> anyhow::Result<()> {
+    pub fn step(&mut self, s: &mut StepRows) -> anyhow::Result<()> {
         let step = s.step;
         s.metrics.sort_by_key(|r| r.robot);
         for r in &s.metrics {
@@ -714,7 +714,7 @@ mod tests {
             (0, vec![row(0, 1, 2, 0), row(0, 0, 10, 1)]),
             (1, vec![row(1, 1, 5, 0), row(1, 0, 25, 1)]),
         ] {
-            t.step(StepRows {
+            t.step(&mut StepRows {
                 step,
                 metrics,
                 ..StepRows::default()
@@ -870,7 +870,7 @@ mod tests {
         ];
         for (step, links) in &steps {
             tally.add(*step, links, &[]);
-            t.step(StepRows {
+            t.step(&mut StepRows {
                 step: *step,
                 links: links.clone(),
                 ..StepRows::default()

@@ -43,36 +43,12 @@ pub fn merge(own: &Grid, others: &[&Approximation]) -> Grid {
 /// [`merge`] written over `out` (the last step's planning grid, of the same size), in
 /// proportion to the explored part of the map: only the cells that G_s knows, that some
 /// approximation paints, or that `out` knew are written — every other cell is and stays
-/// unknown.
+/// unknown. A [`Merger`] that starts afresh.
 pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
-    let painted = others
-        .iter()
-        .fold(None, |r, a| Rect::union_of(r, a.cell_bounds()));
-    let Some(r) = region(painted, own, out) else {
-        return;
-    };
-    let polys: Vec<Vec<&Polygon>> = others
-        .iter()
-        .map(|a| a.objects.values().collect())
+    let others: Vec<(RobotId, &Approximation)> = (others.iter().enumerate())
+        .map(|(i, a)| (RobotId::try_from(i).unwrap_or(RobotId::MAX), *a))
         .collect();
-    let plan = paint(&polys, r.min, r.width(), r.height(), Bands::Kept);
-    let w = r.width() as usize;
-    for (y, painted) in (r.min.y..=r.max.y).zip(plan.chunks(w)) {
-        let mine = own.row(y, r.min.x, r.max.x);
-        let row = out.row_mut(y, r.min.x, r.max.x);
-        for ((dst, &s), &p) in row.iter_mut().zip(mine).zip(painted) {
-            *dst = planned(s, p);
-        }
-    }
-}
-
-/// The cells a merge writes: those `painted` spans, those G_s knows and those `out` knew (every
-/// other cell is and stays unknown), within the grid.
-fn region(painted: Option<Rect>, own: &Grid, out: &Grid) -> Option<Rect> {
-    [own.known_bounds(), out.known_bounds()]
-        .into_iter()
-        .fold(painted, Rect::union_of)
-        .and_then(|r| r.within(own.width(), own.height()))
+    Merger::default().merge_into(out, own, &others);
 }
 
 /// Algorithm 9 kept from step to step: [`merge_into`] with the peers' painting (steps (1)–(5))
@@ -114,7 +90,13 @@ impl Merger {
         }
         let reach = (self.held.values().flat_map(|objects| objects.values()))
             .fold(None, |r, (_, reach)| Rect::union_of(r, Some(*reach)));
-        let Some(r) = region(reach, own, out) else {
+        // The cells painted, those G_s knows and those `out` knew: every other cell is and
+        // stays unknown.
+        let region = [own.known_bounds(), out.known_bounds()]
+            .into_iter()
+            .fold(reach, Rect::union_of)
+            .and_then(|r| r.within(own.width(), own.height()));
+        let Some(r) = region else {
             return;
         };
         let w = self.width as usize;

@@ -40,6 +40,17 @@ impl Canvas {
         }
     }
 
+    /// The window `r` without cells: for its indices ([`Canvas::fill`], [`Canvas::bands`]).
+    fn frame(r: Rect) -> Canvas {
+        Canvas {
+            x0: r.min.x,
+            y0: r.min.y,
+            width: r.width(),
+            height: r.height(),
+            cells: Vec::new(),
+        }
+    }
+
     /// The part of `r` (grid frame) inside the window.
     fn clip(&self, r: Rect) -> Option<Rect> {
         let min = Cell::new(r.min.x.max(self.x0), r.min.y.max(self.y0));
@@ -189,31 +200,20 @@ fn free_inside(plan: &mut Canvas, a: &[&Polygon], bands: Bands) {
     let Some(r) = spans.and_then(|r| plan.clip(r)) else {
         return;
     };
-    let (w, rw) = (plan.width as usize, r.width() as usize);
-    let (rx, ry) = ((r.min.x - plan.x0) as usize, (r.min.y - plan.y0) as usize);
-    // A canvas index as an index of the window `r` (`None` outside it).
-    let local = |k: usize| {
-        let (x, y) = (k % w, k / w);
-        (x >= rx && y >= ry && x < rx + rw).then(|| (y - ry) * rw + (x - rx))
-    };
-    let mut flags = vec![0u8; rw * r.height() as usize];
+    // The flags over the window `r` alone, indexed by a frame of it.
+    let frame = Canvas::frame(r);
+    let mut flags = vec![0u8; r.width() as usize * r.height() as usize];
     for o in a {
         let bit = if o.kind == Kind::Inside { INSIDE } else { 0 };
-        plan.fill(o, |k| {
-            if let Some(i) = local(k).filter(|&i| i < flags.len()) {
-                flags[i] = (flags[i] | bit) ^ ODD;
-            }
-        });
+        frame.fill(o, |k| flags[k] = (flags[k] | bit) ^ ODD);
     }
     if bands == Bands::Kept {
         for o in a {
-            plan.bands(o, |k| {
-                if let Some(i) = local(k).filter(|&i| i < flags.len()) {
-                    flags[i] |= BAND;
-                }
-            });
+            frame.bands(o, |k| flags[k] |= BAND);
         }
     }
+    let (w, rw) = (plan.width as usize, r.width() as usize);
+    let (rx, ry) = ((r.min.x - plan.x0) as usize, (r.min.y - plan.y0) as usize);
     for (row, fs) in flags.chunks(rw).enumerate() {
         let at = (ry + row) * w + rx;
         for (cell, &f) in plan.cells[at..at + rw].iter_mut().zip(fs) {
