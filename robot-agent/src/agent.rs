@@ -333,7 +333,19 @@ impl Agent {
     /// with a handshake to its sender; one that cannot be taken counts as a decode error.
     pub fn take(&mut self, m: Msg) -> Vec<Outgoing> {
         match m {
-            Msg::Hello(h) => self.sharing.on_hello(&h),
+            Msg::Hello(h) => {
+                // A lossy radio: what we told a neighbour before its interest reached us may be
+                // lost, so its greeting (or periodic handshake) gets all our routes again, as it
+                // resets what we believe it holds.
+                if let Some(tree) = self
+                    .relay
+                    .as_mut()
+                    .filter(|_| h.reset && self.radio.lossy())
+                {
+                    tree.retell(h.from);
+                }
+                self.sharing.on_hello(&h)
+            }
             Msg::Routes(r) => {
                 if let Some(tree) = &mut self.relay {
                     tree.on_routes(&r);

@@ -245,6 +245,13 @@ impl Radio {
         }
     }
 
+    /// Whether a message can be lost while its link is up (unframed: a put made before the
+    /// peer's interest in it reached us, a realtime put dropped under congestion). Framed,
+    /// nothing is.
+    pub fn lossy(&self) -> bool {
+        !self.framed
+    }
+
     pub fn neighbours(&self) -> &BTreeSet<RobotId> {
         &self.neighbours
     }
@@ -447,7 +454,7 @@ impl Radio {
         // again).
         let hello = step.is_multiple_of(self.hello_every_steps).then(|| {
             let mut h = sharing.knowledge();
-            h.reset = !self.framed;
+            h.reset = self.lossy();
             Msg::Hello(h).pack()
         });
         let targ = (self.announced != Some(target)).then(|| self.target_msg(step, target).pack());
