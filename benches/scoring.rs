@@ -13,6 +13,7 @@ use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion};
 use proto::grid::{Cell, Grid, Occ};
+use proto::grid_report::GridReport;
 use proto::msg::Telemetry;
 use swarm::score::evaluate::Evaluator;
 
@@ -58,7 +59,7 @@ fn scoring_by_map_size(c: &mut Criterion) {
         let reports: Vec<Telemetry> = [REGION as i32, REGION as i32 / 2]
             .into_iter()
             .map(|rows| Telemetry {
-                grid_rle: planning(&truth, at, rows).to_rle(),
+                grid: GridReport::Whole(planning(&truth, at, rows).to_rle()),
                 ..Telemetry::default()
             })
             .collect();

@@ -87,8 +87,11 @@ pub fn sim_plane(data: &[u8]) {
     }
     let _ = decode::<Cmd>(data);
     if let Ok(t) = decode::<Telemetry>(data) {
-        let _ = Grid::from_rle(&t.grid_rle);
-        let _ = Grid::from_rle(&t.own_rle);
+        // As the launcher takes a report: a whole grid, then changes of it.
+        let mut held = proto::grid_report::Received::new(8, 6);
+        let _ = held.apply(t.step, &t.grid);
+        let _ = held.apply(t.step.wrapping_add(1), &t.own);
+        let _ = held.apply(t.step, &t.grid);
     }
     if let Ok(plan) = decode::<LinkPlan>(data) {
         let _ = plan.neighbours(1);

@@ -15,6 +15,7 @@ pub mod exit;
 pub mod geom;
 pub mod graph;
 pub mod grid;
+pub mod grid_report;
 pub mod ids;
 pub mod keys;
 pub mod msg;

@@ -12,6 +12,7 @@ use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 use crate::geom::{LaserSpec, MapInfo, Metres, Pose};
 use crate::grid::Cell;
+use crate::grid_report::GridReport;
 
 /// Bumped whenever any message below changes shape.
 pub const PROTOCOL_VERSION: u16 = 16;
@@ -119,8 +120,9 @@ pub struct Telemetry {
     /// Radio payload bytes this robot handed to its radio session so far, and received.
     pub bytes_sent: u64,
     pub bytes_received: u64,
-    /// The robot's planning grid, run-length encoded ([`crate::grid::Grid::to_rle`]).
-    pub grid_rle: Vec<u8>,
+    /// The robot's planning grid: what changed since its last report, or the whole grid
+    /// ([`crate::grid_report`]).
+    pub grid: GridReport,
     /// True when the robot sees no reachable frontier in its planning grid.
     pub idle: bool,
     /// Peers whose radio liveliness token this robot currently sees.
@@ -139,9 +141,9 @@ pub struct Telemetry {
     /// Per neighbour, the bytes of log entries it still lacked after this step's sending: what
     /// waits for that link.
     pub backlog_bytes: Vec<(RobotId, u64)>,
-    /// G_s, the self-explored grid, run-length encoded like `grid_rle` (what the robot sensed
-    /// itself, against which the launcher shows what it learned from others).
-    pub own_rle: Vec<u8>,
+    /// G_s, the self-explored grid, reported like `grid` (what the robot sensed itself, against
+    /// which the launcher shows what it learned from others).
+    pub own: GridReport,
     /// Polygon exchange: the robot's own log length after this step's save point and the digest
     /// of its approximation A_t there.
     pub save: Option<(u32, u64)>,
@@ -1174,7 +1176,10 @@ mod tests {
             known_cells: 100,
             bytes_sent: 1000,
             bytes_received: 2000,
-            grid_rle: vec![9, 9],
+            grid: GridReport::Changed {
+                since: 4,
+                window: Some((Cell::new(3, 1), vec![9, 9])),
+            },
             idle: false,
             neighbours: vec![0, 1],
             decode_errors: 0,
@@ -1183,7 +1188,7 @@ mod tests {
             approx_error_avg: Some(0.05),
             splits_per_step: Some(1.5),
             backlog_bytes: vec![(0, 300), (1, 0)],
-            own_rle: vec![9, 9],
+            own: GridReport::Whole(vec![9, 9]),
             save: Some((40, 0xdead_beef)),
             views: vec![View {
                 owner: 0,

@@ -11,6 +11,7 @@
 
 use proto::geom::{Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
+use proto::grid_report::Reporter;
 use proto::msg::{Cmd, RobotId, Scan, Step, Telemetry, WorldInfo};
 use proto::scenario::{Relay, Scenario};
 
@@ -41,6 +42,9 @@ pub struct Agent {
     /// many of its cells are known.
     planning: Grid,
     known: usize,
+    /// The planning grid and G_s as last reported to the launcher (telemetry carries what
+    /// changed since).
+    reported: [Reporter; 2],
     /// What it shares and how peers' shares reach its planning grid (by exchange mode).
     sharing: Box<dyn Sharing>,
     /// Which neighbour sends it each owner's log, and to which it sends (`exchange.relay =
@@ -103,6 +107,7 @@ impl Agent {
             own: empty.clone(),
             planning: empty,
             known: 0,
+            reported: Default::default(),
             pose: Pose::default(),
             step: 0,
             target: None,
@@ -407,9 +412,12 @@ impl Agent {
         self.sharing.approx_error_avg()
     }
 
-    /// This step's telemetry for the launcher: the planning grid the robot planned on this step.
-    pub fn telemetry(&self) -> Telemetry {
-        let g = &self.planning;
+    /// This step's telemetry for the launcher: the planning grid the robot planned on this step
+    /// and its own grid, each as what changed since the last report (or whole, now and then).
+    pub fn telemetry(&mut self) -> Telemetry {
+        let [planning, own] = &mut self.reported;
+        let grid = planning.report(self.step, &self.planning);
+        let own = own.report(self.step, &self.own);
         let c = self.radio.counters();
         Telemetry {
             robot: self.id,
@@ -419,7 +427,7 @@ impl Agent {
             known_cells: self.known as u32,
             bytes_sent: c.bytes_sent,
             bytes_received: c.bytes_received,
-            grid_rle: g.to_rle(),
+            grid,
             idle: self.idle,
             alone: self.coordinator.alone(),
             judged: self.coordinator.judged(),
@@ -432,7 +440,7 @@ impl Agent {
             approx_error_avg: self.sharing.approx_error_avg(),
             splits_per_step: self.sharing.splits_per_step(),
             backlog_bytes: self.radio.backlog().to_vec(),
-            own_rle: self.own.to_rle(),
+            own,
             save: self.sharing.own_save(),
             views: self.sharing.views(),
         }

@@ -17,18 +17,14 @@ use super::prepare::Plan;
 use super::spawn::Started;
 use std::collections::BTreeMap;
 
-use proto::msg::Step;
-
 use crate::process::children::{MemoryRow, ProcessRow};
 use crate::run::progress::Progress;
 use crate::rundir::grids::write_map;
 use crate::rundir::render::{robot_colour, Picture};
 use crate::rundir::summary::{
-    bytes_by_type, coverage_steps, traffic_shares, AwarenessSummary, CommLevel, LostLog, Summary,
-    SCHEMA_VERSION,
+    bytes_by_type, coverage_steps, traffic_shares, LostLog, Summary, SCHEMA_VERSION,
 };
-use crate::rundir::tables::{link_totals_wire, MetricsRow};
-use crate::score::awareness::mean_of_step_means;
+use crate::rundir::tables::link_totals_wire;
 use crate::score::connectivity::check_judgements;
 use crate::score::evaluate::Evaluator;
 
@@ -70,23 +66,10 @@ pub async fn stop(
     (children.table(), children.memory().to_vec())
 }
 
-/// `summary.json`'s `comm_level_pct`: the lowest and the mean over the steps.
-fn comm_level(rows: &[MetricsRow]) -> Option<CommLevel> {
-    let by_step: BTreeMap<Step, f64> = rows
-        .iter()
-        .filter_map(|r| Some((r.step, r.comm_level_pct?)))
-        .collect();
-    let n = by_step.len();
-    (n > 0).then(|| CommLevel {
-        min: by_step.values().copied().fold(f64::INFINITY, f64::min),
-        mean: by_step.values().sum::<f64>() / n as f64,
-    })
-}
-
 /// `summary.json`'s content, once every step is written.
 pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Instant) -> Summary {
     let eval = &rec.eval;
-    let rows = &rec.tables.rows;
+    let tally = &rec.tables.tally;
     let links = &rec.tables.links;
     let last = rec.last_status().cloned().unwrap_or(Status {
         step: 0,
@@ -101,11 +84,11 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
     let per_robot_types: Vec<Vec<u64>> = eval
         .last
         .values()
-        .map(|(_, t)| t.sent_by_type.clone())
+        .map(|l| l.t.sent_by_type.clone())
         .chain(earlier.iter().map(|l| l.sent_by_type.clone()))
         .collect();
     let by_type = bytes_by_type(&per_robot_types);
-    let (backlog_max_bytes, backlog_mean_bytes) = backlogs(rows);
+    let (backlog_max_bytes, backlog_mean_bytes) = tally.backlogs();
     Summary {
         schema_version: SCHEMA_VERSION,
         complete: eval.exploration_step.is_some(),
@@ -119,14 +102,14 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
         best_coverage_pct: eval.best.0,
         reachable_cells: eval.reachable_cells(),
         bytes_wire_total: Some(wire_total(plan, rec)),
-        bytes_payload_total: eval.last.values().map(|(_, t)| t.bytes_sent).sum::<u64>()
+        bytes_payload_total: eval.last.values().map(|l| l.t.bytes_sent).sum::<u64>()
             + earlier.iter().map(|l| l.bytes_sent).sum::<u64>(),
         traffic_shares_pct: traffic_shares(&by_type),
         bytes_by_type: by_type,
         splits_per_step_final: eval
             .last
             .iter()
-            .map(|(r, (_, t))| (r.to_string(), t.splits_per_step))
+            .map(|(r, l)| (r.to_string(), l.t.splits_per_step))
             .collect(),
         backlog_max_bytes,
         backlog_mean_bytes,
@@ -134,12 +117,12 @@ pub fn summary(plan: &Plan, rec: &Record, exit_reason: ExitReason, started: Inst
         logs_held: logs_held(eval),
         collisions_robots: last.collisions_total,
         collisions_walls: last.blocked_total,
-        fidelity: crate::score::fidelity::summarize(rows, plan.robots()),
+        fidelity: tally.fidelity(),
         distance_m: last.robots.iter().map(|r| r.distance_m).collect(),
-        radio_decode_errors: eval.last.values().map(|(_, t)| t.decode_errors).sum(),
+        radio_decode_errors: eval.last.values().map(|l| l.t.decode_errors).sum(),
         reconnect: (&links.reconnects()).into(),
-        awareness: eval.base.map(|b| awareness(rows, b)),
-        comm_level_pct: comm_level(rows),
+        awareness: tally.awareness(),
+        comm_level_pct: tally.comm_level(),
         // Judgements of steps netem reported (the run's last step may have none).
         link_judgement: (links.last_step())
             .and_then(|reported| check_judgements(&eval.judged, links.up_by_step(), reported)),
@@ -177,7 +160,7 @@ fn logs_held(eval: &Evaluator) -> BTreeMap<String, BTreeMap<String, u32>> {
     let held = |t: &Telemetry| t.logs.iter().map(|(o, n)| (o.to_string(), *n)).collect();
     eval.last
         .iter()
-        .map(|(r, (_, t))| (r.to_string(), held(t)))
+        .map(|(r, l)| (r.to_string(), held(&l.t)))
         .collect()
 }
 
@@ -190,7 +173,7 @@ fn logs_held_max(rec: &Record) -> BTreeMap<String, BTreeMap<String, u32>> {
     rec.eval
         .last
         .iter()
-        .map(|(r, (_, t))| (r.to_string(), most(*r, t.life)))
+        .map(|(r, l)| (r.to_string(), most(*r, l.t.life)))
         .collect()
 }
 
@@ -248,12 +231,7 @@ fn nondeterministic(plan: &Plan, rec: &Record) -> Vec<String> {
 fn earlier_lives(rec: &Record) -> Vec<&super::follow::Life> {
     rec.lives
         .iter()
-        .filter(|((robot, life), _)| {
-            rec.eval
-                .last
-                .get(robot)
-                .is_some_and(|(_, t)| t.life != *life)
-        })
+        .filter(|((robot, life), _)| rec.eval.last.get(robot).is_some_and(|l| l.t.life != *life))
         .map(|(_, l)| l)
         .collect()
 }
@@ -292,7 +270,7 @@ fn lost_logs(rec: &Record, alive: &[RobotId]) -> Vec<LostLog> {
         .last
         .iter()
         .filter(|(id, _)| alive.contains(id))
-        .map(|(_, (_, t))| t)
+        .map(|(_, l)| &l.t)
         .collect();
     let others_held = held_by_others(rec);
     let mut out = Vec::new();
@@ -330,43 +308,12 @@ fn lost_logs(rec: &Record, alive: &[RobotId]) -> Vec<LostLog> {
     out
 }
 
-/// The largest backlog over the run and its mean over robot-steps that had neighbours.
-fn backlogs(rows: &[MetricsRow]) -> (u64, f64) {
-    let b: Vec<u64> = rows
-        .iter()
-        .filter(|r| r.neighbours > 0)
-        .map(|r| r.backlog_bytes)
-        .collect();
-    let mean = if b.is_empty() {
-        0.0
-    } else {
-        b.iter().sum::<u64>() as f64 / b.len() as f64
-    };
-    (b.iter().copied().max().unwrap_or(0), mean)
-}
-
-/// `awareness` in `summary.json` from `metrics.csv`'s rows, `base` being the base station's id.
-fn awareness(rows: &[MetricsRow], base: proto::msg::RobotId) -> AwarenessSummary {
-    let at_base = || rows.iter().filter(|r| r.robot == base);
-    let robots = || rows.iter().filter(|r| r.robot != base);
-    AwarenessSummary {
-        base_known_pct: at_base().max_by_key(|r| r.step).map(|r| r.coverage_pct),
-        base_known_pct_mean: mean_of_step_means(at_base().map(|r| (r.step, r.coverage_pct))),
-        shared_pct_mean: mean_of_step_means(robots().filter_map(|r| Some((r.step, r.shared_pct?)))),
-        steps_since_base_mean: mean_of_step_means(
-            robots().filter_map(|r| Some((r.step, f64::from(r.steps_since_base?)))),
-        ),
-        steps_since_base_max: robots().filter_map(|r| r.steps_since_base).max(),
-        team_pct_mean: mean_of_step_means(robots().filter_map(|r| Some((r.step, r.team_pct?)))),
-    }
-}
-
 /// Mean over the robots of their own e_avg (polygon exchange only).
 fn approx_error_avg(eval: &Evaluator) -> Option<f64> {
     let e: Vec<f64> = eval
         .last
         .values()
-        .filter_map(|(_, t)| t.approx_error_avg)
+        .filter_map(|l| l.t.approx_error_avg)
         .collect();
     (!e.is_empty()).then(|| e.iter().sum::<f64>() / e.len() as f64)
 }
@@ -392,8 +339,8 @@ pub fn write_pictures(
         }
     }
     truth_pic.save(&dir.join("truth.png"))?;
-    for (id, (grid, _)) in &rec.eval.last {
-        let mut pic = Picture::of_grid(&grid.to_grid(), info);
+    for (id, l) in &rec.eval.last {
+        let mut pic = Picture::of_grid(&l.planning.grid, info);
         let i = usize::from(*id);
         if let Some(t) = trajectories.get(i) {
             pic.path(t, robot_colour(i));
@@ -410,17 +357,18 @@ pub fn write_pictures(
         &crate::score::floor::reachable_map(truth, reachable),
         info,
     )?;
-    for (id, (planning, t)) in &rec.eval.last {
-        // The evaluator keeps only planning grids of the truth's size; a robot's own grid is
-        // what it reported, and one that does not fit the frame is reported, not written.
+    for (id, l) in &rec.eval.last {
+        // The evaluator keeps only grids of the truth's size; a robot's own grid whose last
+        // report could not be taken is reported, not written.
         write_map(
             &grids.join(format!("robot_{id}_planning.pgm")),
-            &planning.to_grid(),
+            &l.planning.grid,
             info,
         )?;
-        let own = Grid::from_rle(&t.own_rle)
-            .map_err(anyhow::Error::from)
-            .and_then(|own| write_map(&grids.join(format!("robot_{id}_own.pgm")), &own, info));
+        let own = match &l.own {
+            (own, None) => write_map(&grids.join(format!("robot_{id}_own.pgm")), &own.grid, info),
+            (_, Some(e)) => Err(anyhow::anyhow!("{e}")),
+        };
         if let Err(e) = own {
             progress.event(&format!(
                 "swarm run: robot {id}'s own grid is not written: {e:#}"
@@ -433,6 +381,9 @@ pub fn write_pictures(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::run::tables::RowTally;
+    use crate::rundir::summary::{AwarenessSummary, CommLevel};
+    use crate::rundir::tables::MetricsRow;
 
     fn row(step: u32, robot: u16, coverage_pct: f64, shared: f64, since: u32) -> MetricsRow {
         MetricsRow {
@@ -447,6 +398,15 @@ mod tests {
         }
     }
 
+    /// The summary's tally of `rows`, robots `0..base` and base station `base`.
+    fn tally(rows: &[MetricsRow], base: RobotId) -> RowTally {
+        let mut t = RowTally::new(base, Some(base));
+        for r in rows {
+            t.add(r);
+        }
+        t
+    }
+
     #[test]
     fn awareness_takes_the_base_station_s_last_coverage_and_step_means_of_the_robots() {
         // Robots 0 and 1, base station 2; step 1 lacks robot 1's report.
@@ -457,7 +417,7 @@ mod tests {
             row(1, 0, 30.0, 80.0, 6),
             row(1, 2, 40.0, 0.0, 0),
         ];
-        let a = awareness(&rows, 2);
+        let a = tally(&rows, 2).awareness().expect("a base station");
         assert_eq!(
             a,
             AwarenessSummary {
@@ -469,7 +429,7 @@ mod tests {
                 team_pct_mean: Some(20.0),
             }
         );
-        assert_eq!(awareness(&[], 2), AwarenessSummary::default());
+        assert_eq!(tally(&[], 2).awareness(), Some(AwarenessSummary::default()));
     }
 
     #[test]
@@ -488,12 +448,12 @@ mod tests {
             at(2, 1, Some(0.0)),
         ];
         assert_eq!(
-            comm_level(&rows),
+            tally(&rows, 2).comm_level(),
             Some(CommLevel {
                 min: 0.0,
                 mean: 50.0
             })
         );
-        assert_eq!(comm_level(&[at(0, 2, None)]), None);
+        assert_eq!(tally(&[at(0, 2, None)], 2).comm_level(), None);
     }
 }

@@ -250,9 +250,12 @@ impl Record {
                 most.0 = most.0.max(n);
                 most.1 = most.1.max(bytes);
             }
-            let logged = self.log.as_mut().and_then(|w| w.robot_step(&t));
-            let scored = self.eval.rows.len();
-            self.eval.add(t);
+            let (robot, scored) = (t.robot, self.eval.rows.len());
+            let change = self.eval.add(t);
+            let taken = change.zip(self.eval.last.get(&robot));
+            let logged = taken
+                .zip(self.log.as_mut())
+                .map(|((c, l), w)| w.robot_step(&l.t, &l.planning.grid, &c));
             if let Some((mut r, grid)) = logged {
                 r.coverage_pct = self
                     .eval
@@ -278,7 +281,7 @@ impl Record {
         let all_idle = !alive.is_empty()
             && alive
                 .iter()
-                .all(|id| self.eval.last.get(id).is_some_and(|(_, t)| t.idle));
+                .all(|id| self.eval.last.get(id).is_some_and(|l| l.t.idle));
         if !all_idle {
             self.idle_since = None;
             return;

@@ -25,7 +25,7 @@ mod spawn;
 /// Telemetry taken a whole step at a time, in robot order (lockstep runs).
 mod steps;
 /// The per-step tables, written as the steps close.
-mod tables;
+pub(crate) mod tables;
 
 pub use args::{Outcome, RunArgs};
 pub use launch::run;

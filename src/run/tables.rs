@@ -2,16 +2,17 @@
 //! is *closed* — its telemetry taken and netem's report of it in (netem reports a step when the
 //! next one opens) — with the columns that need the step's links filled in (steps since contact
 //! with the base station, the communication level). Its rows then leave the launcher's memory:
-//! what the summary needs of them is kept as tallies ([`LinkTally`]) or as the rows themselves
-//! ([`Tables::rows`]). A launcher killed mid-run leaves every step it closed on disk.
+//! what the summary needs of them is kept as tallies ([`LinkTally`], [`RowTally`]). A launcher
+//! killed mid-run leaves every step it closed on disk.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use proto::msg::{LinkReport, RobotId, Step};
 
+use crate::rundir::summary::{AwarenessSummary, CommLevel, FidelitySummary};
 use crate::rundir::tables::{LinkTally, MetricsRow, StepRows, StepTables};
-use crate::score::awareness::Contact;
+use crate::score::awareness::{Contact, StepMeans};
 use crate::score::connectivity::comm_level_pct;
 use crate::score::evaluate::Evaluator;
 
@@ -31,8 +32,107 @@ pub struct Tables {
     nodes: usize,
     /// What the summary needs of the reports written.
     pub links: LinkTally,
-    /// Every `metrics.csv` row written.
-    pub rows: Vec<MetricsRow>,
+    /// What the summary needs of the `metrics.csv` rows written.
+    pub tally: RowTally,
+}
+
+/// What `summary.json` needs of the `metrics.csv` rows, tallied row by row as their steps are
+/// written; the rows themselves are not kept (a run's rows grow with steps × robots). Kept: a
+/// few numbers per robot, and per step the sums behind the means over steps (de Hoog et al.'s
+/// curves, the communication level).
+#[derive(Default)]
+pub struct RowTally {
+    robots: u16,
+    base: Option<RobotId>,
+    /// Over the rows of robots with a neighbour: the largest backlog, their sum and count.
+    backlog: (u64, u64, u64),
+    /// Per robot of the team, its latest row's step, `false_free_pct` and `on_walls_pct`.
+    last: BTreeMap<RobotId, (Step, Option<f64>, Option<f64>)>,
+    /// The base station's latest row's step and coverage.
+    base_last: Option<(Step, f64)>,
+    base_known: StepMeans,
+    shared: StepMeans,
+    since_base: StepMeans,
+    since_base_max: Option<Step>,
+    team: StepMeans,
+    /// Per step, the communication level of its last row that has one.
+    comm: BTreeMap<Step, f64>,
+}
+
+impl RowTally {
+    /// The rows of a run of `robots` robots (ids `0..robots`) and the base station `base`.
+    pub fn new(robots: u16, base: Option<RobotId>) -> RowTally {
+        RowTally {
+            robots,
+            base,
+            ..RowTally::default()
+        }
+    }
+
+    pub fn add(&mut self, r: &MetricsRow) {
+        if r.neighbours > 0 {
+            let b = &mut self.backlog;
+            *b = (b.0.max(r.backlog_bytes), b.1 + r.backlog_bytes, b.2 + 1);
+        }
+        if r.robot < self.robots {
+            let e = self.last.entry(r.robot).or_insert((r.step, None, None));
+            if r.step >= e.0 {
+                *e = (r.step, r.false_free_pct, r.on_walls_pct);
+            }
+        }
+        if let Some(c) = r.comm_level_pct {
+            self.comm.insert(r.step, c);
+        }
+        if self.base == Some(r.robot) {
+            if self.base_last.is_none_or(|(s, _)| r.step >= s) {
+                self.base_last = Some((r.step, r.coverage_pct));
+            }
+            self.base_known.add(r.step, r.coverage_pct);
+            return;
+        }
+        if let Some(v) = r.shared_pct {
+            self.shared.add(r.step, v);
+        }
+        if let Some(v) = r.steps_since_base {
+            self.since_base.add(r.step, f64::from(v));
+            self.since_base_max = self.since_base_max.max(Some(v));
+        }
+        if let Some(v) = r.team_pct {
+            self.team.add(r.step, v);
+        }
+    }
+
+    /// The largest backlog of a robot with a neighbour, and the mean over such rows.
+    pub fn backlogs(&self) -> (u64, f64) {
+        let (max, sum, n) = self.backlog;
+        (max, if n == 0 { 0.0 } else { sum as f64 / n as f64 })
+    }
+
+    /// `fidelity` in `summary.json`: over each robot's last row.
+    pub fn fidelity(&self) -> FidelitySummary {
+        crate::score::fidelity::summarize(self.last.values().map(|&(_, f, w)| (f, w)))
+    }
+
+    /// `awareness` in `summary.json` (with a base station).
+    pub fn awareness(&self) -> Option<AwarenessSummary> {
+        self.base.map(|_| AwarenessSummary {
+            base_known_pct: self.base_last.map(|(_, c)| c),
+            base_known_pct_mean: self.base_known.mean(),
+            shared_pct_mean: self.shared.mean(),
+            steps_since_base_mean: self.since_base.mean(),
+            steps_since_base_max: self.since_base_max,
+            team_pct_mean: self.team.mean(),
+        })
+    }
+
+    /// `comm_level_pct` in `summary.json`: the lowest and the mean over the steps.
+    pub fn comm_level(&self) -> Option<CommLevel> {
+        let n = self.comm.len();
+        (n > 0).then(|| CommLevel {
+            min: self.comm.values().copied().fold(f64::INFINITY, f64::min),
+            mean: self.comm.values().sum::<f64>() / n as f64,
+        })
+    }
 }
 
 impl Tables {
@@ -55,7 +155,7 @@ impl Tables {
             robots,
             nodes,
             links: LinkTally::default(),
-            rows: Vec::new(),
+            tally: RowTally::new(u16::try_from(robots).unwrap_or(u16::MAX), base),
         })
     }
 
@@ -148,7 +248,9 @@ impl Tables {
                     self.out = None;
                 }
             }
-            self.rows.append(&mut step.metrics);
+            for r in &step.metrics {
+                self.tally.add(r);
+            }
         }
     }
 

@@ -22,6 +22,7 @@ use std::path::{Path, PathBuf};
 
 use proto::geom::MapInfo;
 use proto::grid::{Grid, Occ};
+use proto::grid_report::Change;
 use proto::msg::{LinkAir, LinkReport, NodeAir, RobotId, Status, Step, Telemetry};
 use serde::{Deserialize, Serialize};
 
@@ -177,27 +178,47 @@ pub struct LinkStep {
 
 /// The runs that turn `old` into `new` (grids of one size), over the cells either may know.
 pub fn diff(old: &Grid, new: &Grid) -> Vec<Run> {
-    let mut runs = Vec::new();
     let Some(r) = proto::grid::Rect::union_of(old.known_bounds(), new.known_bounds()) else {
-        return runs;
+        return Vec::new();
     };
+    runs_over(r, |y| old.row(y, r.min.x, r.max.x), new)
+}
+
+/// [`diff`] of a reported change: the runs that turn the cells `change.before` held into `new`
+/// (the grid after the change), over the change's rectangle — outside it nothing changed.
+pub fn diff_change(change: &Change, new: &Grid) -> Vec<Run> {
+    let Some(r) = change.rect else {
+        return Vec::new();
+    };
+    let w = r.width() as usize;
+    runs_over(
+        r,
+        |y| &change.before[(y - r.min.y) as usize * w..][..w],
+        new,
+    )
+}
+
+/// The runs of the cells of `r` where `old_row(y)` (row `y` over `r`'s columns) and `new`
+/// differ; a run stays within its row.
+fn runs_over<'a>(r: proto::grid::Rect, old_row: impl Fn(i32) -> &'a [Occ], new: &Grid) -> Vec<Run> {
+    let mut runs = Vec::new();
     let w = new.width() as usize;
-    let (a, b) = (old.cells(), new.cells());
     let mut end = 0usize; // the end of the last run
-    for y in r.min.y as usize..=r.max.y as usize {
-        let row = y * w;
-        let mut x = r.min.x as usize;
-        while x <= r.max.x as usize {
-            let i = row + x;
-            if a[i] == b[i] {
+    for y in r.min.y..=r.max.y {
+        let (a, b) = (old_row(y), new.row(y, r.min.x, r.max.x));
+        let row = y as usize * w + r.min.x as usize;
+        let mut x = 0;
+        while x < b.len() {
+            if a[x] == b[x] {
                 x += 1;
                 continue;
             }
-            let occ = b[i];
+            let occ = b[x];
             let mut len = 1;
-            while x + len <= r.max.x as usize && a[i + len] != b[i + len] && b[i + len] == occ {
+            while x + len < b.len() && a[x + len] != b[x + len] && b[x + len] == occ {
                 len += 1;
             }
+            let i = row + x;
             runs.push(Run {
                 gap: (i - end) as u32,
                 len: len as u32,
@@ -236,9 +257,8 @@ pub type Tee = Box<dyn FnMut(&Record) + Send>;
 pub struct StepLogWriter {
     out: BufWriter<File>,
     path: PathBuf,
-    map: MapInfo,
-    /// Per robot: the life and grid of its last report, and the step its grid was last whole.
-    last: BTreeMap<RobotId, (u16, Grid, Step)>,
+    /// Per robot: the life of its last report, and the step its grid was last whole.
+    last: BTreeMap<RobotId, (u16, Step)>,
     /// Bytes written so far.
     pub bytes: u64,
     header: Header,
@@ -270,7 +290,6 @@ impl StepLogWriter {
         let mut w = StepLogWriter {
             out: BufWriter::new(file),
             path,
-            map,
             last: BTreeMap::new(),
             bytes: 0,
             header: header.clone(),
@@ -333,22 +352,23 @@ impl StepLogWriter {
     }
 
     /// A robot's report as a record (its grid as changes since its last report), for
-    /// [`Self::robot`] once scored; `None` for a report whose grid does not decode to the map's
-    /// size (the evaluator counts it as bad telemetry).
-    pub fn robot_step(&mut self, t: &Telemetry) -> Option<(RobotStep, GridChange)> {
-        let grid = Grid::from_rle(&t.grid_rle).ok()?;
-        if grid.width() != self.map.width || grid.height() != self.map.height {
-            return None;
-        }
+    /// [`Self::robot`] once scored: `grid` is its planning grid after the report, `change` what
+    /// the report changed of it (as the evaluator took it).
+    pub fn robot_step(
+        &mut self,
+        t: &Telemetry,
+        grid: &Grid,
+        change: &Change,
+    ) -> (RobotStep, GridChange) {
         let (change, whole_at) = match self.last.get(&t.robot) {
-            Some((life, old, whole_at))
-                if *life == t.life && t.step < whole_at.saturating_add(KEYFRAME_STEPS) =>
+            Some(&(life, whole_at))
+                if life == t.life && t.step < whole_at.saturating_add(KEYFRAME_STEPS) =>
             {
-                (GridChange::Runs(diff(old, &grid)), *whole_at)
+                (GridChange::Runs(diff_change(change, grid)), whole_at)
             }
-            _ => (GridChange::Whole(t.grid_rle.clone()), t.step),
+            _ => (GridChange::Whole(grid.to_rle()), t.step),
         };
-        self.last.insert(t.robot, (t.life, grid, whole_at));
+        self.last.insert(t.robot, (t.life, whole_at));
         let report = RobotStep {
             step: t.step,
             robot: t.robot,
@@ -373,7 +393,7 @@ impl StepLogWriter {
                 .collect(),
             coverage_pct: None,
         };
-        Some((report, change))
+        (report, change)
     }
 
     /// Writes a robot's report.
@@ -602,6 +622,7 @@ pub fn decode(mut bytes: &[u8]) -> Result<StepLog, String> {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use proto::grid_report::{GridReport, Received};
 
     fn grid_of(w: u32, h: u32, cells: &[u8]) -> Grid {
         let mut g = Grid::new(w, h, Occ::Unknown);
@@ -639,6 +660,28 @@ mod tests {
         fn any_bytes_decode_or_give_an_error(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
             let _ = decode(&bytes);
         }
+
+        /// The runs of a reported change are the runs between the whole grids: a log written
+        /// from changes is the log written from whole grids, byte for byte.
+        #[test]
+        fn a_changes_runs_are_the_runs_between_the_whole_grids(
+            w in 1u32..12,
+            h in 1u32..8,
+            steps in prop::collection::vec(
+                prop::collection::vec((0usize..96, 0u8..3), 0..8), 1..40),
+        ) {
+            let mut rep = proto::grid_report::Reporter::default();
+            let mut held = Received::new(w, h);
+            let mut g = Grid::new(w, h, Occ::Unknown);
+            for (step, edits) in steps.iter().enumerate() {
+                let old = g.clone();
+                for &(i, v) in edits {
+                    g.set_index(i % g.len(), [Occ::Unknown, Occ::Free, Occ::Occupied][usize::from(v)]);
+                }
+                let c = held.apply(step as Step, &rep.report(step as Step, &g)).expect("test");
+                prop_assert_eq!(diff_change(&c, &held.grid), diff(&old, &g));
+            }
+        }
     }
 
     /// The bytes the first `n` records of `log` (its header first) take in the file.
@@ -659,11 +702,10 @@ mod tests {
         let mut w = StepLogWriter::create(&dir, map, &truth, 1, 1.0).expect("test");
         let mut g = Grid::new(4, 3, Occ::Unknown);
         g.set(proto::grid::Cell::new(1, 1), Occ::Free);
-        let mut t = Telemetry {
-            grid_rle: g.to_rle(),
-            ..Telemetry::default()
-        };
-        let (r, grid) = w.robot_step(&t).expect("test");
+        let mut held = Received::new(4, 3);
+        let mut t = Telemetry::default();
+        let c = held.apply(0, &GridReport::Whole(g.to_rle())).expect("test");
+        let (r, grid) = w.robot_step(&t, &held.grid, &c);
         w.robot(r, grid).expect("test");
         w.status(&Status {
             step: 1,
@@ -678,11 +720,9 @@ mod tests {
         assert_eq!((so_far.reached(), so_far.records.len()), (Some(1), 2));
         g.set(proto::grid::Cell::new(2, 1), Occ::Occupied);
         t.step = 1;
-        t.grid_rle = g.to_rle();
-        let (r, grid) = w.robot_step(&t).expect("test");
+        let c = held.apply(1, &GridReport::Whole(g.to_rle())).expect("test");
+        let (r, grid) = w.robot_step(&t, &held.grid, &c);
         w.robot(r, grid).expect("test");
-        t.grid_rle = Grid::new(5, 3, Occ::Free).to_rle();
-        assert!(w.robot_step(&t).is_none(), "a grid not of the map's size");
         w.finish().expect("test");
         let log = read(&dir).expect("test");
         assert_eq!(log.header.map, map);

@@ -10,8 +10,8 @@
 //! * **Shared knowledge** (Fig. 5c): for robot r with known space K_r, the share of K_r that
 //!   every robot of the team knows, |K_1 ∩ … ∩ K_N| / |K_r| × 100 (100 when K_r is empty). K_q
 //!   is what the evaluator counts as coverage: the truth's reachable free cells that robot q's
-//!   planning grid has free or occupied ([`known_cells`]). [`SharedKnowledge`] keeps, per cell,
-//!   how many robots know it, so that replacing one robot's grid is one pass over the cells and
+//!   planning grid has free or occupied ([`knows`]). [`SharedKnowledge`] keeps, per cell,
+//!   how many robots know it, so that a robot's changed cells are told one by one and
 //!   the intersection's size is a counter — never a comparison of every pair of robots.
 //! * **Contact with the base station** (Fig. 5d): steps since a robot last had contact with
 //!   the base station, directly or carried by robots in between ([`Contact`]). Contact
@@ -21,90 +21,20 @@
 
 use std::collections::BTreeMap;
 
-use proto::grid::{Cell, KnownPart, Occ, Rect};
+use proto::grid::Occ;
 use proto::msg::{RobotId, Step};
 
-/// The cells a robot knows (the evaluator's notion of coverage: reachable, and free or occupied
-/// in its planning grid), kept over the rectangle of its grid's known part — it knows none
-/// beyond — so that taking a robot's grid costs that part, not the map.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct Known {
-    /// The grid's width (cells are numbered row-major over the whole grid).
-    width: u32,
-    rect: Option<Rect>,
-    /// Per cell of `rect`, row-major from its bottom row.
-    flags: Vec<bool>,
-    count: usize,
+/// The evaluator's notion of coverage: a robot knows a cell when the cell is reachable in the
+/// truth and its planning grid has it free or occupied.
+pub fn knows(seen: Occ, reachable: bool) -> bool {
+    seen != Occ::Unknown && reachable
 }
 
-impl Known {
-    /// The flags of row `y` over the columns of `over` (which holds `self.rect`), as a row of
-    /// `over.width()` flags; `None` when the row knows nothing (outside the rectangle).
-    fn row(&self, y: i32, over: Rect) -> Option<Vec<bool>> {
-        let r = self.rect.filter(|r| (r.min.y..=r.max.y).contains(&y))?;
-        let w = r.width() as usize;
-        let k = (y - r.min.y) as usize * w;
-        let mut row = vec![false; over.width() as usize];
-        let at = (r.min.x - over.min.x) as usize;
-        row[at..at + w].copy_from_slice(&self.flags[k..k + w]);
-        Some(row)
-    }
-
-    /// How many cells are known.
-    pub fn count(&self) -> usize {
-        self.count
-    }
-
-    /// One flag per cell of a grid `width` cells wide, every cell (for tests and small teams).
-    pub fn from_flags(width: u32, flags: &[bool]) -> Known {
-        let height = flags.len().div_ceil(width.max(1) as usize) as i32;
-        let rect = (width > 0 && height > 0).then(|| Rect {
-            min: Cell::new(0, 0),
-            max: Cell::new(width as i32 - 1, height - 1),
-        });
-        let mut all = flags.to_vec();
-        all.resize(rect.map_or(0, |r| r.area()), false);
-        Known {
-            width,
-            rect,
-            count: all.iter().filter(|&&k| k).count(),
-            flags: all,
-        }
-    }
-}
-
-/// The cells robot `grid` knows: reachable (`reachable[i]`, row-major over the truth) and free or
-/// occupied in its grid. A grid of another size knows nothing beyond the overlap.
-pub fn known_cells(grid: &KnownPart, width: u32, reachable: &[bool]) -> Known {
-    let mut flags = Vec::new();
-    if let Some(r) = grid.rect() {
-        flags.reserve(r.area());
-        for y in r.min.y..=r.max.y {
-            // The row of `reachable` under the rectangle's row (false beyond its end).
-            let start = (y as usize * width as usize + r.min.x as usize).min(reachable.len());
-            let end = (start + r.width() as usize).min(reachable.len());
-            let under = reachable[start..end]
-                .iter()
-                .chain(std::iter::repeat(&false));
-            let inside = (r.min.x..=r.max.x).map(|x| x < width as i32);
-            for ((&seen, &reach), inside) in grid.row(y).iter().zip(under).zip(inside) {
-                flags.push(seen != Occ::Unknown && reach && inside);
-            }
-        }
-    }
-    Known {
-        width,
-        rect: grid.rect(),
-        count: flags.iter().filter(|&&k| k).count(),
-        flags,
-    }
-}
-
-/// What every robot of a team knows, kept up to date one robot's grid at a time.
+/// What every robot of a team knows, kept up to date one changed cell at a time.
 #[derive(Clone, Debug, Default)]
 pub struct SharedKnowledge {
-    /// Per robot of the team (ids `0..team`): the cells it knows (none until its first grid).
-    known: Vec<Known>,
+    /// Per robot of the team (ids `0..team`): how many cells it knows.
+    counts: Vec<usize>,
     /// Per cell, how many robots know it.
     holders: Vec<u16>,
     /// Cells every robot knows: |K_1 ∩ … ∩ K_N|.
@@ -117,7 +47,7 @@ impl SharedKnowledge {
     /// A team of `team` robots (ids `0..team`) over `cells` cells, none known yet.
     pub fn new(team: u16, cells: usize) -> SharedKnowledge {
         SharedKnowledge {
-            known: vec![Known::default(); usize::from(team)],
+            counts: vec![0; usize::from(team)],
             holders: vec![0; cells],
             common: 0,
             anyone: 0,
@@ -125,47 +55,26 @@ impl SharedKnowledge {
     }
 
     fn team(&self) -> usize {
-        self.known.len()
+        self.counts.len()
     }
 
-    /// Robot `robot` now knows `known` (as [`known_cells`] gives), instead of what it knew: one
-    /// pass over the cells either knows about. A robot outside the team (the base station) is
-    /// ignored; cells beyond `cells` (a grid of another size) are left out.
-    pub fn update(&mut self, robot: RobotId, known: Known) {
+    /// Robot `robot` came to know cell `i` (`now`) or no longer knows it; the caller tells only
+    /// changes. A robot outside the team (the base station) and cells beyond `cells` are
+    /// ignored.
+    pub fn know(&mut self, robot: RobotId, i: usize, now: bool) {
         let team = self.team();
-        let Some(before) = self.known.get_mut(usize::from(robot)) else {
-            return;
-        };
-        let before = std::mem::take(before);
-        let width = known.width.max(before.width) as usize;
-        let region = Rect::union_of(before.rect, known.rect);
-        if let Some(r) = region {
-            for y in r.min.y..=r.max.y {
-                let (was_row, now_row) = (before.row(y, r), known.row(y, r));
-                if was_row.is_none() && now_row.is_none() {
-                    continue;
-                }
-                for (k, x) in (r.min.x..=r.max.x).enumerate() {
-                    let was = was_row.as_ref().is_some_and(|f| f[k]);
-                    let now = now_row.as_ref().is_some_and(|f| f[k]);
-                    if was != now {
-                        self.changed(y as usize * width + x as usize, now, team);
-                    }
-                }
-            }
-        }
-        self.known[usize::from(robot)] = known;
-    }
-
-    /// Cell `i` gained (`now`) or lost a holder.
-    fn changed(&mut self, i: usize, now: bool, team: usize) {
-        let Some(h) = self.holders.get_mut(i) else {
+        let (Some(count), Some(h)) = (
+            self.counts.get_mut(usize::from(robot)),
+            self.holders.get_mut(i),
+        ) else {
             return;
         };
         let everyone_before = usize::from(*h) == team;
         if now {
+            *count += 1;
             *h += 1;
         } else {
+            *count -= 1;
             *h -= 1;
         }
         let everyone_now = usize::from(*h) == team;
@@ -195,33 +104,13 @@ impl SharedKnowledge {
     /// |K_1 ∩ … ∩ K_N| / |K_robot| × 100: the share of what `robot` knows that every robot
     /// knows; 100 when it knows nothing (nothing of it is unshared). `None` outside the team.
     pub fn share_pct(&self, robot: RobotId) -> Option<f64> {
-        let count = self.known.get(usize::from(robot))?.count;
+        let count = *self.counts.get(usize::from(robot))?;
         Some(if count == 0 {
             100.0
         } else {
             100.0 * self.common as f64 / count as f64
         })
     }
-}
-
-impl SharedKnowledge {
-    /// The team of one step's known sets over `cells` cells: robot i knows `known[i]`.
-    pub fn of(known: &[Known], cells: usize) -> SharedKnowledge {
-        let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
-        let mut s = SharedKnowledge::new(team, cells);
-        for (r, k) in (0..team).zip(known) {
-            s.update(r, k.clone());
-        }
-        s
-    }
-}
-
-/// Each robot's share of its known space that every robot knows (Fig. 5c), for one step's known
-/// sets (robot i knows `known[i]`).
-pub fn shared_pcts(known: &[Known], cells: usize) -> Vec<f64> {
-    let s = SharedKnowledge::of(known, cells);
-    let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
-    (0..team).filter_map(|r| s.share_pct(r)).collect()
 }
 
 /// Every node's last contact with the base station (Fig. 5d), taken one step at a time.
@@ -282,19 +171,34 @@ fn carry_contact(contact: &mut [Step], links: &[(RobotId, RobotId)]) {
 /// The mean over steps of each step's mean of `values` (step, value): every step weighs the
 /// same however many robots reported it. `None` without values.
 pub fn mean_of_step_means(values: impl IntoIterator<Item = (Step, f64)>) -> Option<f64> {
-    let mut by_step: BTreeMap<Step, (f64, u32)> = BTreeMap::new();
+    let mut m = StepMeans::default();
     for (s, v) in values {
-        let e = by_step.entry(s).or_default();
+        m.add(s, v);
+    }
+    m.mean()
+}
+
+/// [`mean_of_step_means`] taken a value at a time: per step, the sum and the count of its values.
+#[derive(Clone, Debug, Default)]
+pub struct StepMeans(BTreeMap<Step, (f64, u32)>);
+
+impl StepMeans {
+    pub fn add(&mut self, step: Step, v: f64) {
+        let e = self.0.entry(step).or_default();
         *e = (e.0 + v, e.1 + 1);
     }
-    let n = by_step.len();
-    (n > 0).then(|| {
-        by_step
-            .values()
-            .map(|&(sum, k)| sum / f64::from(k))
-            .sum::<f64>()
-            / n as f64
-    })
+
+    /// The mean over the steps of each step's mean (`None`: no value).
+    pub fn mean(&self) -> Option<f64> {
+        let n = self.0.len();
+        (n > 0).then(|| {
+            self.0
+                .values()
+                .map(|&(sum, k)| sum / f64::from(k))
+                .sum::<f64>()
+                / n as f64
+        })
+    }
 }
 
 #[cfg(test)]
@@ -314,10 +218,85 @@ mod tests {
 
     use proto::grid::Grid;
 
+    /// What a robot knows, one flag per cell.
+    #[derive(Clone, Debug, PartialEq)]
+    struct Known(Vec<bool>);
+
+    impl Known {
+        fn from_flags(_width: u32, flags: &[bool]) -> Known {
+            Known(flags.to_vec())
+        }
+    }
+
+    /// The cells `grid` knows over a world whose reachable cells are `reachable`.
+    fn known_cells(grid: &Grid, reachable: &[bool]) -> Known {
+        Known(
+            grid.cells()
+                .iter()
+                .zip(reachable)
+                .map(|(&seen, &r)| knows(seen, r))
+                .collect(),
+        )
+    }
+
+    /// A team told whole known sets: each robot's changed cells go to [`SharedKnowledge::know`].
+    struct Team {
+        s: SharedKnowledge,
+        known: BTreeMap<RobotId, Vec<bool>>,
+    }
+
+    impl Team {
+        fn new(team: u16, cells: usize) -> Team {
+            Team {
+                s: SharedKnowledge::new(team, cells),
+                known: BTreeMap::new(),
+            }
+        }
+
+        fn update(&mut self, robot: RobotId, k: Known) {
+            let before = self.known.entry(robot).or_insert(vec![false; k.0.len()]);
+            for (i, (&was, &now)) in before.iter().zip(&k.0).enumerate() {
+                if was != now {
+                    self.s.know(robot, i, now);
+                }
+            }
+            *before = k.0;
+        }
+
+        fn share_pct(&self, robot: RobotId) -> Option<f64> {
+            self.s.share_pct(robot)
+        }
+
+        fn known_by_anyone(&self) -> usize {
+            self.s.known_by_anyone()
+        }
+
+        fn is_member(&self, robot: RobotId) -> bool {
+            self.s.is_member(robot)
+        }
+
+        /// The team of one step's known sets over `cells` cells: robot i knows `known[i]`.
+        fn of(known: &[Known], cells: usize) -> Team {
+            let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
+            let mut t = Team::new(team, cells);
+            for (r, k) in (0..team).zip(known) {
+                t.update(r, k.clone());
+            }
+            t
+        }
+    }
+
+    /// Each robot's share of its known space that every robot knows, for one step's sets.
+    fn shared_pcts(known: &[Known], cells: usize) -> Vec<f64> {
+        let t = Team::of(known, cells);
+        let team = u16::try_from(known.len()).unwrap_or(u16::MAX);
+        (0..team).filter_map(|r| t.share_pct(r)).collect()
+    }
+
     /// Known sets of hand-drawn grids over an all-reachable 4×1 world.
     fn known(pics: &[&str]) -> Vec<Known> {
         pics.iter()
-            .map(|p| known_cells(&KnownPart::of(&Grid::from_ascii(p)), 4, &[true; 4]))
+            .map(|p| known_cells(&Grid::from_ascii(p), &[true; 4]))
             .collect()
     }
 
@@ -351,7 +330,7 @@ mod tests {
 
     #[test]
     fn a_cell_is_in_the_union_once_and_leaves_it_with_its_last_holder() {
-        let mut s = SharedKnowledge::new(3, 4);
+        let mut s = Team::new(3, 4);
         s.update(0, flags(&[true, true, false, false]));
         s.update(1, flags(&[true, false, true, false]));
         assert_eq!(s.known_by_anyone(), 3, "cell 0 counts once");
@@ -370,17 +349,13 @@ mod tests {
 
     #[test]
     fn unreachable_cells_are_not_known() {
-        let k = known_cells(
-            &KnownPart::of(&Grid::from_ascii("..#.")),
-            4,
-            &[true, false, true, false],
-        );
+        let k = known_cells(&Grid::from_ascii("..#."), &[true, false, true, false]);
         assert_eq!(k, flags(&[true, false, true, false]));
     }
 
     #[test]
     fn a_new_grid_replaces_what_a_robot_knew_and_the_base_station_is_no_member() {
-        let mut s = SharedKnowledge::new(2, 4);
+        let mut s = Team::new(2, 4);
         s.update(0, flags(&[true, true, false, false]));
         s.update(1, flags(&[true, false, false, false]));
         assert_eq!(s.share_pct(0), Some(50.0));
@@ -513,7 +488,7 @@ mod tests {
                 prop_assert!((0.0..=100.0).contains(&p), "{}", p);
             }
             prop_assert_eq!(pcts, naive(&known));
-            let union = SharedKnowledge::of(&ks, 12).known_by_anyone();
+            let union = Team::of(&ks, 12).known_by_anyone();
             prop_assert_eq!(union, naive_union(&known));
             for k in &known {
                 prop_assert!(union >= k.iter().filter(|&&x| x).count());
@@ -522,38 +497,7 @@ mod tests {
             let pcts = shared_pcts(&same, 12);
             prop_assert!(pcts.iter().all(|&p| p == 100.0), "{:?}", pcts);
             let one = known[0].iter().filter(|&&x| x).count();
-            prop_assert_eq!(SharedKnowledge::of(&same, 12).known_by_anyone(), one);
-        }
-
-        /// Robots' grids taken over their known parts only keep the same counts as grids
-        /// taken cell by cell.
-        #[test]
-        fn known_parts_count_as_every_cell(
-            grids in proptest::collection::vec(
-                proptest::collection::vec((0i32..20, 0i32..15, 0u8..3), 0..30), 1..8),
-            reachable in proptest::collection::vec(any::<bool>(), 300),
-        ) {
-            let (w, h) = (20u32, 15u32);
-            let mut parts = SharedKnowledge::new(3, 300);
-            let mut every = SharedKnowledge::new(3, 300);
-            for (k, sets) in grids.iter().enumerate() {
-                let mut g = Grid::new(w, h, Occ::Unknown);
-                for &(x, y, v) in sets {
-                    g.set(Cell::new(x, y), [Occ::Unknown, Occ::Free, Occ::Occupied][usize::from(v)]);
-                }
-                let robot = (k % 3) as RobotId;
-                let part = known_cells(&KnownPart::of(&g), w, &reachable);
-                let flags: Vec<bool> = (0..g.len())
-                    .map(|i| reachable[i] && g.cells()[i] != Occ::Unknown)
-                    .collect();
-                prop_assert_eq!(part.count(), flags.iter().filter(|&&f| f).count());
-                parts.update(robot, part);
-                every.update(robot, Known::from_flags(w, &flags));
-                prop_assert_eq!(parts.known_by_anyone(), every.known_by_anyone());
-                for r in 0..3 {
-                    prop_assert_eq!(parts.share_pct(r), every.share_pct(r));
-                }
-            }
+            prop_assert_eq!(Team::of(&same, 12).known_by_anyone(), one);
         }
 
         #[test]
@@ -562,7 +506,7 @@ mod tests {
             then in proptest::collection::vec(any::<bool>(), 8),
             who in 0..3u16,
         ) {
-            let mut s = SharedKnowledge::new(3, 8);
+            let mut s = Team::new(3, 8);
             for (r, k) in (0..3).zip(&first) {
                 s.update(r, Known::from_flags(4, k));
             }

@@ -12,12 +12,13 @@
 use std::collections::BTreeMap;
 
 use proto::exit::ExitReason;
-use proto::grid::{Cell, Grid, KnownPart, Occ};
+use proto::grid::{Cell, Grid, Occ};
+use proto::grid_report::{Change, Received};
 use proto::msg::{Judged, RobotId, Step, Telemetry, View};
 
 use crate::rundir::summary::THRESHOLDS;
 use crate::rundir::tables::MetricsRow;
-use crate::score::awareness::{known_cells, SharedKnowledge};
+use crate::score::awareness::{knows, SharedKnowledge};
 use crate::score::fidelity::Fidelity;
 
 impl MetricsRow {
@@ -55,6 +56,21 @@ impl MetricsRow {
     }
 }
 
+/// What the evaluator holds of one robot.
+pub struct Last {
+    /// Its planning grid as reported (the truth's size).
+    pub planning: Received,
+    /// Its own grid G_s as reported, and why its last report could not be taken, if it could
+    /// not (the grid is then of an earlier step, until the next whole one).
+    pub own: (Received, Option<String>),
+    /// Its last telemetry taken.
+    pub t: Telemetry,
+    /// The reachable cells its planning grid knows, and what the grid believes against the
+    /// truth: kept up to date by the cells each report changed.
+    known: usize,
+    fidelity: Fidelity,
+}
+
 pub struct Evaluator {
     truth: Grid,
     reachable: Vec<bool>,
@@ -66,8 +82,8 @@ pub struct Evaluator {
     pub exploration_step: Option<Step>,
     /// Best coverage so far, and the robot that has it.
     pub best: (f64, RobotId),
-    /// The last decoded grid (its known part) and telemetry of every robot.
-    pub last: BTreeMap<RobotId, (KnownPart, Telemetry)>,
+    /// Every robot's grids as reported, its last telemetry and its counts.
+    pub last: BTreeMap<RobotId, Last>,
     pub bad_telemetry: u64,
     /// Polygon exchange, for `saves.csv`: every save point a robot reported of its own log
     /// (step, robot, log length, digest of A_t).
@@ -135,28 +151,78 @@ impl Evaluator {
         }
     }
 
-    /// Scores one telemetry message.
-    pub fn add(&mut self, t: Telemetry) {
-        // Decoded and scored over the grid's known part only: an unknown cell is neither
-        // covered nor correct.
-        let grid = match KnownPart::from_rle(&t.grid_rle) {
-            Ok(g) if g.width() == self.truth.width() && g.height() == self.truth.height() => g,
-            _ => {
+    /// Scores one telemetry message: its planning grid's change is applied to the robot's grid
+    /// and scored where it changed. What changed is returned; `None` for a report that could
+    /// not be taken (a grid that does not decode, of another size than the truth, or a change
+    /// after a report that was not taken), which is counted in [`Self::bad_telemetry`] and
+    /// leaves the robot's grid as it was.
+    pub fn add(&mut self, t: Telemetry) -> Option<Change> {
+        let (w, h) = (self.truth.width(), self.truth.height());
+        let last = self.last.remove(&t.robot);
+        let first = last.is_none();
+        let mut l = last.unwrap_or_else(|| Last {
+            planning: Received::new(w, h),
+            own: (Received::new(w, h), None),
+            t: t.clone(),
+            known: 0,
+            fidelity: Fidelity::default(),
+        });
+        let change = match l.planning.apply(t.step, &t.grid) {
+            Ok(c) => c,
+            Err(_) => {
                 self.bad_telemetry += 1;
-                return;
+                if l.planning.step.is_some() {
+                    self.last.insert(t.robot, l);
+                }
+                return None;
             }
         };
-        let known = known_cells(&grid, self.truth.width(), &self.reachable);
-        let pct = self.pct_of_reachable(known.count());
-        if self.base != Some(t.robot) {
-            self.shared.update(t.robot, known);
-        }
+        l.own.1 = l.own.0.apply(t.step, &t.own).err().map(|e| e.to_string());
+        self.score_change(t.robot, &mut l, &change);
+        let pct = self.pct_of_reachable(l.known);
         self.reached(t.robot, t.step, pct);
-        let fidelity = Fidelity::of(&grid, &self.truth);
-        self.rows.push(MetricsRow::of(&t, fidelity, pct));
+        self.rows.push(MetricsRow::of(&t, l.fidelity, pct));
         self.judged.extend(t.judged.clone());
-        self.record_changes(&t);
-        self.last.insert(t.robot, (grid, t));
+        self.record_changes(&t, (!first).then_some(&l.t));
+        l.t = t;
+        self.last.insert(l.t.robot, l);
+        Some(change)
+    }
+
+    /// Brings `l`'s counts, and the team's shared knowledge, up to its grid after `change`:
+    /// only the cells of the change's rectangle.
+    fn score_change(&mut self, robot: RobotId, l: &mut Last, change: &Change) {
+        let Some(r) = change.rect else { return };
+        let member = self.base != Some(robot);
+        let w = self.truth.width() as usize;
+        let (now, truth) = (l.planning.grid.cells(), self.truth.cells());
+        let mut before = change.before.iter();
+        for y in r.min.y..=r.max.y {
+            let row = y as usize * w;
+            for x in r.min.x..=r.max.x {
+                let (i, was) = (
+                    row + x as usize,
+                    before.next().copied().unwrap_or(Occ::Unknown),
+                );
+                let is = now[i];
+                if was == is {
+                    continue;
+                }
+                l.fidelity.change(was, is, truth[i]);
+                let reach = self.reachable[i];
+                let (k0, k1) = (knows(was, reach), knows(is, reach));
+                if k0 != k1 {
+                    if k1 {
+                        l.known += 1;
+                    } else {
+                        l.known -= 1;
+                    }
+                    if member {
+                        self.shared.know(robot, i, k1);
+                    }
+                }
+            }
+        }
     }
 
     /// `robot` knew `pct` % of the reachable cells at `step`: the best coverage, the steps to
@@ -182,9 +248,9 @@ impl Evaluator {
         }
     }
 
-    /// The save points and views `t` reports that its robot's last report did not.
-    fn record_changes(&mut self, t: &Telemetry) {
-        let before = self.last.get(&t.robot).map(|(_, b)| b);
+    /// The save points and views `t` reports that its robot's report before, `before` (`None`
+    /// at its first report), did not.
+    fn record_changes(&mut self, t: &Telemetry, before: Option<&Telemetry>) {
         if let Some((len, digest)) = t.save {
             if before.and_then(|b| b.save).map(|(l, _)| l) != Some(len) {
                 self.saves.push((t.step, t.robot, len, digest));
@@ -217,11 +283,10 @@ impl Evaluator {
     /// A frontier of `robot`'s last planning grid that lies inside the world's reachable area
     /// (the first in row-major order), if any: space the robot could reach and has not seen.
     pub fn reachable_frontier(&self, robot: RobotId) -> Option<Cell> {
-        let (grid, _) = self.last.get(&robot)?;
+        let grid = &self.last.get(&robot)?.planning.grid;
         let reachable = |c: Cell| self.truth.index(c).is_some_and(|i| self.reachable[i]);
-        grid.cells()
-            .map(|(c, _)| c)
-            .find(|&c| reachable(c) && grid.is_frontier(c))
+        let r = grid.known_bounds()?;
+        r.cells().find(|&c| reachable(c) && grid.is_frontier(c))
     }
 
     /// Why a run ends whose live robots `alive` have all been idle long enough: `no-frontiers`
@@ -242,6 +307,7 @@ impl Evaluator {
 mod tests {
     use super::*;
     use proto::geom::Pose;
+    use proto::grid_report::GridReport;
 
     fn telemetry(robot: RobotId, step: Step, grid: &Grid) -> Telemetry {
         Telemetry {
@@ -254,14 +320,14 @@ mod tests {
             known_cells: 0,
             bytes_sent: 0,
             bytes_received: 0,
-            grid_rle: grid.to_rle(),
+            grid: GridReport::Whole(grid.to_rle()),
             idle: false,
             neighbours: vec![],
             decode_errors: 0,
             sent_by_type: vec![],
             splits_per_step: None,
             backlog_bytes: vec![],
-            own_rle: vec![],
+            own: GridReport::Whole(vec![]),
             save: None,
             views: vec![],
             alone: false,
@@ -402,12 +468,74 @@ mod tests {
         assert_eq!(ev.idle_end(&[0]), (ExitReason::NoFrontiers, None));
     }
 
+    /// Cells drawn from `v` (0 unknown, 1 free, 2 occupied).
+    fn occ(v: u8) -> Occ {
+        [Occ::Unknown, Occ::Free, Occ::Occupied][usize::from(v % 3)]
+    }
+
+    proptest::proptest! {
+        /// Robots reporting their grids as changes get, row after row, the counts of scoring
+        /// each whole grid afresh: coverage, fidelity and the share every robot knows.
+        #[test]
+        fn scoring_changes_counts_what_scoring_whole_grids_counts(
+            truth in proptest::collection::vec(0u8..3, 24),
+            reachable in proptest::collection::vec(proptest::bool::ANY, 24),
+            steps in proptest::collection::vec(
+                proptest::collection::vec((0u16..2, 0usize..24, 0u8..3), 0..6), 1..30),
+        ) {
+            let (w, h) = (6u32, 4u32);
+            let mut t_grid = Grid::new(w, h, Occ::Unknown);
+            let mut r_grid = Grid::new(w, h, Occ::Unknown);
+            for i in 0..24 {
+                t_grid.set_index(i, occ(truth[i]));
+                if reachable[i] {
+                    r_grid.set_index(i, Occ::Free);
+                }
+            }
+            let mut ev = Evaluator::new(t_grid.clone(), &r_grid, 99.0).with_team(2);
+            let mut grids = [Grid::new(w, h, Occ::Unknown), Grid::new(w, h, Occ::Unknown)];
+            let mut reporters: [proto::grid_report::Reporter; 2] = Default::default();
+            let reach: Vec<bool> = r_grid.cells().iter().map(|&c| c == Occ::Free).collect();
+            let knows_of = |g: &Grid| -> Vec<bool> {
+                g.cells().iter().zip(&reach).map(|(&c, &r)| knows(c, r)).collect()
+            };
+            for (step, edits) in steps.iter().enumerate() {
+                let step = step as Step;
+                for &(robot, i, v) in edits {
+                    grids[usize::from(robot)].set_index(i, occ(v));
+                }
+                let from = ev.rows.len();
+                for robot in 0..2u16 {
+                    let g = &grids[usize::from(robot)];
+                    let mut t = telemetry(robot, step, g);
+                    t.grid = reporters[usize::from(robot)].report(step, g);
+                    proptest::prop_assert!(ev.add(t).is_some());
+                }
+                ev.share_rows_since(from);
+                let known: Vec<Vec<bool>> = grids.iter().map(&knows_of).collect();
+                let common = (0..24).filter(|&i| known[0][i] && known[1][i]).count();
+                for (k, row) in ev.rows[from..].iter().enumerate() {
+                    let g = &grids[k];
+                    let f = Fidelity::of(&proto::grid::KnownPart::of(g), &t_grid);
+                    let n = known[k].iter().filter(|&&x| x).count();
+                    proptest::prop_assert_eq!(row.coverage_pct, ev.pct_of_reachable(n));
+                    proptest::prop_assert_eq!(
+                        (row.free_cells, row.false_free_cells, row.on_wall_cells, row.correct_known_cells),
+                        (f.free, f.false_free, f.on_walls, f.correct)
+                    );
+                    let share = if n == 0 { 100.0 } else { 100.0 * common as f64 / n as f64 };
+                    proptest::prop_assert_eq!(row.shared_pct, Some(share));
+                }
+            }
+        }
+    }
+
     #[test]
     fn malformed_grids_are_counted_not_scored() {
         let truth = Grid::from_ascii("...\n");
         let mut ev = Evaluator::new(truth.clone(), &truth, 99.0);
         let mut t = telemetry(0, 1, &truth);
-        t.grid_rle = vec![0xff];
+        t.grid = GridReport::Whole(vec![0xff]);
         ev.add(t);
         ev.add(telemetry(0, 1, &Grid::from_ascii("..\n")));
         assert_eq!(ev.bad_telemetry, 2);

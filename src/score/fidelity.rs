@@ -15,13 +15,9 @@
 //! The percentages are of `free_cells`; `summary.json`'s `fidelity` gives the median and the
 //! worst robot at the end of the run.
 
-use std::collections::BTreeMap;
-
 use proto::grid::{Cell, Grid, KnownPart, Occ};
-use proto::msg::RobotId;
 
 use crate::rundir::summary::FidelitySummary;
-use crate::rundir::tables::MetricsRow;
 
 /// What one planning grid believes, against the truth (cells).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -47,15 +43,37 @@ impl Fidelity {
     }
 
     fn add(&mut self, seen: Occ, truth: Occ) {
+        let c = Fidelity::cell(seen, truth);
+        self.correct += c.correct;
+        self.free += c.free;
+        self.false_free += c.false_free;
+        self.on_walls += c.on_walls;
+    }
+
+    /// A cell the grid believed `was` now believed `now` (`truth` in the world).
+    pub fn change(&mut self, was: Occ, now: Occ, truth: Occ) {
+        let c = Fidelity::cell(was, truth);
+        self.correct -= c.correct;
+        self.free -= c.free;
+        self.false_free -= c.false_free;
+        self.on_walls -= c.on_walls;
+        self.add(now, truth);
+    }
+
+    /// What one cell believed `seen` counts, against the truth.
+    fn cell(seen: Occ, truth: Occ) -> Fidelity {
         match seen {
-            Occ::Unknown => {}
-            Occ::Free => {
-                self.free += 1;
-                self.false_free += u32::from(false_free(seen, truth));
-                self.on_walls += u32::from(truth == Occ::Occupied);
-                self.correct += u32::from(truth == Occ::Free);
-            }
-            Occ::Occupied => self.correct += u32::from(truth != Occ::Free),
+            Occ::Unknown => Fidelity::default(),
+            Occ::Free => Fidelity {
+                free: 1,
+                false_free: u32::from(false_free(seen, truth)),
+                on_walls: u32::from(truth == Occ::Occupied),
+                correct: u32::from(truth == Occ::Free),
+            },
+            Occ::Occupied => Fidelity {
+                correct: u32::from(truth != Occ::Free),
+                ..Fidelity::default()
+            },
         }
     }
 
@@ -87,23 +105,20 @@ pub fn false_free_cells(grid: &Grid, truth: &Grid) -> Vec<Cell> {
         .collect()
 }
 
-/// The median and the worst robot of the team's last reports: each robot's last row among
-/// `rows` (the robots `0..robots`; the base station is no robot).
-pub fn summarize(rows: &[MetricsRow], robots: u16) -> FidelitySummary {
-    let mut last: BTreeMap<RobotId, &MetricsRow> = BTreeMap::new();
-    for r in rows.iter().filter(|r| r.robot < robots) {
-        let e = last.entry(r.robot).or_insert(r);
-        if r.step >= e.step {
-            *e = r;
-        }
+/// The median and the worst robot of the team's last reports: each robot's last row's
+/// `(false_free_pct, on_walls_pct)`.
+pub fn summarize(last: impl IntoIterator<Item = (Option<f64>, Option<f64>)>) -> FidelitySummary {
+    let (mut false_free, mut on_walls): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
+    for (f, w) in last {
+        false_free.extend(f);
+        on_walls.extend(w);
     }
-    let of = |pick: fn(&MetricsRow) -> Option<f64>| {
-        let mut v: Vec<f64> = last.values().filter_map(|r| pick(r)).collect();
+    let of = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         (median(&v), v.last().copied())
     };
-    let (false_free_pct_median, false_free_pct_worst) = of(|r| r.false_free_pct);
-    let (on_walls_pct_median, on_walls_pct_worst) = of(|r| r.on_walls_pct);
+    let (false_free_pct_median, false_free_pct_worst) = of(false_free);
+    let (on_walls_pct_median, on_walls_pct_worst) = of(on_walls);
     FidelitySummary {
         false_free_pct_median,
         false_free_pct_worst,
@@ -125,6 +140,7 @@ fn median(sorted: &[f64]) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rundir::tables::MetricsRow;
 
     /// A hand-made case: a room whose planning grid a coarse peer approximation filled
     /// through its wall and beyond the world's edge.
@@ -181,7 +197,11 @@ mod tests {
             // The base station (node 4 of a 4-robot run): left out.
             row(5, 4, Some(99.0), Some(99.0)),
         ];
-        let s = summarize(&rows, 4);
+        let mut tally = crate::run::tables::RowTally::new(4, Some(4));
+        for r in &rows {
+            tally.add(r);
+        }
+        let s = tally.fidelity();
         assert_eq!(
             (s.false_free_pct_median, s.false_free_pct_worst),
             (Some(4.0), Some(10.0))
@@ -191,6 +211,6 @@ mod tests {
             (Some(1.0), Some(3.0))
         );
         assert_eq!(median(&[1.0, 3.0]), Some(2.0));
-        assert_eq!(summarize(&[], 4), FidelitySummary::default());
+        assert_eq!(summarize([]), FidelitySummary::default());
     }
 }
