@@ -183,7 +183,14 @@ impl Record {
             }
             return;
         }
-        self.order.on_telemetry(t);
+        if let Some(late) = self.order.on_telemetry(t) {
+            // No row, but its grids: the robot's next reports are changes of them. The step
+            // log, which did not record it, takes the robot's next grid whole.
+            self.eval.take_late(&late);
+            if let Some(w) = &mut self.log {
+                w.forget(late.robot);
+            }
+        }
         self.take_complete_steps();
     }
 

@@ -49,12 +49,15 @@ impl StepOrder {
         self.latest = Some(self.latest.map_or(st.step, |l| l.max(st.step)));
     }
 
-    pub fn on_telemetry(&mut self, t: Telemetry) {
+    /// Keeps a report until its step is taken; one whose step was taken already is late: it is
+    /// noted and handed back.
+    pub fn on_telemetry(&mut self, t: Telemetry) -> Option<Telemetry> {
         if t.step < self.next {
             self.late.push((t.step, t.robot));
-            return;
+            return Some(t);
         }
         self.pending.entry(t.step).or_default().insert(t.robot, t);
+        None
     }
 
     /// The next step that is complete, with its reports in robot order.
@@ -152,7 +155,8 @@ mod tests {
         st.missed = vec![2];
         o.on_status(&st);
         assert_eq!(o.take().map(|(s, r)| (s, r.len())), Some((1, 1)));
-        o.on_telemetry(tel(1, 2));
+        let late = o.on_telemetry(tel(1, 2));
+        assert_eq!(late.map(|t| (t.step, t.robot)), Some((1, 2)), "handed back");
         assert_eq!(o.late, [(1, 2)]);
         o.on_telemetry(tel(2, 0));
         o.on_status(&status(4, &[0]));

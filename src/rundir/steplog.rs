@@ -351,6 +351,12 @@ impl StepLogWriter {
             .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", self.path.display()))
     }
 
+    /// Robot `robot`'s grid changed without a record (a report taken late): its next record
+    /// holds its grid whole.
+    pub fn forget(&mut self, robot: RobotId) {
+        self.last.remove(&robot);
+    }
+
     /// A robot's report as a record (its grid as changes since its last report), for
     /// [`Self::robot`] once scored: `grid` is its planning grid after the report, `change` what
     /// the report changed of it (as the evaluator took it).

@@ -157,6 +157,37 @@ impl Evaluator {
     /// after a report that was not taken), which is counted in [`Self::bad_telemetry`] and
     /// leaves the robot's grid as it was.
     pub fn add(&mut self, t: Telemetry) -> Option<Change> {
+        let Some((mut l, change, first)) = self.take_grids(&t) else {
+            self.bad_telemetry += 1;
+            return None;
+        };
+        let pct = self.pct_of_reachable(l.known);
+        self.reached(t.robot, t.step, pct);
+        self.rows.push(MetricsRow::of(&t, l.fidelity, pct));
+        self.judged.extend(t.judged.clone());
+        self.record_changes(&t, (!first).then_some(&l.t));
+        l.t = t;
+        self.last.insert(l.t.robot, l);
+        Some(change)
+    }
+
+    /// A report that came after its step was taken (its robot was not awaited then): it makes
+    /// no row, but its grids are taken — and the counts moved by them — so that the robot's next
+    /// reports, changes of these grids, apply.
+    pub fn take_late(&mut self, t: &Telemetry) {
+        match self.take_grids(t) {
+            Some((l, _, _)) => {
+                self.last.insert(t.robot, l);
+            }
+            None => self.bad_telemetry += 1,
+        }
+    }
+
+    /// Applies `t`'s grid reports to its robot's grids and scores the change: the robot's
+    /// [`Last`], taken out of [`Self::last`] for the caller to put back, what changed, and
+    /// whether this was the robot's first report. `None` (its grids left as they were) when the
+    /// planning grid's report cannot be applied.
+    fn take_grids(&mut self, t: &Telemetry) -> Option<(Last, Change, bool)> {
         let (w, h) = (self.truth.width(), self.truth.height());
         let last = self.last.remove(&t.robot);
         let first = last.is_none();
@@ -167,26 +198,15 @@ impl Evaluator {
             known: 0,
             fidelity: Fidelity::default(),
         });
-        let change = match l.planning.apply(t.step, &t.grid) {
-            Ok(c) => c,
-            Err(_) => {
-                self.bad_telemetry += 1;
-                if l.planning.step.is_some() {
-                    self.last.insert(t.robot, l);
-                }
-                return None;
+        let Ok(change) = l.planning.apply(t.step, &t.grid) else {
+            if !first {
+                self.last.insert(t.robot, l);
             }
+            return None;
         };
         l.own.1 = l.own.0.apply(t.step, &t.own).err().map(|e| e.to_string());
         self.score_change(t.robot, &mut l, &change);
-        let pct = self.pct_of_reachable(l.known);
-        self.reached(t.robot, t.step, pct);
-        self.rows.push(MetricsRow::of(&t, l.fidelity, pct));
-        self.judged.extend(t.judged.clone());
-        self.record_changes(&t, (!first).then_some(&l.t));
-        l.t = t;
-        self.last.insert(l.t.robot, l);
-        Some(change)
+        Some((l, change, first))
     }
 
     /// Brings `l`'s counts, and the team's shared knowledge, up to its grid after `change`:
@@ -528,6 +548,28 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_late_report_makes_no_row_but_the_changes_after_it_apply() {
+        let truth = Grid::from_ascii("....\n");
+        let mut ev = Evaluator::new(truth.clone(), &truth, 99.0);
+        let mut rep = proto::grid_report::Reporter::default();
+        let grids = ["..??\n", "...?\n", "....\n"].map(Grid::from_ascii);
+        let report = |rep: &mut proto::grid_report::Reporter, step: Step| {
+            let mut t = telemetry(0, step, &grids[step as usize]);
+            t.grid = rep.report(step, &grids[step as usize]);
+            t
+        };
+        assert!(ev.add(report(&mut rep, 0)).is_some());
+        ev.take_late(&report(&mut rep, 1));
+        assert!(
+            ev.add(report(&mut rep, 2)).is_some(),
+            "a change since the late one"
+        );
+        assert_eq!(ev.bad_telemetry, 0);
+        let covered: Vec<(Step, f64)> = ev.rows.iter().map(|r| (r.step, r.coverage_pct)).collect();
+        assert_eq!(covered, [(0, 50.0), (2, 100.0)]);
     }
 
     #[test]
