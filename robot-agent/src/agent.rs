@@ -45,6 +45,8 @@ pub struct Agent {
     /// The planning grid and G_s as last reported to the launcher (telemetry carries what
     /// changed since).
     reported: [Reporter; 2],
+    /// The path costs of the last step, whose buffers the next step's search reuses.
+    costs: plan::CostMap,
     /// What it shares and how peers' shares reach its planning grid (by exchange mode).
     sharing: Box<dyn Sharing>,
     /// Which neighbour sends it each owner's log, and to which it sends (`exchange.relay =
@@ -108,6 +110,7 @@ impl Agent {
             planning: empty,
             known: 0,
             reported: Default::default(),
+            costs: plan::CostMap::default(),
             pose: Pose::default(),
             step: 0,
             target: None,
@@ -164,6 +167,15 @@ impl Agent {
 
     /// This step's target and the waypoint toward it (or out of another robot's way).
     fn plan(&mut self) -> Option<Metres> {
+        // The search's buffers are kept from step to step.
+        let mut costs = std::mem::take(&mut self.costs);
+        let waypoint = self.plan_with(&mut costs);
+        self.costs = costs;
+        waypoint
+    }
+
+    /// [`Self::plan`] with the path costs searched into `costs`.
+    fn plan_with(&mut self, costs: &mut plan::CostMap) -> Option<Metres> {
         self.build_planning();
         let g = &self.planning;
         let me = self.my_cell();
@@ -180,17 +192,14 @@ impl Agent {
         // the target, and all over only when it is gone (explored, unreachable) or the
         // strategy looks at every frontier each step.
         let keep = usable.filter(|_| self.coordinator.keeps_valid_target());
-        let mut costs = match keep {
-            Some(t) => plan::costs_until(free, me, penalty.as_deref(), t),
-            None => plan::costs_with(free, me, penalty.as_deref()),
-        };
-        let kept = keep.filter(|&t| plan::is_frontier(g, &costs, t));
+        plan::costs_into(costs, free, me, penalty.as_deref(), keep);
+        let kept = keep.filter(|&t| plan::is_frontier(g, costs, t));
         let mut frontiers = Vec::new();
         if kept.is_none() {
             if !costs.is_complete() {
-                costs = plan::costs_with(free, me, penalty.as_deref());
+                plan::costs_into(costs, free, me, penalty.as_deref(), None);
             }
-            frontiers = plan::frontiers(g, &costs);
+            frontiers = plan::frontiers(g, costs);
             let valid = usable.is_some_and(|t| frontiers.contains(&t));
             let candidates = self.right_of_way.candidates(&frontiers, me);
             self.target = self.coordinator.choose(&Situation {
@@ -199,7 +208,7 @@ impl Agent {
                 me,
                 grid: g,
                 known: self.known,
-                costs: &costs,
+                costs,
                 penalty: penalty.as_deref(),
                 candidates: &candidates,
                 target: self.target,
@@ -229,7 +238,7 @@ impl Agent {
             return aside.map(|n| w.map.centre_of(n));
         }
         self.idle = self.target.is_none();
-        let path = plan::path_to(&costs, self.target?)?;
+        let path = plan::path_to(costs, self.target?)?;
         let next = plan::next_waypoint(free, &w.map, at, &path, max_cells)?;
         (next != me).then(|| w.map.centre_of(next))
     }

@@ -60,6 +60,22 @@ pub struct CostMap {
     limit: f64,
 }
 
+impl Default for CostMap {
+    /// A map of nothing reachable, whose buffers a search fills ([`costs_into`]).
+    fn default() -> CostMap {
+        CostMap {
+            x0: 0,
+            y0: 0,
+            width: 0,
+            height: 0,
+            start: Cell::new(-1, -1),
+            dist: Vec::new(),
+            pred: Vec::new(),
+            limit: f64::INFINITY,
+        }
+    }
+}
+
 impl CostMap {
     /// The cell the costs are measured from.
     pub fn start(&self) -> Cell {
@@ -187,7 +203,22 @@ pub fn obstacle_penalty(g: &Grid, sigma: f64, weight: f64) -> Vec<f32> {
 
 /// [`costs`] with a per-cell penalty ([`obstacle_penalty`]; `None`: none).
 pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
-    dijkstra(g, start, &[start], penalty, None)
+    let mut map = CostMap::default();
+    dijkstra(&mut map, g, &[start], penalty, None);
+    map
+}
+
+/// [`costs_with`] (`until: None`) or [`costs_until`] into `map`, in the buffers it has: a robot
+/// searches every step, and a new map over a campus-sized known part is megabytes to allocate
+/// and touch each time.
+pub fn costs_into(
+    map: &mut CostMap,
+    g: &Grid,
+    start: Cell,
+    penalty: Option<&[f32]>,
+    until: Option<Cell>,
+) {
+    dijkstra(map, g, &[start], penalty, until);
 }
 
 /// [`costs_with`] that stops as soon as `target` is settled: a search as far as the target
@@ -198,7 +229,9 @@ pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
 /// `target` is unreachable the search runs out by itself and the map is complete
 /// ([`CostMap::is_complete`]).
 pub fn costs_until(g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell) -> CostMap {
-    dijkstra(g, start, &[start], penalty, Some(target))
+    let mut map = CostMap::default();
+    dijkstra(&mut map, g, &[start], penalty, Some(target));
+    map
 }
 
 /// The cost of reaching every cell from the nearest of `sources` (a multi-source Dijkstra, no
@@ -206,8 +239,9 @@ pub fn costs_until(g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell)
 /// are left out; [`CostMap::start`] is the first source (a path leads to the nearest source
 /// only through [`path_to`] from it, so do not ask for paths).
 pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
-    let start = sources.first().copied().unwrap_or(Cell::new(-1, -1));
-    dijkstra(g, start, sources, None, None)
+    let mut map = CostMap::default();
+    dijkstra(&mut map, g, sources, None, None);
+    map
 }
 
 /// The search runs over a window of the grid — its known part and the sources — and costs in
@@ -215,12 +249,13 @@ pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
 /// steps only onto free cells. Window indices are row-major like the grid's, so the order in
 /// which equal costs are settled is the grid's.
 fn dijkstra(
+    map: &mut CostMap,
     g: &Grid,
-    start: Cell,
     sources: &[Cell],
     penalty: Option<&[f32]>,
     until: Option<Cell>,
-) -> CostMap {
+) {
+    let start = sources.first().copied().unwrap_or(Cell::new(-1, -1));
     let window = sources
         .iter()
         .filter(|&&c| g.contains(c))
@@ -230,16 +265,12 @@ fn dijkstra(
     let (x0, y0, width, height) =
         window.map_or((0, 0, 0, 0), |r| (r.min.x, r.min.y, r.width(), r.height()));
     let cells = width as usize * height as usize;
-    let mut map = CostMap {
-        x0,
-        y0,
-        width,
-        height,
-        start,
-        dist: vec![f64::INFINITY; cells],
-        pred: vec![NO_PRED; cells],
-        limit: f64::INFINITY,
-    };
+    (map.x0, map.y0, map.width, map.height, map.start) = (x0, y0, width, height, start);
+    map.limit = f64::INFINITY;
+    map.dist.clear();
+    map.dist.resize(cells, f64::INFINITY);
+    map.pred.clear();
+    map.pred.resize(cells, NO_PRED);
     let stop = until.and_then(|c| map.index(c));
     let mut heap = BinaryHeap::new();
     for &c in sources {
@@ -279,7 +310,6 @@ fn dijkstra(
             }
         }
     }
-    map
 }
 
 /// The frontier cells: reachable free cells with at least one unknown 4-neighbour inside the grid,
