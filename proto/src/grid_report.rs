@@ -42,11 +42,12 @@ impl Default for GridReport {
     }
 }
 
-/// The sender's side: the grid as last reported.
+/// The sender's side: the grid as last reported, and how many of its cells are known.
 #[derive(Clone, Debug, Default)]
 pub struct Reporter {
     /// The step and grid of the last report, and the step of the last whole one.
     last: Option<(Step, Grid, Step)>,
+    known: usize,
 }
 
 impl Reporter {
@@ -58,6 +59,7 @@ impl Reporter {
             .filter(|(_, l, w)| same_size(l, grid) && step < w.saturating_add(KEYFRAME_STEPS))
         else {
             self.last = Some((step, grid.clone(), step));
+            self.known = grid.len() - grid.count(Occ::Unknown);
             return GridReport::Whole(grid.to_rle());
         };
         let from = *since;
@@ -65,8 +67,12 @@ impl Reporter {
         let window = changed(last, grid).map(|r| {
             let w = window_of(grid, r);
             for y in r.min.y..=r.max.y {
-                last.row_mut(y, r.min.x, r.max.x)
-                    .copy_from_slice(grid.row(y, r.min.x, r.max.x));
+                let (now, was) = (
+                    grid.row(y, r.min.x, r.max.x),
+                    last.row_mut(y, r.min.x, r.max.x),
+                );
+                self.known = self.known + known_in(now) - known_in(was);
+                was.copy_from_slice(now);
             }
             (r.min, w.to_rle())
         });
@@ -75,6 +81,16 @@ impl Reporter {
             window,
         }
     }
+
+    /// The cells of the grid last reported that are not unknown.
+    pub fn known(&self) -> usize {
+        self.known
+    }
+}
+
+/// The cells of `row` that are not unknown.
+fn known_in(row: &[Occ]) -> usize {
+    row.iter().map(|&c| usize::from(c != Occ::Unknown)).sum()
 }
 
 fn same_size(a: &Grid, b: &Grid) -> bool {
@@ -330,6 +346,7 @@ mod tests {
                 let step = step as Step;
                 let change = held.apply(step, &rep.report(step, &g)).expect("a report");
                 prop_assert_eq!(held.grid.cells(), g.cells());
+                prop_assert_eq!(rep.known(), g.len() - g.count(Occ::Unknown));
                 for (i, (&a, &b)) in before.cells().iter().zip(g.cells()).enumerate() {
                     let c = g.cell_of(i);
                     match change.rect {

@@ -11,7 +11,7 @@
 
 use proto::geom::{Metres, Pose};
 use proto::grid::{Cell, Grid, Occ};
-use proto::grid_report::Reporter;
+use proto::grid_report::{GridReport, Reporter};
 use proto::msg::{Cmd, RobotId, Scan, Step, Telemetry, WorldInfo};
 use proto::scenario::{Relay, Scenario};
 
@@ -43,8 +43,9 @@ pub struct Agent {
     planning: Grid,
     known: usize,
     /// The planning grid and G_s as last reported to the launcher (telemetry carries what
-    /// changed since).
+    /// changed since), and this step's report of the planning grid, made when it was built.
     reported: [Reporter; 2],
+    planning_report: Option<GridReport>,
     /// The path costs of the last step, whose buffers the next step's search reuses.
     costs: plan::CostMap,
     /// What it shares and how peers' shares reach its planning grid (by exchange mode).
@@ -110,6 +111,7 @@ impl Agent {
             planning: empty,
             known: 0,
             reported: Default::default(),
+            planning_report: None,
             costs: plan::CostMap::default(),
             pose: Pose::default(),
             step: 0,
@@ -152,13 +154,14 @@ impl Agent {
         self.sharing.planning_grid(&self.own)
     }
 
-    /// Builds this step's planning grid over the last one and counts its known cells (once per
-    /// step).
+    /// Builds this step's planning grid over the last one (once per step), reports it for the
+    /// step's telemetry and counts its known cells (the reporter counts them where they changed).
     fn build_planning(&mut self) {
         self.sharing
             .update_planning_grid(&self.own, &mut self.planning);
-        let g = &self.planning;
-        self.known = g.len() - g.count(Occ::Unknown);
+        let reporter = &mut self.reported[0];
+        self.planning_report = Some(reporter.report(self.step, &self.planning));
+        self.known = reporter.known();
     }
 
     fn my_cell(&self) -> Cell {
@@ -425,7 +428,8 @@ impl Agent {
     /// and its own grid, each as what changed since the last report (or whole, now and then).
     pub fn telemetry(&mut self) -> Telemetry {
         let [planning, own] = &mut self.reported;
-        let grid = planning.report(self.step, &self.planning);
+        let grid = (self.planning_report.take())
+            .unwrap_or_else(|| planning.report(self.step, &self.planning));
         let own = own.report(self.step, &self.own);
         let c = self.radio.counters();
         Telemetry {
