@@ -98,7 +98,7 @@ fn same_size(a: &Grid, b: &Grid) -> bool {
 }
 
 /// The smallest rectangle around the cells where `old` and `new` (of one size) differ.
-pub fn changed(old: &Grid, new: &Grid) -> Option<Rect> {
+fn changed(old: &Grid, new: &Grid) -> Option<Rect> {
     let r = Rect::union_of(old.known_bounds(), new.known_bounds())?;
     let mut out: Option<Rect> = None;
     for y in r.min.y..=r.max.y {

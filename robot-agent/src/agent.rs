@@ -38,12 +38,11 @@ pub struct Agent {
     own_evidence: Evidence,
     /// Cells of G_s the last scan changed.
     own_changed: Vec<Cell>,
-    /// The planning grid of the last step (built once per step, reused by telemetry) and how
-    /// many of its cells are known.
+    /// The planning grid of the last step (built once per step, reused by telemetry).
     planning: Grid,
-    known: usize,
     /// The planning grid and G_s as last reported to the launcher (telemetry carries what
-    /// changed since), and this step's report of the planning grid, made when it was built.
+    /// changed since; the first also counts the planning grid's known cells), and this step's
+    /// report of the planning grid, made when it was built.
     reported: [Reporter; 2],
     planning_report: Option<GridReport>,
     /// The path costs of the last step, whose buffers the next step's search reuses.
@@ -109,7 +108,6 @@ impl Agent {
             world,
             own: empty.clone(),
             planning: empty,
-            known: 0,
             reported: Default::default(),
             planning_report: None,
             costs: plan::CostMap::default(),
@@ -154,14 +152,12 @@ impl Agent {
         self.sharing.planning_grid(&self.own)
     }
 
-    /// Builds this step's planning grid over the last one (once per step), reports it for the
-    /// step's telemetry and counts its known cells (the reporter counts them where they changed).
+    /// Builds this step's planning grid over the last one (once per step) and reports it for
+    /// the step's telemetry; the reporter counts its known cells where they changed.
     fn build_planning(&mut self) {
         self.sharing
             .update_planning_grid(&self.own, &mut self.planning);
-        let reporter = &mut self.reported[0];
-        self.planning_report = Some(reporter.report(self.step, &self.planning));
-        self.known = reporter.known();
+        self.planning_report = Some(self.reported[0].report(self.step, &self.planning));
     }
 
     fn my_cell(&self) -> Cell {
@@ -210,7 +206,7 @@ impl Agent {
                 step: self.step,
                 me,
                 grid: g,
-                known: self.known,
+                known: self.reported[0].known(),
                 costs,
                 penalty: penalty.as_deref(),
                 candidates: &candidates,
@@ -437,7 +433,7 @@ impl Agent {
             step: self.step,
             pose: self.pose,
             target: self.target.map(|t| self.world.map.centre_of(t)),
-            known_cells: self.known as u32,
+            known_cells: self.reported[0].known() as u32,
             bytes_sent: c.bytes_sent,
             bytes_received: c.bytes_received,
             grid,

@@ -168,17 +168,8 @@ fn carry_contact(contact: &mut [Step], links: &[(RobotId, RobotId)]) {
     }
 }
 
-/// The mean over steps of each step's mean of `values` (step, value): every step weighs the
-/// same however many robots reported it. `None` without values.
-pub fn mean_of_step_means(values: impl IntoIterator<Item = (Step, f64)>) -> Option<f64> {
-    let mut m = StepMeans::default();
-    for (s, v) in values {
-        m.add(s, v);
-    }
-    m.mean()
-}
-
-/// [`mean_of_step_means`] taken a value at a time: per step, the sum and the count of its values.
+/// The mean over steps of each step's mean (every step weighs the same, however many values it
+/// has), taken a value at a time: per step, the sum and the count of its values.
 #[derive(Clone, Debug, Default)]
 pub struct StepMeans(BTreeMap<Step, (f64, u32)>);
 
@@ -422,11 +413,15 @@ mod tests {
 
     #[test]
     fn step_means_weigh_every_step_the_same() {
-        assert_eq!(
-            mean_of_step_means([(0, 10.0), (0, 30.0), (1, 40.0)]),
-            Some(30.0)
-        );
-        assert_eq!(mean_of_step_means([]), None);
+        let mean = |values: &[(Step, f64)]| {
+            let mut m = StepMeans::default();
+            for &(s, v) in values {
+                m.add(s, v);
+            }
+            m.mean()
+        };
+        assert_eq!(mean(&[(0, 10.0), (0, 30.0), (1, 40.0)]), Some(30.0));
+        assert_eq!(mean(&[]), None);
     }
 
     /// Fig. 5a counted the plain way: the cells some set holds.

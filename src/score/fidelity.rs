@@ -15,7 +15,7 @@
 //! The percentages are of `free_cells`; `summary.json`'s `fidelity` gives the median and the
 //! worst robot at the end of the run.
 
-use proto::grid::{Cell, Grid, KnownPart, Occ};
+use proto::grid::{Cell, Grid, Occ};
 
 use crate::rundir::summary::FidelitySummary;
 
@@ -29,8 +29,10 @@ pub struct Fidelity {
 }
 
 impl Fidelity {
-    /// Scores the known part of a planning grid against the truth (grids of one size).
-    pub fn of(grid: &KnownPart, truth: &Grid) -> Fidelity {
+    /// Scores the known part of a planning grid against the truth (grids of one size) afresh:
+    /// what the evaluator's counts, moved by each change ([`Fidelity::change`]), are held to.
+    #[cfg(test)]
+    pub fn of(grid: &proto::grid::KnownPart, truth: &Grid) -> Fidelity {
         let mut f = Fidelity::default();
         let Some(r) = grid.rect() else { return f };
         for y in r.min.y..=r.max.y {
@@ -141,6 +143,7 @@ fn median(sorted: &[f64]) -> Option<f64> {
 mod tests {
     use super::*;
     use crate::rundir::tables::MetricsRow;
+    use proto::grid::KnownPart;
 
     /// A hand-made case: a room whose planning grid a coarse peer approximation filled
     /// through its wall and beyond the world's edge.
