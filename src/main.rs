@@ -25,8 +25,12 @@ enum Command {
     /// replay.csv per step and replay.json with bytes per package type and e_avg.
     Replay(swarm::cmd::replay::ReplayArgs),
     /// Run an experiment: every combination of its grid of scenario overrides × seeds, a few
-    /// runs at a time; resumable (finished runs are skipped); writes runs.csv and results.csv.
+    /// runs at a time, or as a Slurm job array (--slurm); resumable (finished runs are
+    /// skipped); writes runs.csv, results.csv, plots and report.md.
     Sweep(swarm::sweep::runner::SweepArgs),
+    /// What a task of `swarm sweep --slurm`'s job array runs: one run of the sweep.
+    #[command(hide = true)]
+    SweepTask(swarm::sweep::slurm::TaskArgs),
     /// A chaos campaign: a random schedule of process faults (robots killed, restarted, frozen;
     /// netem restarted) and link faults (cuts, partitions, latency, bandwidth, resets) drawn
     /// from --seed, one run under it, then a checker — the exploration completes, no op another
@@ -74,6 +78,7 @@ fn main() -> ExitCode {
         Command::Run(args) => entry("swarm", run::launch::command(args)),
         Command::Replay(args) => outcome("swarm", cmd::replay::command(&args)),
         Command::Sweep(args) => outcome("swarm sweep", sweep::runner::command(&args)),
+        Command::SweepTask(args) => outcome("swarm sweep-task", sweep::slurm::task_command(&args)),
         Command::Chaos(args) => outcome("swarm chaos", cmd::chaos::command(&args)),
         Command::View(args) => entry("swarm view", view::server::command(args)),
         Command::ExportMcap(args) => {

@@ -28,6 +28,17 @@ fn every_subcommand_explains_its_flags() {
             "swarm run --help explains {flag}:\n{run}"
         );
     }
+    let sweep = help(&["sweep"]);
+    for flag in ["--slurm", "--sbatch", "--no-wait", "--collect", "job array"] {
+        assert!(
+            sweep.contains(flag),
+            "swarm sweep --help names the Slurm mode ({flag}):\n{sweep}"
+        );
+    }
+    assert!(
+        run.contains("--hosts <FILE|slurm>") && run.contains("srun"),
+        "swarm run --help names --hosts slurm:\n{run}"
+    );
     let world = help(&["world-server"]);
     for flag in [
         "--scenario",

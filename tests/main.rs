@@ -25,6 +25,7 @@ mod process_faults;
 mod robot_map;
 mod roles;
 mod runs;
+mod slurm;
 mod sweep;
 mod toxiproxy_client;
 mod view;

@@ -113,6 +113,10 @@ pub enum Start {
         command: Vec<String>,
         swarm: Option<String>,
     },
+    /// `srun … --nodelist=<node> <swarm> on-host -- …`: a step of the Slurm allocation the
+    /// launcher runs in (`swarm run --hosts slurm`, [`crate::process::slurm`]). The node sees
+    /// the launcher's files (a shared file system) and runs the launcher's own binary path.
+    Srun { node: String },
 }
 
 /// One host of the file.
@@ -241,6 +245,20 @@ impl Hosts {
             hosts,
             placement: file.placement,
         })
+    }
+
+    /// Hosts made by the launcher rather than read from a file (a Slurm allocation): `origin`
+    /// names them in errors; the world-server (and netem, and the base station) go on
+    /// `sim_host`, the robots round-robin over every host.
+    pub fn assemble(origin: &str, hosts: Vec<Host>, sim_host: &str) -> Hosts {
+        Hosts {
+            path: PathBuf::from(origin),
+            hosts: hosts.into_iter().map(|h| (h.name.clone(), h)).collect(),
+            placement: FilePlacement {
+                world_server: Some(sim_host.to_string()),
+                ..FilePlacement::default()
+            },
+        }
     }
 
     /// Places every process of `scenario` (see the module's example for the defaults).

@@ -9,5 +9,7 @@ pub mod hosts;
 pub mod ports;
 /// Starting processes on a host (ssh, a command prefix) and `swarm host-info`.
 pub mod remote;
+/// Slurm: the hosts of an allocation, its processes started by srun; the client commands.
+pub mod slurm;
 /// Supervision and process faults: kill, restart, freeze, thaw; restarts by policy.
 pub mod supervise;

@@ -76,6 +76,13 @@ pub fn command(host: &Host, exe: &Path, argv: &[String]) -> (String, Vec<String>
             args.extend(argv.iter().cloned());
             (command[0].clone(), args)
         }
+        Start::Srun { node } => {
+            let mut args: Vec<String> = crate::process::slurm::srun_words(node);
+            let program = args.remove(0);
+            args.push(own);
+            args.extend(argv.iter().cloned());
+            (program, args)
+        }
         Start::Ssh {
             target,
             options,
@@ -115,7 +122,16 @@ pub fn process_command(
             let (program, args) = command(host, exe, &wrapped);
             (program, args, true)
         }
-        _ => {
+        // A step of the Slurm job: the same files (a shared file system), on the leash.
+        Start::Srun { .. } => {
+            let wrapped: Vec<String> = ["on-host".to_string(), "--".to_string()]
+                .into_iter()
+                .chain(argv.iter().cloned())
+                .collect();
+            let (program, args) = command(host, exe, &wrapped);
+            (program, args, true)
+        }
+        Start::Local | Start::Prefix { .. } => {
             let (program, args) = command(host, exe, argv);
             (program, args, false)
         }
@@ -138,7 +154,7 @@ fn relocate(word: &str, from: &Path, to: &Path) -> String {
 }
 
 /// One word for a POSIX shell, quoted where it needs it.
-fn quote(word: &str) -> String {
+pub(crate) fn quote(word: &str) -> String {
     let plain = !word.is_empty()
         && word
             .bytes()

@@ -19,8 +19,10 @@ pub struct RunArgs {
     #[arg(long, short)]
     pub quiet: bool,
     /// Spread the run over hosts: a hosts file saying where each process runs and how it is
-    /// started there (ssh, or a command prefix); see docs/guide/hosts.md.
-    #[arg(long, value_name = "FILE")]
+    /// started there (ssh, or a command prefix); see docs/guide/hosts.md. `--hosts slurm`:
+    /// the nodes of the Slurm allocation it runs in, robots started on them by srun (in an
+    /// sbatch script or under salloc; docs/guide/slurm.md).
+    #[arg(long, value_name = "FILE|slurm")]
     pub hosts: Option<PathBuf>,
     /// Serve a live web viewer of the run at ADDR (default 127.0.0.1:0: a free port); the
     /// address is printed and written to the run directory as `view.addr`.

@@ -14,7 +14,7 @@ use world_server::scenario::resolve;
 use super::args::RunArgs;
 use crate::process::hosts::{Host, Hosts, Placement};
 use crate::process::ports::{endpoint, free_ports};
-use crate::process::remote;
+use crate::process::{remote, slurm};
 
 /// Everything decided before the first process starts.
 pub struct Plan {
@@ -81,38 +81,21 @@ impl Ports {
         let mut wants = vec![Process::WorldServer, Process::Netem];
         wants.extend((0..n).map(node));
         wants.extend(pairs.iter().map(|_| Process::Netem));
-        let mut pools: BTreeMap<String, (IpAddr, VecDeque<u16>)> = BTreeMap::new();
-        match placement {
+        let mut pools: BTreeMap<IpAddr, VecDeque<u16>> = match placement {
             None => {
-                let ports = free_ports(wants.len())?;
-                pools.insert(
-                    String::new(),
-                    (IpAddr::V4(Ipv4Addr::LOCALHOST), ports.into()),
-                );
+                let local = IpAddr::V4(Ipv4Addr::LOCALHOST);
+                BTreeMap::from([(local, free_ports(wants.len())?.into())])
             }
-            Some(p) => {
-                let exe = std::env::current_exe().context("locating the swarm binary")?;
-                for (name, procs) in p.by_host() {
-                    let Some(host) = procs.first().and_then(|&q| p.host(q)) else {
-                        continue;
-                    };
-                    let k = wants.iter().filter(|w| procs.contains(w)).count();
-                    let info = remote::ask(host, &exe, k, HOST_INFO_WAIT)?;
-                    pools.insert(name.to_string(), (host.address, info.ports.into()));
-                }
-            }
-        }
+            Some(p) => ask_hosts(p, &wants)?,
+        };
         let mut next = |process: Process| -> anyhow::Result<SocketAddr> {
-            let key = placement
+            let ip = placement
                 .and_then(|p| p.host(process))
-                .map_or_else(String::new, |h| h.name.clone());
-            let (ip, pool) = pools
-                .get_mut(&key)
-                .with_context(|| format!("no host for {process}"))?;
-            let port = pool
-                .pop_front()
-                .with_context(|| format!("no port left for {process}"))?;
-            Ok(SocketAddr::new(*ip, port))
+                .map_or(IpAddr::V4(Ipv4Addr::LOCALHOST), |h| h.address);
+            let port = (pools.get_mut(&ip))
+                .and_then(VecDeque::pop_front)
+                .with_context(|| format!("no port left for {process} on {ip}"))?;
+            Ok(SocketAddr::new(ip, port))
         };
         let sim = next(Process::WorldServer)?;
         let http = next(Process::Netem)?;
@@ -142,6 +125,33 @@ impl Ports {
     }
 }
 
+/// Asks every host for the free ports its processes bind (`swarm host-info`, which also checks
+/// its protocol version): hosts that share an address (one machine under several names, as
+/// Slurm nodes on one host may be) share one pool, asked of the first of them, so that no two
+/// processes get one port.
+fn ask_hosts(p: &Placement, wants: &[Process]) -> anyhow::Result<BTreeMap<IpAddr, VecDeque<u16>>> {
+    let exe = std::env::current_exe().context("locating the swarm binary")?;
+    let mut by_address: BTreeMap<IpAddr, Vec<(&Host, usize)>> = BTreeMap::new();
+    for procs in p.by_host().into_values() {
+        let Some(host) = procs.first().and_then(|&q| p.host(q)) else {
+            continue;
+        };
+        let k = wants.iter().filter(|w| procs.contains(w)).count();
+        by_address.entry(host.address).or_default().push((host, k));
+    }
+    let mut pools = BTreeMap::new();
+    for (ip, hosts) in by_address {
+        let total = hosts.iter().map(|&(_, k)| k).sum();
+        for (i, &(host, _)) in hosts.iter().enumerate() {
+            let info = remote::ask(host, &exe, if i == 0 { total } else { 0 }, HOST_INFO_WAIT)?;
+            if i == 0 {
+                pools.insert(ip, info.ports.into());
+            }
+        }
+    }
+    Ok(pools)
+}
+
 /// How long a host may take to answer `swarm host-info` (an ssh login included).
 const HOST_INFO_WAIT: Duration = Duration::from_secs(30);
 
@@ -154,6 +164,7 @@ pub fn prepare(args: &RunArgs) -> anyhow::Result<Plan> {
     let scenario_file = dir.join("scenario.toml");
     std::fs::write(&scenario_file, scenario.to_toml()).context("writing scenario.toml")?;
     let placement = match &args.hosts {
+        Some(word) if slurm::is_allocation(word) => Some(slurm::allocation()?.place(&scenario)?),
         Some(file) => Some(Hosts::load(file)?.place(&scenario)?),
         None => None,
     };

@@ -314,6 +314,13 @@ pub fn read_summary(dir: &Path) -> anyhow::Result<Summary> {
     serde_json::from_str(&text).with_context(|| format!("reading {}", path.display()))
 }
 
+/// Whether the run in `dir` is finished: it wrote its summary and was not interrupted (Ctrl-C
+/// or SIGTERM reach the run, which then writes an `interrupted` summary). A summary that does
+/// not read (another schema) counts as not finished. What `swarm sweep` runs again.
+pub fn finished(dir: &Path) -> bool {
+    read_summary(dir).is_ok_and(|s| s.exit_reason != ExitReason::Interrupted)
+}
+
 /// Deserializes an `Option` field that must be present (`null` when empty): without this, serde
 /// reads a missing `Option` field as `None`, and a renamed one would go unnoticed.
 fn required<'de, D, T>(d: D) -> Result<Option<T>, D::Error>

@@ -1,5 +1,5 @@
-//! `swarm sweep`: an experiment file's grid of runs × seeds, run a few at a time and resumable,
-//! then its results, report and plots.
+//! `swarm sweep`: an experiment file's grid of runs × seeds, run a few at a time and resumable
+//! (here, or as a Slurm job array), then its results, report and plots.
 
 /// `[[curve]]` of a sweep report: a `metrics.csv` column over the steps, averaged over seeds.
 pub mod curve;
@@ -11,3 +11,5 @@ pub mod report;
 pub mod results;
 /// Running the grid: resumable, a few runs at a time.
 pub mod runner;
+/// A sweep as a Slurm job array: submitting, waiting, the tasks.
+pub mod slurm;

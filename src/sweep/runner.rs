@@ -57,11 +57,11 @@ use anyhow::{bail, Context};
 use serde::Deserialize;
 
 use crate::run::progress::Progress;
-use crate::rundir::summary::read_summary;
+use crate::rundir::summary::finished;
 use crate::sweep::curve::CurveSpec;
 use crate::sweep::report::{PlotSpec, Spec, TableSpec, TimelineSpec};
 use crate::sweep::results::{check_field, points, Point, Results, Run, FIELDS};
-use proto::exit::ExitReason;
+use crate::sweep::slurm;
 use world_server::scenario::resolve;
 
 /// `swarm sweep` flags.
@@ -90,6 +90,29 @@ pub struct SweepArgs {
     /// identity: give it its own --out.
     #[arg(long, value_name = "KEY=VALUE")]
     pub set: Vec<String>,
+    /// Submit the runs to Slurm as one job array, a task per run, instead of running them
+    /// here; wait for it, then write the results as a local sweep does (docs/guide/slurm.md).
+    /// Resumable: finished runs, and runs still in Slurm's queue, are not submitted again.
+    /// The sweep directory and the swarm binary must be on a file system every node sees;
+    /// --jobs limits the tasks running at once.
+    #[arg(long)]
+    pub slurm: bool,
+    /// With --slurm: an option for sbatch, e.g. --sbatch=--partition=short
+    /// --sbatch=--time=0:30:00 (repeatable).
+    #[arg(
+        long,
+        value_name = "OPTION",
+        allow_hyphen_values = true,
+        requires = "slurm"
+    )]
+    pub sbatch: Vec<String>,
+    /// With --slurm: submit and return without waiting; --collect writes the results later.
+    #[arg(long, requires = "slurm")]
+    pub no_wait: bool,
+    /// Write the results of the runs already in the sweep directory, running none (after
+    /// --slurm --no-wait, or to see a partial sweep); runs not there are counted as failed.
+    #[arg(long, conflicts_with = "slurm")]
+    pub collect: bool,
 }
 
 /// Keeps only the values `only` names (`KEY=VALUE`, as the grid's values are written) of their
@@ -329,13 +352,6 @@ fn check_points(
     Ok(())
 }
 
-/// A run is finished when it wrote its summary, unless it was interrupted (Ctrl-C reaches the
-/// runs too, and each writes an `interrupted` summary): that one runs again.
-/// A summary that does not read (another schema) counts as not finished: the run is run again.
-fn finished(dir: &Path) -> bool {
-    read_summary(dir).is_ok_and(|s| s.exit_reason != ExitReason::Interrupted)
-}
-
 /// Every summary field the experiment names besides the standard ones (`fields`) is a number of
 /// `summary.json` (`plot.y` and `table.columns` are checked with the report's spec).
 fn check_fields(fields: &[String]) -> anyhow::Result<()> {
@@ -423,8 +439,8 @@ impl Plan {
         jobs
     }
 
-    /// `swarm run` of one job, its output thrown away (the run directory has it all).
-    fn command(&self, exe: &Path, (point, seed, dir): &Job) -> Command {
+    /// The words after the binary that run one job: `run --quiet --out DIR --set …`.
+    fn run_argv(&self, (point, seed, dir): &Job) -> Vec<String> {
         let set = (self.sets.iter().cloned())
             .chain(point_sets(&self.points[*point], &self.exp.with))
             .chain([format!("seed={seed}")])
@@ -438,8 +454,15 @@ impl Plan {
             view: None,
             foxglove: None,
         };
+        std::iter::once("run".to_string())
+            .chain(args.to_argv())
+            .collect()
+    }
+
+    /// `swarm run` of one job, its output thrown away (the run directory has it all).
+    fn command(&self, exe: &Path, job: &Job) -> Command {
         let mut cmd = Command::new(exe);
-        cmd.arg("run").args(args.to_argv());
+        cmd.args(self.run_argv(job));
         cmd.stdout(Stdio::null()).stderr(Stdio::null());
         // Killing the sweep kills its runs; each run takes its own processes with it.
         crate::process::children::die_with_parent_std(&mut cmd);
@@ -501,6 +524,27 @@ impl Plan {
         }
     }
 
+    /// Submits the jobs not finished to Slurm as a job array and, unless `--no-wait`, waits
+    /// for it ([`slurm::submit`]); whether it waited.
+    fn submit(&self, jobs: &[Job], args: &SweepArgs) -> anyhow::Result<bool> {
+        let todo = (jobs.iter())
+            .filter(|(_, _, dir)| !finished(dir))
+            .map(|job| slurm::Task {
+                label: format!("{} seed {}", self.points[job.0].id(), job.1),
+                dir: job.2.clone(),
+                argv: self.run_argv(job),
+            })
+            .collect();
+        let opts = slurm::Options {
+            name: &self.exp.name,
+            out: &self.out,
+            sbatch: &args.sbatch,
+            at_once: args.jobs,
+            wait: !args.no_wait,
+        };
+        slurm::submit(&opts, todo)
+    }
+
     /// `runs.csv`, `results.csv`, the plots and `report.md`.
     fn write_results(self, jobs: Vec<Job>) -> anyhow::Result<PathBuf> {
         let mut fields: Vec<String> = FIELDS.iter().map(|f| f.to_string()).collect();
@@ -523,21 +567,36 @@ impl Plan {
     }
 }
 
-/// Runs a sweep; returns the output directory.
-pub fn sweep(args: &SweepArgs) -> anyhow::Result<PathBuf> {
+/// Runs a sweep (here, or on Slurm); returns the output directory once its results are
+/// written (`None`: submitted to Slurm without waiting).
+pub fn sweep(args: &SweepArgs) -> anyhow::Result<Option<PathBuf>> {
     let plan = Plan::load(args)?;
     let jobs = plan.jobs();
-    let parallel = args.jobs.unwrap_or_else(|| {
-        std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1))
-    });
-    plan.run(&jobs, parallel)?;
-    plan.write_results(jobs)
+    if args.collect {
+        let missing = jobs.iter().filter(|(_, _, dir)| !finished(dir)).count();
+        eprintln!(
+            "swarm sweep {}: collecting {} runs, {missing} of them not finished",
+            plan.exp.name,
+            jobs.len()
+        );
+    } else if args.slurm {
+        if !plan.submit(&jobs, args)? {
+            return Ok(None);
+        }
+    } else {
+        let parallel = args.jobs.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1))
+        });
+        plan.run(&jobs, parallel)?;
+    }
+    plan.write_results(jobs).map(Some)
 }
 
 /// `swarm sweep`: runs the experiment and says where it is written.
 pub fn command(args: &SweepArgs) -> anyhow::Result<std::process::ExitCode> {
-    let dir = sweep(args)?;
-    println!("sweep written to {}", dir.display());
+    if let Some(dir) = sweep(args)? {
+        println!("sweep written to {}", dir.display());
+    }
     Ok(std::process::ExitCode::SUCCESS)
 }
 
@@ -612,6 +671,10 @@ mod tests {
                 quick: false,
                 only: Vec::new(),
                 set: Vec::new(),
+                slurm: false,
+                sbatch: Vec::new(),
+                no_wait: false,
+                collect: false,
             };
             Plan::load(&args).map(|_| ()).map_err(|e| format!("{e:#}"))
         };
@@ -660,6 +723,10 @@ mod tests {
                 quick: false,
                 only: Vec::new(),
                 set: vec![set.into()],
+                slurm: false,
+                sbatch: Vec::new(),
+                no_wait: false,
+                collect: false,
             };
             Plan::load(&args)
                 .map(|p| p.sets)
