@@ -18,7 +18,9 @@ struct Cli {
 enum Command {
     /// Run one exploration: start the world-server and N robot-agents, follow them to the end,
     /// write the run directory. Exit code 0 if the exploration completed, 2 if it ended
-    /// incomplete (step limit, all robots idle or dead, interrupted), 1 on error.
+    /// incomplete (step limit, all robots idle or dead, interrupted), 1 on error. Any team
+    /// size runs without extra flags: the world waits for each step as long as the team and
+    /// the machine need (docs/design.md §2.1).
     Run(swarm::run::RunArgs),
     /// Replay one robot exploring alone, without network, through the mapping pipeline
     /// (contours, incremental approximation, edit ops): writes PNGs of G_s, P_t and A_t,
@@ -44,6 +46,9 @@ enum Command {
     /// poses, robots and links as Foxglove's well-known schemas, per-link byte counters — open
     /// it in Foxglove Studio. Prints the file and the messages per topic.
     ExportMcap(swarm::view::export_mcap::ExportArgs),
+    /// List the worlds `world.map` can name: the real maps this binary carries (size in cells
+    /// and metres, resolution, source, licence) and the generated worlds.
+    Maps,
     /// Run a world-server process (what `swarm run` starts; use it to spread a run over machines).
     WorldServer(world_server::cli::Args),
     /// Run one robot-agent process (what `swarm run` starts, once per robot).
@@ -84,6 +89,7 @@ fn main() -> ExitCode {
         Command::ExportMcap(args) => {
             outcome("swarm export-mcap", view::export_mcap::command(&args))
         }
+        Command::Maps => outcome("swarm maps", cmd::maps::command()),
         Command::WorldServer(args) => world_server::cli::main(args),
         Command::RobotAgent(args) => robot_agent::cli::main(args),
         Command::BaseStation(args) => robot_agent::cli::base_main(args),

@@ -26,6 +26,7 @@ mod robot_map;
 mod roles;
 mod runs;
 mod slurm;
+mod standalone;
 mod sweep;
 mod toxiproxy_client;
 mod view;

@@ -24,4 +24,6 @@ pub mod node;
 pub mod pathloss;
 pub mod process;
 pub mod scenario;
+/// How long a lockstep step may take on the wall clock: the world's wait, a robot's patience.
+pub mod step_wait;
 pub mod traverse;

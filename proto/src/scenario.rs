@@ -8,6 +8,7 @@
 //! allowed.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
@@ -736,22 +737,15 @@ pub enum ScenarioError {
 /// The worlds generated from the seed rather than loaded from a file (`world.map`): the one list
 /// that validation, the world-server's generator, error messages and the docs use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+/// What each one is: [`GeneratedWorld::about`].
 pub enum GeneratedWorld {
-    /// Rooms and clutter without a plan.
     Unstructured,
-    /// Offices and unstructured parts side by side.
     Mixed,
-    /// Rooms along corridors.
     Office,
-    /// Simmons et al. (2000), environment A: an office along one corridor.
     Corridor,
-    /// Environment B: an office along two parallel corridors.
     TwoCorridors,
-    /// Environment C: one obstacle-free room.
     Empty,
-    /// Environments D/E: 15 % of the floor covered by random obstacles.
     Random,
-    /// de Hoog et al. (2010)'s library floor: a hall of shelf rows ringed by rooms.
     Library,
 }
 
@@ -779,6 +773,20 @@ impl GeneratedWorld {
             GeneratedWorld::Empty => "empty",
             GeneratedWorld::Random => "random",
             GeneratedWorld::Library => "library",
+        }
+    }
+
+    /// What the world is, in a line (`swarm maps`).
+    pub const fn about(self) -> &'static str {
+        match self {
+            GeneratedWorld::Unstructured => "rooms and clutter without a plan (the thesis's unstructured environment)",
+            GeneratedWorld::Mixed => "offices and unstructured parts side by side (the thesis's mixed environment)",
+            GeneratedWorld::Office => "rooms along corridors (the thesis's office environment)",
+            GeneratedWorld::Corridor => "Simmons et al. (2000), environment A: an office along one corridor",
+            GeneratedWorld::TwoCorridors => "Simmons et al. (2000), environment B: an office along two parallel corridors",
+            GeneratedWorld::Empty => "Simmons et al. (2000), environment C: one obstacle-free room",
+            GeneratedWorld::Random => "Simmons et al. (2000), environments D/E: 15 % of the floor covered by random obstacles",
+            GeneratedWorld::Library => "de Hoog et al. (2010)'s library floor: a hall of shelf rows ringed by rooms",
         }
     }
 
@@ -832,20 +840,36 @@ impl Scenario {
     }
 
     /// The lease of every sim-plane session (wall milliseconds): zenoh's own, 10 s
-    /// ([`SIM_LEASE_MS`]); in lockstep at least as long as the world takes to
-    /// declare a silent robot dead (`dead_after` step timeouts), at most an hour. A process
-    /// starved of CPU on a loaded machine (128 robots on two cores: for more than 10 s) is then
-    /// judged by the world's step clock rather than dropped by zenoh first; one that exits or
-    /// is killed closes its connection and is noticed at once whatever the lease.
+    /// ([`SIM_LEASE_MS`]); in lockstep at least as long as the world takes to declare a silent
+    /// robot dead at the start (`dead_after` start allowances of
+    /// [`crate::step_wait`]), at most an hour. A process starved of CPU on a loaded machine
+    /// (128 robots on two cores: for more than 10 s) is then judged by the world's step clock
+    /// rather than dropped by zenoh first; one that exits or is killed closes its connection
+    /// and is noticed at once whatever the lease.
     pub fn sim_lease_ms(&self) -> u64 {
         match self.clock.mode {
             ClockMode::Lockstep => self
-                .clock
-                .step_timeout_ms
+                .start_step_wait_ms()
                 .saturating_mul(u64::from(self.clock.dead_after))
                 .clamp(SIM_LEASE_MS, LOCKSTEP_RADIO_LEASE_MS),
             ClockMode::Realtime => SIM_LEASE_MS,
         }
+    }
+
+    /// The lockstep wait for a step before one has come in whole: `clock.step_timeout_ms` for
+    /// every 8 nodes ([`crate::step_wait::start_ms`]).
+    pub fn start_step_wait_ms(&self) -> u64 {
+        crate::step_wait::start_ms(self.clock.step_timeout_ms, usize::from(self.nodes()))
+    }
+
+    /// The wall-clock wait for lockstep steps ([`crate::step_wait`]): at least
+    /// `clock.step_timeout_ms`, the start allowance until a step is whole, then ten times the
+    /// longest recent whole step.
+    pub fn step_wait(&self) -> crate::step_wait::StepWait {
+        crate::step_wait::StepWait::new(
+            Duration::from_millis(self.clock.step_timeout_ms),
+            Duration::from_millis(self.start_step_wait_ms()),
+        )
     }
 
     /// The run's step limit: `max_steps`, which resolving a scenario always sets (see
@@ -952,7 +976,7 @@ impl Scenario {
                 "world.map",
                 "\"\"",
                 &format!(
-                    "a map YAML path, a map name from configs/maps, or a generated world: {}",
+                    "a map YAML path, a shipped map's name (`swarm maps`), or a generated world: {}",
                     GeneratedWorld::names()
                 ),
             ));

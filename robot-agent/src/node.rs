@@ -12,6 +12,7 @@ use proto::keys;
 use proto::msg::{decode, encode, Cmd, Control, LinkPlan, RobotId, Scan, Step, WorldInfo};
 use proto::node::{zerr, ZenohError};
 use proto::scenario::Scenario;
+use proto::step_wait::StepWait;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Subscriber;
@@ -308,7 +309,9 @@ pub async fn run_robot(
         radio: &radio,
         radio_keys: RadioKeys::with_inbox(&radio, id).await,
         subs: &subs,
-        idle: idle_timeout,
+        idle: std::cell::Cell::new(idle_timeout),
+        idle_floor: idle_timeout,
+        step_wait: s.step_wait(),
         peers: (0..s.nodes())
             .filter(|&r| r != id)
             .filter_map(|r| Some((proto::node::radio_zid(r).parse().ok()?, r)))
@@ -328,7 +331,14 @@ struct Planes<'a> {
     radio: &'a Session,
     radio_keys: RadioKeys,
     subs: &'a Subs,
-    idle: Duration,
+    /// How long the world may be silent before the robot takes it for gone: the node's idle
+    /// timeout, or in lockstep twice the world's step wait as the robot sees its steps, if
+    /// longer ([`Planes::patience`]).
+    idle: std::cell::Cell<Duration>,
+    /// The node's own idle timeout (`--idle-timeout-s`).
+    idle_floor: Duration,
+    /// The world's step wait before any step is seen.
+    step_wait: StepWait,
     /// Every other robot of the run, by its radio session's zenoh id.
     peers: BTreeMap<ZenohId, RobotId>,
 }
@@ -349,6 +359,13 @@ fn session_poll_max(team: usize) -> Duration {
 }
 
 impl Planes<'_> {
+    /// Follows the world's step wait ([`proto::step_wait`]) from the steps this robot sees:
+    /// it never takes the world for gone while the world may still be waiting for a robot.
+    fn patience(&self, wait: &StepWait) {
+        self.idle
+            .set(self.idle_floor.max(wait.limit().saturating_mul(2)));
+    }
+
     /// The robots this one has a radio session with (not through another robot).
     async fn sessions(&self) -> BTreeSet<RobotId> {
         self.radio
@@ -364,7 +381,7 @@ impl Planes<'_> {
 /// traffic as it arrives.
 async fn as_it_comes(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
     loop {
-        match p.subs.next(p.idle).await {
+        match p.subs.next(p.idle.get()).await {
             Event::Scan(scan) => {
                 let cmd = agent.on_scan(&scan);
                 put_sim(p.sim, keys::cmd(p.id), encode(&cmd)).await?;
@@ -392,15 +409,23 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
     let mut ls = Lockstep::default();
     // Answers produced while taking a step's arrivals: sent with the next step's traffic.
     let mut answers = Vec::new();
+    // The world's step wait, from the steps as this robot sees them start.
+    let (mut wait, mut last) = (p.step_wait.clone(), None::<(Step, tokio::time::Instant)>);
     loop {
         let t = loop {
             if let Some(t) = ls.ready() {
                 break t;
             }
-            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle).await) {
+            if let Some(end) = note(&mut ls, &mut agent, p.subs.next(p.idle.get()).await) {
                 return Ok(end);
             }
         };
+        let now = tokio::time::Instant::now();
+        if let Some((_, at)) = last.filter(|&(before, _)| before + 1 == t) {
+            wait.whole(now - at);
+            p.patience(&wait);
+        }
+        last = Some((t, now));
         let Some((scan, plan)) = ls.start(p.id, t) else {
             continue;
         };
@@ -499,7 +524,7 @@ async fn await_sessions(
             put_sim(p.sim, keys::cmd(p.id), encode(&late)).await?;
             return Ok(Wait::Skipped);
         }
-        if let Ok(e) = tokio::time::timeout(poll, p.subs.next(p.idle)).await {
+        if let Ok(e) = tokio::time::timeout(poll, p.subs.next(p.idle.get())).await {
             if let Some(end) = note(ls, agent, e) {
                 return Ok(Wait::Ended(end));
             }
@@ -525,7 +550,7 @@ async fn await_marks(
             put_sim(p.sim, keys::cmd(p.id), encode(cmd)).await?;
             return Ok(Wait::Skipped);
         }
-        if let Some(end) = note(ls, agent, p.subs.next(p.idle).await) {
+        if let Some(end) = note(ls, agent, p.subs.next(p.idle.get()).await) {
             return Ok(Wait::Ended(end));
         }
     }

@@ -78,7 +78,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<(PathBuf, ReplaySummary)> {
     if !(args.splits >= 0.0 && args.splits.is_finite()) {
         anyhow::bail!("--splits {}: must be a finite number ≥ 0", args.splits);
     }
-    let mut world = World::build(&resolved.scenario, resolved.map_file.as_deref())?;
+    let mut world = World::build(&resolved.scenario, resolved.map.as_ref())?;
     let name = resolved.name();
     let mut scenario = resolved.scenario;
     scenario.world.map = name.clone();

@@ -201,7 +201,7 @@ fn nondeterministic(plan: &Plan, rec: &Record) -> Vec<String> {
     for st in &rec.statuses {
         if !st.missed.is_empty() {
             why.push(format!(
-                "step {}: the world went on without the commands of robots {:?} (clock.step_timeout_ms)",
+                "step {}: the world went on without the commands of robots {:?} (its step wait ran out: clock.step_timeout_ms, docs/design.md §2.1)",
                 st.step.saturating_sub(1),
                 st.missed
             ));

@@ -292,11 +292,12 @@ fn node_args(plan: &Plan, i: RobotId) -> robot_agent::cli::NodeArgs {
         plan.scenario_file.clone(),
         sim_client(plan, secrets::node(plan, i)),
     );
-    // The world may take a step timeout to decide a step, and a robot waiting on its neighbours'
-    // markers hears nothing meanwhile: it takes the world for gone only after two of them (a
-    // big team's first step, every session forming at once, can take minutes).
-    let step_timeout_s = plan.scenario.clock.step_timeout_ms as f64 / 1000.0;
-    args.idle_timeout_s = args.idle_timeout_s.max(2.0 * step_timeout_s);
+    // The world may take its step wait to decide a step, and a robot waiting on its neighbours'
+    // markers hears nothing meanwhile: it takes the world for gone only after two of them
+    // (a big team's first step, every session forming at once, takes the start allowance;
+    // the robot follows the wait from there, proto::step_wait).
+    let start_s = plan.scenario.start_step_wait_ms() as f64 / 1000.0;
+    args.idle_timeout_s = args.idle_timeout_s.max(2.0 * start_s);
     args.radio_listen = vec![endpoint(plan.ports.radio[usize::from(i)])];
     args.radio_connect = (plan.ports.pairs.iter())
         .filter(|&&(a, _, _)| a == i)

@@ -17,6 +17,7 @@ use proto::geom::Metres;
 use proto::grid::{Cell, Occ};
 use proto::msg::{Cmd, RobotId, Step};
 use proto::scenario::Scenario;
+use world_server::shipped::MapSource;
 use world_server::world::World;
 
 const REGION: u32 = 300;
@@ -64,7 +65,8 @@ fn step_by_map_size(c: &mut Criterion) {
         s.world.map = format!("truth_{size}");
         s.world.resolution_m = resolution;
         s.robots.count = ROBOTS;
-        let mut world = World::build(&s, Some(&yaml)).unwrap_or_else(|e| panic!("{e}"));
+        let mut world =
+            World::build(&s, Some(&MapSource::File(yaml))).unwrap_or_else(|e| panic!("{e}"));
         let mut step: Step = 0;
         group.bench_function(BenchmarkId::from_parameter(format!("{size}x{size}")), |b| {
             b.iter(|| {

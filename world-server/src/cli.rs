@@ -58,7 +58,7 @@ impl Args {
 /// Builds the world of a scenario file (also used by tests and the launcher's dry checks).
 pub fn build_world(args: &Args) -> anyhow::Result<(Scenario, World)> {
     let r = resolve(Some(&args.scenario.file), &args.scenario.set)?;
-    let world = World::build(&r.scenario, r.map_file.as_deref())?;
+    let world = World::build(&r.scenario, r.map.as_ref())?;
     Ok((r.scenario, world))
 }
 

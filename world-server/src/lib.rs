@@ -24,5 +24,7 @@ pub mod refusals;
 pub mod scenario;
 /// The clock and the sim-plane protocol over zenoh.
 pub mod server;
+/// The maps the binary carries, and where a scenario's map comes from.
+pub mod shipped;
 /// The world's state and its step.
 pub mod world;

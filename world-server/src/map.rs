@@ -124,11 +124,15 @@ pub fn load_ros_map(yaml_path: &Path) -> Result<TruthMap, MapError> {
         path: yaml.image.clone(),
         reason,
     })?;
-    let grid =
-        crate::image::decode(&bytes, &yaml.thresholds).map_err(|reason| MapError::Image {
-            path: yaml.image.clone(),
-            reason,
-        })?;
+    map_of(&yaml, &bytes)
+}
+
+/// The map a parsed YAML describes, from its image's bytes.
+pub fn map_of(yaml: &MapYaml, image: &[u8]) -> Result<TruthMap, MapError> {
+    let grid = crate::image::decode(image, &yaml.thresholds).map_err(|reason| MapError::Image {
+        path: yaml.image.clone(),
+        reason,
+    })?;
     let info = MapInfo {
         width: grid.width(),
         height: grid.height(),

@@ -11,20 +11,18 @@ use proto::grid::Occ;
 use proto::scenario::GeneratedWorld;
 use proto::scenario::Scenario;
 
-use crate::map::load_ros_map;
+use crate::shipped::{MapSource, Shipped};
 use crate::world::World;
 
 /// The embedded default scenario (`configs/default.toml`).
 pub const DEFAULT_SCENARIO: &str = include_str!("../../configs/default.toml");
 
-/// Where shipped maps live in the source tree (for runs from a checkout).
-pub const SHIPPED_MAPS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/maps");
-
-/// A resolved scenario and its map file (`None` for a generated world).
+/// A resolved scenario and where its map comes from (`None` for a generated world).
 pub struct Resolved {
-    /// `world.map` is the map file's absolute path, unless the world is generated.
+    /// `world.map` is the map file's absolute path, or the name of a map the binary carries,
+    /// unless the world is generated.
     pub scenario: Scenario,
-    pub map_file: Option<PathBuf>,
+    pub map: Option<MapSource>,
 }
 
 impl Resolved {
@@ -49,48 +47,54 @@ pub fn resolve(file: Option<&Path>, set: &[String]) -> anyhow::Result<Resolved> 
             PathBuf::from("."),
         ),
     };
-    let map_file = if s.world_is_generated() {
+    let map = if s.world_is_generated() {
         None
     } else {
-        let map = locate_map(&s.world.map, &base)?;
-        let map = map
-            .canonicalize()
-            .with_context(|| format!("resolving {}", map.display()))?;
-        s.world.map = map.to_string_lossy().into_owned();
+        let map = match locate_map(&s.world.map, &base)? {
+            MapSource::File(file) => MapSource::File(
+                file.canonicalize()
+                    .with_context(|| format!("resolving {}", file.display()))?,
+            ),
+            shipped => shipped,
+        };
+        s.world.map = match &map {
+            MapSource::File(file) => file.to_string_lossy().into_owned(),
+            MapSource::Shipped(m) => m.name.to_string(),
+        };
         Some(map)
     };
     if let Some(pct) = s.radio.range_pct_of_diagonal {
-        s.radio.range_m = pct / 100.0 * environment_diagonal_m(&s, map_file.as_deref())?;
+        s.radio.range_m = pct / 100.0 * environment_diagonal_m(&s, map.as_ref())?;
     }
     if s.max_steps.is_none() {
-        let world = World::build(&s, map_file.as_deref())?;
+        let world = World::build(&s, map.as_ref())?;
         s.max_steps = Some(s.derived_max_steps(world.reachable.count(Occ::Free)));
     }
-    Ok(Resolved {
-        scenario: s,
-        map_file,
-    })
+    Ok(Resolved { scenario: s, map })
 }
 
-/// Finds the map YAML of `world.map`: a path (relative to `base`), or a map name looked up in
-/// `base`, `base/maps`, `./configs/maps` and the source tree's `configs/maps`.
-pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<PathBuf> {
+/// Finds the map of `world.map`: a map YAML's path (relative to `base`); or a map name, looked
+/// up as `NAME.yaml` in `base`, `base/maps` and `./configs/maps` — a file on disk wins — and
+/// then among the maps the binary carries ([`crate::shipped`]).
+pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<MapSource> {
     let direct = base.join(name);
     if direct.is_file() {
-        return Ok(direct);
+        return Ok(MapSource::File(direct));
     }
     let file = format!("{name}.yaml");
     let dirs = [
         base.to_path_buf(),
         base.join("maps"),
         PathBuf::from("configs/maps"),
-        PathBuf::from(SHIPPED_MAPS),
     ];
     if let Some(found) = dirs.iter().map(|d| d.join(&file)).find(|p| p.is_file()) {
-        return Ok(found);
+        return Ok(MapSource::File(found));
+    }
+    if let Some(m) = Shipped::find(name) {
+        return Ok(MapSource::Shipped(m));
     }
     // Not found: name what there is, so that a typo is one look away from its fix.
-    let mut maps: Vec<String> = dirs
+    let mut on_disk: Vec<String> = dirs
         .iter()
         .filter_map(|d| std::fs::read_dir(d).ok())
         .flatten()
@@ -99,16 +103,23 @@ pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<PathBuf> {
             let name = e.file_name().to_string_lossy().into_owned();
             name.strip_suffix(".yaml").map(str::to_string)
         })
+        .filter(|n| Shipped::find(n).is_none())
         .collect();
-    maps.sort();
-    maps.dedup();
+    on_disk.sort();
+    on_disk.dedup();
+    let on_disk = if on_disk.is_empty() {
+        String::new()
+    } else {
+        format!("; map files here: {}", on_disk.join("|"))
+    };
     bail!(
-        "world.map = {name:?}: no such map file, and no {file} in {}; maps: {}; generated worlds: {}",
+        "world.map = {name:?}: no such map file, no {file} in {}, and no map of that name in \
+         this binary; shipped maps: {}{on_disk}; generated worlds: {} (`swarm maps` lists them)",
         dirs.iter()
             .map(|d| d.display().to_string())
             .collect::<Vec<_>>()
             .join(", "),
-        if maps.is_empty() { "none found".to_string() } else { maps.join("|") },
+        Shipped::names(),
         GeneratedWorld::names()
     )
 }
@@ -116,11 +127,11 @@ pub fn locate_map(name: &str, base: &Path) -> anyhow::Result<PathBuf> {
 /// The diagonal of the environment's rectangle: a generated world's extent, or the bounding box
 /// of a map's known (free or occupied) cells at the map's own resolution — the thesis's
 /// "maximum communication range".
-pub fn environment_diagonal_m(s: &Scenario, map_file: Option<&Path>) -> anyhow::Result<f64> {
-    let Some(path) = map_file else {
+pub fn environment_diagonal_m(s: &Scenario, map: Option<&MapSource>) -> anyhow::Result<f64> {
+    let Some(source) = map else {
         return Ok(s.world.width_m.hypot(s.world.height_m));
     };
-    let map = load_ros_map(path)?;
+    let map = source.load()?;
     let g = &map.grid;
     let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
     for (i, &v) in g.cells().iter().enumerate() {
@@ -131,7 +142,7 @@ pub fn environment_diagonal_m(s: &Scenario, map_file: Option<&Path>) -> anyhow::
         }
     }
     if x0 > x1 {
-        bail!("{}: the map has no known cell", path.display());
+        bail!("world.map = {:?}: the map has no known cell", s.world.map);
     }
     let cells = f64::from(x1 - x0 + 1).hypot(f64::from(y1 - y0 + 1));
     Ok(cells * map.info.resolution_m)
@@ -153,19 +164,16 @@ mod tests {
     }
 
     #[test]
-    fn the_default_resolves_to_an_absolute_map_and_a_range_from_the_diagonal() {
+    fn the_default_resolves_to_the_carried_map_and_a_range_from_the_diagonal() {
         let r = resolve(None, &["radio.range_pct_of_diagonal=50".into()])
             .unwrap_or_else(|e| panic!("{e:#}"));
-        let map = r.map_file.clone().unwrap_or_default();
-        assert!(map.is_absolute() && map.is_file(), "{}", map.display());
-        assert_eq!(r.scenario.world.map, map.to_string_lossy());
-        let d = environment_diagonal_m(&r.scenario, Some(&map)).unwrap_or_default();
+        // Run from the crate's directory: no configs/maps here, so the carried map.
+        assert_eq!(r.map, Shipped::find("intel_lab").map(MapSource::Shipped));
+        assert_eq!(r.scenario.world.map, "intel_lab");
+        let d = environment_diagonal_m(&r.scenario, r.map.as_ref()).unwrap_or_default();
         assert!(d > 1.0);
         assert!((r.scenario.radio.range_m - d / 2.0).abs() < 1e-9);
-        assert_eq!(
-            r.name(),
-            map.file_stem().unwrap_or_default().to_string_lossy()
-        );
+        assert_eq!(r.name(), "intel_lab");
     }
 
     #[test]
@@ -198,7 +206,7 @@ mod tests {
             "radio.range_pct_of_diagonal=10".into(),
         ];
         let r = resolve(None, &set).unwrap_or_else(|e| panic!("{e:#}"));
-        assert!(r.map_file.is_none());
+        assert!(r.map.is_none());
         assert_eq!(r.name(), "office");
         assert!((r.scenario.radio.range_m - 5.0).abs() < 1e-9);
     }

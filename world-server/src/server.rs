@@ -2,8 +2,8 @@
 //! [`World`] over zenoh.
 //!
 //! Per step t: publish every live robot's scan for t; collect commands for t until all live
-//! robots answered (lockstep) or the step timed out (`step_timeout_ms`; realtime: the step
-//! period); apply them; publish [`proto::msg::Status`] for t+1. A robot whose sim-plane
+//! robots answered (lockstep) or the step timed out (lockstep: [`proto::step_wait`], at least
+//! `step_timeout_ms`; realtime: the step period); apply them; publish [`proto::msg::Status`] for t+1. A robot whose sim-plane
 //! liveliness token vanishes is dead at once; one that misses `dead_after` steps in a row too.
 //! A dead robot that shows life again — its token appears (a restarted process) or it sends a
 //! command (a thawed one) — is alive again from the next step, where it stood.
@@ -296,10 +296,8 @@ impl SimPlane<'_> {
     /// Steps the world until the run ends: scans out, commands in, the world moved, status out.
     async fn run(&mut self) -> Result<End, ZenohError> {
         let clock = &self.s.clock;
-        let timeout = match clock.mode {
-            ClockMode::Lockstep => Duration::from_millis(clock.step_timeout_ms),
-            ClockMode::Realtime => Duration::from_secs_f64(clock.step_seconds / clock.speedup),
-        };
+        let period = Duration::from_secs_f64(clock.step_seconds / clock.speedup);
+        let mut wait = self.s.step_wait();
         let max_steps = self.s.step_limit();
         let mut step: Step = 0;
         put(self.session, keys::STATUS, encode(&self.world.status(step))).await?;
@@ -321,8 +319,12 @@ impl SimPlane<'_> {
                 return Ok(End::Stopped { step });
             }
             let started = Instant::now();
+            let limit = match self.s.clock.mode {
+                ClockMode::Lockstep => wait.limit(),
+                ClockMode::Realtime => period,
+            };
             self.publish_scans(&alive, step).await?;
-            let Some(got) = self.commands(step, started + timeout).await else {
+            let Some(got) = self.commands(step, started + limit).await else {
                 return Ok(End::Stopped { step });
             };
             // Lockstep: whom the world went on without (the step timed out).
@@ -332,10 +334,20 @@ impl SimPlane<'_> {
                     .collect(),
                 ClockMode::Realtime => Vec::new(),
             };
-            if !missed.is_empty() {
-                tracing::warn!("step {step} timed out without the commands of robots {missed:?}");
+            if missed.is_empty() {
+                wait.whole(started.elapsed());
+            } else {
+                tracing::warn!(
+                    "step {step} timed out after {limit:?} without the commands of robots {missed:?}"
+                );
             }
             self.world.apply(step, &got);
+            for id in missed.iter().filter(|&&id| !self.world.is_awaited(id)) {
+                tracing::warn!(
+                    "robot {id} missed {} steps in a row: declared dead at step {step}",
+                    self.s.clock.dead_after
+                );
+            }
             step += 1;
             let mut status = self.world.status(step);
             status.missed = missed;

@@ -5,7 +5,6 @@
 //! the scans this module casts.
 
 use std::collections::HashMap;
-use std::path::Path;
 
 use proto::geom::{LaserSpec, MapInfo, Metres, Pose};
 use proto::grid::Grid;
@@ -15,9 +14,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::generate::{generate, GenError};
-use crate::map::{load_ros_map, resample, MapError};
+use crate::map::{resample, MapError};
 use crate::motion::Crowd;
 use crate::reachable::{reachable_free, spawn_cluster, SpawnError};
+use crate::shipped::MapSource;
 use proto::scenario::GeneratedWorld;
 
 /// Why a world could not be built.
@@ -78,9 +78,9 @@ pub struct World {
 }
 
 impl World {
-    /// Builds the world of a scenario: loads (`map_file`) or generates the truth, resamples it to
+    /// Builds the world of a scenario: loads (`map`: a file or a carried map) or generates the truth, resamples it to
     /// `world.resolution_m`, places the robots and computes the reachable region from them.
-    pub fn build(s: &Scenario, map_file: Option<&Path>) -> Result<World, WorldError> {
+    pub fn build(s: &Scenario, map: Option<&MapSource>) -> Result<World, WorldError> {
         let truth = match s.world.map.as_str() {
             name if s.world_is_generated() => {
                 let kind: GeneratedWorld = name.parse().map_err(GenError::UnknownKind)?;
@@ -93,8 +93,8 @@ impl World {
                 )?
             }
             other => {
-                let path = map_file.ok_or_else(|| WorldError::NoMapFile(other.into()))?;
-                resample(&load_ros_map(path)?, s.world.resolution_m)?
+                let source = map.ok_or_else(|| WorldError::NoMapFile(other.into()))?;
+                resample(&source.load()?, s.world.resolution_m)?
             }
         };
         let spawn = spawn_cluster(
@@ -336,6 +336,11 @@ impl World {
     pub fn awaited(&self) -> impl Iterator<Item = RobotId> + '_ {
         self.alive()
             .chain(self.base.iter().filter(|b| b.alive).map(|b| b.id))
+    }
+
+    /// Whether the world waits for node `id` in a step (it is alive).
+    pub fn is_awaited(&self, id: RobotId) -> bool {
+        self.awaited().any(|a| a == id)
     }
 
     /// Node ids: the robots, then the base station.
