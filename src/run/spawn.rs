@@ -249,6 +249,10 @@ fn sim_lease(plan: &Plan) -> Vec<String> {
     )]
 }
 
+/// How long the world waits for every node to join, per node, when that is longer than its
+/// default (60 s): 0.5 s.
+const JOIN_S_PER_NODE: f64 = 0.5;
+
 fn world_server_argv(plan: &Plan) -> Vec<String> {
     let router = ZenohArgs {
         listen: vec![plan.ports.sim_endpoint()],
@@ -256,7 +260,11 @@ fn world_server_argv(plan: &Plan) -> Vec<String> {
         cfg: sim_lease(plan),
         ..ZenohArgs::default()
     };
-    let args = world_server::cli::Args::new(plan.scenario_file.clone(), router);
+    let mut args = world_server::cli::Args::new(plan.scenario_file.clone(), router);
+    // Every node must join before step 0: the launcher starts them one after the other, so a
+    // big team takes longer (half a second a node on a loaded machine, beyond the default).
+    let nodes = f64::from(plan.scenario.nodes());
+    args.startup_timeout_s = args.startup_timeout_s.max(JOIN_S_PER_NODE * nodes);
     ["world-server".to_string()]
         .into_iter()
         .chain(args.to_argv())
