@@ -177,3 +177,22 @@ fn a_range_given_as_a_share_of_the_diagonal_becomes_metres() {
     let intel = range("intel_lab");
     assert!((15.0..25.0).contains(&intel), "{intel}");
 }
+
+#[test]
+fn hosts_slurm_outside_an_allocation_is_refused_before_anything_starts() {
+    let dir = TempDir::new("hosts-slurm");
+    let out = dir.path().join("run");
+    let o = Command::new(SWARM)
+        .args(["run", "--hosts", "slurm", "--out"])
+        .arg(&out)
+        .env_remove("SLURM_JOB_NODELIST")
+        .output()
+        .expect("swarm run");
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("not inside a Slurm allocation") && err.contains("salloc"),
+        "{err}"
+    );
+    assert!(!out.exists(), "no run directory is made");
+}

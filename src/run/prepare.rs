@@ -160,14 +160,15 @@ pub fn prepare(args: &RunArgs) -> anyhow::Result<Plan> {
     let resolved = resolve(args.scenario.as_deref(), &args.set)?;
     let name = resolved.name();
     let scenario = resolved.scenario;
-    let dir = run_dir(args, &name, scenario.robots.count)?;
-    let scenario_file = dir.join("scenario.toml");
-    std::fs::write(&scenario_file, scenario.to_toml()).context("writing scenario.toml")?;
+    // Where everything goes is checked before the run directory is made.
     let placement = match &args.hosts {
         Some(word) if slurm::is_allocation(word) => Some(slurm::allocation()?.place(&scenario)?),
         Some(file) => Some(Hosts::load(file)?.place(&scenario)?),
         None => None,
     };
+    let dir = run_dir(args, &name, scenario.robots.count)?;
+    let scenario_file = dir.join("scenario.toml");
+    std::fs::write(&scenario_file, scenario.to_toml()).context("writing scenario.toml")?;
     let ports = Ports::pick(&scenario, placement.as_ref())?;
     Ok(Plan {
         scenario,
