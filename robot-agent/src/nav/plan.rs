@@ -52,6 +52,9 @@ pub struct CostMap {
     start: Cell,
     /// Cost per row-major cell index of the window; `f64::INFINITY` when unreachable.
     dist: Vec<f64>,
+    /// The search's free cells over the window and a border of one cell (row-major, 1: free):
+    /// a move's test is an index away, with no bounds to check.
+    free: Vec<u8>,
     /// Predecessor on a shortest path per cell index; [`NO_PRED`] for the start and unreachable
     /// cells.
     pred: Vec<u32>,
@@ -70,6 +73,7 @@ impl Default for CostMap {
             height: 0,
             start: Cell::new(-1, -1),
             dist: Vec::new(),
+            free: Vec::new(),
             pred: Vec::new(),
             limit: f64::INFINITY,
         }
@@ -99,6 +103,26 @@ impl CostMap {
         let (x, y) = (c.x - self.x0, c.y - self.y0);
         let inside = x >= 0 && y >= 0 && (x as u32) < self.width && (y as u32) < self.height;
         inside.then(|| y as usize * self.width as usize + x as usize)
+    }
+
+    /// Starts a search from `sources` over `g`: the window — the known part and the sources
+    /// inside the grid — every cost unknown, no predecessor.
+    fn begin(&mut self, g: &Grid, sources: &[Cell]) -> Option<Rect> {
+        let window = (sources.iter().filter(|&&c| g.contains(c)))
+            .fold(g.known_bounds(), |r, &c| {
+                Rect::union_of(r, Some(Rect::cell(c)))
+            });
+        let (x0, y0, width, height) =
+            window.map_or((0, 0, 0, 0), |r| (r.min.x, r.min.y, r.width(), r.height()));
+        let start = sources.first().copied().unwrap_or(Cell::new(-1, -1));
+        (self.x0, self.y0, self.width, self.height, self.start) = (x0, y0, width, height, start);
+        let cells = width as usize * height as usize;
+        self.limit = f64::INFINITY;
+        self.dist.clear();
+        self.dist.resize(cells, f64::INFINITY);
+        self.pred.clear();
+        self.pred.resize(cells, NO_PRED);
+        window
     }
 
     fn cell_of(&self, i: usize) -> Cell {
@@ -133,7 +157,9 @@ impl PartialOrd for Entry {
 }
 
 /// The moves allowed out of `c`: into free cells, 8-connected, diagonals only between two free
-/// orthogonal neighbours. Returns (neighbour, step cost).
+/// orthogonal neighbours. Returns (neighbour, step cost). The rule, cell by cell: the search
+/// reads it from a bordered copy of the free cells, and its property tests hold it to this.
+#[cfg(test)]
 fn moves(g: &Grid, c: Cell) -> impl Iterator<Item = (Cell, f64)> + '_ {
     let free = move |x: i32, y: i32| g.get(Cell::new(x, y)) == Occ::Free;
     MOVES.iter().filter_map(move |&(dx, dy)| {
@@ -255,22 +281,8 @@ fn dijkstra(
     penalty: Option<&[f32]>,
     until: Option<Cell>,
 ) {
-    let start = sources.first().copied().unwrap_or(Cell::new(-1, -1));
-    let window = sources
-        .iter()
-        .filter(|&&c| g.contains(c))
-        .fold(g.known_bounds(), |r, &c| {
-            Rect::union_of(r, Some(Rect::cell(c)))
-        });
-    let (x0, y0, width, height) =
-        window.map_or((0, 0, 0, 0), |r| (r.min.x, r.min.y, r.width(), r.height()));
-    let cells = width as usize * height as usize;
-    (map.x0, map.y0, map.width, map.height, map.start) = (x0, y0, width, height, start);
-    map.limit = f64::INFINITY;
-    map.dist.clear();
-    map.dist.resize(cells, f64::INFINITY);
-    map.pred.clear();
-    map.pred.resize(cells, NO_PRED);
+    let window = map.begin(g, sources);
+    let (x0, y0, width) = (map.x0, map.y0, map.width);
     let stop = until.and_then(|c| map.index(c));
     let mut heap = BinaryHeap::new();
     for &c in sources {
@@ -282,6 +294,10 @@ fn dijkstra(
             });
         }
     }
+    let pw = width as usize + 2;
+    fill_free(&mut map.free, g, window, pw);
+    let offsets = move_offsets(width, pw);
+    let gw = g.width() as isize;
     while let Some(Entry { cost, index }) = heap.pop() {
         if cost > map.dist[index] {
             continue;
@@ -293,11 +309,24 @@ fn dijkstra(
             map.limit = cost;
             break;
         }
-        for (n, step) in moves(g, map.cell_of(index)) {
-            // `moves` yields only free cells, which lie inside the grid.
-            let Some(ni) = map.index(n) else { continue };
+        let (x, y) = (index % width as usize, index / width as usize);
+        let at = (y + 1) * pw + x + 1;
+        // The moves of `moves`, in its order: into free cells, diagonals only between two
+        // free orthogonal neighbours.
+        for &(d, pd, between, step) in &offsets {
+            let free = |o: isize| map.free[at.wrapping_add_signed(o)] != 0;
+            if !free(pd) || between.is_some_and(|(a, b)| !free(a) || !free(b)) {
+                continue;
+            }
+            let ni = index.wrapping_add_signed(d);
             let extra = penalty
-                .and_then(|p| p.get(g.index(n)?))
+                .and_then(|p| {
+                    let (nx, ny) = (
+                        x0 as isize + (ni % width as usize) as isize,
+                        y0 as isize + (ni / width as usize) as isize,
+                    );
+                    p.get(usize::try_from(ny * gw + nx).ok()?)
+                })
                 .map_or(0.0, |&p| f64::from(p));
             let next = cost + step * (1.0 + extra);
             if next < map.dist[ni] {
@@ -312,16 +341,82 @@ fn dijkstra(
     }
 }
 
+/// A move's offsets ([`move_offsets`]).
+type MoveOffsets = (isize, isize, Option<(isize, isize)>, f64);
+
+/// Per move of [`MOVES`]: the neighbour's offset in a window `width` cells wide, its offset in
+/// the bordered free cells (`pw` wide), the two orthogonal cells a diagonal passes between
+/// (bordered), and the step's length.
+fn move_offsets(width: u32, pw: usize) -> [MoveOffsets; 8] {
+    let (w, pw) = (width as isize, pw as isize);
+    MOVES.map(|(dx, dy)| {
+        let (dx, dy) = (dx as isize, dy as isize);
+        let diagonal = dx != 0 && dy != 0;
+        let step = if diagonal {
+            std::f64::consts::SQRT_2
+        } else {
+            1.0
+        };
+        let between = diagonal.then_some((dx, dy * pw));
+        (dy * w + dx, dy * pw + dx, between, step)
+    })
+}
+
+/// The free cells of `g` over `window` (none: nothing) into `free`, with a border of one cell
+/// that is never free; `pw` the bordered width.
+fn fill_free(free: &mut Vec<u8>, g: &Grid, window: Option<Rect>, pw: usize) {
+    free.clear();
+    let Some(r) = window else {
+        return;
+    };
+    free.resize(pw * (r.height() as usize + 2), 0);
+    for y in r.min.y..=r.max.y {
+        let at = (y - r.min.y + 1) as usize * pw + 1;
+        let row = g.row(y, r.min.x, r.max.x);
+        for (f, &c) in free[at..at + row.len()].iter_mut().zip(row) {
+            *f = u8::from(c == Occ::Free);
+        }
+    }
+}
+
 /// The frontier cells: reachable free cells with at least one unknown 4-neighbour inside the grid,
 /// in row-major order (bottom row first). Cells beyond the grid's edge do not count as unknown:
 /// the map's extent is known, and nothing lies out there to explore.
 pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
-    // Free cells lie in the known part of the grid.
-    g.known_bounds()
-        .into_iter()
-        .flat_map(Rect::cells)
-        .filter(|&c| is_frontier(g, costs, c))
-        .collect()
+    // Free cells lie in the known part of the grid; a row at a time, its neighbours' rows
+    // beside it (what lies beyond the known part is unknown, beyond the grid nothing).
+    let Some(r) = g.known_bounds() else {
+        return Vec::new();
+    };
+    let (x0, x1) = (r.min.x, r.max.x);
+    let unknown = |c: Occ| c == Occ::Unknown;
+    let side = |x: i32, y: i32| g.contains(Cell::new(x, y)) && unknown(g.get(Cell::new(x, y)));
+    let mut out = Vec::new();
+    for y in r.min.y..=r.max.y {
+        let row = g.row(y, x0, x1);
+        let near = |dy: i32| {
+            g.contains(Cell::new(x0, y + dy))
+                .then(|| g.row(y + dy, x0, x1))
+        };
+        let (below, above) = (near(-1), near(1));
+        for (i, _) in row.iter().enumerate().filter(|(_, &c)| c == Occ::Free) {
+            let x = x0 + i as i32;
+            let frontier = (if i > 0 {
+                unknown(row[i - 1])
+            } else {
+                side(x - 1, y)
+            }) || row
+                .get(i + 1)
+                .map_or_else(|| side(x + 1, y), |&c| unknown(c))
+                || below.is_some_and(|b| unknown(b[i]))
+                || above.is_some_and(|a| unknown(a[i]));
+            let c = Cell::new(x, y);
+            if frontier && costs.cost(c).is_some() {
+                out.push(c);
+            }
+        }
+    }
+    out
 }
 
 /// Whether `c` is one of [`frontiers`]`(g, costs)`.
@@ -878,6 +973,54 @@ mod tests {
                 prop_assert_eq!(path_to(&part, c), path_to(&all, c));
             }
             prop_assert_eq!(frontiers(&g, &part), frontiers(&every, &all));
+        }
+
+        /// The search is Dijkstra over [`moves`] (the rule of a move, read cell by cell from the
+        /// grid), with or without the obstacle penalty: the same cost for every cell, the same
+        /// path to it; and the frontiers are the reachable cells [`Grid::is_frontier`] says are.
+        #[test]
+        fn the_search_is_dijkstra_over_the_moves_and_its_frontiers_the_grid_s(
+            g in crate::testutil::arb_placed_grid(), sx in 0i32..40, sy in 0i32..40, weight in prop_oneof![Just(0.0), Just(2.0)]
+        ) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            let penalty = obstacle_penalty(&g, 1.0, weight);
+            let got = costs_with(&g, start, Some(&penalty));
+            // The reference: every cell of the grid, settled by (cost, index).
+            let mut dist = vec![f64::INFINITY; g.len()];
+            let mut pred = vec![NO_PRED; g.len()];
+            let mut heap = BinaryHeap::new();
+            let s = g.index(start).expect("inside");
+            dist[s] = 0.0;
+            heap.push(Entry { cost: 0.0, index: s });
+            while let Some(Entry { cost, index }) = heap.pop() {
+                if cost > dist[index] {
+                    continue;
+                }
+                for (n, step) in moves(&g, g.cell_of(index)) {
+                    let ni = g.index(n).expect("free cells are inside");
+                    let next = cost + step * (1.0 + f64::from(penalty[ni]));
+                    if next < dist[ni] {
+                        (dist[ni], pred[ni]) = (next, index as u32);
+                        heap.push(Entry { cost: next, index: ni });
+                    }
+                }
+            }
+            for (i, &d) in dist.iter().enumerate() {
+                let c = g.cell_of(i);
+                prop_assert_eq!(got.cost(c), d.is_finite().then_some(d), "{:?}", c);
+                let mut way = vec![c];
+                while let Some(&p) = pred.get(g.index(*way.last().expect("one")).expect("inside")).filter(|&&p| p != NO_PRED) {
+                    way.push(g.cell_of(p as usize));
+                }
+                way.reverse();
+                prop_assert_eq!(path_to(&got, c), d.is_finite().then_some(way), "{:?}", c);
+            }
+            let cells: Vec<Cell> = (0..g.len()).map(|i| g.cell_of(i))
+                .filter(|&c| g.is_frontier(c) && got.cost(c).is_some())
+                .collect();
+            let mut row_major = cells.clone();
+            row_major.sort_by_key(|c| (c.y, c.x));
+            prop_assert_eq!(frontiers(&g, &got), row_major);
         }
 
         /// Stopped at a target, the search reports exactly the full search's costs up to the
