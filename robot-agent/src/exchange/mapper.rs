@@ -6,13 +6,13 @@
 //! Pure composition of [`crate::mapping::contour`], [`crate::mapping::approx`], [`crate::exchange::oplog`], [`crate::exchange::wire`]
 //! and [`crate::mapping::approx_error`]; the exchange of the log is another module's job.
 
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Cell, Grid, Occ, Rect};
 use proto::msg::Traffic;
 
 use crate::exchange::oplog::OpLog;
 use crate::exchange::wire::Encoder;
 use crate::mapping::approx::Approximation;
-use crate::mapping::approx_error::approx_error_in_view;
+use crate::mapping::approx_error::KeptError;
 use crate::mapping::approximator::Approximator;
 use crate::mapping::contour::{ContourPixels, Contours};
 use crate::mapping::render::ExplorationView;
@@ -58,8 +58,12 @@ pub struct Mapper {
     contours: Option<Contours>,
     /// The contour pixels of G_s, kept up to date from the changed cells.
     pixels: Option<ContourPixels>,
-    /// G_s's exploration view, kept up to date from the changed cells.
-    view: Option<ExplorationView>,
+    /// G_s's exploration view, kept up to date from the changed cells, and d_t, kept where
+    /// the view or the approximation changed.
+    view: Option<(ExplorationView, KeptError)>,
+    /// G_s's known cells: per cell whether it was known at the last step, and how many were.
+    known: Vec<bool>,
+    known_cells: usize,
     log: OpLog,
     previous: Approximation,
     /// Douglas–Peucker splits per step (fractional values accumulate).
@@ -81,6 +85,8 @@ impl Mapper {
             contours: None,
             pixels: None,
             view: None,
+            known: Vec::new(),
+            known_cells: 0,
             log: OpLog::new(),
             previous: Approximation::default(),
             splits_per_step,
@@ -104,12 +110,21 @@ impl Mapper {
             None => self.pixels.insert(ContourPixels::scan(own)),
         };
         let p = Contours::extract_at(own, pixels);
-        let view = match self.view.as_mut() {
-            Some(v) => {
+        let (view, error) = match self.view.as_mut() {
+            Some((v, e)) => {
+                // The view of a cell follows it and its 4-neighbours.
+                let region = Rect::around(changed.iter().copied()).map(|r| r.grown(1));
+                region.iter().for_each(|&r| e.before_view(v.grid(), r));
                 v.update(own, changed.iter().copied());
-                v
+                region.iter().for_each(|&r| e.after_view(v.grid(), r));
+                (v, e)
             }
-            None => self.view.insert(ExplorationView::new(own)),
+            None => {
+                let v = ExplorationView::new(own);
+                let e = KeptError::new(v.grid());
+                let (v, e) = self.view.insert((v, e));
+                (v, e)
+            }
         };
         let mut a = self
             .approximator
@@ -128,8 +143,8 @@ impl Mapper {
             self.stats.bytes[i] += b as u64;
         }
         let bytes = enc.finish().len();
-        let error_cells = approx_error_in_view(view.grid(), &a);
-        let known_cells = own.len() - own.count(Occ::Unknown);
+        let error_cells = error.error(view.grid(), &a);
+        let known_cells = self.count_known(own, changed);
         self.error_sum += error_cells as u64;
         self.known_sum += known_cells as u64;
         self.steps += 1;
@@ -146,6 +161,28 @@ impl Mapper {
         self.previous = a;
         self.contours = Some(p);
         report
+    }
+
+    /// G_s's known cells, counted where they changed (all of them at the first step).
+    fn count_known(&mut self, own: &Grid, changed: &[Cell]) -> usize {
+        if self.known.len() != own.len() {
+            self.known = own.cells().iter().map(|&c| c != Occ::Unknown).collect();
+            self.known_cells = self.known.iter().filter(|&&k| k).count();
+            return self.known_cells;
+        }
+        for &c in changed {
+            let Some(i) = own.index(c) else { continue };
+            let now = own.get(c) != Occ::Unknown;
+            if now != self.known[i] {
+                self.known[i] = now;
+                self.known_cells = if now {
+                    self.known_cells + 1
+                } else {
+                    self.known_cells - 1
+                };
+            }
+        }
+        self.known_cells
     }
 
     /// P_t of the last step.

@@ -24,13 +24,12 @@
 //! approximation, so they live in [`crate::mapping::render`]; this module is Algorithm 9 itself: paint the
 //! other robots' approximations, then let G_s win.
 
-use std::collections::BTreeMap;
-
 use proto::grid::{Grid, Occ, Rect};
 use proto::msg::RobotId;
 
-use crate::mapping::approx::{Approximation, ObjectId, Polygon, Vertex};
-use crate::mapping::render::{paint, Bands};
+use crate::mapping::approx::Approximation;
+use crate::mapping::painting::Painting;
+use crate::mapping::render::Bands;
 
 /// Algorithm 9: the planning grid from `own` (G_s) and other robots' approximations, all in
 /// the frame of `own`.
@@ -52,123 +51,46 @@ pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
 }
 
 /// Algorithm 9 kept from step to step: [`merge_into`] with the peers' painting (steps (1)–(5))
-/// kept over the whole grid and repainted only in the windows where an object changed — so a
-/// step costs what changed in the peers' approximations, not all of them (a robot holds every
-/// teammate's approximation it ever heard of).
-///
-/// A cell's painting depends only on the objects whose reach holds it (their cells, their
-/// edges, the bands within their edges' error bounds): an object that changed between two
-/// vertices it kept changes only cells within reach of its changed edges, old and new; so a
-/// window holding those, painted afresh with every object that reaches into it, is what painting
-/// everything would give there.
+/// kept over the whole grid and repainted only in the windows where an object changed
+/// ([`Painting`]) — so a step costs what changed in the peers' approximations, not all of them
+/// (a robot holds every teammate's approximation it ever heard of).
 #[derive(Default)]
 pub struct Merger {
-    width: u32,
-    height: u32,
-    /// Steps (1)–(5) of every approximation held, row-major over the whole grid.
-    painted: Vec<Option<Occ>>,
-    /// Per owner, the objects painted, each with its reach.
-    held: BTreeMap<RobotId, BTreeMap<ObjectId, (Polygon, Rect)>>,
+    painting: Option<Painting>,
 }
 
 impl Merger {
     /// [`merge_into`] `out` (the last step's planning grid) from `own` and the approximations
     /// of `others` (owner, approximation), repainting what changed since the last call.
     pub fn merge_into(&mut self, out: &mut Grid, own: &Grid, others: &[(RobotId, &Approximation)]) {
-        if (self.width, self.height) != (own.width(), own.height()) {
-            *self = Merger {
-                width: own.width(),
-                height: own.height(),
-                painted: vec![None; own.len()],
-                held: BTreeMap::new(),
-            };
+        let size = (own.width(), own.height());
+        let painting = match self.painting.take().filter(|p| p.size() == size) {
+            Some(p) => self.painting.insert(p),
+            None => self
+                .painting
+                .insert(Painting::new(size.0, size.1, Bands::Kept)),
+        };
+        for w in painting.take(others) {
+            painting.repaint(w);
         }
-        let mut dirty = Vec::new();
-        self.take(others, &mut dirty);
-        for w in coalesce(dirty) {
-            self.repaint(w);
-        }
-        let reach = (self.held.values().flat_map(|objects| objects.values()))
-            .fold(None, |r, (_, reach)| Rect::union_of(r, Some(*reach)));
         // The cells painted, those G_s knows and those `out` knew: every other cell is and
         // stays unknown.
         let region = [own.known_bounds(), out.known_bounds()]
             .into_iter()
-            .fold(reach, Rect::union_of)
+            .fold(painting.reach(), Rect::union_of)
             .and_then(|r| r.within(own.width(), own.height()));
         let Some(r) = region else {
             return;
         };
-        let w = self.width as usize;
+        let w = size.0 as usize;
         for y in r.min.y..=r.max.y {
             let row = y as usize * w;
-            let painted = &self.painted[row + r.min.x as usize..=row + r.max.x as usize];
+            let painted = &painting.painted()[row + r.min.x as usize..=row + r.max.x as usize];
             let mine = own.row(y, r.min.x, r.max.x);
             let dst = out.row_mut(y, r.min.x, r.max.x);
             for ((dst, &s), &p) in dst.iter_mut().zip(mine).zip(painted) {
                 *dst = planned(s, p);
             }
-        }
-    }
-
-    /// Takes the approximations of this step: the windows where they differ from those held
-    /// go to `dirty`, and they are held from now on.
-    fn take(&mut self, others: &[(RobotId, &Approximation)], dirty: &mut Vec<Rect>) {
-        let now: BTreeMap<RobotId, &Approximation> = others.iter().copied().collect();
-        // Owners no longer held: everything they painted.
-        self.held.retain(|owner, objects| {
-            let kept = now.contains_key(owner);
-            if !kept {
-                dirty.extend(objects.values().map(|(_, reach)| *reach));
-            }
-            kept
-        });
-        for (&owner, a) in &now {
-            let held = self.held.entry(owner).or_default();
-            held.retain(|id, (_, reach)| {
-                let kept = a.objects.contains_key(id);
-                if !kept {
-                    dirty.push(*reach);
-                }
-                kept
-            });
-            for (&id, poly) in &a.objects {
-                match held.get(&id) {
-                    Some((was, _)) if was == poly => {}
-                    was => {
-                        dirty.extend(changed_windows(was.map(|w| &w.0), poly));
-                        match reach(poly) {
-                            Some(r) => {
-                                held.insert(id, (poly.clone(), r));
-                            }
-                            None => {
-                                held.remove(&id);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
-
-    /// Paints window `w` afresh with every object that reaches into it.
-    fn repaint(&mut self, w: Rect) {
-        let Some(w) = w.within(self.width, self.height) else {
-            return;
-        };
-        let polys: Vec<Vec<&Polygon>> = (self.held.values())
-            .map(|objects| {
-                (objects.values())
-                    .filter(|(_, reach)| reach.intersects(w))
-                    .map(|(p, _)| p)
-                    .collect()
-            })
-            .collect();
-        let fresh = paint(&polys, w.min, w.width(), w.height(), Bands::Kept);
-        let (gw, ww) = (self.width as usize, w.width() as usize);
-        for (y, row) in (w.min.y..=w.max.y).zip(fresh.chunks(ww)) {
-            let at = y as usize * gw + w.min.x as usize;
-            self.painted[at..at + ww].copy_from_slice(row);
         }
     }
 }
@@ -182,106 +104,13 @@ fn planned(own: Occ, painted: Option<Occ>) -> Occ {
     }
 }
 
-/// The cells an object can paint: its cells and edges, and the bands within its edges' error
-/// bounds ([`crate::mapping::render`]); `None` without vertices.
-fn reach(p: &Polygon) -> Option<Rect> {
-    let band = p.vertices.iter().map(|v| v.bound).max()?;
-    Some(p.cell_bounds()?.grown(band_cells(band)))
-}
-
-/// Cells within an error bound (half cells) of an edge, beyond the edge's own cells.
-fn band_cells(bound: u16) -> i32 {
-    i32::from(bound) / 2 + 1
-}
-
-/// The windows where an object that was `was` (`None`: new) and is `now` paints differently.
-///
-/// The two vertex lists are aligned by the vertices they share, in order; between two shared
-/// vertices the old chain of edges was replaced by the new one, and the cells whose painting
-/// changed lie around those two chains (what they enclose, their edges, their bands) — one
-/// window per replaced run, the run across the lists' ends included. Its whole reach, old and
-/// new, when nothing is shared.
-fn changed_windows(was: Option<&Polygon>, now: &Polygon) -> Vec<Rect> {
-    let whole = |was: Option<&Polygon>| Rect::union_of(was.and_then(reach), reach(now));
-    let Some(was) = was.filter(|w| w.kind == now.kind) else {
-        return whole(was).into_iter().collect();
-    };
-    let (a, b) = (&was.vertices, &now.vertices);
-    let matched = align(a, b);
-    let (Some(&first), Some(&last)) = (matched.first(), matched.last()) else {
-        return whole(Some(was)).into_iter().collect();
-    };
-    let mut out = Vec::new();
-    // Between consecutive shared vertices (index pairs), and across the lists' ends.
-    let wrap = (last, (first.0 + a.len(), first.1 + b.len()));
-    for (p, q) in matched.windows(2).map(|w| (w[0], w[1])).chain([wrap]) {
-        if q.0 == p.0 + 1 && q.1 == p.1 + 1 {
-            continue; // the same edge
-        }
-        let chain = (p.0..=q.0)
-            .map(|i| a[i % a.len()])
-            .chain((p.1..=q.1).map(|j| b[j % b.len()]));
-        let band = chain.clone().map(|v| v.bound).max().unwrap_or(0);
-        out.extend(Rect::around(chain.map(|v| v.p.cell())).map(|r| r.grown(1 + band_cells(band))));
-    }
-    out
-}
-
-/// How far [`align`] looks ahead for the next vertex both lists share.
-const ALIGN_AHEAD: usize = 48;
-
-/// Pairs of indices (into `a`, into `b`) of equal vertices, increasing in both: a greedy
-/// alignment that skips the fewest vertices (up to [`ALIGN_AHEAD`]) to the next shared one.
-fn align(a: &[Vertex], b: &[Vertex]) -> Vec<(usize, usize)> {
-    let (mut i, mut j) = (0, 0);
-    let mut out = Vec::new();
-    'walk: while i < a.len() && j < b.len() {
-        for d in 0..=ALIGN_AHEAD {
-            for di in 0..=d {
-                let (x, y) = (i + di, j + d - di);
-                if x < a.len() && y < b.len() && a[x] == b[y] {
-                    out.push((x, y));
-                    (i, j) = (x + 1, y + 1);
-                    continue 'walk;
-                }
-            }
-        }
-        break;
-    }
-    out
-}
-
-/// Windows merged where they overlap: each cell painted once per step, each object's
-/// vertices gone through once per window.
-fn coalesce(mut ws: Vec<Rect>) -> Vec<Rect> {
-    let mut out: Vec<Rect> = Vec::with_capacity(ws.len());
-    while let Some(mut w) = ws.pop() {
-        // Grow w by every window it meets, until it meets none.
-        loop {
-            let before = out.len() + ws.len();
-            for list in [&mut out, &mut ws] {
-                list.retain(|o| {
-                    let meets = o.intersects(w);
-                    if meets {
-                        w = w.union(*o);
-                    }
-                    !meets
-                });
-            }
-            if out.len() + ws.len() == before {
-                break;
-            }
-        }
-        out.push(w);
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mapping::approx::Polygon;
     use crate::mapping::contour::{Contours, Kind};
     use crate::mapping::render::exploration_view;
+    use crate::mapping::render::paint;
     use crate::testutil::arb_grid;
     use proptest::prelude::*;
     use proto::grid::Cell;

@@ -14,6 +14,8 @@ pub mod contour;
 pub mod grid;
 /// The planning grid: G_s merged with the peers' approximations (Algorithm 9, §5.2).
 pub mod merge;
+/// Approximations painted and kept from step to step, repainted where an object changed.
+pub mod painting;
 /// Quarter-cell integer coordinates of contour vertices.
 pub mod qpoint;
 /// Rasterizing quarter-cell polygons onto cells (scan-line fill, edges).

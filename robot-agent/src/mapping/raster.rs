@@ -17,8 +17,19 @@ use crate::mapping::qpoint::QPoint;
 
 /// Calls `span(y, x0, x1)` for every maximal run of cells `x0..=x1` in row `y` whose centres
 /// lie inside the closed polygon `poly`, for the rows in `rows` (columns are not clipped).
-pub fn fill(poly: &[QPoint], rows: Range<i32>, mut span: impl FnMut(i32, i32, i32)) {
-    let mut crossings = crossings(poly, rows);
+pub fn fill(poly: &[QPoint], rows: Range<i32>, span: impl FnMut(i32, i32, i32)) {
+    let n = poly.len();
+    fill_edges((0..n).map(|i| (poly[i], poly[(i + 1) % n])), rows, span);
+}
+
+/// [`fill`] from the polygon's edges: every edge that crosses a row of `rows` must be among
+/// them (others are passed over).
+pub fn fill_edges(
+    edges: impl Iterator<Item = (QPoint, QPoint)>,
+    rows: Range<i32>,
+    mut span: impl FnMut(i32, i32, i32),
+) {
+    let mut crossings = crossings(edges, rows);
     crossings.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
     for pair in crossings.chunks_exact(2) {
         let ((y, c0), (y1, c1)) = (pair[0], pair[1]);
@@ -34,11 +45,9 @@ pub fn fill(poly: &[QPoint], rows: Range<i32>, mut span: impl FnMut(i32, i32, i3
 
 /// (row, x) where the scan line through the centres of `row` crosses an edge; each edge owns
 /// the rows with `y_lo <= 4·row+2 < y_hi`.
-fn crossings(poly: &[QPoint], rows: Range<i32>) -> Vec<(i32, f64)> {
-    let n = poly.len();
+fn crossings(edges: impl Iterator<Item = (QPoint, QPoint)>, rows: Range<i32>) -> Vec<(i32, f64)> {
     let mut out = Vec::new();
-    for i in 0..n {
-        let (a, b) = (poly[i], poly[(i + 1) % n]);
+    for (a, b) in edges {
         if a.y == b.y {
             continue;
         }

@@ -9,11 +9,11 @@
 //!
 //! Place among the mapping modules (each imports only those before it): [`crate::mapping::contour`] →
 //! [`crate::mapping::approx`] → `render` → [`crate::mapping::refine`] → [`crate::mapping::approximator`] →
-//! [`crate::mapping::merge`], [`crate::mapping::approx_error`].
+//! [`crate::mapping::painting`] → [`crate::mapping::merge`], [`crate::mapping::approx_error`].
 
 use proto::grid::{Cell, Grid, Occ, Rect};
 
-use crate::mapping::approx::{Approximation, Polygon};
+use crate::mapping::approx::{Approximation, Polygon, Vertex};
 use crate::mapping::contour::Kind;
 use crate::mapping::qpoint::{seg_dist2, QPoint};
 use crate::mapping::raster;
@@ -67,11 +67,15 @@ impl Canvas {
         inside.then(|| y as usize * self.width as usize + x as usize)
     }
 
-    /// Every cell of the window whose centre lies inside `poly`, by index.
-    fn fill(&self, poly: &Polygon, mut f: impl FnMut(usize)) {
+    /// Every cell of the window whose centre lies inside `part`'s polygon, by index.
+    fn fill(&self, part: &Part<'_>, mut f: impl FnMut(usize)) {
         let (x_end, w) = (self.x0 + self.width as i32 - 1, self.width as usize);
         let rows = self.y0..self.y0 + self.height as i32;
-        raster::fill(&poly.points(), rows, |y, xa, xb| {
+        let edges = part.edge_indices().map(|i| {
+            let (v, next) = part.edge(i);
+            (v.p, next)
+        });
+        raster::fill_edges(edges, rows, |y, xa, xb| {
             let row = (y - self.y0) as usize * w;
             for x in xa.max(self.x0)..=xb.min(x_end) {
                 f(row + (x - self.x0) as usize);
@@ -79,16 +83,15 @@ impl Canvas {
         });
     }
 
-    /// Every cell of the window on an edge of `poly`, with the edge's occupancy.
-    fn edges(&mut self, poly: &Polygon, mut f: impl FnMut(&mut Option<Occ>, Occ)) {
-        let n = poly.vertices.len();
+    /// Every cell of the window on an edge of `part`, with the edge's occupancy.
+    fn edges(&mut self, part: &Part<'_>, mut f: impl FnMut(&mut Option<Occ>, Occ)) {
         let lo = Cell::new(self.x0, self.y0);
         let hi = Cell::new(
             self.x0 + self.width as i32 - 1,
             self.y0 + self.height as i32 - 1,
         );
-        for (i, v) in poly.vertices.iter().enumerate() {
-            let next = poly.vertices[(i + 1) % n].p;
+        for i in part.edge_indices() {
+            let (v, next) = part.edge(i);
             raster::edge(v.p, next, lo, hi, |c| {
                 if let Some(k) = self.index(c) {
                     f(&mut self.cells[k], v.occ);
@@ -98,15 +101,15 @@ impl Canvas {
     }
 
     /// Every cell of the window whose centre lies within an edge's error bound of the edge of
-    /// `poly` ([`crate::mapping::approx::Vertex::spanning`]), on either side: where the contour the
+    /// `part` ([`crate::mapping::approx::Vertex::spanning`]), on either side: where the contour the
     /// edge stands for may run.
-    fn bands(&self, poly: &Polygon, mut f: impl FnMut(usize)) {
-        let n = poly.vertices.len();
-        for (i, v) in poly.vertices.iter().enumerate() {
+    fn bands(&self, part: &Part<'_>, mut f: impl FnMut(usize)) {
+        for i in part.edge_indices() {
+            let (v, b) = part.edge(i);
             if v.bound == 0 {
                 continue;
             }
-            let (a, b) = (v.p, poly.vertices[(i + 1) % n].p);
+            let a = v.p;
             // Half cells to quarter cells; cells of the box around the edge, within the window.
             let e = i64::from(v.bound) * 2;
             let grow = |q: i32, d: i64| {
@@ -143,6 +146,41 @@ pub enum Bands {
     Ignored,
 }
 
+/// A polygon to paint over a window, with the edges that reach the window's rows (`None`: all
+/// of them) and a rectangle holding its cells: a window is painted by the edges that cross its
+/// rows (its scan lines' crossings) or whose cells or bands reach them, and no other edge
+/// changes a cell of it.
+#[derive(Clone, Copy, Debug)]
+pub struct Part<'a> {
+    pub poly: &'a Polygon,
+    pub edges: Option<&'a [u32]>,
+    pub bounds: Option<Rect>,
+}
+
+impl<'a> Part<'a> {
+    /// All of `poly`.
+    pub fn whole(poly: &'a Polygon) -> Part<'a> {
+        Part {
+            poly,
+            edges: None,
+            bounds: poly.cell_bounds(),
+        }
+    }
+
+    /// The edges to paint, by the index of their first vertex.
+    fn edge_indices(&self) -> impl Iterator<Item = usize> + '_ {
+        let all = self.edges.is_none().then_some(0..self.poly.vertices.len());
+        let some = self.edges.map(|e| e.iter().map(|&i| i as usize));
+        all.into_iter().flatten().chain(some.into_iter().flatten())
+    }
+
+    /// Edge `i`: its vertex and the next one's point.
+    fn edge(&self, i: usize) -> (Vertex, QPoint) {
+        let v = &self.poly.vertices;
+        (v[i], v[(i + 1) % v.len()].p)
+    }
+}
+
 /// Steps (1)–(5) of Algorithm 9 ([`crate::mapping::merge`]) for `approximations`, each as the list of its
 /// polygons, over the window of `width × height` cells at `origin`: per cell, row-major, what
 /// they say together, `None` where none of them says anything (the thesis's `undefined`).
@@ -153,12 +191,32 @@ pub fn paint(
     height: u32,
     bands: Bands,
 ) -> Vec<Option<Occ>> {
+    let parts: Vec<Vec<Part<'_>>> = (approximations.iter())
+        .map(|a| a.iter().map(|&p| Part::whole(p)).collect())
+        .collect();
+    paint_parts(&parts, origin, width, height, bands)
+}
+
+/// [`paint`] of parts of polygons ([`Part`]): the same cells as painting the whole polygons,
+/// when each part has every edge that reaches the window's rows.
+pub fn paint_parts(
+    approximations: &[Vec<Part<'_>>],
+    origin: Cell,
+    width: u32,
+    height: u32,
+    bands: Bands,
+) -> Vec<Option<Occ>> {
     paint_on(Canvas::new(origin, width, height), approximations, bands).cells
 }
 
 /// Steps (1)–(5) of Algorithm 9 on a canvas; each approximation as the list of its polygons.
-fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>], bands: Bands) -> Canvas {
-    let outside = || others.iter().flatten().filter(|o| o.kind == Kind::Outside);
+fn paint_on(mut plan: Canvas, others: &[Vec<Part<'_>>], bands: Bands) -> Canvas {
+    let outside = || {
+        others
+            .iter()
+            .flatten()
+            .filter(|o| o.poly.kind == Kind::Outside)
+    };
     for o in outside() {
         let mut unknown = Vec::new();
         plan.fill(o, |k| unknown.push(k));
@@ -190,13 +248,11 @@ fn paint_on(mut plan: Canvas, others: &[Vec<&Polygon>], bands: Bands) -> Canvas 
 /// unknown but inside an odd number of its polygons, become free — with [`Bands::Kept`], none
 /// within an edge's error bound of it. Only the cells of the window its polygons span are
 /// looked at (nothing outside them is inside one).
-fn free_inside(plan: &mut Canvas, a: &[&Polygon], bands: Bands) {
+fn free_inside(plan: &mut Canvas, a: &[Part<'_>], bands: Bands) {
     const INSIDE: u8 = 1;
     const ODD: u8 = 2;
     const BAND: u8 = 4;
-    let spans = a
-        .iter()
-        .fold(None, |r, o| Rect::union_of(r, o.cell_bounds()));
+    let spans = a.iter().fold(None, |r, o| Rect::union_of(r, o.bounds));
     let Some(r) = spans.and_then(|r| plan.clip(r)) else {
         return;
     };
@@ -204,7 +260,11 @@ fn free_inside(plan: &mut Canvas, a: &[&Polygon], bands: Bands) {
     let frame = Canvas::frame(r);
     let mut flags = vec![0u8; r.width() as usize * r.height() as usize];
     for o in a {
-        let bit = if o.kind == Kind::Inside { INSIDE } else { 0 };
+        let bit = if o.poly.kind == Kind::Inside {
+            INSIDE
+        } else {
+            0
+        };
         frame.fill(o, |k| flags[k] = (flags[k] | bit) ^ ODD);
     }
     if bands == Bands::Kept {
