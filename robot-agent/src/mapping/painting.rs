@@ -100,7 +100,8 @@ impl Painting {
                         dirty.extend(changed_windows(was.map(|w| &w.poly), poly, STRIP_ROWS));
                         match reach(poly) {
                             Some(reach) => {
-                                let rows = EdgeRows::new(poly, self.height, BUCKET_ROWS);
+                                let rows = (poly.vertices.len() > INDEXED_EDGES)
+                                    .then(|| EdgeRows::new(poly, self.height, BUCKET_ROWS));
                                 let poly = poly.clone();
                                 held.insert(id, Held { poly, reach, rows });
                             }
@@ -120,11 +121,11 @@ impl Painting {
         let Some(w) = w.within(self.width, self.height) else {
             return;
         };
-        let edges: Vec<Vec<(&Held, Vec<u32>)>> = (self.held.values())
+        let edges: Vec<Reaching<'_>> = (self.held.values())
             .map(|objects| {
                 (objects.values())
                     .filter(|h| h.reach.intersects(w))
-                    .map(|h| (h, h.rows.edges(w.min.y, w.max.y)))
+                    .map(|h| (h, h.rows.as_ref().map(|r| r.edges(w.min.y, w.max.y))))
                     .collect()
             })
             .collect();
@@ -133,7 +134,7 @@ impl Painting {
                 (objects.iter())
                     .map(|(h, e)| Part {
                         poly: &h.poly,
-                        edges: Some(e),
+                        edges: e.as_deref(),
                         bounds: Some(h.reach),
                     })
                     .collect()
@@ -148,14 +149,22 @@ impl Painting {
     }
 }
 
+/// An owner's objects that reach a window, each with its edges that reach the window's rows
+/// (`None`: all).
+type Reaching<'a> = Vec<(&'a Held, Option<Vec<u32>>)>;
+
 /// An object painted: the polygon, the cells it can paint ([`reach`]) and its edges by the rows
 /// they reach.
 #[derive(Clone, Debug)]
 struct Held {
     poly: Polygon,
     reach: Rect,
-    rows: EdgeRows,
+    rows: Option<EdgeRows>,
 }
+
+/// Objects of more edges than this are indexed by rows ([`EdgeRows`]); a smaller one is painted
+/// with all its edges (an index would cost more than it saves).
+const INDEXED_EDGES: usize = 128;
 
 /// Rows of the grid per bucket of [`EdgeRows`].
 const BUCKET_ROWS: i32 = 32;
