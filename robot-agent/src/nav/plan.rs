@@ -296,8 +296,7 @@ fn dijkstra(
     }
     let pw = width as usize + 2;
     fill_free(&mut map.free, g, window, pw);
-    let offsets = move_offsets(width, pw);
-    let gw = g.width() as isize;
+    let offsets = move_offsets(width, g.width(), pw);
     while let Some(Entry { cost, index }) = heap.pop() {
         if cost > map.dist[index] {
             continue;
@@ -311,22 +310,17 @@ fn dijkstra(
         }
         let (x, y) = (index % width as usize, index / width as usize);
         let at = (y + 1) * pw + x + 1;
+        let here = (y0 as usize + y) * g.width() as usize + x0 as usize + x;
         // The moves of `moves`, in its order: into free cells, diagonals only between two
         // free orthogonal neighbours.
-        for &(d, pd, between, step) in &offsets {
+        for &(d, gd, pd, between, step) in &offsets {
             let free = |o: isize| map.free[at.wrapping_add_signed(o)] != 0;
             if !free(pd) || between.is_some_and(|(a, b)| !free(a) || !free(b)) {
                 continue;
             }
             let ni = index.wrapping_add_signed(d);
             let extra = penalty
-                .and_then(|p| {
-                    let (nx, ny) = (
-                        x0 as isize + (ni % width as usize) as isize,
-                        y0 as isize + (ni / width as usize) as isize,
-                    );
-                    p.get(usize::try_from(ny * gw + nx).ok()?)
-                })
+                .and_then(|p| p.get(here.wrapping_add_signed(gd)))
                 .map_or(0.0, |&p| f64::from(p));
             let next = cost + step * (1.0 + extra);
             if next < map.dist[ni] {
@@ -342,13 +336,13 @@ fn dijkstra(
 }
 
 /// A move's offsets ([`move_offsets`]).
-type MoveOffsets = (isize, isize, Option<(isize, isize)>, f64);
+type MoveOffsets = (isize, isize, isize, Option<(isize, isize)>, f64);
 
-/// Per move of [`MOVES`]: the neighbour's offset in a window `width` cells wide, its offset in
-/// the bordered free cells (`pw` wide), the two orthogonal cells a diagonal passes between
-/// (bordered), and the step's length.
-fn move_offsets(width: u32, pw: usize) -> [MoveOffsets; 8] {
-    let (w, pw) = (width as isize, pw as isize);
+/// Per move of [`MOVES`]: the neighbour's offset in a window `width` cells wide, in the grid
+/// (`gw` wide) and in the bordered free cells (`pw` wide), the two orthogonal cells a diagonal
+/// passes between (bordered), and the step's length.
+fn move_offsets(width: u32, gw: u32, pw: usize) -> [MoveOffsets; 8] {
+    let (w, gw, pw) = (width as isize, gw as isize, pw as isize);
     MOVES.map(|(dx, dy)| {
         let (dx, dy) = (dx as isize, dy as isize);
         let diagonal = dx != 0 && dy != 0;
@@ -358,7 +352,7 @@ fn move_offsets(width: u32, pw: usize) -> [MoveOffsets; 8] {
             1.0
         };
         let between = diagonal.then_some((dx, dy * pw));
-        (dy * w + dx, dy * pw + dx, between, step)
+        (dy * w + dx, dy * gw + dx, dy * pw + dx, between, step)
     })
 }
 
@@ -383,38 +377,16 @@ fn fill_free(free: &mut Vec<u8>, g: &Grid, window: Option<Rect>, pw: usize) {
 /// in row-major order (bottom row first). Cells beyond the grid's edge do not count as unknown:
 /// the map's extent is known, and nothing lies out there to explore.
 pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
-    // Free cells lie in the known part of the grid; a row at a time, its neighbours' rows
-    // beside it (what lies beyond the known part is unknown, beyond the grid nothing).
+    // Free cells lie in the known part of the grid, found a row at a time.
     let Some(r) = g.known_bounds() else {
         return Vec::new();
     };
-    let (x0, x1) = (r.min.x, r.max.x);
-    let unknown = |c: Occ| c == Occ::Unknown;
-    let side = |x: i32, y: i32| g.contains(Cell::new(x, y)) && unknown(g.get(Cell::new(x, y)));
     let mut out = Vec::new();
     for y in r.min.y..=r.max.y {
-        let row = g.row(y, x0, x1);
-        let near = |dy: i32| {
-            g.contains(Cell::new(x0, y + dy))
-                .then(|| g.row(y + dy, x0, x1))
-        };
-        let (below, above) = (near(-1), near(1));
-        for (i, _) in row.iter().enumerate().filter(|(_, &c)| c == Occ::Free) {
-            let x = x0 + i as i32;
-            let frontier = (if i > 0 {
-                unknown(row[i - 1])
-            } else {
-                side(x - 1, y)
-            }) || row
-                .get(i + 1)
-                .map_or_else(|| side(x + 1, y), |&c| unknown(c))
-                || below.is_some_and(|b| unknown(b[i]))
-                || above.is_some_and(|a| unknown(a[i]));
-            let c = Cell::new(x, y);
-            if frontier && costs.cost(c).is_some() {
-                out.push(c);
-            }
-        }
+        let row = g.row(y, r.min.x, r.max.x);
+        let free = (row.iter().enumerate()).filter(|(_, &c)| c == Occ::Free);
+        let cells = free.map(|(i, _)| Cell::new(r.min.x + i as i32, y));
+        out.extend(cells.filter(|&c| is_frontier(g, costs, c)));
     }
     out
 }
