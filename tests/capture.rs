@@ -189,6 +189,9 @@ pub struct LinkTotal {
     pub a: u64,
     pub b: u64,
     pub listen: SocketAddr,
+    /// Every port the proxy listened on (it listens while its link is up, and may change port
+    /// as the link comes and goes).
+    pub ports: Vec<u16>,
     pub target: SocketAddr,
     pub a_to_b: u64,
     pub b_to_a: u64,
@@ -202,6 +205,9 @@ pub fn link_totals(path: &Path) -> Vec<LinkTotal> {
             a: r.a.into(),
             b: r.b.into(),
             listen: r.listen,
+            ports: (r.ports.split_whitespace())
+                .filter_map(|p| p.parse().ok())
+                .collect(),
             target: r.target,
             a_to_b: r.bytes_a_to_b,
             b_to_a: r.bytes_b_to_a,
@@ -227,8 +233,19 @@ pub fn compare(totals: &[LinkTotal], segs: &[Segment]) -> Comparison {
     let mut from: HashMap<SocketAddr, u64> = HashMap::new();
     let mut to: HashMap<SocketAddr, u64> = HashMap::new();
     let (fresh, resent) = first_sendings(segs);
+    // A proxy's port is one the kernel hands out (it listens while its link is up), so a
+    // robot's own connection may once have come from it: what a proxy sends goes to a robot's
+    // ephemeral port, never to a proxy or a radio listener.
+    let listening: std::collections::HashSet<SocketAddr> = (totals.iter())
+        .flat_map(|l| {
+            let ip = l.listen.ip();
+            (l.ports.iter().map(move |&p| SocketAddr::new(ip, p))).chain([l.listen, l.target])
+        })
+        .collect();
     for (s, &n) in segs.iter().zip(&fresh) {
-        *from.entry(s.src).or_default() += n;
+        if !listening.contains(&s.dst) {
+            *from.entry(s.src).or_default() += n;
+        }
         *to.entry(s.dst).or_default() += n;
     }
     let mark = |good: bool| {
@@ -241,7 +258,14 @@ pub fn compare(totals: &[LinkTotal], segs: &[Segment]) -> Comparison {
     let mut report = Vec::new();
     let (mut ok, mut counted_total, mut captured_total) = (true, 0, 0);
     for l in totals {
-        let captured = from.get(&l.listen).copied().unwrap_or(0);
+        let captured: u64 = (l.ports.iter())
+            .chain(l.ports.is_empty().then_some(&l.listen.port()))
+            .map(|&p| {
+                from.get(&SocketAddr::new(l.listen.ip(), p))
+                    .copied()
+                    .unwrap_or(0)
+            })
+            .sum();
         let good = within_1pct(l.b_to_a, captured);
         ok &= good;
         report.push(format!(

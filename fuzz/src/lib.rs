@@ -388,7 +388,7 @@ mod tests {
         };
         write("sim_plane", "process-order", &encode(&order));
         write("sim_plane", "world-info", &encode(&world(3)));
-        let link = PlannedLink { a: 0, b: 1, rate: [Some(1000), None], delay: [1, 0], held: false, credit: [Some(8000), None] };
+        let link = PlannedLink { a: 0, b: 1, rate: [Some(1000), None], delay: [1, 0], held: false, credit: [Some(8000), None], proxy: Some(([127, 0, 0, 1], 40000).into()) };
         write("sim_plane", "link-plan", &encode(&LinkPlan { step: 5, links: vec![link] }));
         let g = Grid::new(8, 6, proto::grid::Occ::Free);
         write(

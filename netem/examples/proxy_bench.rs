@@ -200,12 +200,14 @@ async fn main() -> Result<(), Error> {
             b: 1,
             listen: any,
             target: sink,
+            while_up: false,
         },
         PairSpec {
             a: 0,
             b: 2,
             listen: any,
             target: echo,
+            while_up: false,
         },
     ];
     let radio = Radio {

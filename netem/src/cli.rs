@@ -28,9 +28,20 @@ pub struct Args {
     pub scenario: ScenarioArgs,
     /// A robot pair's proxy: `A-B=LISTEN>TARGET`, e.g. `0-1=127.0.0.1:7600>127.0.0.1:7501`:
     /// robot A (the lower id) connects to LISTEN, netem forwards to robot B's radio listener
-    /// TARGET. Repeat for every pair.
+    /// TARGET. Repeat for every pair. LISTEN without a port (`0-1=127.0.0.1>127.0.0.1:7501`):
+    /// the proxy listens on a free port of that address only while the link is up, and each
+    /// step's plan tells robot A where (how `swarm run` starts netem).
     #[arg(long = "pair", value_name = "A-B=LISTEN>TARGET", value_parser = parse_pair)]
     pub pairs: Vec<PairSpec>,
+    /// A radio node and its radio listener: `ID=TARGET`, e.g. `3=127.0.0.1:7503`. Every pair of
+    /// the nodes given so gets a proxy on a free port of --proxy-host, bound only while its
+    /// link is up (each step's plan tells the lower id where): netem holds descriptors for the
+    /// pairs in range, not for every pair. Repeat for every node.
+    #[arg(long = "node", value_name = "ID=TARGET", value_parser = parse_node)]
+    pub nodes: Vec<(RobotId, SocketAddr)>,
+    /// The address the proxies of --node pairs listen on.
+    #[arg(long, value_name = "IP", default_value = "127.0.0.1")]
+    pub proxy_host: std::net::IpAddr,
     /// Address of the toxiproxy-compatible HTTP control API (GET /proxies, /metrics, …).
     #[arg(long, value_name = "ADDR")]
     pub http: Option<SocketAddr>,
@@ -54,6 +65,8 @@ impl Args {
         Args {
             scenario: ScenarioArgs::file(scenario),
             pairs: Vec::new(),
+            nodes: Vec::new(),
+            proxy_host: std::net::Ipv4Addr::LOCALHOST.into(),
             http: None,
             token_file: None,
             totals_out: None,
@@ -66,6 +79,12 @@ impl Args {
         let mut a = self.scenario.to_argv();
         for p in &self.pairs {
             a.extend(["--pair".into(), p.to_string()]);
+        }
+        for (id, target) in &self.nodes {
+            a.extend(["--node".into(), format!("{id}={target}")]);
+        }
+        if !self.nodes.is_empty() {
+            a.extend(["--proxy-host".into(), self.proxy_host.to_string()]);
         }
         if let Some(h) = self.http {
             a.extend(["--http".into(), h.to_string()]);
@@ -84,7 +103,18 @@ impl Args {
 /// `A-B=LISTEN>TARGET`, as `--pair` takes it.
 impl std::fmt::Display for PairSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}-{}={}>{}", self.a, self.b, self.listen, self.target)
+        if self.while_up {
+            write!(
+                f,
+                "{}-{}={}>{}",
+                self.a,
+                self.b,
+                self.listen.ip(),
+                self.target
+            )
+        } else {
+            write!(f, "{}-{}={}>{}", self.a, self.b, self.listen, self.target)
+        }
     }
 }
 
@@ -105,11 +135,17 @@ impl std::str::FromStr for PairSpec {
         if a >= b {
             return Err(format!("{s:?}: the first robot id must be the lower one"));
         }
+        // An address alone: a proxy that listens while the link is up.
+        let (listen, while_up) = match listen.trim().parse::<std::net::IpAddr>() {
+            Ok(ip) => (SocketAddr::new(ip, 0), true),
+            Err(_) => (listen.trim().parse().map_err(|_| bad())?, false),
+        };
         Ok(PairSpec {
             a,
             b,
-            listen: listen.trim().parse().map_err(|_| bad())?,
+            listen,
             target: target.trim().parse().map_err(|_| bad())?,
+            while_up,
         })
     }
 }
@@ -129,6 +165,10 @@ pub struct LinkTotalsCsv {
     pub connects: u64,
     pub established: u64,
     pub refused: u64,
+    /// Every port the proxy listened on, in order, space-separated (a proxy that listens
+    /// while its link is up may change port as the link comes and goes).
+    #[serde(default)]
+    pub ports: String,
 }
 
 impl From<&LinkSnapshot> for LinkTotalsCsv {
@@ -147,12 +187,15 @@ impl From<&LinkSnapshot> for LinkTotalsCsv {
             connects: l.connects_total,
             established: l.established_total,
             refused: l.refused_total,
+            ports: (l.ports.iter().map(u16::to_string))
+                .collect::<Vec<_>>()
+                .join(" "),
         }
     }
 }
 
 /// The column names of `--totals-out`.
-pub const TOTALS_HEADER: [&str; 12] = [
+pub const TOTALS_HEADER: [&str; 13] = [
     "a",
     "b",
     "listen",
@@ -165,6 +208,7 @@ pub const TOTALS_HEADER: [&str; 12] = [
     "connects",
     "established",
     "refused",
+    "ports",
 ];
 
 /// Writes `--totals-out`: one row per link, its addresses and final counters.
@@ -188,6 +232,38 @@ pub fn parse_pair(s: &str) -> Result<PairSpec, String> {
     s.parse()
 }
 
+/// Parses `ID=TARGET` (`--node`).
+pub fn parse_node(s: &str) -> Result<(RobotId, SocketAddr), String> {
+    let bad = || format!("{s:?}: expected ID=TARGET, e.g. 3=127.0.0.1:7503");
+    let (id, target) = s.split_once('=').ok_or_else(bad)?;
+    Ok((
+        id.trim().parse().map_err(|_| bad())?,
+        target.trim().parse().map_err(|_| bad())?,
+    ))
+}
+
+impl Args {
+    /// Every pair: those given with --pair, then every pair of the --node nodes (lower id
+    /// first), their proxies listening on --proxy-host while their links are up.
+    pub fn all_pairs(&self) -> Vec<PairSpec> {
+        let mut nodes = self.nodes.clone();
+        nodes.sort_unstable();
+        let mut pairs = self.pairs.clone();
+        for (i, &(a, _)) in nodes.iter().enumerate() {
+            for &(b, target) in &nodes[i + 1..] {
+                pairs.push(PairSpec {
+                    a,
+                    b,
+                    listen: SocketAddr::new(self.proxy_host, 0),
+                    target,
+                    while_up: true,
+                });
+            }
+        }
+        pairs
+    }
+}
+
 async fn run(args: Args) -> anyhow::Result<()> {
     let scenario = Scenario::load(&args.scenario.file, &args.scenario.set)?;
     // Check the scenario's faults before joining anything.
@@ -201,7 +277,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
     } else {
         None
     };
-    let mut cfg = NetemConfig::from_scenario(&scenario, args.pairs.clone(), truth, args.http)?;
+    let mut cfg = NetemConfig::from_scenario(&scenario, args.all_pairs(), truth, args.http)?;
     if let Some(f) = &args.token_file {
         let token = std::fs::read_to_string(f)
             .with_context(|| format!("reading the API token from {}", f.display()))?
@@ -210,7 +286,8 @@ async fn run(args: Args) -> anyhow::Result<()> {
         anyhow::ensure!(!token.is_empty(), "{} holds no token", f.display());
         cfg.api_token = Some(token);
     }
-    descriptors(cfg.pairs.len());
+    // A proxy that listens while its link is up holds descriptors only then.
+    descriptors(cfg.pairs.iter().filter(|p| !p.while_up).count());
     let netem = start(cfg).await.context("starting the link proxies")?;
     let orders = netem.process_orders(&scenario);
     let result = follow(&sim, &netem, orders).await;
@@ -282,6 +359,7 @@ mod tests {
             connects: 4,
             established: 5,
             refused: 6,
+            ports: "7600 7611".into(),
         };
         let mut w = csv::Writer::from_writer(Vec::new());
         w.serialize(&row).unwrap_or_else(|e| panic!("{e}"));
@@ -289,7 +367,7 @@ mod tests {
         assert_eq!(
             text,
             format!(
-                "{}\n0,2,127.0.0.1:7600,127.0.0.1:7502,10,20,1,2,3,4,5,6\n",
+                "{}\n0,2,127.0.0.1:7600,127.0.0.1:7502,10,20,1,2,3,4,5,6,7600 7611\n",
                 TOTALS_HEADER.join(",")
             )
         );
@@ -307,6 +385,7 @@ mod tests {
             b,
             listen: SocketAddr::from(([127, 0, 0, 1], l)),
             target: SocketAddr::from(([127, 0, 0, 1], t)),
+            while_up: false,
         };
         let mut args = Args::new(
             PathBuf::from("/tmp/run/scenario.toml"),
@@ -317,6 +396,16 @@ mod tests {
         );
         args.scenario.set = vec!["radio.bandwidth_bytes_per_s=500".into()];
         args.pairs = vec![pair(0, 1, 7600, 7501), pair(1, 2, 7601, 7502)];
+        // A pair given its host alone listens while its link is up.
+        args.pairs.push(PairSpec {
+            while_up: true,
+            ..pair(0, 2, 0, 7502)
+        });
+        args.nodes = vec![
+            (5, SocketAddr::from(([10, 0, 0, 6], 7505))),
+            (3, pair(0, 3, 0, 7503).target),
+        ];
+        args.proxy_host = [10, 0, 0, 5].into();
         args.http = Some(SocketAddr::from(([127, 0, 0, 1], 8474)));
         args.totals_out = Some(PathBuf::from("/tmp/run/link_totals.csv"));
         for args in [
@@ -326,6 +415,21 @@ mod tests {
             let argv = ["netem".to_string()].into_iter().chain(args.to_argv());
             assert_eq!(Args::parse_from(argv), args);
         }
+        // Every pair of the nodes, lower id first, on the proxy host while up.
+        let all = args.all_pairs();
+        assert_eq!(all.len(), 4);
+        assert_eq!(
+            all[3],
+            PairSpec {
+                a: 3,
+                b: 5,
+                listen: SocketAddr::from(([10, 0, 0, 5], 0)),
+                target: SocketAddr::from(([10, 0, 0, 6], 7505)),
+                while_up: true,
+            }
+        );
+        assert_eq!(all[2].to_string(), "0-2=127.0.0.1>127.0.0.1:7502");
+        assert!(parse_node("3=nowhere").is_err() && parse_node("x=127.0.0.1:1").is_err());
     }
 
     #[test]

@@ -381,7 +381,13 @@ async fn update(State(sh): Sh, Path(name): Path<String>, body: Bytes) -> Respons
             Ok(u) => u,
             Err(r) => return r.into_response(),
         };
-        if let Some(why) = upd.refusal(&l.name, l.listen, l.params.target) {
+        // A proxy that listens while its link is up may have moved port since the client read
+        // it: any port it listened on is its own.
+        let listen = (upd.listen.as_deref())
+            .and_then(|g| g.trim().parse().ok())
+            .filter(|&a| l.listened_at(a))
+            .unwrap_or_else(|| l.listen());
+        if let Some(why) = upd.refusal(&l.name, listen, l.params.target) {
             return error(StatusCode::CONFLICT, &why);
         }
         let pair = (l.params.a, l.params.b);
@@ -711,6 +717,7 @@ mod tests {
                 b,
                 listen: "127.0.0.1:0".parse().unwrap(),
                 target,
+                while_up: false,
             };
             let radio = Radio {
                 model: RadioModel::Always,

@@ -18,6 +18,13 @@
 //! instead, as netem once did, made every robot retry every link out of range every 20 ms —
 //! 8 000 pairs at 128 robots, 400 000 connections a second; closing the listener would risk
 //! losing the port to another process and turn a reconnect into a rebind.)
+//!
+//! **A proxy while in range.** That is a link whose port was given (robots were told it at
+//! start and keep trying it). A link given only its host ([`Link::while_up`]) listens only
+//! while it is up: it binds a free port the moment it comes up — before the step's plan is
+//! made, which tells robot a where to connect ([`PlannedLink::proxy`]) — and closes it when it
+//! goes down, so netem holds descriptors for the pairs in range, not for every pair (`swarm
+//! run` makes every link so). It binds the port it had before when it can.
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -126,7 +133,14 @@ struct ConnEntry {
 pub struct Link {
     pub params: LinkParams,
     pub name: String,
-    pub listen: SocketAddr,
+    /// Where the proxy listens, or listened last (port 0: never yet).
+    listen: Mutex<SocketAddr>,
+    /// Listens only while the link is up, on a port it binds then (see the module's doc).
+    while_up: bool,
+    /// Bound as the link came up, for the accept loop to take.
+    fresh: Mutex<Option<std::net::TcpListener>>,
+    /// Every port the proxy has listened on, in order (`link_totals.csv`).
+    ports: Mutex<Vec<u16>>,
     clock: SimClock,
     counters: [Arc<DirCounters>; 2],
     state: Mutex<LinkState>,
@@ -209,6 +223,8 @@ pub struct LinkSnapshot {
     pub toxics: Vec<Toxic>,
     /// Up but held by a toxic (a blackhole: a `timeout` of 0).
     pub held: bool,
+    /// Every port the proxy has listened on, in order.
+    pub ports: Vec<u16>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -225,11 +241,53 @@ impl Link {
         state: LinkState,
         shutdown: watch::Receiver<bool>,
     ) -> Arc<Link> {
+        Self::make(params, listen, false, clock, state, shutdown)
+    }
+
+    /// A link that listens on a free port of `host` only while it is up (see the module's
+    /// doc); call [`Link::serve`] (with no listener) to start accepting.
+    pub fn while_up(
+        params: LinkParams,
+        host: std::net::IpAddr,
+        clock: SimClock,
+        state: LinkState,
+        shutdown: watch::Receiver<bool>,
+    ) -> Arc<Link> {
+        let link = Self::make(
+            params,
+            SocketAddr::new(host, 0),
+            true,
+            clock,
+            state,
+            shutdown,
+        );
+        if link.is_up() {
+            link.open_port();
+        }
+        link
+    }
+
+    fn make(
+        params: LinkParams,
+        listen: SocketAddr,
+        while_up: bool,
+        clock: SimClock,
+        state: LinkState,
+        shutdown: watch::Receiver<bool>,
+    ) -> Arc<Link> {
         let up = state.down_reason().is_none();
         Arc::new(Link {
             name: faults::link_name(params.a, params.b),
             params,
-            listen,
+            ports: Mutex::new(
+                (listen.port() != 0)
+                    .then_some(listen.port())
+                    .into_iter()
+                    .collect(),
+            ),
+            listen: Mutex::new(listen),
+            while_up,
+            fresh: Mutex::new(None),
             clock,
             counters: [Arc::default(), Arc::default()],
             state: Mutex::new(state),
@@ -251,6 +309,51 @@ impl Link {
         *self.up.borrow()
     }
 
+    /// Where the proxy listens (or listened last; port 0: never yet).
+    pub fn listen(&self) -> SocketAddr {
+        *lock(&self.listen)
+    }
+
+    /// Whether the proxy listens or listened at `addr` (a proxy that listens while up: on its
+    /// address, at any port it had, or port 0).
+    pub fn listened_at(&self, addr: SocketAddr) -> bool {
+        let now = self.listen();
+        addr == now
+            || (self.while_up
+                && addr.ip() == now.ip()
+                && (addr.port() == 0 || lock(&self.ports).contains(&addr.port())))
+    }
+
+    /// Every port the proxy has listened on, in order.
+    pub fn ports(&self) -> Vec<u16> {
+        lock(&self.ports).clone()
+    }
+
+    /// Binds the port of a link that listens while up: the one it had, else a free one. A
+    /// failure is logged; the accept loop tries again ([`Link::bind_again`]).
+    fn open_port(&self) {
+        let was = self.listen();
+        let bound = std::net::TcpListener::bind(was)
+            .or_else(|_| std::net::TcpListener::bind(SocketAddr::new(was.ip(), 0)))
+            .and_then(|l| l.set_nonblocking(true).map(|()| l));
+        match bound.and_then(|l| l.local_addr().map(|a| (l, a))) {
+            Ok((l, addr)) => {
+                self.bound(addr);
+                *lock(&self.fresh) = Some(l);
+            }
+            Err(e) => tracing::warn!(link = %self.name, "cannot listen on {}: {e}", was.ip()),
+        }
+    }
+
+    /// Notes that the proxy listens at `addr`.
+    fn bound(&self, addr: SocketAddr) {
+        *lock(&self.listen) = addr;
+        let mut ports = lock(&self.ports);
+        if ports.last() != Some(&addr.port()) {
+            ports.push(addr.port());
+        }
+    }
+
     pub fn counters(&self, dir: Dir) -> &DirCounters {
         &self.counters[dir.index()]
     }
@@ -263,12 +366,15 @@ impl Link {
             st.down_reason().is_none()
         };
         let conns = lock(&self.conns);
+        let was = *self.up.borrow();
+        if self.while_up && up && !was {
+            // Bound before anyone hears the link is up: the step's plan gives its address.
+            self.open_port();
+        } else if self.while_up && !up {
+            lock(&self.fresh).take();
+        }
         // Only a change wakes those who wait on it (the accept loop, held connections).
-        let mut was = up;
-        self.up.send_if_modified(|u| {
-            was = std::mem::replace(u, up);
-            was != up
-        });
+        self.up.send_if_modified(|u| std::mem::replace(u, up) != up);
         if was && !up {
             tracing::info!(link = %self.name, "link down: resetting {} connection(s)", conns.len());
             for c in conns.values() {
@@ -306,7 +412,7 @@ impl Link {
             a: self.params.a,
             b: self.params.b,
             name: self.name.clone(),
-            listen: self.listen,
+            listen: self.listen(),
             target: self.params.target,
             up: self.is_up(),
             enabled: st.enabled,
@@ -319,6 +425,7 @@ impl Link {
             refused_total: self.refused_total.load(Relaxed),
             toxics: self.toxics().iter().map(|t| t.toxic.clone()).collect(),
             held: self.planned(1).is_some_and(|p| p.held),
+            ports: self.ports(),
         }
     }
 
@@ -350,18 +457,33 @@ impl Link {
     /// descriptors instead of three: 16 000 instead of 24 000 at 128 robots all in range (see
     /// [`crate::fds`]). (The launcher looks for free ports without `SO_REUSEADDR`, so it never
     /// takes a port a connection holds.)
-    pub fn serve(self: &Arc<Self>, listener: TcpListener) -> JoinHandle<()> {
+    ///
+    /// A link that listens while up ([`Link::while_up`]) is given no listener: it takes the one
+    /// bound as the link came up, and closes it when the link goes down.
+    pub fn serve(self: &Arc<Self>, listener: Option<TcpListener>) -> JoinHandle<()> {
         let link = Arc::clone(self);
         let mut shutdown = self.shutdown.clone();
         tokio::spawn(async move {
-            let mut listener = Some(listener);
+            let mut listener = listener;
             let mut up = link.up.subscribe();
             let mut through = link.through.subscribe();
             loop {
-                let needed = !*up.borrow_and_update() || *through.borrow_and_update() == 0;
+                let is_up = *up.borrow_and_update();
+                let unused = *through.borrow_and_update() == 0;
+                let needed = if link.while_up {
+                    is_up && unused
+                } else {
+                    !is_up || unused
+                };
                 match (&listener, needed) {
                     (Some(_), false) => listener = None,
-                    (None, true) => listener = link.bind_again(&mut shutdown).await,
+                    (None, true) => {
+                        let fresh = lock(&link.fresh).take();
+                        listener = match fresh.map(TcpListener::from_std) {
+                            Some(Ok(l)) => Some(l),
+                            _ => link.bind_again(&mut shutdown).await,
+                        };
+                    }
                     _ => {}
                 }
                 tokio::select! {
@@ -385,8 +507,13 @@ impl Link {
     /// netem stops.
     async fn bind_again(&self, shutdown: &mut watch::Receiver<bool>) -> Option<TcpListener> {
         loop {
-            match TcpListener::bind(self.listen).await {
-                Ok(l) => return Some(l),
+            match TcpListener::bind(self.listen()).await {
+                Ok(l) => {
+                    if let Ok(addr) = l.local_addr() {
+                        self.bound(addr);
+                    }
+                    return Some(l);
+                }
                 Err(e) => tracing::warn!(link = %self.name, "cannot listen again: {e}"),
             }
             tokio::select! {
@@ -686,6 +813,7 @@ impl Link {
             delay: [0, 1].map(|i| delay(&shapes[i]).saturating_add(u32::from(air[i].lost))),
             held: shapes.iter().any(|s| s.stalled),
             credit,
+            proxy: Some(self.listen()).filter(|l| self.while_up && l.port() != 0),
         })
     }
 }
@@ -952,7 +1080,7 @@ pub(crate) mod tests {
             state,
             stop_rx,
         );
-        link.serve(listener);
+        link.serve(Some(listener));
         (link, stop_tx)
     }
 
@@ -960,7 +1088,7 @@ pub(crate) mod tests {
         link: &Link,
         accepted: &mut tokio::sync::mpsc::Receiver<TcpStream>,
     ) -> (TcpStream, TcpStream) {
-        let a = TcpStream::connect(link.listen).await.unwrap();
+        let a = TcpStream::connect(link.listen()).await.unwrap();
         let b = tokio::time::timeout(Duration::from_secs(2), accepted.recv())
             .await
             .unwrap()
@@ -1015,13 +1143,88 @@ pub(crate) mod tests {
     }
 
     #[tokio::test]
+    async fn a_link_that_listens_while_up_binds_before_its_plan_and_closes_when_down() {
+        let (target, mut accepted) = target().await;
+        let params = LinkParams {
+            a: 0,
+            b: 1,
+            target,
+            base: Default::default(),
+            buffer_bytes: 4096,
+            connect_timeout: Duration::from_secs(2),
+            seed: 1,
+            markers: true,
+        };
+        let out_of_range = LinkState {
+            enabled: true,
+            alive: true,
+            radio: None,
+            always: false,
+        };
+        let (_stop, stop_rx) = watch::channel(false);
+        let host = std::net::Ipv4Addr::LOCALHOST.into();
+        let link = Link::while_up(params, host, SimClock::lockstep(), out_of_range, stop_rx);
+        link.serve(None);
+        assert_eq!(link.listen().port(), 0, "down from the start: no port");
+        assert!(link.planned(1).is_none());
+        let in_range = |up: bool| {
+            move |st: &mut LinkState| {
+                st.radio = Some(Verdict {
+                    in_range: up,
+                    distance_m: 1.0,
+                    walls: None,
+                    signal_dbm: None,
+                    margin_db: None,
+                })
+            }
+        };
+        for round in 0..2 {
+            assert!(link.update(in_range(true)));
+            // The port is bound the moment the link comes up: the plan made next gives it.
+            let proxy = link
+                .planned(1)
+                .and_then(|p| p.proxy)
+                .expect("a proxy in the plan");
+            assert_eq!(proxy, link.listen());
+            let mut a = TcpStream::connect(proxy).await.unwrap();
+            let mut b = tokio::time::timeout(Duration::from_secs(2), accepted.recv())
+                .await
+                .expect("forwarded to b")
+                .unwrap();
+            a.write_all(b"hi").await.unwrap();
+            assert_eq!(read_exact_timeout(&mut b, 2).await, b"hi", "round {round}");
+            // Down: the connection is reset and nobody listens on the port any more.
+            assert!(!link.update(in_range(false)));
+            assert!(link.planned(1).is_none());
+            let mut buf = [0u8; 8];
+            let ended = tokio::time::timeout(Duration::from_secs(2), b.read(&mut buf)).await;
+            assert!(
+                matches!(ended, Ok(Ok(0) | Err(_))),
+                "b's connection ends: {ended:?}"
+            );
+            let refused = async {
+                loop {
+                    if TcpStream::connect(proxy).await.is_err() {
+                        break;
+                    }
+                    tokio::time::sleep(Duration::from_millis(5)).await;
+                }
+            };
+            tokio::time::timeout(Duration::from_secs(2), refused)
+                .await
+                .expect("the port is closed while the link is down");
+        }
+        assert!(!link.ports().is_empty());
+    }
+
+    #[tokio::test]
     async fn a_peer_that_listens_late_gets_the_held_connection() {
         // Robot b's port, free for now (a robot being started again).
         let port = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let target = port.local_addr().unwrap();
         drop(port);
         let (link, _stop) = link_to(target, Default::default(), SimClock::lockstep(), 4096).await;
-        let mut a = TcpStream::connect(link.listen).await.unwrap();
+        let mut a = TcpStream::connect(link.listen()).await.unwrap();
         a.write_all(b"hel").await.unwrap();
         tokio::time::sleep(Duration::from_millis(150)).await;
         assert_eq!(link.snapshot().established_total, 0);
@@ -1053,7 +1256,7 @@ pub(crate) mod tests {
             "b sees the cut"
         );
         // While down: accepted and held, never forwarded, nothing counted.
-        let mut a = TcpStream::connect(link.listen).await.unwrap();
+        let mut a = TcpStream::connect(link.listen()).await.unwrap();
         a.write_all(b"ba").await.unwrap();
         assert!(tokio::time::timeout(Duration::from_millis(50), acc.recv())
             .await

@@ -522,6 +522,7 @@ mod tests {
             refused_total: 0,
             toxics: vec![],
             held: false,
+            ports: vec![1],
         }
     }
 

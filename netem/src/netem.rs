@@ -46,6 +46,9 @@ pub struct PairSpec {
     /// Port 0 picks a free port; read it back with [`Netem::listen_addr`].
     pub listen: SocketAddr,
     pub target: SocketAddr,
+    /// The proxy listens on a free port of `listen`'s address only while the link is up
+    /// ([`Link::while_up`]); robot `a` learns it from each step's plan.
+    pub while_up: bool,
 }
 
 /// Everything netem needs to run.
@@ -311,12 +314,13 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
     })
 }
 
-/// Binds each pair's listener and makes its link, shaped by the scenario's `[radio]`.
+/// Binds each pair's listener (a pair that listens while up: none yet) and makes its link,
+/// shaped by the scenario's `[radio]`.
 async fn bind_links(
     cfg: &NetemConfig,
     clock: &SimClock,
     shutdown: &watch::Receiver<bool>,
-) -> Result<Vec<(Arc<Link>, TcpListener)>, NetemError> {
+) -> Result<Vec<(Arc<Link>, Option<TcpListener>)>, NetemError> {
     let rate = cfg.radio.bandwidth_bytes_per_s;
     let burst = |rate| burst_seconds(rate, cfg.clock.step_seconds, cfg.clock.marked());
     // In lockstep with markers a shared channel is netem's step plan (`channel`), not a budget
@@ -335,14 +339,6 @@ async fn bind_links(
             latency_ns: ns(cfg.radio.latency_ms),
             jitter_ns: ns(cfg.radio.jitter_ms),
         };
-        let listener = TcpListener::bind(p.listen)
-            .await
-            .map_err(|source| NetemError::Bind {
-                what: format!("link {}", faults::link_name(p.a, p.b)),
-                addr: p.listen,
-                source,
-            })?;
-        let listen = listener.local_addr().unwrap_or(p.listen);
         let params = LinkParams {
             a: p.a,
             b: p.b,
@@ -359,8 +355,27 @@ async fn bind_links(
             radio: None,
             always: cfg.radio.model == RadioModel::Always,
         };
+        if p.while_up {
+            let link = Link::while_up(
+                params,
+                p.listen.ip(),
+                clock.clone(),
+                state,
+                shutdown.clone(),
+            );
+            links.push((link, None));
+            continue;
+        }
+        let listener = TcpListener::bind(p.listen)
+            .await
+            .map_err(|source| NetemError::Bind {
+                what: format!("link {}", faults::link_name(p.a, p.b)),
+                addr: p.listen,
+                source,
+            })?;
+        let listen = listener.local_addr().unwrap_or(p.listen);
         let link = Link::new(params, listen, clock.clone(), state, shutdown.clone());
-        links.push((link, listener));
+        links.push((link, Some(listener)));
     }
     Ok(links)
 }
@@ -618,7 +633,7 @@ impl Netem {
 
     /// The address pair (a, b)'s listener is bound to (the port chosen for port 0).
     pub fn listen_addr(&self, a: RobotId, b: RobotId) -> Option<SocketAddr> {
-        self.shared.link((a, b)).ok().map(|l| l.listen)
+        self.shared.link((a, b)).ok().map(|l| l.listen())
     }
 
     /// The simulated time now.
@@ -713,6 +728,7 @@ mod tests {
                     b,
                     listen: "127.0.0.1:0".parse().unwrap(),
                     target: r.addrs[b as usize],
+                    while_up: false,
                 });
             }
         }

@@ -7,6 +7,7 @@
 //! loudly instead of misreading each other.
 
 use std::collections::BTreeMap;
+use std::net::SocketAddr;
 
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
@@ -367,6 +368,9 @@ pub struct PlannedLink {
     /// framing; the credit keeps what it offers within what the link will carry, so that its
     /// step marker is never held back behind its data.
     pub credit: [Option<u32>; 2],
+    /// Where robot `a` opens the link's session: netem's proxy of the pair, bound while the
+    /// link is up (docs/design.md §1.1); `None` when `a` was given the address at its start.
+    pub proxy: Option<SocketAddr>,
 }
 
 impl LinkPlan {
@@ -1139,6 +1143,7 @@ mod tests {
                     delay: [2, 0],
                     held: false,
                     credit: [Some(11_000), None],
+                    proxy: Some(([127, 0, 0, 1], 41234).into()),
                 },
                 PlannedLink {
                     a: 1,
@@ -1147,6 +1152,7 @@ mod tests {
                     delay: [0, 0],
                     held: true,
                     credit: [None, None],
+                    proxy: None,
                 },
             ],
         });
@@ -1444,6 +1450,7 @@ mod link_plan_tests {
             delay: [3, 0],
             held: false,
             credit: [Some(100), Some(7)],
+            proxy: None,
         };
         assert_eq!((l.rate_from(1), l.delay_from(1)), (Some(10), 3));
         // Split per node: each keeps its own links, in order; a node without one gets none.

@@ -77,12 +77,11 @@ impl<'de> Deserialize<'de> for Process {
     }
 }
 
-/// The largest team (`robots.count`). What bounds it is netem's one proxy port per pair of
-/// radio nodes: 200 robots and a base station are 20 100 pairs, and with every process's own
-/// port they fit between port 10 000 and Linux's default ephemeral range (32 768), where the
-/// launcher picks ports. What grows with the square of the team, and what bounds it, is in
-/// ARCHITECTURE.md ("Team size").
-pub const MAX_ROBOTS: u16 = 200;
+/// The largest team (`robots.count`). Robot ids, the base station's included, stay below the
+/// log owners' stride (`msg::LIFE_STRIDE`, 1 024). Ports no longer bound it: netem's proxy of a
+/// pair listens only while the pair's link is up, on a free port, so the launcher picks one
+/// port per process. What a big team costs is in ARCHITECTURE.md ("Team size").
+pub const MAX_ROBOTS: u16 = 1000;
 
 /// The `[[faults]]` kinds that act on processes (the launcher's); every other kind is a link
 /// fault (netem's).

@@ -1637,7 +1637,7 @@ mod tests {
             (err("", &["robots.count=abc"]), "robots.count"),
             (err("", &["robots.count=0"]), "robots.count"),
             (err("", &["robots.count=-2"]), "robots.count"),
-            (err("", &["robots.count=201"]), "1..=200"),
+            (err("", &["robots.count=1001"]), "1..=1000"),
             (err("", &["done_pct=150"]), "done_pct"),
             (err("", &["nope.x=1"]), "nope"),
             (err("", &["clock.mode=\"sometimes\""]), "sometimes"),

@@ -11,6 +11,7 @@ use proto::node::{close_quickly, entry, radio_peer, zerr, ScenarioArgs, ZenohArg
 use proto::scenario::Scenario;
 
 use crate::node::{run_robot, world_info, End};
+use crate::radio::dial::RadioPlane;
 
 /// One robot of swarm-explore: maps what its laser sees, shares it with the robots in radio
 /// range, and explores. Joins the world-server's sim plane as a client (--connect) and runs its
@@ -160,9 +161,8 @@ async fn run(role: Role, args: NodeArgs) -> anyhow::Result<End> {
         &[],
         lockstep,
     )?;
-    let radio = zenoh::open(radio_cfg)
+    let radio = RadioPlane::open(radio_cfg)
         .await
-        .map_err(zerr)
         .context("opening the radio plane")?;
     let idle = Duration::from_secs_f64(args.idle_timeout_s.max(0.1));
     if proto::msg::log_owner(id, args.life).is_none() {
@@ -176,12 +176,12 @@ async fn run(role: Role, args: NodeArgs) -> anyhow::Result<End> {
         (id, args.life),
         &scenario,
         sim.clone(),
-        radio.clone(),
+        (radio.session.clone(), radio.dialer(id)),
         world,
         idle,
     )
     .await?;
-    close_quickly(radio).await;
+    radio.close().await;
     close_quickly(sim).await;
     Ok(end)
 }

@@ -23,6 +23,7 @@ use zenoh::session::ZenohId;
 use zenoh::Session;
 
 use crate::agent::Agent;
+use crate::radio::dial::Dialer;
 use crate::radio::lockstep::Lockstep;
 use crate::radio::station::Outgoing;
 
@@ -282,7 +283,7 @@ pub async fn run_robot(
     (id, life): (RobotId, u16),
     s: &Scenario,
     sim: Session,
-    radio: Session,
+    (radio, dialer): (Session, Dialer),
     world: WorldInfo,
     idle_timeout: Duration,
 ) -> Result<End, ZenohError> {
@@ -311,6 +312,7 @@ pub async fn run_robot(
         subs: &subs,
         idle: std::cell::Cell::new(idle_timeout),
         idle_floor: idle_timeout,
+        dialer: RefCell::new(dialer),
         step_wait: s.step_wait(),
         peers: (0..s.nodes())
             .filter(|&r| r != id)
@@ -337,6 +339,8 @@ struct Planes<'a> {
     idle: std::cell::Cell<Duration>,
     /// The node's own idle timeout (`--idle-timeout-s`).
     idle_floor: Duration,
+    /// Opens the sessions of links that come up.
+    dialer: RefCell<Dialer>,
     /// The world's step wait before any step is seen.
     step_wait: StepWait,
     /// Every other robot of the run, by its radio session's zenoh id.
@@ -398,7 +402,10 @@ async fn as_it_comes(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError
             }
             Event::Peer(peer, false) => agent.link_down(peer),
             Event::Asked(q) => answer(q, &agent),
-            Event::Plan(_) | Event::Nothing => {}
+            // zenoh tells when a session is up: one being opened is not opened twice, one
+            // that is up is only looked up.
+            Event::Plan(plan) => p.dialer.borrow_mut().dial(&plan, |_| false),
+            Event::Nothing => {}
             Event::End(e) => return Ok(e),
         }
     }
@@ -430,7 +437,7 @@ async fn lockstep(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError> {
             continue;
         };
         let (linked, greetings) = take_links(&mut agent, &mut ls, &plan, p.id);
-        match await_sessions(&mut agent, &mut ls, p, t, &linked).await? {
+        match await_sessions(&mut agent, &mut ls, p, (t, &plan), &linked).await? {
             Wait::Done => {}
             Wait::Skipped => continue,
             Wait::Ended(end) => return Ok(end),
@@ -501,7 +508,7 @@ async fn await_sessions(
     agent: &mut Agent,
     ls: &mut Lockstep,
     p: &Planes<'_>,
-    t: Step,
+    (t, plan): (Step, &LinkPlan),
     linked: &[RobotId],
 ) -> Result<Wait, ZenohError> {
     let mut poll = SESSION_POLL;
@@ -511,6 +518,11 @@ async fn await_sessions(
         if ls.linked(linked) {
             break;
         }
+        // The links whose sessions are not up yet: this robot opens those it is the lower
+        // end of (again, if an attempt failed).
+        p.dialer
+            .borrow_mut()
+            .dial(plan, |peer| ls.linked(std::slice::from_ref(&peer)));
         if ls.newer_than(t) {
             // The world went on while a link's session did not form (the peer was frozen or
             // hung before its first session came up). A late command, moving nowhere, tells the

@@ -58,8 +58,8 @@ pub struct Ports {
     pub sim: SocketAddr,
     pub http: SocketAddr,
     pub radio: Vec<SocketAddr>,
-    /// Every pair {a, b}, a < b, in order, with the address of its proxy.
-    pub pairs: Vec<(RobotId, RobotId, SocketAddr)>,
+    /// The address netem's proxies listen on (each pair's on a free port while its link is up).
+    pub proxy_host: IpAddr,
 }
 
 impl Ports {
@@ -74,13 +74,9 @@ impl Ports {
                 Process::Robot(i)
             }
         };
-        let pairs: Vec<(RobotId, RobotId)> = (0..n)
-            .flat_map(|i| ((i + 1)..n).map(move |j| (i, j)))
-            .collect();
         // Every address the run needs, by the process that binds it, in a fixed order.
         let mut wants = vec![Process::WorldServer, Process::Netem];
         wants.extend((0..n).map(node));
-        wants.extend(pairs.iter().map(|_| Process::Netem));
         let mut pools: BTreeMap<IpAddr, VecDeque<u16>> = match placement {
             None => {
                 let local = IpAddr::V4(Ipv4Addr::LOCALHOST);
@@ -102,15 +98,11 @@ impl Ports {
         let radio = (0..n)
             .map(|i| next(node(i)))
             .collect::<anyhow::Result<_>>()?;
-        let pairs = pairs
-            .iter()
-            .map(|&(a, b)| Ok((a, b, next(Process::Netem)?)))
-            .collect::<anyhow::Result<_>>()?;
         Ok(Ports {
             sim,
+            proxy_host: http.ip(),
             http,
             radio,
-            pairs,
         })
     }
 

@@ -6,7 +6,6 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use netem::PairSpec;
 use proto::confine::Principal;
 use proto::grid::Grid;
 use proto::keys;
@@ -279,22 +278,18 @@ fn netem_argv(plan: &Plan) -> Vec<String> {
     args.http = Some(plan.ports.http);
     args.totals_out = Some(plan.dir.join("link_totals.csv"));
     args.token_file = plan.api_token().then(|| plan.dir.join("netem.token"));
-    args.pairs = (plan.ports.pairs.iter())
-        .map(|&(a, b, listen)| PairSpec {
-            a,
-            b,
-            listen,
-            target: plan.ports.radio[usize::from(b)],
-        })
+    args.nodes = (plan.ports.radio.iter().enumerate())
+        .map(|(i, &target)| (RobotId::try_from(i).unwrap_or(RobotId::MAX), target))
         .collect();
+    args.proxy_host = plan.ports.proxy_host;
     ["netem".to_string(), "serve".to_string()]
         .into_iter()
         .chain(args.to_argv())
         .collect()
 }
 
-/// Node `i`'s flags: it listens on its radio port and connects to netem's proxy of every pair
-/// in which it has the lower id.
+/// Node `i`'s flags: it listens on its radio port; it connects to netem's proxy of a pair in
+/// which it has the lower id when a step's plan says where (the pair's link is up).
 fn node_args(plan: &Plan, i: RobotId) -> robot_agent::cli::NodeArgs {
     let mut args = robot_agent::cli::NodeArgs::new(
         plan.scenario_file.clone(),
@@ -307,10 +302,6 @@ fn node_args(plan: &Plan, i: RobotId) -> robot_agent::cli::NodeArgs {
     let start_s = plan.scenario.start_step_wait_ms() as f64 / 1000.0;
     args.idle_timeout_s = args.idle_timeout_s.max(2.0 * start_s);
     args.radio_listen = vec![endpoint(plan.ports.radio[usize::from(i)])];
-    args.radio_connect = (plan.ports.pairs.iter())
-        .filter(|&&(a, _, _)| a == i)
-        .map(|&(_, _, addr)| endpoint(addr))
-        .collect();
     args
 }
 

@@ -295,6 +295,7 @@ mod tests {
                 delay: [0, delay],
                 held,
                 credit: [None, None],
+                proxy: None,
             }],
         };
         // Sent in step 0 over a delay of 2: acted on in step 2.
