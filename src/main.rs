@@ -93,7 +93,7 @@ fn main() -> ExitCode {
         Command::WorldServer(args) => world_server::cli::main(args),
         Command::RobotAgent(args) => robot_agent::cli::main(args),
         Command::BaseStation(args) => robot_agent::cli::base_main(args),
-        Command::Netem(cmd::netemctl::NetemCommand::Serve(args)) => netem::cli::main(args),
+        Command::Netem(cmd::netemctl::NetemCommand::Serve(args)) => netem::cli::main(*args),
         Command::Netem(c) => outcome("swarm netem", cmd::netemctl::command(&c)),
         Command::HostInfo(args) => outcome("swarm host-info", remote::host_info_command(&args)),
         Command::HostFiles(args) => outcome("swarm host-files", remote::host_files_command(&args)),

@@ -43,7 +43,7 @@ fn api_token(a: &ApiArgs) -> anyhow::Result<Option<String>> {
 #[derive(Subcommand, Debug, Clone)]
 pub enum NetemCommand {
     /// Run the netem link-emulator process (what `swarm run` starts).
-    Serve(netem::cli::Args),
+    Serve(Box<netem::cli::Args>),
     /// List every link (proxy) with its state and toxics.
     List(ApiArgs),
     /// Cut the link between robots A and B (reconnects held until restored).
