@@ -3,12 +3,15 @@
 //! Per pair of radio nodes netem holds two descriptors: a link that is down, its listener and
 //! the robot's connection it holds until the link comes up; a link in use, the two sockets of the
 //! connection it carries (the robot's, and its own to the peer's listener) — its listener is
-//! closed meanwhile ([`crate::link::Link::serve`]). So a team of n nodes needs about n(n−1)
-//! descriptors: 16 256 at 128 robots (a third more if listeners stayed open: with every pair in
-//! range at once — a spawn cluster in a 10 m disk range — 24 384, beyond this project's 2-core
-//! test machine's hard limit of 20 000). A process starts with a soft limit of often 1 024;
-//! netem raises it to the hard limit, which only the administrator can raise, and says at start
-//! when even that may not do.
+//! closed meanwhile ([`crate::link::Link::serve`]). So a team of n nodes whose proxies have
+//! fixed ports (`--pair`) needs about n(n−1) descriptors: 16 256 at 128 robots (a third more if
+//! listeners stayed open: with every pair in range at once — a spawn cluster in a 10 m disk
+//! range — 24 384, beyond this project's 2-core test machine's hard limit of 20 000). A proxy
+//! that listens while its link is up (`--node`, how `swarm run` starts netem) holds nothing
+//! while the link is down: two descriptors per pair in range (256 robots spread 1.5 m apart
+//! with a 4 m range: at most 4 391 descriptors, docs/results.md T8). A process starts with a
+//! soft limit of often 1 024; netem raises it to the hard limit, which only the administrator
+//! can raise, and says at start when even that may not do (counting the fixed-port pairs).
 
 /// Descriptors netem holds besides its links': the runtime, zenoh's sim-plane session, the
 /// HTTP API and its clients, logs.

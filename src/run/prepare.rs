@@ -51,9 +51,10 @@ impl Plan {
     }
 }
 
-/// The addresses of a run: the sim plane's router, netem's HTTP API, every radio node's
-/// listener (robots, then the base station), and netem's proxy of every pair of nodes — each on
-/// its process's host (loopback without a hosts file), on a port free there.
+/// The addresses of a run: the sim plane's router, netem's HTTP API and every radio node's
+/// listener (robots, then the base station) — each on its process's host (loopback without a
+/// hosts file), on a port free there — and the address netem's proxies listen on (netem picks a
+/// pair's port when its link comes up).
 pub struct Ports {
     pub sim: SocketAddr,
     pub http: SocketAddr,
