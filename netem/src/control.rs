@@ -55,6 +55,9 @@ pub(crate) struct Shared {
     /// The index in `links` of each pair (lower id first).
     pub(crate) by_pair: HashMap<Pair, usize>,
     pub(crate) radio: Radio,
+    /// How far apart two nodes may be for their pair to have a row in a step's report though
+    /// its link is down (`None`: any distance, the `always` model). See [`reported`].
+    pub(crate) report_within_m: Option<f64>,
     /// `airtime`: the radio whose range is the interference range (`None`: the links' own).
     pub(crate) interference: Option<Radio>,
     /// The shared channel and lost frames, step by step (lockstep with markers).

@@ -232,6 +232,26 @@ fn channel_config(cfg: &NetemConfig) -> ChannelConfig {
     }
 }
 
+/// A pair whose link is down has a row in a step's report while its nodes are within this many
+/// radio ranges of each other ([`reported`]).
+pub const REPORT_RANGES: f64 = 2.0;
+
+/// Whether a pair has a row in the report of the step that ends (`links.csv`): its link was up
+/// as the step ended or is up now, it carried or holds bytes or a connection, or its nodes are
+/// within `within_m` of each other (or netem has no poses for them yet; `None`: any distance).
+/// The pairs far apart — most of a big team's — have none: a report grows with the pairs near
+/// each other, not with the team's n(n−1)/2 pairs.
+fn reported(row: &LinkTelemetry, up_now: bool, within_m: Option<f64>) -> bool {
+    let near = match (within_m, row.distance_m) {
+        (Some(m), Some(d)) => d <= m,
+        _ => true,
+    };
+    near || row.up
+        || up_now
+        || row.bytes_a_to_b + row.bytes_b_to_a + row.queued_bytes > 0
+        || row.connections > 0
+}
+
 /// How long [`Netem::shutdown`] waits for connections to end by themselves before it resets them.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(1);
 
@@ -271,6 +291,8 @@ pub async fn start(cfg: NetemConfig) -> Result<Netem, NetemError> {
             .collect(),
         links,
         radio,
+        report_within_m: (cfg.radio.model != RadioModel::Always)
+            .then_some(REPORT_RANGES * cfg.radio.range_m),
         interference,
         channel: Mutex::new(channel),
         nodes_air: Mutex::new(Vec::new()),
@@ -454,7 +476,7 @@ impl Netem {
             .links
             .iter()
             .zip(&before)
-            .map(|(l, (snap, bytes))| {
+            .filter_map(|(l, (snap, bytes))| {
                 let bytes = *bytes;
                 l.open_credit(bytes, self.shared.step_seconds);
                 // Queues and connection counts as they are now (a link going down drops its
@@ -465,7 +487,7 @@ impl Netem {
                 // A link that was down held nothing as the step ended; if it comes up now, its
                 // robots connect at once, and their first bytes belong to the new step.
                 let queued = |q: u64| if was.up { q } else { 0 };
-                LinkTelemetry {
+                let row = LinkTelemetry {
                     queued_bytes: queued(now.queued_bytes),
                     queued_a_to_b: queued(now.queued_a_to_b),
                     queued_b_to_a: queued(now.queued_b_to_a),
@@ -483,7 +505,8 @@ impl Netem {
                     walls: was.walls,
                     air: link_air(&air, l.params.a, l.params.b),
                     ..now
-                }
+                };
+                reported(&row, now.up, self.shared.report_within_m).then_some(row)
             })
             .collect();
         if ending.is_some() {
@@ -839,6 +862,39 @@ mod tests {
             "{:?}",
             started.elapsed()
         );
+    }
+
+    /// A step's report holds the pairs near each other (up, or down within two ranges), not
+    /// the pairs far apart; with `always` every pair.
+    #[tokio::test]
+    async fn a_report_holds_the_pairs_near_each_other_not_every_pair() {
+        let r = robots(4).await;
+        let n = start(disk_10m(&r)).await.unwrap();
+        // 0–1 in range; 1–2 down but within 20 m; 3 far from everyone.
+        let mut poses = vec![
+            (0, at(0.0, 0.0), true),
+            (1, at(5.0, 0.0), true),
+            (2, at(20.0, 0.0), true),
+            (3, at(200.0, 0.0), true),
+        ];
+        let pairs = |rows: &[LinkTelemetry]| rows.iter().map(|l| (l.a, l.b)).collect::<Vec<_>>();
+        n.advance(0, &poses);
+        let rows = n.advance(1, &poses);
+        assert_eq!(pairs(&rows), [(0, 1), (0, 2), (1, 2)]);
+        assert!(rows[0].up && !rows[1].up && !rows[2].up);
+        // 1 goes far away: the step that ends was the one before, so every row is still
+        // there; the step after, 0–1 (down) and 1–2 have none.
+        poses[1].1 = at(5.0, 500.0);
+        assert_eq!(pairs(&n.advance(2, &poses)), [(0, 1), (0, 2), (1, 2)]);
+        assert_eq!(pairs(&n.advance(3, &poses)), [(0, 2)]);
+        let all = start(NetemConfig::new(
+            all_pairs(&r),
+            radio(RadioModel::Always, 10.0, 0, Medium::PerLink),
+        ))
+        .await
+        .unwrap();
+        all.advance(0, &poses);
+        assert_eq!(all.advance(1, &poses).len(), 6);
     }
 
     /// A shared channel in the step plan (issue #39): 3 robots that hear each other and a pair
