@@ -239,7 +239,7 @@ pub fn compare(totals: &[LinkTotal], segs: &[Segment]) -> Comparison {
     let listening: std::collections::HashSet<SocketAddr> = (totals.iter())
         .flat_map(|l| {
             let ip = l.listen.ip();
-            (l.ports.iter().map(move |&p| SocketAddr::new(ip, p))).chain([l.listen, l.target])
+            (l.ports.iter().map(move |&p| SocketAddr::new(ip, p))).chain([l.target])
         })
         .collect();
     for (s, &n) in segs.iter().zip(&fresh) {
@@ -259,7 +259,6 @@ pub fn compare(totals: &[LinkTotal], segs: &[Segment]) -> Comparison {
     let (mut ok, mut counted_total, mut captured_total) = (true, 0, 0);
     for l in totals {
         let captured: u64 = (l.ports.iter())
-            .chain(l.ports.is_empty().then_some(&l.listen.port()))
             .map(|&p| {
                 from.get(&SocketAddr::new(l.listen.ip(), p))
                     .copied()

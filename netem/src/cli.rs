@@ -103,18 +103,13 @@ impl Args {
 /// `A-B=LISTEN>TARGET`, as `--pair` takes it.
 impl std::fmt::Display for PairSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        if self.while_up {
-            write!(
-                f,
-                "{}-{}={}>{}",
-                self.a,
-                self.b,
-                self.listen.ip(),
-                self.target
-            )
+        // A proxy that listens while up is given its address alone.
+        let listen = if self.while_up {
+            self.listen.ip().to_string()
         } else {
-            write!(f, "{}-{}={}>{}", self.a, self.b, self.listen, self.target)
-        }
+            self.listen.to_string()
+        };
+        write!(f, "{}-{}={listen}>{}", self.a, self.b, self.target)
     }
 }
 
@@ -171,8 +166,9 @@ pub struct LinkTotalsCsv {
     pub ports: String,
 }
 
-impl From<&LinkSnapshot> for LinkTotalsCsv {
-    fn from(l: &LinkSnapshot) -> LinkTotalsCsv {
+impl From<&(LinkSnapshot, Vec<u16>)> for LinkTotalsCsv {
+    /// A link's last snapshot, with every port its proxy listened on.
+    fn from((l, ports): &(LinkSnapshot, Vec<u16>)) -> LinkTotalsCsv {
         let [ab, ba] = l.dirs;
         LinkTotalsCsv {
             a: l.a,
@@ -187,7 +183,7 @@ impl From<&LinkSnapshot> for LinkTotalsCsv {
             connects: l.connects_total,
             established: l.established_total,
             refused: l.refused_total,
-            ports: (l.ports.iter().map(u16::to_string))
+            ports: (ports.iter().map(u16::to_string))
                 .collect::<Vec<_>>()
                 .join(" "),
         }
@@ -212,7 +208,7 @@ pub const TOTALS_HEADER: [&str; 13] = [
 ];
 
 /// Writes `--totals-out`: one row per link, its addresses and final counters.
-fn write_totals(path: &Path, links: &[LinkSnapshot]) -> anyhow::Result<()> {
+fn write_totals(path: &Path, links: &[(LinkSnapshot, Vec<u16>)]) -> anyhow::Result<()> {
     let context = || format!("writing {}", path.display());
     // The header by hand too: serde writes it only with a first row, and the file has one
     // also when there is no link.

@@ -305,6 +305,14 @@ impl Shared {
         self.links.iter().map(|l| l.snapshot()).collect()
     }
 
+    /// Every link's snapshot with every port its proxy listened on (`link_totals.csv`).
+    pub(crate) fn totals(&self) -> Vec<(LinkSnapshot, Vec<u16>)> {
+        self.links
+            .iter()
+            .map(|l| (l.snapshot(), l.ports()))
+            .collect()
+    }
+
     /// The simulated time now.
     pub(crate) fn now(&self) -> SimTime {
         self.clock.now()

@@ -133,14 +133,15 @@ struct ConnEntry {
 pub struct Link {
     pub params: LinkParams,
     pub name: String,
-    /// Where the proxy listens, or listened last (port 0: never yet).
-    listen: Mutex<SocketAddr>,
+    /// The address the proxy listens on.
+    host: std::net::IpAddr,
+    /// Every port the proxy has listened on, in order (`link_totals.csv`); the last is where it
+    /// listens, or listened last ([`Link::listen`]).
+    ports: Mutex<Vec<u16>>,
     /// Listens only while the link is up, on a port it binds then (see the module's doc).
     while_up: bool,
     /// Bound as the link came up, for the accept loop to take.
     fresh: Mutex<Option<std::net::TcpListener>>,
-    /// Every port the proxy has listened on, in order (`link_totals.csv`).
-    ports: Mutex<Vec<u16>>,
     clock: SimClock,
     counters: [Arc<DirCounters>; 2],
     state: Mutex<LinkState>,
@@ -223,8 +224,6 @@ pub struct LinkSnapshot {
     pub toxics: Vec<Toxic>,
     /// Up but held by a toxic (a blackhole: a `timeout` of 0).
     pub held: bool,
-    /// Every port the proxy has listened on, in order.
-    pub ports: Vec<u16>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -279,13 +278,10 @@ impl Link {
         Arc::new(Link {
             name: faults::link_name(params.a, params.b),
             params,
-            ports: Mutex::new(
-                (listen.port() != 0)
-                    .then_some(listen.port())
-                    .into_iter()
-                    .collect(),
-            ),
-            listen: Mutex::new(listen),
+            host: listen.ip(),
+            ports: Mutex::new(Vec::from_iter(
+                (listen.port() != 0).then_some(listen.port()),
+            )),
             while_up,
             fresh: Mutex::new(None),
             clock,
@@ -311,16 +307,15 @@ impl Link {
 
     /// Where the proxy listens (or listened last; port 0: never yet).
     pub fn listen(&self) -> SocketAddr {
-        *lock(&self.listen)
+        SocketAddr::new(self.host, lock(&self.ports).last().copied().unwrap_or(0))
     }
 
     /// Whether the proxy listens or listened at `addr` (a proxy that listens while up: on its
     /// address, at any port it had, or port 0).
     pub fn listened_at(&self, addr: SocketAddr) -> bool {
-        let now = self.listen();
-        addr == now
+        addr == self.listen()
             || (self.while_up
-                && addr.ip() == now.ip()
+                && addr.ip() == self.host
                 && (addr.port() == 0 || lock(&self.ports).contains(&addr.port())))
     }
 
@@ -334,20 +329,19 @@ impl Link {
     fn open_port(&self) {
         let was = self.listen();
         let bound = std::net::TcpListener::bind(was)
-            .or_else(|_| std::net::TcpListener::bind(SocketAddr::new(was.ip(), 0)))
+            .or_else(|_| std::net::TcpListener::bind(SocketAddr::new(self.host, 0)))
             .and_then(|l| l.set_nonblocking(true).map(|()| l));
         match bound.and_then(|l| l.local_addr().map(|a| (l, a))) {
             Ok((l, addr)) => {
                 self.bound(addr);
                 *lock(&self.fresh) = Some(l);
             }
-            Err(e) => tracing::warn!(link = %self.name, "cannot listen on {}: {e}", was.ip()),
+            Err(e) => tracing::warn!(link = %self.name, "cannot listen on {}: {e}", self.host),
         }
     }
 
-    /// Notes that the proxy listens at `addr`.
+    /// Notes that the proxy listens at `addr` (on its host).
     fn bound(&self, addr: SocketAddr) {
-        *lock(&self.listen) = addr;
         let mut ports = lock(&self.ports);
         if ports.last() != Some(&addr.port()) {
             ports.push(addr.port());
@@ -425,7 +419,6 @@ impl Link {
             refused_total: self.refused_total.load(Relaxed),
             toxics: self.toxics().iter().map(|t| t.toxic.clone()).collect(),
             held: self.planned(1).is_some_and(|p| p.held),
-            ports: self.ports(),
         }
     }
 

@@ -522,7 +522,6 @@ mod tests {
             refused_total: 0,
             toxics: vec![],
             held: false,
-            ports: vec![1],
         }
     }
 

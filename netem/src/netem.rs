@@ -667,7 +667,7 @@ impl Netem {
     /// Resets every connection, stops every listener and task.
     /// Stops accepting, closes every connection and returns each link's final snapshot (its
     /// counters can no longer change).
-    pub async fn shutdown(mut self) -> Vec<LinkSnapshot> {
+    pub async fn shutdown(mut self) -> Vec<(LinkSnapshot, Vec<u16>)> {
         self.shared.shutdown.send_replace(true);
         // At the end of a run the robots are told to stop at the same time as netem: give their
         // connections a moment to end by themselves (every byte written is then sent or counted
@@ -695,7 +695,7 @@ impl Netem {
                 tracing::warn!("a netem task did not stop in time");
             }
         }
-        self.shared.snapshots()
+        self.shared.totals()
     }
 }
 

@@ -284,6 +284,11 @@ impl Agent {
         self.radio.link_up(peer, sharing, self.step, self.target)
     }
 
+    /// Whether this robot hears `peer` (its radio token is seen: a session to it is up).
+    pub fn hears(&self, peer: RobotId) -> bool {
+        self.radio.neighbours().contains(&peer)
+    }
+
     pub fn link_down(&mut self, peer: RobotId) {
         if let Some(tree) = &mut self.relay {
             tree.link_down(peer);

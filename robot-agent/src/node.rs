@@ -402,9 +402,8 @@ async fn as_it_comes(mut agent: Agent, p: &Planes<'_>) -> Result<End, ZenohError
             }
             Event::Peer(peer, false) => agent.link_down(peer),
             Event::Asked(q) => answer(q, &agent),
-            // zenoh tells when a session is up: one being opened is not opened twice, one
-            // that is up is only looked up.
-            Event::Plan(plan) => p.dialer.borrow_mut().dial(&plan, |_| false),
+            // A session is up once its token is seen (`Event::Peer`).
+            Event::Plan(plan) => p.dialer.borrow_mut().dial(&plan, |peer| agent.hears(peer)),
             Event::Nothing => {}
             Event::End(e) => return Ok(e),
         }

@@ -278,9 +278,7 @@ fn netem_argv(plan: &Plan) -> Vec<String> {
     args.http = Some(plan.ports.http);
     args.totals_out = Some(plan.dir.join("link_totals.csv"));
     args.token_file = plan.api_token().then(|| plan.dir.join("netem.token"));
-    args.nodes = (plan.ports.radio.iter().enumerate())
-        .map(|(i, &target)| (RobotId::try_from(i).unwrap_or(RobotId::MAX), target))
-        .collect();
+    args.nodes = (0..).zip(plan.ports.radio.iter().copied()).collect();
     args.proxy_host = plan.ports.proxy_host;
     ["netem".to_string(), "serve".to_string()]
         .into_iter()

@@ -62,7 +62,7 @@ pub struct Dialer {
     runtime: Runtime,
     me: RobotId,
     /// The sessions being opened: to whom, through which proxy.
-    dialing: HashMap<RobotId, (SocketAddr, JoinHandle<bool>)>,
+    dialing: HashMap<RobotId, (SocketAddr, JoinHandle<()>)>,
 }
 
 impl Dialer {
@@ -83,8 +83,11 @@ impl Dialer {
                 continue;
             };
             let runtime = self.runtime.clone();
-            let task =
-                tokio::spawn(async move { runtime.connect_peer(&zid.into(), &[locator]).await });
+            let task = tokio::spawn(async move {
+                if !runtime.connect_peer(&zid.into(), &[locator]).await {
+                    tracing::debug!("no session to {zid} through {proxy} yet");
+                }
+            });
             self.dialing.insert(l.b, (proxy, task));
         }
     }
