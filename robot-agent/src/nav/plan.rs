@@ -50,14 +50,17 @@ pub struct CostMap {
     width: u32,
     height: u32,
     start: Cell,
-    /// Cost per row-major cell index of the window; `f64::INFINITY` when unreachable.
+    /// Cost per row-major cell index of the window, for the cells this search reached
+    /// ([`CostMap::stamp`]); every other cell is unreachable.
     dist: Vec<f64>,
-    /// The search's free cells over the window and a border of one cell (row-major, 1: free):
-    /// a move's test is an index away, with no bounds to check.
-    free: Vec<u8>,
-    /// Predecessor on a shortest path per cell index; [`NO_PRED`] for the start and unreachable
-    /// cells.
+    /// Predecessor on a shortest path per cell index reached; [`NO_PRED`] for the sources.
     pred: Vec<u32>,
+    /// Per cell index, the search that last wrote its `dist` and `pred`: a cell is reached by
+    /// this search iff its stamp is [`CostMap::search`]. A search costs what it reaches, not
+    /// the window's area: the buffers are never cleared, only stamped anew.
+    stamp: Vec<u32>,
+    /// The current search's stamp (never 0 once a search began).
+    search: u32,
     /// The search settled every cell up to this cost and stopped ([`costs_until`]); costs
     /// beyond it are unknown and read as unreachable. `f64::INFINITY`: a full search.
     limit: f64,
@@ -73,8 +76,9 @@ impl Default for CostMap {
             height: 0,
             start: Cell::new(-1, -1),
             dist: Vec::new(),
-            free: Vec::new(),
             pred: Vec::new(),
+            stamp: Vec::new(),
+            search: 0,
             limit: f64::INFINITY,
         }
     }
@@ -90,13 +94,27 @@ impl CostMap {
     /// unreachable or outside the grid.
     pub fn cost(&self, c: Cell) -> Option<f64> {
         self.index(c)
-            .map(|i| self.dist[i])
+            .map(|i| self.dist_at(i))
             .filter(|&d| d.is_finite() && d <= self.limit)
     }
 
     /// Whether the search covered every cell it could reach (not stopped by [`costs_until`]).
     pub fn is_complete(&self) -> bool {
         self.limit == f64::INFINITY
+    }
+
+    /// The cost of cell index `i` (`f64::INFINITY`: not reached).
+    fn dist_at(&self, i: usize) -> f64 {
+        if self.stamp[i] == self.search {
+            self.dist[i]
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// Cell index `i` reached at `cost` from `pred`.
+    fn reach(&mut self, i: usize, cost: f64, pred: u32) {
+        (self.stamp[i], self.dist[i], self.pred[i]) = (self.search, cost, pred);
     }
 
     fn index(&self, c: Cell) -> Option<usize> {
@@ -106,8 +124,8 @@ impl CostMap {
     }
 
     /// Starts a search from `sources` over `g`: the window — the known part and the sources
-    /// inside the grid — every cost unknown, no predecessor.
-    fn begin(&mut self, g: &Grid, sources: &[Cell]) -> Option<Rect> {
+    /// inside the grid — no cell reached yet.
+    fn begin(&mut self, g: &Grid, sources: &[Cell]) {
         let window = (sources.iter().filter(|&&c| g.contains(c)))
             .fold(g.known_bounds(), |r, &c| {
                 Rect::union_of(r, Some(Rect::cell(c)))
@@ -118,11 +136,17 @@ impl CostMap {
         (self.x0, self.y0, self.width, self.height, self.start) = (x0, y0, width, height, start);
         let cells = width as usize * height as usize;
         self.limit = f64::INFINITY;
-        self.dist.clear();
-        self.dist.resize(cells, f64::INFINITY);
-        self.pred.clear();
-        self.pred.resize(cells, NO_PRED);
-        window
+        if self.stamp.len() < cells {
+            self.dist.resize(cells, f64::INFINITY);
+            self.pred.resize(cells, NO_PRED);
+            self.stamp.resize(cells, 0);
+        }
+        self.search = self.search.wrapping_add(1);
+        if self.search == 0 {
+            // Stamps wrapped around: none may read as this search's.
+            self.stamp.fill(0);
+            self.search = 1;
+        }
     }
 
     fn cell_of(&self, i: usize) -> Cell {
@@ -158,7 +182,7 @@ impl PartialOrd for Entry {
 
 /// The moves allowed out of `c`: into free cells, 8-connected, diagonals only between two free
 /// orthogonal neighbours. Returns (neighbour, step cost). The rule, cell by cell: the search
-/// reads it from a bordered copy of the free cells, and its property tests hold it to this.
+/// reads it from the grid's cells over its window, and its property tests hold it to this.
 #[cfg(test)]
 fn moves(g: &Grid, c: Cell) -> impl Iterator<Item = (Cell, f64)> + '_ {
     let free = move |x: i32, y: i32| g.get(Cell::new(x, y)) == Occ::Free;
@@ -271,9 +295,10 @@ pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
 }
 
 /// The search runs over a window of the grid — its known part and the sources — and costs in
-/// proportion to that, not to the map: every free cell is inside the known part, and a path
-/// steps only onto free cells. Window indices are row-major like the grid's, so the order in
-/// which equal costs are settled is the grid's.
+/// proportion to the cells it reaches, not to the map or the window: every free cell is inside
+/// the known part, a path steps only onto free cells, and the buffers are stamped, not cleared
+/// ([`CostMap::stamp`]). Window indices are row-major like the grid's, so the order in which
+/// equal costs are settled is the grid's.
 fn dijkstra(
     map: &mut CostMap,
     g: &Grid,
@@ -281,24 +306,24 @@ fn dijkstra(
     penalty: Option<&[f32]>,
     until: Option<Cell>,
 ) {
-    let window = map.begin(g, sources);
-    let (x0, y0, width) = (map.x0, map.y0, map.width);
+    map.begin(g, sources);
+    let (x0, y0) = (map.x0 as usize, map.y0 as usize);
+    let (w, h) = (map.width as usize, map.height as usize);
     let stop = until.and_then(|c| map.index(c));
     let mut heap = BinaryHeap::new();
     for &c in sources {
         if let Some(s) = map.index(c) {
-            map.dist[s] = 0.0;
+            map.reach(s, 0.0, NO_PRED);
             heap.push(Entry {
                 cost: 0.0,
                 index: s,
             });
         }
     }
-    let pw = width as usize + 2;
-    fill_free(&mut map.free, g, window, pw);
-    let offsets = move_offsets(width, g.width(), pw);
+    let (cells, gw) = (g.cells(), g.width() as usize);
+    let offsets = move_offsets(map.width, g.width());
     while let Some(Entry { cost, index }) = heap.pop() {
-        if cost > map.dist[index] {
+        if cost > map.dist_at(index) {
             continue;
         }
         if Some(index) == stop {
@@ -308,14 +333,22 @@ fn dijkstra(
             map.limit = cost;
             break;
         }
-        let (x, y) = (index % width as usize, index / width as usize);
-        let at = (y + 1) * pw + x + 1;
-        let here = (y0 as usize + y) * g.width() as usize + x0 as usize + x;
+        let (x, y) = (index % w, index / w);
+        let here = (y0 + y) * gw + x0 + x;
+        // A cell off the window is not free (the window holds the known part); inside it
+        // every neighbour is in the window.
+        let inner = x > 0 && y > 0 && x + 1 < w && y + 1 < h;
+        let free = |dx: isize, dy: isize| {
+            let on = inner
+                || (x.checked_add_signed(dx).is_some_and(|nx| nx < w)
+                    && y.checked_add_signed(dy).is_some_and(|ny| ny < h));
+            on && cells[here.wrapping_add_signed(dy * gw as isize + dx)] == Occ::Free
+        };
         // The moves of `moves`, in its order: into free cells, diagonals only between two
         // free orthogonal neighbours.
-        for &(d, gd, pd, between, step) in &offsets {
-            let free = |o: isize| map.free[at.wrapping_add_signed(o)] != 0;
-            if !free(pd) || between.is_some_and(|(a, b)| !free(a) || !free(b)) {
+        for &(d, gd, (dx, dy), step) in &offsets {
+            let diagonal = dx != 0 && dy != 0;
+            if !free(dx, dy) || (diagonal && (!free(dx, 0) || !free(0, dy))) {
                 continue;
             }
             let ni = index.wrapping_add_signed(d);
@@ -323,9 +356,8 @@ fn dijkstra(
                 .and_then(|p| p.get(here.wrapping_add_signed(gd)))
                 .map_or(0.0, |&p| f64::from(p));
             let next = cost + step * (1.0 + extra);
-            if next < map.dist[ni] {
-                map.dist[ni] = next;
-                map.pred[ni] = index as u32;
+            if next < map.dist_at(ni) {
+                map.reach(ni, next, index as u32);
                 heap.push(Entry {
                     cost: next,
                     index: ni,
@@ -336,41 +368,21 @@ fn dijkstra(
 }
 
 /// A move's offsets ([`move_offsets`]).
-type MoveOffsets = (isize, isize, isize, Option<(isize, isize)>, f64);
+type MoveOffsets = (isize, isize, (isize, isize), f64);
 
-/// Per move of [`MOVES`]: the neighbour's offset in a window `width` cells wide, in the grid
-/// (`gw` wide) and in the bordered free cells (`pw` wide), the two orthogonal cells a diagonal
-/// passes between (bordered), and the step's length.
-fn move_offsets(width: u32, gw: u32, pw: usize) -> [MoveOffsets; 8] {
-    let (w, gw, pw) = (width as isize, gw as isize, pw as isize);
+/// Per move of [`MOVES`]: the neighbour's offset in a window `width` cells wide and in the grid
+/// (`gw` wide), the move itself and the step's length.
+fn move_offsets(width: u32, gw: u32) -> [MoveOffsets; 8] {
+    let (w, gw) = (width as isize, gw as isize);
     MOVES.map(|(dx, dy)| {
         let (dx, dy) = (dx as isize, dy as isize);
-        let diagonal = dx != 0 && dy != 0;
-        let step = if diagonal {
+        let step = if dx != 0 && dy != 0 {
             std::f64::consts::SQRT_2
         } else {
             1.0
         };
-        let between = diagonal.then_some((dx, dy * pw));
-        (dy * w + dx, dy * gw + dx, dy * pw + dx, between, step)
+        (dy * w + dx, dy * gw + dx, (dx, dy), step)
     })
-}
-
-/// The free cells of `g` over `window` (none: nothing) into `free`, with a border of one cell
-/// that is never free; `pw` the bordered width.
-fn fill_free(free: &mut Vec<u8>, g: &Grid, window: Option<Rect>, pw: usize) {
-    free.clear();
-    let Some(r) = window else {
-        return;
-    };
-    free.resize(pw * (r.height() as usize + 2), 0);
-    for y in r.min.y..=r.max.y {
-        let at = (y - r.min.y + 1) as usize * pw + 1;
-        let row = g.row(y, r.min.x, r.max.x);
-        for (f, &c) in free[at..at + row.len()].iter_mut().zip(row) {
-            *f = u8::from(c == Occ::Free);
-        }
-    }
 }
 
 /// The frontier cells: reachable free cells with at least one unknown 4-neighbour inside the grid,
@@ -420,7 +432,7 @@ pub fn path_to(costs: &CostMap, target: Cell) -> Option<Vec<Cell>> {
     let mut i = costs.index(target)?;
     let mut path = vec![target];
     // The predecessor tree has no cycles; the bound makes that an enforced invariant.
-    for _ in 0..costs.dist.len() {
+    for _ in 0..costs.width as usize * costs.height as usize {
         let p = costs.pred[i];
         if p == NO_PRED {
             break;
@@ -993,6 +1005,35 @@ mod tests {
             let mut row_major = cells.clone();
             row_major.sort_by_key(|c| (c.y, c.x));
             prop_assert_eq!(frontiers(&g, &got), row_major);
+        }
+
+        /// One map searched again and again — over grids of other sizes and windows, from
+        /// other starts, stopped at a target or not — reports what a fresh search does: what
+        /// an earlier search reached never shows through the stamps.
+        #[test]
+        fn a_map_searched_again_is_a_fresh_search(
+            searches in proptest::collection::vec(
+                (crate::testutil::arb_placed_grid(), 0i32..40, 0i32..40, proptest::option::of((0i32..40, 0i32..40))),
+                1..6,
+            )
+        ) {
+            let mut kept = CostMap::default();
+            for (g, sx, sy, until) in searches {
+                let cell = |x: i32, y: i32| Cell::new(x % g.width() as i32, y % g.height() as i32);
+                let start = cell(sx, sy);
+                let until = until.map(|(x, y)| cell(x, y));
+                costs_into(&mut kept, &g, start, None, until);
+                let fresh = match until {
+                    Some(t) => costs_until(&g, start, None, t),
+                    None => costs(&g, start),
+                };
+                prop_assert_eq!(kept.is_complete(), fresh.is_complete());
+                for i in 0..g.len() {
+                    let c = g.cell_of(i);
+                    prop_assert_eq!(kept.cost(c), fresh.cost(c), "{:?}", c);
+                    prop_assert_eq!(path_to(&kept, c), path_to(&fresh, c), "{:?}", c);
+                }
+            }
         }
 
         /// Stopped at a target, the search reports exactly the full search's costs up to the
