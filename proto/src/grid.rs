@@ -107,6 +107,15 @@ impl Rect {
         }))
     }
 
+    /// The cells the two share (`None`: none).
+    pub fn intersection(self, o: Rect) -> Option<Rect> {
+        let r = Rect {
+            min: Cell::new(self.min.x.max(o.min.x), self.min.y.max(o.min.y)),
+            max: Cell::new(self.max.x.min(o.max.x), self.max.y.min(o.max.y)),
+        };
+        (r.min.x <= r.max.x && r.min.y <= r.max.y).then_some(r)
+    }
+
     /// Whether the two share a cell.
     pub fn intersects(self, o: Rect) -> bool {
         self.min.x <= o.max.x

@@ -53,6 +53,14 @@ pub struct Reporter {
 impl Reporter {
     /// The report of `grid` at `step`.
     pub fn report(&mut self, step: Step, grid: &Grid) -> GridReport {
+        self.report_within(step, grid, grid.whole())
+    }
+
+    /// [`Reporter::report`] of a grid whose cells outside `changed` are as last reported
+    /// (`None`: every cell is): only the cells of `changed` are compared, so a report costs
+    /// what the sender says may have changed, not the grid's known part. The same report as
+    /// [`Reporter::report`] when that holds.
+    pub fn report_within(&mut self, step: Step, grid: &Grid, changed: Option<Rect>) -> GridReport {
         let Some((since, last, _)) = self
             .last
             .as_mut()
@@ -64,7 +72,8 @@ impl Reporter {
         };
         let from = *since;
         *since = step;
-        let window = changed(last, grid).map(|r| {
+        let region = changed.and_then(|c| c.within(grid.width(), grid.height()));
+        let window = differing(last, grid, region).map(|r| {
             let w = window_of(grid, r);
             for y in r.min.y..=r.max.y {
                 let (now, was) = (
@@ -97,9 +106,11 @@ fn same_size(a: &Grid, b: &Grid) -> bool {
     a.width() == b.width() && a.height() == b.height()
 }
 
-/// The smallest rectangle around the cells where `old` and `new` (of one size) differ.
-fn changed(old: &Grid, new: &Grid) -> Option<Rect> {
-    let r = Rect::union_of(old.known_bounds(), new.known_bounds())?;
+/// The smallest rectangle around the cells of `region` where `old` and `new` (of one size)
+/// differ.
+fn differing(old: &Grid, new: &Grid, region: Option<Rect>) -> Option<Rect> {
+    let known = Rect::union_of(old.known_bounds(), new.known_bounds())?;
+    let r = region?.intersection(known)?;
     let mut out: Option<Rect> = None;
     for y in r.min.y..=r.max.y {
         let (a, b) = (old.row(y, r.min.x, r.max.x), new.row(y, r.min.x, r.max.x));
@@ -324,6 +335,32 @@ mod tests {
     }
 
     proptest! {
+        /// Told a rectangle holding every cell that changed since its last report, a reporter
+        /// reports what one comparing every cell does, step after step.
+        #[test]
+        fn a_report_within_the_changed_cells_is_the_report_of_every_cell(
+            w in 1u32..9,
+            h in 1u32..7,
+            steps in proptest::collection::vec(
+                (proptest::collection::vec((0usize..64, 0u8..3), 0..6), 0i32..3), 1..80),
+        ) {
+            let (mut every, mut within) = (Reporter::default(), Reporter::default());
+            let mut g = Grid::new(w, h, Occ::Unknown);
+            for (step, (edits, wider)) in steps.iter().enumerate() {
+                let mut touched = Vec::new();
+                for &(i, v) in edits {
+                    let v = [Occ::Unknown, Occ::Free, Occ::Occupied][usize::from(v)];
+                    g.set_index(i % g.len(), v);
+                    touched.push(g.cell_of(i % g.len()));
+                }
+                // The rectangle may be wider than the edits, and reach past the grid.
+                let hint = Rect::around(touched).map(|r| r.grown(*wider));
+                let step = step as Step;
+                prop_assert_eq!(within.report_within(step, &g, hint), every.report(step, &g));
+                prop_assert_eq!(within.known(), every.known());
+            }
+        }
+
         /// Whatever a grid goes through, the receiver holds the sender's grid after every
         /// report, each change's rectangle holds every cell that changed and `before` is what
         /// those cells were.

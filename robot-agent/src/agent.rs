@@ -10,7 +10,7 @@
 //! radio — neighbours, pacing, encoding and counting — is [`crate::radio::station`]'s.
 
 use proto::geom::{Metres, Pose};
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Cell, Grid, Occ, Rect};
 use proto::grid_report::{GridReport, Reporter};
 use proto::msg::{Cmd, RobotId, Scan, Step, Telemetry, WorldInfo};
 use proto::scenario::{Relay, Scenario};
@@ -44,6 +44,9 @@ pub struct Agent {
     /// changed since; the first also counts the planning grid's known cells), and this step's
     /// report of the planning grid, made when it was built.
     reported: [Reporter; 2],
+    /// Per grid of `reported`, a rectangle outside which it is as last reported (`None`: all
+    /// of it is): a report compares only those cells.
+    unreported: [Option<Rect>; 2],
     planning_report: Option<GridReport>,
     /// The path costs of the last step, whose buffers the next step's search reuses.
     costs: plan::CostMap,
@@ -109,6 +112,7 @@ impl Agent {
             own: empty.clone(),
             planning: empty,
             reported: Default::default(),
+            unreported: [None; 2],
             planning_report: None,
             costs: plan::CostMap::default(),
             pose: Pose::default(),
@@ -138,6 +142,8 @@ impl Agent {
                 .integrate(&mut self.own, &w.map, scan.pose, &scan.ranges, &w.laser);
         self.sharing
             .after_scan(scan, &w.laser, &self.own, &self.own_changed);
+        let changed = Rect::around(self.own_changed.iter().copied());
+        self.unreported[1] = Rect::union_of(self.unreported[1], changed);
         self.right_of_way.on_move(scan.step, scan.last_move, &w.map);
         let waypoint = self.plan();
         Cmd {
@@ -155,9 +161,9 @@ impl Agent {
     /// Builds this step's planning grid over the last one (once per step) and reports it for
     /// the step's telemetry; the reporter counts its known cells where they changed.
     fn build_planning(&mut self) {
-        self.sharing
-            .update_planning_grid(&self.own, &mut self.planning);
-        self.planning_report = Some(self.reported[0].report(self.step, &self.planning));
+        let changed = (self.sharing).update_planning_grid(&self.own, &mut self.planning);
+        self.unreported[0] = Rect::union_of(self.unreported[0], changed);
+        self.planning_report = Some(self.report(0));
     }
 
     fn my_cell(&self) -> Cell {
@@ -425,13 +431,21 @@ impl Agent {
         self.sharing.approx_error_avg()
     }
 
+    /// This step's report of the planning grid (0) or G_s (1).
+    fn report(&mut self, which: usize) -> GridReport {
+        let grid = [&self.planning, &self.own][which];
+        let changed = self.unreported[which].take();
+        self.reported[which].report_within(self.step, grid, changed)
+    }
+
     /// This step's telemetry for the launcher: the planning grid the robot planned on this step
     /// and its own grid, each as what changed since the last report (or whole, now and then).
     pub fn telemetry(&mut self) -> Telemetry {
-        let [planning, own] = &mut self.reported;
-        let grid = (self.planning_report.take())
-            .unwrap_or_else(|| planning.report(self.step, &self.planning));
-        let own = own.report(self.step, &self.own);
+        let grid = match self.planning_report.take() {
+            Some(report) => report,
+            None => self.report(0),
+        };
+        let own = self.report(1);
         let c = self.radio.counters();
         Telemetry {
             robot: self.id,

@@ -149,9 +149,12 @@ pub trait Sharing: Send {
     fn planning_grid_into(&self, own: &Grid, out: &mut Grid);
 
     /// [`Sharing::planning_grid_into`] once a step, over the planning grid of the last call:
-    /// a mode may keep what it computed and redo only what changed since.
-    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) {
+    /// a mode may keep what it computed and redo only what changed since (in G_s: the cells
+    /// [`Sharing::after_scan`] was told of). Returns a rectangle outside which `out` did not
+    /// change (`None`: it did not).
+    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) -> Option<Rect> {
         self.planning_grid_into(own, out);
+        out.whole()
     }
 
     /// What waits for `peer`: encoded bytes of the log entries we hold that it lacks (`None`
@@ -230,6 +233,7 @@ pub fn new(
                 mapper: Box::new(mapper),
                 splitting,
                 merger: Merger::default(),
+                own_changed: None,
             })
         }
         ExchangeMode::GridSnapshots => Box::new(GridSnapshots {
@@ -328,6 +332,8 @@ pub struct Polygon {
     splitting: SplittingFrequency,
     /// The planning grid's painting of the peers' approximations, kept from step to step.
     merger: Merger,
+    /// The cells of G_s changed since the planning grid was last updated.
+    own_changed: Option<Rect>,
 }
 
 impl Sharing for Polygon {
@@ -337,6 +343,8 @@ impl Sharing for Polygon {
         let report = self.mapper.step(own, changed);
         self.splitting.record(report.splits, report.bytes);
         self.exchange.record_own(self.mapper.log().since(first));
+        let changed = Rect::around(changed.iter().copied());
+        self.own_changed = Rect::union_of(self.own_changed, changed);
     }
 
     fn handshake(&self) -> &dyn Handshake {
@@ -365,9 +373,10 @@ impl Sharing for Polygon {
         merge_into(out, own, &peers);
     }
 
-    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) {
+    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) -> Option<Rect> {
         let peers: Vec<_> = self.exchange.approximations().collect();
-        self.merger.merge_into(out, own, &peers);
+        let own_changed = self.own_changed.take();
+        self.merger.merge_into(out, own, own_changed, &peers)
     }
 
     fn backlog_bytes(&self, peer: RobotId) -> Option<u64> {

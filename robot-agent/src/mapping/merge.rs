@@ -47,50 +47,77 @@ pub fn merge_into(out: &mut Grid, own: &Grid, others: &[&Approximation]) {
     let others: Vec<(RobotId, &Approximation)> = (others.iter().enumerate())
         .map(|(i, a)| (RobotId::try_from(i).unwrap_or(RobotId::MAX), *a))
         .collect();
-    Merger::default().merge_into(out, own, &others);
+    Merger::default().merge_into(out, own, None, &others);
 }
 
 /// Algorithm 9 kept from step to step: [`merge_into`] with the peers' painting (steps (1)–(5))
 /// kept over the whole grid and repainted only in the windows where an object changed
-/// ([`Painting`]) — so a step costs what changed in the peers' approximations, not all of them
-/// (a robot holds every teammate's approximation it ever heard of).
+/// ([`Painting`]), and the planning grid rewritten only there and where G_s changed — so a
+/// step costs what changed in the peers' approximations and in G_s, not all of them (a robot
+/// holds every teammate's approximation it ever heard of) nor the explored part of the map.
 #[derive(Default)]
 pub struct Merger {
     painting: Option<Painting>,
 }
 
 impl Merger {
-    /// [`merge_into`] `out` (the last step's planning grid) from `own` and the approximations
-    /// of `others` (owner, approximation), repainting what changed since the last call.
-    pub fn merge_into(&mut self, out: &mut Grid, own: &Grid, others: &[(RobotId, &Approximation)]) {
+    /// [`merge_into`] `out` from `own` and the approximations of `others` (owner,
+    /// approximation), repainting what changed since the last call. `out` is the planning
+    /// grid this merger wrote last (untouched since), and every cell of `own` outside
+    /// `own_changed` is as it was then (`None`: every cell); the first call, and one with a
+    /// grid of another size, writes every cell `merge_into` does. Returns a rectangle outside
+    /// which `out` did not change (`None`: it did not).
+    pub fn merge_into(
+        &mut self,
+        out: &mut Grid,
+        own: &Grid,
+        own_changed: Option<Rect>,
+        others: &[(RobotId, &Approximation)],
+    ) -> Option<Rect> {
         let size = (own.width(), own.height());
-        let painting = match self.painting.take().filter(|p| p.size() == size) {
-            Some(p) => self.painting.insert(p),
-            None => self
-                .painting
-                .insert(Painting::new(size.0, size.1, Bands::Kept)),
-        };
-        for w in painting.take(others) {
-            painting.repaint(w);
-        }
-        // The cells painted, those G_s knows and those `out` knew: every other cell is and
-        // stays unknown.
-        let region = [own.known_bounds(), out.known_bounds()]
-            .into_iter()
-            .fold(painting.reach(), Rect::union_of)
-            .and_then(|r| r.within(own.width(), own.height()));
-        let Some(r) = region else {
-            return;
-        };
-        let w = size.0 as usize;
-        for y in r.min.y..=r.max.y {
-            let row = y as usize * w;
-            let painted = &painting.painted()[row + r.min.x as usize..=row + r.max.x as usize];
-            let mine = own.row(y, r.min.x, r.max.x);
-            let dst = out.row_mut(y, r.min.x, r.max.x);
-            for ((dst, &s), &p) in dst.iter_mut().zip(mine).zip(painted) {
-                *dst = planned(s, p);
+        let (painting, windows) = match self.painting.take().filter(|p| p.size() == size) {
+            Some(p) => {
+                let painting = self.painting.insert(p);
+                let mut windows = painting.take(others);
+                for &w in &windows {
+                    painting.repaint(w);
+                }
+                windows.extend(own_changed);
+                (&*painting, windows)
             }
+            None => {
+                let painting = (self.painting).insert(Painting::new(size.0, size.1, Bands::Kept));
+                for w in painting.take(others) {
+                    painting.repaint(w);
+                }
+                // The cells painted, those G_s knows and those `out` knew: every other cell
+                // is and stays unknown.
+                let region = [own.known_bounds(), out.known_bounds()]
+                    .into_iter()
+                    .fold(painting.reach(), Rect::union_of);
+                (&*painting, region.into_iter().collect())
+            }
+        };
+        let mut written = None;
+        for r in windows.into_iter().filter_map(|r| r.within(size.0, size.1)) {
+            write(out, own, painting.painted(), r);
+            written = Rect::union_of(written, Some(r));
+        }
+        written
+    }
+}
+
+/// Steps (6) and (7) over the cells of `r` (inside the grid): `out` from `own` and the peers'
+/// painting (row-major over the whole grid).
+fn write(out: &mut Grid, own: &Grid, painted: &[Option<Occ>], r: Rect) {
+    let w = own.width() as usize;
+    for y in r.min.y..=r.max.y {
+        let row = y as usize * w;
+        let painted = &painted[row + r.min.x as usize..=row + r.max.x as usize];
+        let mine = own.row(y, r.min.x, r.max.x);
+        let dst = out.row_mut(y, r.min.x, r.max.x);
+        for ((dst, &s), &p) in dst.iter_mut().zip(mine).zip(painted) {
+            *dst = planned(s, p);
         }
     }
 }
@@ -265,8 +292,15 @@ mod tests {
             let mut axs: Vec<_> = peers.iter().map(|_| crate::mapping::approximator::Approximator::new()).collect();
             let mut merger = Merger::default();
             let mut kept = Grid::new(own[0].width(), own[0].height(), Occ::Unknown);
+            let mut own_was = Grid::new(own[0].width(), own[0].height(), Occ::Unknown);
             for step in 0..5 {
                 let own = &own[step.min(own.len() - 1)];
+                let differ = |a: &Grid, b: &Grid| -> Vec<proto::grid::Cell> {
+                    (0..a.len()).filter(|&i| a.cells()[i] != b.cells()[i]).map(|i| a.cell_of(i)).collect()
+                };
+                let own_changed = Rect::around(differ(&own_was, own));
+                own_was = own.clone();
+                let kept_was = kept.clone();
                 let approx: Vec<Approximation> = (peers.iter().zip(&mut axs))
                     .map(|(p, ax)| {
                         let g = &p[step.min(p.len() - 1)];
@@ -278,9 +312,12 @@ mod tests {
                     .filter(|(i, _)| !(gone[step] && *i == step % approx.len()))
                     .map(|(i, a)| (i as RobotId, a))
                     .collect();
-                merger.merge_into(&mut kept, own, &others);
+                let written = merger.merge_into(&mut kept, own, own_changed, &others);
                 let all: Vec<&Approximation> = others.iter().map(|o| o.1).collect();
                 prop_assert_eq!(kept.to_ascii(), merge_every_cell(own, &all).to_ascii(), "step {}", step);
+                for c in differ(&kept_was, &kept) {
+                    prop_assert!(written.is_some_and(|r| r.contains(c)), "{:?} changed outside {:?}", c, written);
+                }
             }
         }
 
