@@ -20,6 +20,7 @@ use robot_agent::mapping::contour::{ContourPixels, Contours};
 use robot_agent::mapping::grid::Evidence;
 use robot_agent::mapping::merge::merge;
 use robot_agent::mapping::render::ExplorationView;
+use robot_agent::nav::plan::{self, CostMap};
 
 const SPLITS: f64 = 2.0;
 
@@ -270,5 +271,23 @@ fn contour_fixed_room(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, pipelines, contour_scaling, contour_fixed_room);
+/// A robot's full path search (every frontier's cost, as a strategy choosing a target needs)
+/// over the whole of mit_killian_court known: the campus-sized search late in a run.
+fn full_search(c: &mut Criterion) {
+    let (truth, _) = window("mit_killian_court", 100_000);
+    let start = (0..truth.len())
+        .map(|i| truth.cell_of(i))
+        .filter(|&c| truth.get(c) == Occ::Free)
+        .nth(truth.count(Occ::Free) / 2)
+        .expect("a free cell");
+    let mut group = c.benchmark_group("full_search_mit_killian_court");
+    group.sample_size(20);
+    let mut costs = CostMap::default();
+    group.bench_function("costs", |b| {
+        b.iter(|| plan::costs_into(&mut costs, &truth, start, None, None))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, pipelines, contour_scaling, contour_fixed_room, full_search);
 criterion_main!(benches);

@@ -50,6 +50,8 @@ pub struct Agent {
     planning_report: Option<GridReport>,
     /// The path costs of the last step, whose buffers the next step's search reuses.
     costs: plan::CostMap,
+    /// The planning grid's frontier cells, kept as it changes.
+    frontier_cells: plan::FrontierCells,
     /// What it shares and how peers' shares reach its planning grid (by exchange mode).
     sharing: Box<dyn Sharing>,
     /// Which neighbour sends it each owner's log, and to which it sends (`exchange.relay =
@@ -115,6 +117,7 @@ impl Agent {
             unreported: [None; 2],
             planning_report: None,
             costs: plan::CostMap::default(),
+            frontier_cells: plan::FrontierCells::default(),
             pose: Pose::default(),
             step: 0,
             target: None,
@@ -162,6 +165,8 @@ impl Agent {
     /// the step's telemetry; the reporter counts its known cells where they changed.
     fn build_planning(&mut self) {
         let changed = (self.sharing).update_planning_grid(&self.own, &mut self.planning);
+        self.frontier_cells.update(&self.planning, &changed);
+        let changed = changed.into_iter().fold(None, |r, c| Rect::union_of(r, Some(c)));
         self.unreported[0] = Rect::union_of(self.unreported[0], changed);
         self.planning_report = Some(self.report(0));
     }
@@ -197,14 +202,27 @@ impl Agent {
         // the target, and all over only when it is gone (explored, unreachable) or the
         // strategy looks at every frontier each step.
         let keep = usable.filter(|_| self.coordinator.keeps_valid_target());
-        plan::costs_into(costs, free, me, penalty.as_deref(), keep);
+        // A strategy that looks at the frontiers' costs alone needs the search only as far as
+        // the farthest frontier.
+        let everything = |costs: &mut plan::CostMap| {
+            if self.coordinator.looks_at_frontier_costs_only() {
+                let cells = &self.frontier_cells;
+                plan::costs_to_frontiers(costs, free, me, penalty.as_deref(), g, cells);
+            } else {
+                plan::costs_into(costs, free, me, penalty.as_deref(), None);
+            }
+        };
+        match keep {
+            Some(t) => plan::costs_into(costs, free, me, penalty.as_deref(), Some(t)),
+            None => everything(costs),
+        }
         let kept = keep.filter(|&t| plan::is_frontier(g, costs, t));
         let mut frontiers = Vec::new();
         if kept.is_none() {
-            if !costs.is_complete() {
-                plan::costs_into(costs, free, me, penalty.as_deref(), None);
+            if keep.is_some() && !costs.is_complete() {
+                everything(costs);
             }
-            frontiers = plan::frontiers(g, costs);
+            frontiers = self.frontier_cells.reachable(costs);
             let valid = usable.is_some_and(|t| frontiers.contains(&t));
             let candidates = self.right_of_way.candidates(&frontiers, me);
             self.target = self.coordinator.choose(&Situation {

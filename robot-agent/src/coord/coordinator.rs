@@ -36,6 +36,13 @@ pub trait Coordinator: Send {
         false
     }
 
+    /// Whether [`Coordinator::choose`] reads [`Situation::costs`] of the frontiers alone
+    /// (the candidates are frontiers). The agent then searches only as far as the farthest
+    /// frontier ([`crate::nav::plan::costs_to_frontiers`]), not over everything explored.
+    fn looks_at_frontier_costs_only(&self) -> bool {
+        false
+    }
+
     /// The messages to send after this step's decision.
     fn messages(&mut self, _s: &Status<'_>) -> Vec<Addressed> {
         Vec::new()

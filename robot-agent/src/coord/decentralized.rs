@@ -23,6 +23,10 @@ impl Coordinator for Decentralized {
         true
     }
 
+    fn looks_at_frontier_costs_only(&self) -> bool {
+        true
+    }
+
     fn choose(&mut self, s: &Situation<'_>) -> Option<Cell> {
         if s.valid {
             return s.target;

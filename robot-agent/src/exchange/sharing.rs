@@ -150,11 +150,11 @@ pub trait Sharing: Send {
 
     /// [`Sharing::planning_grid_into`] once a step, over the planning grid of the last call:
     /// a mode may keep what it computed and redo only what changed since (in G_s: the cells
-    /// [`Sharing::after_scan`] was told of). Returns a rectangle outside which `out` did not
-    /// change (`None`: it did not).
-    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) -> Option<Rect> {
+    /// [`Sharing::after_scan`] was told of). Returns rectangles outside which no cell of `out`
+    /// changed.
+    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) -> Vec<Rect> {
         self.planning_grid_into(own, out);
-        out.whole()
+        out.whole().into_iter().collect()
     }
 
     /// What waits for `peer`: encoded bytes of the log entries we hold that it lacks (`None`
@@ -373,7 +373,7 @@ impl Sharing for Polygon {
         merge_into(out, own, &peers);
     }
 
-    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) -> Option<Rect> {
+    fn update_planning_grid(&mut self, own: &Grid, out: &mut Grid) -> Vec<Rect> {
         let peers: Vec<_> = self.exchange.approximations().collect();
         let own_changed = self.own_changed.take();
         self.merger.merge_into(out, own, own_changed, &peers)

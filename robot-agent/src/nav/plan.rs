@@ -14,6 +14,7 @@
 //! the farthest path cell that one move can reach along a verified straight segment.
 
 use std::cmp::Ordering;
+use std::collections::BTreeSet;
 use std::collections::BinaryHeap;
 
 use proto::grid::{Cell, Grid, Occ, Rect};
@@ -254,7 +255,7 @@ pub fn obstacle_penalty(g: &Grid, sigma: f64, weight: f64) -> Vec<f32> {
 /// [`costs`] with a per-cell penalty ([`obstacle_penalty`]; `None`: none).
 pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
     let mut map = CostMap::default();
-    dijkstra(&mut map, g, &[start], penalty, None);
+    dijkstra(&mut map, g, &[start], penalty, Stop::Never);
     map
 }
 
@@ -268,7 +269,28 @@ pub fn costs_into(
     penalty: Option<&[f32]>,
     until: Option<Cell>,
 ) {
-    dijkstra(map, g, &[start], penalty, until);
+    dijkstra(map, g, &[start], penalty, until.map_or(Stop::Never, Stop::At));
+}
+
+/// [`costs_into`] that stops once every frontier cell of the planning grid `planning`
+/// (`frontiers`, kept with it) is settled: what a strategy that looks at the frontiers' costs
+/// alone needs, without settling the cells beyond the farthest frontier. The cost of every
+/// frontier, the path to it and [`FrontierCells::reachable`] are [`costs_with`]'s (the
+/// argument of [`costs_until`]); costlier cells read as unreachable. When some frontier is
+/// not reachable the search runs out by itself and the map is complete.
+pub fn costs_to_frontiers(
+    map: &mut CostMap,
+    g: &Grid,
+    start: Cell,
+    penalty: Option<&[f32]>,
+    planning: &Grid,
+    frontiers: &FrontierCells,
+) {
+    let stop = Stop::Frontiers {
+        of: planning,
+        left: frontiers.len(),
+    };
+    dijkstra(map, g, &[start], penalty, stop);
 }
 
 /// [`costs_with`] that stops as soon as `target` is settled: a search as far as the target
@@ -280,7 +302,7 @@ pub fn costs_into(
 /// ([`CostMap::is_complete`]).
 pub fn costs_until(g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell) -> CostMap {
     let mut map = CostMap::default();
-    dijkstra(&mut map, g, &[start], penalty, Some(target));
+    dijkstra(&mut map, g, &[start], penalty, Stop::At(target));
     map
 }
 
@@ -290,8 +312,19 @@ pub fn costs_until(g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell)
 /// only through [`path_to`] from it, so do not ask for paths).
 pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
     let mut map = CostMap::default();
-    dijkstra(&mut map, g, sources, None, None);
+    dijkstra(&mut map, g, sources, None, Stop::Never);
     map
+}
+
+/// When a search may stop.
+#[derive(Clone, Copy)]
+enum Stop<'a> {
+    /// When it runs out.
+    Never,
+    /// Once this cell is settled.
+    At(Cell),
+    /// Once the last `left` frontier cells of the grid `of` are settled.
+    Frontiers { of: &'a Grid, left: usize },
 }
 
 /// The search runs over a window of the grid — its known part and the sources — and costs in
@@ -304,12 +337,15 @@ fn dijkstra(
     g: &Grid,
     sources: &[Cell],
     penalty: Option<&[f32]>,
-    until: Option<Cell>,
+    mut until: Stop<'_>,
 ) {
     map.begin(g, sources);
     let (x0, y0) = (map.x0 as usize, map.y0 as usize);
     let (w, h) = (map.width as usize, map.height as usize);
-    let stop = until.and_then(|c| map.index(c));
+    let stop = match until {
+        Stop::At(c) => map.index(c),
+        _ => None,
+    };
     let mut heap = BinaryHeap::new();
     for &c in sources {
         if let Some(s) = map.index(c) {
@@ -326,7 +362,17 @@ fn dijkstra(
         if cost > map.dist_at(index) {
             continue;
         }
-        if Some(index) == stop {
+        let last = match &mut until {
+            Stop::Never => false,
+            Stop::At(_) => Some(index) == stop,
+            Stop::Frontiers { of, left } => {
+                if of.is_frontier(map.cell_of(index)) {
+                    *left = left.saturating_sub(1);
+                }
+                *left == 0
+            }
+        };
+        if last {
             // Every cell cheaper than this one is settled; one as cheap that is not yet has
             // its final cost already (it can only be lowered by a cheaper cell), so the limit
             // may include this cost.
@@ -401,6 +447,63 @@ pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
         out.extend(cells.filter(|&c| is_frontier(g, costs, c)));
     }
     out
+}
+
+/// The frontier cells of a grid — free cells with an unknown 4-neighbour inside it, reachable
+/// or not — kept as the grid changes: whether a cell is one depends on it and its
+/// 4-neighbours, so a change re-reads the changed cells and those around them. Listing the
+/// reachable ones ([`FrontierCells::reachable`]) then costs the frontier, not the known part.
+///
+/// **Invariant:** after [`FrontierCells::update`] with rectangles holding every cell that
+/// changed, the cells held are those [`Grid::is_frontier`] says are.
+#[derive(Clone, Debug, Default)]
+pub struct FrontierCells {
+    /// By (y, x): row-major, as [`frontiers`] lists them.
+    cells: BTreeSet<(i32, i32)>,
+    size: (u32, u32),
+}
+
+impl FrontierCells {
+    /// `g` after the cells of `changed` changed (and no others; a grid of another size is
+    /// read whole).
+    pub fn update(&mut self, g: &Grid, changed: &[Rect]) {
+        let size = (g.width(), g.height());
+        if size != self.size {
+            (self.cells, self.size) = (BTreeSet::new(), size);
+            self.reread(g, g.whole());
+            return;
+        }
+        for r in changed {
+            self.reread(g, r.grown(1).within(size.0, size.1));
+        }
+    }
+
+    fn reread(&mut self, g: &Grid, r: Option<Rect>) {
+        for c in r.into_iter().flat_map(Rect::cells) {
+            if g.is_frontier(c) {
+                self.cells.insert((c.y, c.x));
+            } else {
+                self.cells.remove(&(c.y, c.x));
+            }
+        }
+    }
+
+    /// How many there are.
+    pub fn len(&self) -> usize {
+        self.cells.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+
+    /// [`frontiers`]`(g, costs)` of the grid held: those `costs` reaches, row-major.
+    pub fn reachable(&self, costs: &CostMap) -> Vec<Cell> {
+        (self.cells.iter())
+            .map(|&(y, x)| Cell::new(x, y))
+            .filter(|&c| costs.cost(c).is_some())
+            .collect()
+    }
 }
 
 /// Whether `c` is one of [`frontiers`]`(g, costs)`.
@@ -1005,6 +1108,62 @@ mod tests {
             let mut row_major = cells.clone();
             row_major.sort_by_key(|c| (c.y, c.x));
             prop_assert_eq!(frontiers(&g, &got), row_major);
+        }
+
+        /// Kept through any edits, told rectangles holding the cells edited, the frontier
+        /// cells are the grid's.
+        #[test]
+        fn kept_frontier_cells_are_the_grid_s(
+            g in arb_grid(),
+            edits in proptest::collection::vec(
+                (proptest::collection::vec((0i32..14, 0i32..14, 0u8..3), 0..8), 0i32..2), 0..12),
+        ) {
+            let mut g = g;
+            let mut kept = FrontierCells::default();
+            kept.update(&g, &[]);
+            let every = |g: &Grid| -> Vec<Cell> {
+                let mut cells: Vec<Cell> = (0..g.len()).map(|i| g.cell_of(i)).filter(|&c| g.is_frontier(c)).collect();
+                cells.sort_by_key(|c| (c.y, c.x));
+                cells
+            };
+            let all = |k: &FrontierCells| k.cells.iter().map(|&(y, x)| Cell::new(x, y)).collect::<Vec<_>>();
+            prop_assert_eq!(all(&kept), every(&g));
+            for (step, wider) in edits {
+                let mut touched = Vec::new();
+                for (x, y, v) in step {
+                    let c = Cell::new(x % g.width() as i32, y % g.height() as i32);
+                    g.set(c, [Occ::Free, Occ::Occupied, Occ::Unknown][usize::from(v)]);
+                    touched.push(c);
+                }
+                let rects: Vec<Rect> = Rect::around(touched).map(|r| r.grown(wider)).into_iter().collect();
+                kept.update(&g, &rects);
+                prop_assert_eq!(all(&kept), every(&g));
+            }
+        }
+
+        /// Stopped once every frontier of the planning grid is settled — searched over that
+        /// grid or one with more cells blocked (a detour around robots) — the search gives
+        /// every frontier the full search's cost and path, and the same reachable frontiers.
+        #[test]
+        fn a_search_to_the_frontiers_is_the_full_search_at_the_frontiers(
+            g in crate::testutil::arb_placed_grid(), sx in 0i32..40, sy in 0i32..40,
+            blocked in proptest::collection::vec((0i32..40, 0i32..40), 0..4),
+        ) {
+            let start = Cell::new(sx % g.width() as i32, sy % g.height() as i32);
+            let mut free = g.clone();
+            for (x, y) in blocked {
+                free.set(Cell::new(x % g.width() as i32, y % g.height() as i32), Occ::Occupied);
+            }
+            let mut cells = FrontierCells::default();
+            cells.update(&g, &[]);
+            let mut to = CostMap::default();
+            costs_to_frontiers(&mut to, &free, start, None, &g, &cells);
+            let all = costs(&free, start);
+            prop_assert_eq!(cells.reachable(&to), frontiers(&g, &all));
+            for f in frontiers(&g, &all) {
+                prop_assert_eq!(to.cost(f), all.cost(f));
+                prop_assert_eq!(path_to(&to, f), path_to(&all, f));
+            }
         }
 
         /// One map searched again and again — over grids of other sizes and windows, from
