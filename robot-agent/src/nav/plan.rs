@@ -14,8 +14,7 @@
 //! the farthest path cell that one move can reach along a verified straight segment.
 
 use std::cmp::Ordering;
-use std::collections::BTreeSet;
-use std::collections::BinaryHeap;
+use std::collections::{BTreeSet, BinaryHeap};
 
 use proto::grid::{Cell, Grid, Occ, Rect};
 
@@ -51,15 +50,11 @@ pub struct CostMap {
     width: u32,
     height: u32,
     start: Cell,
-    /// Cost per row-major cell index of the window, for the cells this search reached
-    /// ([`CostMap::stamp`]); every other cell is unreachable.
-    dist: Vec<f64>,
-    /// Predecessor on a shortest path per cell index reached; [`NO_PRED`] for the sources.
-    pred: Vec<u32>,
-    /// Per cell index, the search that last wrote its `dist` and `pred`: a cell is reached by
-    /// this search iff its stamp is [`CostMap::search`]. A search costs what it reaches, not
-    /// the window's area: the buffers are never cleared, only stamped anew.
-    stamp: Vec<u32>,
+    /// Per row-major cell index of the window, what the search knows of the cell: its
+    /// cost and predecessor, valid when the cell's stamp is this search's (together, so that
+    /// a relaxation touches one place in memory). A search costs what it reaches, not the
+    /// window's area: the buffer is never cleared, only stamped anew.
+    cells: Vec<Reached>,
     /// The current search's stamp (never 0 once a search began).
     search: u32,
     /// The search settled every cell up to this cost and stopped ([`costs_until`]); costs
@@ -76,9 +71,7 @@ impl Default for CostMap {
             width: 0,
             height: 0,
             start: Cell::new(-1, -1),
-            dist: Vec::new(),
-            pred: Vec::new(),
-            stamp: Vec::new(),
+            cells: Vec::new(),
             search: 0,
             limit: f64::INFINITY,
         }
@@ -106,8 +99,9 @@ impl CostMap {
 
     /// The cost of cell index `i` (`f64::INFINITY`: not reached).
     fn dist_at(&self, i: usize) -> f64 {
-        if self.stamp[i] == self.search {
-            self.dist[i]
+        let r = &self.cells[i];
+        if r.stamp == self.search {
+            r.dist
         } else {
             f64::INFINITY
         }
@@ -115,7 +109,11 @@ impl CostMap {
 
     /// Cell index `i` reached at `cost` from `pred`.
     fn reach(&mut self, i: usize, cost: f64, pred: u32) {
-        (self.stamp[i], self.dist[i], self.pred[i]) = (self.search, cost, pred);
+        self.cells[i] = Reached {
+            dist: cost,
+            pred,
+            stamp: self.search,
+        };
     }
 
     fn index(&self, c: Cell) -> Option<usize> {
@@ -137,15 +135,13 @@ impl CostMap {
         (self.x0, self.y0, self.width, self.height, self.start) = (x0, y0, width, height, start);
         let cells = width as usize * height as usize;
         self.limit = f64::INFINITY;
-        if self.stamp.len() < cells {
-            self.dist.resize(cells, f64::INFINITY);
-            self.pred.resize(cells, NO_PRED);
-            self.stamp.resize(cells, 0);
+        if self.cells.len() < cells {
+            self.cells.resize(cells, Reached::default());
         }
         self.search = self.search.wrapping_add(1);
         if self.search == 0 {
             // Stamps wrapped around: none may read as this search's.
-            self.stamp.fill(0);
+            self.cells.fill(Reached::default());
             self.search = 1;
         }
     }
@@ -154,6 +150,15 @@ impl CostMap {
         let w = self.width as usize;
         Cell::new(self.x0 + (i % w) as i32, self.y0 + (i / w) as i32)
     }
+}
+
+/// A cell as a search reached it ([`CostMap::cells`]): its cost, its predecessor on a shortest
+/// path ([`NO_PRED`] for a source) and the search that wrote them (`stamp`; 0: none).
+#[derive(Clone, Copy, Debug, Default)]
+struct Reached {
+    dist: f64,
+    pred: u32,
+    stamp: u32,
 }
 
 /// A Dijkstra queue entry, ordered so that `BinaryHeap` pops the cheapest first and, among equal
@@ -330,7 +335,7 @@ enum Stop<'a> {
 /// The search runs over a window of the grid — its known part and the sources — and costs in
 /// proportion to the cells it reaches, not to the map or the window: every free cell is inside
 /// the known part, a path steps only onto free cells, and the buffers are stamped, not cleared
-/// ([`CostMap::stamp`]). Window indices are row-major like the grid's, so the order in which
+/// ([`CostMap::cells`]). Window indices are row-major like the grid's, so the order in which
 /// equal costs are settled is the grid's.
 fn dijkstra(
     map: &mut CostMap,
@@ -536,7 +541,7 @@ pub fn path_to(costs: &CostMap, target: Cell) -> Option<Vec<Cell>> {
     let mut path = vec![target];
     // The predecessor tree has no cycles; the bound makes that an enforced invariant.
     for _ in 0..costs.width as usize * costs.height as usize {
-        let p = costs.pred[i];
+        let p = costs.cells[i].pred;
         if p == NO_PRED {
             break;
         }
