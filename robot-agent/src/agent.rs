@@ -207,7 +207,7 @@ impl Agent {
         let everything = |costs: &mut plan::CostMap| {
             if self.coordinator.looks_at_frontier_costs_only() {
                 let cells = &self.frontier_cells;
-                plan::costs_to_frontiers(costs, free, me, penalty.as_deref(), g, cells);
+                plan::costs_to_frontiers(costs, free, me, penalty.as_deref(), cells);
             } else {
                 plan::costs_into(costs, free, me, penalty.as_deref(), None);
             }

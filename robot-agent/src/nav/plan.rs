@@ -277,8 +277,8 @@ pub fn costs_into(
     dijkstra(map, g, &[start], penalty, until.map_or(Stop::Never, Stop::At));
 }
 
-/// [`costs_into`] that stops once every frontier cell of the planning grid `planning`
-/// (`frontiers`, kept with it) is settled: what a strategy that looks at the frontiers' costs
+/// [`costs_into`] that stops once every frontier cell of the planning grid (`frontiers`, kept
+/// with it; `g` may be that grid or one with more cells blocked) is settled: what a strategy that looks at the frontiers' costs
 /// alone needs, without settling the cells beyond the farthest frontier. The cost of every
 /// frontier, the path to it and [`FrontierCells::reachable`] are [`costs_with`]'s (the
 /// argument of [`costs_until`]); costlier cells read as unreachable. When some frontier is
@@ -288,11 +288,10 @@ pub fn costs_to_frontiers(
     g: &Grid,
     start: Cell,
     penalty: Option<&[f32]>,
-    planning: &Grid,
     frontiers: &FrontierCells,
 ) {
     let stop = Stop::Frontiers {
-        of: planning,
+        of: frontiers,
         left: frontiers.len(),
     };
     dijkstra(map, g, &[start], penalty, stop);
@@ -328,8 +327,11 @@ enum Stop<'a> {
     Never,
     /// Once this cell is settled.
     At(Cell),
-    /// Once the last `left` frontier cells of the grid `of` are settled.
-    Frontiers { of: &'a Grid, left: usize },
+    /// Once the last `left` frontier cells `of` are settled.
+    Frontiers {
+        of: &'a FrontierCells,
+        left: usize,
+    },
 }
 
 /// The search runs over a window of the grid — its known part and the sources — and costs in
@@ -367,11 +369,13 @@ fn dijkstra(
         if cost > map.dist_at(index) {
             continue;
         }
+        let (x, y) = (index % w, index / w);
+        let here = (y0 + y) * gw + x0 + x;
         let last = match &mut until {
             Stop::Never => false,
             Stop::At(_) => Some(index) == stop,
             Stop::Frontiers { of, left } => {
-                if of.is_frontier(map.cell_of(index)) {
+                if of.holds(here) {
                     *left = left.saturating_sub(1);
                 }
                 *left == 0
@@ -384,8 +388,6 @@ fn dijkstra(
             map.limit = cost;
             break;
         }
-        let (x, y) = (index % w, index / w);
-        let here = (y0 + y) * gw + x0 + x;
         // A cell off the window is not free (the window holds the known part); inside it
         // every neighbour is in the window.
         let inner = x > 0 && y > 0 && x + 1 < w && y + 1 < h;
@@ -396,10 +398,10 @@ fn dijkstra(
             on && cells[here.wrapping_add_signed(dy * gw as isize + dx)] == Occ::Free
         };
         // The moves of `moves`, in its order: into free cells, diagonals only between two
-        // free orthogonal neighbours.
-        for &(d, gd, (dx, dy), step) in &offsets {
-            let diagonal = dx != 0 && dy != 0;
-            if !free(dx, dy) || (diagonal && (!free(dx, 0) || !free(0, dy))) {
+        // free orthogonal neighbours (each neighbour read once).
+        let open = offsets.map(|(_, _, (dx, dy), _, _)| free(dx, dy));
+        for (k, &(d, gd, _, between, step)) in offsets.iter().enumerate() {
+            if !open[k] || between.is_some_and(|(a, b)| !open[a] || !open[b]) {
                 continue;
             }
             let ni = index.wrapping_add_signed(d);
@@ -419,20 +421,24 @@ fn dijkstra(
 }
 
 /// A move's offsets ([`move_offsets`]).
-type MoveOffsets = (isize, isize, (isize, isize), f64);
+type MoveOffsets = (isize, isize, (isize, isize), Option<(usize, usize)>, f64);
 
 /// Per move of [`MOVES`]: the neighbour's offset in a window `width` cells wide and in the grid
-/// (`gw` wide), the move itself and the step's length.
+/// (`gw` wide), the move itself, for a diagonal the two orthogonal moves (by their place in
+/// [`MOVES`]) it passes between, and the step's length.
 fn move_offsets(width: u32, gw: u32) -> [MoveOffsets; 8] {
     let (w, gw) = (width as isize, gw as isize);
+    let orthogonal = |m: (i32, i32)| MOVES.iter().position(|&o| o == m).unwrap_or(0);
     MOVES.map(|(dx, dy)| {
-        let (dx, dy) = (dx as isize, dy as isize);
-        let step = if dx != 0 && dy != 0 {
+        let diagonal = dx != 0 && dy != 0;
+        let between = diagonal.then(|| (orthogonal((dx, 0)), orthogonal((0, dy))));
+        let step = if diagonal {
             std::f64::consts::SQRT_2
         } else {
             1.0
         };
-        (dy * w + dx, dy * gw + dx, (dx, dy), step)
+        let (dx, dy) = (dx as isize, dy as isize);
+        (dy * w + dx, dy * gw + dx, (dx, dy), between, step)
     })
 }
 
@@ -465,6 +471,8 @@ pub fn frontiers(g: &Grid, costs: &CostMap) -> Vec<Cell> {
 pub struct FrontierCells {
     /// By (y, x): row-major, as [`frontiers`] lists them.
     cells: BTreeSet<(i32, i32)>,
+    /// Per cell of the grid (row-major), whether it is one.
+    is: Vec<bool>,
     size: (u32, u32),
 }
 
@@ -474,7 +482,11 @@ impl FrontierCells {
     pub fn update(&mut self, g: &Grid, changed: &[Rect]) {
         let size = (g.width(), g.height());
         if size != self.size {
-            (self.cells, self.size) = (BTreeSet::new(), size);
+            *self = FrontierCells {
+                cells: BTreeSet::new(),
+                is: vec![false; g.len()],
+                size,
+            };
             self.reread(g, g.whole());
             return;
         }
@@ -485,12 +497,22 @@ impl FrontierCells {
 
     fn reread(&mut self, g: &Grid, r: Option<Rect>) {
         for c in r.into_iter().flat_map(Rect::cells) {
-            if g.is_frontier(c) {
-                self.cells.insert((c.y, c.x));
-            } else {
-                self.cells.remove(&(c.y, c.x));
+            let Some(i) = g.index(c) else { continue };
+            let now = g.is_frontier(c);
+            if now != self.is[i] {
+                self.is[i] = now;
+                if now {
+                    self.cells.insert((c.y, c.x));
+                } else {
+                    self.cells.remove(&(c.y, c.x));
+                }
             }
         }
+    }
+
+    /// Whether the cell of grid index `i` is one.
+    fn holds(&self, i: usize) -> bool {
+        self.is.get(i).copied().unwrap_or(false)
     }
 
     /// How many there are.
@@ -1143,6 +1165,9 @@ mod tests {
                 let rects: Vec<Rect> = Rect::around(touched).map(|r| r.grown(wider)).into_iter().collect();
                 kept.update(&g, &rects);
                 prop_assert_eq!(all(&kept), every(&g));
+                for i in 0..g.len() {
+                    prop_assert_eq!(kept.holds(i), g.is_frontier(g.cell_of(i)));
+                }
             }
         }
 
@@ -1162,7 +1187,7 @@ mod tests {
             let mut cells = FrontierCells::default();
             cells.update(&g, &[]);
             let mut to = CostMap::default();
-            costs_to_frontiers(&mut to, &free, start, None, &g, &cells);
+            costs_to_frontiers(&mut to, &free, start, None, &cells);
             let all = costs(&free, start);
             prop_assert_eq!(cells.reachable(&to), frontiers(&g, &all));
             for f in frontiers(&g, &all) {
