@@ -294,13 +294,49 @@ fn free_inside(plan: &mut Canvas, a: &[Part<'_>], bands: Bands) {
 
 /// [`render`] of the approximation made of `polys`, restricted to the window of
 /// `width × height` cells at `origin`, row-major: inside the grid identical to the same cells of the full
-/// rendering, at the cost of the window (and one pass over the edges) — used to score a
-/// single split locally.
+/// rendering, at the cost of the window and one pass over the vertices — used to score a
+/// single split locally. Each polygon is painted with the edges that reach the window's rows
+/// alone ([`paint_parts`]), and one whose cells miss the window not at all: a small window of a
+/// big approximation costs the edges near it, not every edge several times over.
 pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) -> Vec<Occ> {
-    paint(&[polys.to_vec()], origin, width, height, Bands::Ignored)
+    let (Ok(w), Ok(h)) = (i32::try_from(width), i32::try_from(height)) else {
+        return Vec::new();
+    };
+    let window = Rect {
+        min: origin,
+        max: Cell::new(origin.x.saturating_add(w - 1), origin.y.saturating_add(h - 1)),
+    };
+    let near: Vec<(Vec<u32>, Option<Rect>)> = polys.iter().map(|p| near(p, window)).collect();
+    let parts: Vec<Part<'_>> = (polys.iter().zip(&near))
+        .filter(|(_, (_, bounds))| bounds.is_some_and(|b| b.intersects(window)))
+        .map(|(&poly, (edges, bounds))| Part {
+            poly,
+            edges: Some(edges),
+            bounds: *bounds,
+        })
+        .collect();
+    paint_parts(&[parts], origin, width, height, Bands::Ignored)
         .into_iter()
         .map(|p| p.unwrap_or(Occ::Unknown))
         .collect()
+}
+
+/// The edges of `p` that reach the rows of `window` — their scan-line crossings and their
+/// cells lie within their ends' rows, and one more on either side is kept — and `p`'s
+/// [`Polygon::cell_bounds`], in one pass over its vertices.
+fn near(p: &Polygon, window: Rect) -> (Vec<u32>, Option<Rect>) {
+    let n = p.vertices.len();
+    let mut edges = Vec::new();
+    let mut around: Option<Rect> = None;
+    for (i, v) in p.vertices.iter().enumerate() {
+        let (a, b) = (v.p.cell(), p.vertices[(i + 1) % n].p.cell());
+        around = Rect::union_of(around, Some(Rect::cell(a)));
+        let (lo, hi) = (a.y.min(b.y).saturating_sub(1), a.y.max(b.y).saturating_add(1));
+        if lo <= window.max.y && window.min.y <= hi {
+            edges.push(i as u32);
+        }
+    }
+    (edges, around.map(|r| r.grown(1)))
 }
 
 /// The grid an approximation stands for on its own (`width × height`, the owner's frame):
