@@ -289,5 +289,11 @@ fn full_search(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, pipelines, contour_scaling, contour_fixed_room, full_search);
+criterion_group!(
+    benches,
+    pipelines,
+    contour_scaling,
+    contour_fixed_room,
+    full_search
+);
 criterion_main!(benches);

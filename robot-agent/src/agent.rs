@@ -166,7 +166,9 @@ impl Agent {
     fn build_planning(&mut self) {
         let changed = (self.sharing).update_planning_grid(&self.own, &mut self.planning);
         self.frontier_cells.update(&self.planning, &changed);
-        let changed = changed.into_iter().fold(None, |r, c| Rect::union_of(r, Some(c)));
+        let changed = changed
+            .into_iter()
+            .fold(None, |r, c| Rect::union_of(r, Some(c)));
         self.unreported[0] = Rect::union_of(self.unreported[0], changed);
         self.planning_report = Some(self.report(0));
     }

@@ -304,7 +304,10 @@ pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) 
     };
     let window = Rect {
         min: origin,
-        max: Cell::new(origin.x.saturating_add(w - 1), origin.y.saturating_add(h - 1)),
+        max: Cell::new(
+            origin.x.saturating_add(w - 1),
+            origin.y.saturating_add(h - 1),
+        ),
     };
     let near: Vec<(Vec<u32>, Option<Rect>)> = polys.iter().map(|p| near(p, window)).collect();
     let parts: Vec<Part<'_>> = (polys.iter().zip(&near))
@@ -325,18 +328,32 @@ pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) 
 /// cells lie within their ends' rows, and one more on either side is kept — and `p`'s
 /// [`Polygon::cell_bounds`], in one pass over its vertices.
 fn near(p: &Polygon, window: Rect) -> (Vec<u32>, Option<Rect>) {
-    let n = p.vertices.len();
+    let Some(v0) = p.vertices.first() else {
+        return (Vec::new(), None);
+    };
     let mut edges = Vec::new();
-    let mut around: Option<Rect> = None;
-    for (i, v) in p.vertices.iter().enumerate() {
-        let (a, b) = (v.p.cell(), p.vertices[(i + 1) % n].p.cell());
-        around = Rect::union_of(around, Some(Rect::cell(a)));
-        let (lo, hi) = (a.y.min(b.y).saturating_sub(1), a.y.max(b.y).saturating_add(1));
+    let first = v0.p.cell();
+    let (mut min, mut max) = (first, first);
+    // Edge i runs from vertex i to vertex i + 1 (the last to the first).
+    let mut next = first;
+    for i in 0..p.vertices.len() {
+        let a = next;
+        next = p.vertices.get(i + 1).map_or(first, |v| v.p.cell());
+        (min.x, min.y, max.x, max.y) = (
+            min.x.min(a.x),
+            min.y.min(a.y),
+            max.x.max(a.x),
+            max.y.max(a.y),
+        );
+        let (lo, hi) = (
+            a.y.min(next.y).saturating_sub(1),
+            a.y.max(next.y).saturating_add(1),
+        );
         if lo <= window.max.y && window.min.y <= hi {
             edges.push(i as u32);
         }
     }
-    (edges, around.map(|r| r.grown(1)))
+    (edges, Some(Rect { min, max }.grown(1)))
 }
 
 /// The grid an approximation stands for on its own (`width × height`, the owner's frame):

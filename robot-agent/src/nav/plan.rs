@@ -274,7 +274,13 @@ pub fn costs_into(
     penalty: Option<&[f32]>,
     until: Option<Cell>,
 ) {
-    dijkstra(map, g, &[start], penalty, until.map_or(Stop::Never, Stop::At));
+    dijkstra(
+        map,
+        g,
+        &[start],
+        penalty,
+        until.map_or(Stop::Never, Stop::At),
+    );
 }
 
 /// [`costs_into`] that stops once every frontier cell of the planning grid (`frontiers`, kept
@@ -328,10 +334,7 @@ enum Stop<'a> {
     /// Once this cell is settled.
     At(Cell),
     /// Once the last `left` frontier cells `of` are settled.
-    Frontiers {
-        of: &'a FrontierCells,
-        left: usize,
-    },
+    Frontiers { of: &'a FrontierCells, left: usize },
 }
 
 /// The search runs over a window of the grid — its known part and the sources — and costs in
@@ -399,7 +402,10 @@ fn dijkstra(
         };
         // The moves of `moves`, in its order: into free cells, diagonals only between two
         // free orthogonal neighbours (each neighbour read once).
-        let open = offsets.map(|(_, _, (dx, dy), _, _)| free(dx, dy));
+        let mut open = [false; 8];
+        for (o, &(_, _, (dx, dy), _, _)) in open.iter_mut().zip(&offsets) {
+            *o = free(dx, dy);
+        }
         for (k, &(d, gd, _, between, step)) in offsets.iter().enumerate() {
             if !open[k] || between.is_some_and(|(a, b)| !open[a] || !open[b]) {
                 continue;
