@@ -337,6 +337,23 @@ enum Stop<'a> {
     Frontiers { of: &'a FrontierCells, left: usize },
 }
 
+impl Stop<'_> {
+    /// Whether the search stops now that it settled a cell — `target`: the cell of
+    /// [`Stop::At`]; `here`: the cell's index in the grid.
+    fn settled(&mut self, target: bool, here: usize) -> bool {
+        match self {
+            Stop::Never => false,
+            Stop::At(_) => target,
+            Stop::Frontiers { of, left } => {
+                if of.holds(here) {
+                    *left = left.saturating_sub(1);
+                }
+                *left == 0
+            }
+        }
+    }
+}
+
 /// The search runs over a window of the grid — its known part and the sources — and costs in
 /// proportion to the cells it reaches, not to the map or the window: every free cell is inside
 /// the known part, a path steps only onto free cells, and the buffers are stamped, not cleared
@@ -353,8 +370,8 @@ fn dijkstra(
     let (x0, y0) = (map.x0 as usize, map.y0 as usize);
     let (w, h) = (map.width as usize, map.height as usize);
     let stop = match until {
-        Stop::At(c) => map.index(c),
-        _ => None,
+        Stop::At(c) => map.index(c).unwrap_or(usize::MAX),
+        _ => usize::MAX,
     };
     let mut heap = BinaryHeap::new();
     for &c in sources {
@@ -374,17 +391,7 @@ fn dijkstra(
         }
         let (x, y) = (index % w, index / w);
         let here = (y0 + y) * gw + x0 + x;
-        let last = match &mut until {
-            Stop::Never => false,
-            Stop::At(_) => Some(index) == stop,
-            Stop::Frontiers { of, left } => {
-                if of.holds(here) {
-                    *left = left.saturating_sub(1);
-                }
-                *left == 0
-            }
-        };
-        if last {
+        if until.settled(index == stop, here) {
             // Every cell cheaper than this one is settled; one as cheap that is not yet has
             // its final cost already (it can only be lowered by a cheaper cell), so the limit
             // may include this cost.
