@@ -75,29 +75,24 @@ impl Merger {
         others: &[(RobotId, &Approximation)],
     ) -> Vec<Rect> {
         let size = (own.width(), own.height());
-        let (painting, windows) = match self.painting.take().filter(|p| p.size() == size) {
-            Some(p) => {
-                let painting = self.painting.insert(p);
-                let mut windows = painting.take(others);
-                for &w in &windows {
-                    painting.repaint(w);
-                }
-                windows.extend(own_changed);
-                (&*painting, windows)
-            }
-            None => {
-                let painting = (self.painting).insert(Painting::new(size.0, size.1, Bands::Kept));
-                for w in painting.take(others) {
-                    painting.repaint(w);
-                }
-                // The cells painted, those G_s knows and those `out` knew: every other cell
-                // is and stays unknown.
-                let region = [own.known_bounds(), out.known_bounds()]
-                    .into_iter()
-                    .fold(painting.reach(), Rect::union_of);
-                (&*painting, region.into_iter().collect())
-            }
-        };
+        let kept = self.painting.take().filter(|p| p.size() == size);
+        let fresh = kept.is_none();
+        let painting = (self.painting)
+            .insert(kept.unwrap_or_else(|| Painting::new(size.0, size.1, Bands::Kept)));
+        let mut windows = painting.take(others);
+        for &w in &windows {
+            painting.repaint(w);
+        }
+        if fresh {
+            // The cells painted, those G_s knows and those `out` knew: every other cell is and
+            // stays unknown.
+            let region = [own.known_bounds(), out.known_bounds()]
+                .into_iter()
+                .fold(painting.reach(), Rect::union_of);
+            windows = region.into_iter().collect();
+        } else {
+            windows.extend(own_changed);
+        }
         let written: Vec<Rect> = (windows.into_iter())
             .filter_map(|r| r.within(size.0, size.1))
             .collect();
