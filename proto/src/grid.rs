@@ -259,11 +259,13 @@ impl Grid {
         self.cells.is_empty()
     }
 
+    #[inline]
     pub fn contains(&self, c: Cell) -> bool {
         c.x >= 0 && c.y >= 0 && (c.x as u32) < self.width && (c.y as u32) < self.height
     }
 
     /// Row-major index of an in-bounds cell.
+    #[inline]
     pub fn index(&self, c: Cell) -> Option<usize> {
         self.contains(c)
             .then(|| c.y as usize * self.width as usize + c.x as usize)
@@ -278,6 +280,7 @@ impl Grid {
     }
 
     /// The value at `c`; cells outside the grid read [`Occ::Unknown`].
+    #[inline]
     pub fn get(&self, c: Cell) -> Occ {
         self.index(c).map_or(Occ::Unknown, |i| self.cells[i])
     }

@@ -75,8 +75,9 @@ fn poses(truth: &Grid, info: &MapInfo, n: usize) -> Vec<Pose> {
 struct State {
     own: Grid,
     evidence: Evidence,
-    pixels: ContourPixels,
-    /// G_s's exploration view, kept up to date like the contour pixels (as the robot's mapper
+    /// P_t, kept from step to step (as the robot's mapper keeps it).
+    contours: Contours,
+    /// G_s's exploration view, kept up to date from the changed cells (as the robot's mapper
     /// keeps it).
     view: ExplorationView,
     approximator: Approximator,
@@ -87,7 +88,7 @@ fn explore(truth: &Grid, info: &MapInfo, path: &[Pose]) -> State {
     let own = Grid::new(truth.width(), truth.height(), Occ::Unknown);
     let mut s = State {
         evidence: Evidence::new(&own),
-        pixels: ContourPixels::scan(&own),
+        contours: Contours::extract(&own),
         view: ExplorationView::new(&own),
         own,
         approximator: Approximator::new(),
@@ -96,12 +97,11 @@ fn explore(truth: &Grid, info: &MapInfo, path: &[Pose]) -> State {
     for &p in path {
         let ranges = world_server::laser::cast(truth, info, p, &laser(), None);
         let changed = s.evidence.integrate(&mut s.own, info, p, &ranges, &laser());
-        s.pixels.update(&s.own, changed.iter().copied());
+        s.contours.update(&s.own, &changed);
         s.view.update(&s.own, changed);
-        let contours = Contours::extract_at(&s.own, &s.pixels);
         s.previous = s
             .approximator
-            .step_in_view(&contours, s.view.grid(), SPLITS)
+            .step_in_view(&s.contours, s.view.grid(), SPLITS)
             .clone();
     }
     s
@@ -118,12 +118,11 @@ fn full_step(
 ) -> (usize, Grid) {
     let ranges = world_server::laser::cast(truth, info, p, &laser(), None);
     let changed = s.evidence.integrate(&mut s.own, info, p, &ranges, &laser());
-    s.pixels.update(&s.own, changed.iter().copied());
+    s.contours.update(&s.own, &changed);
     s.view.update(&s.own, changed);
-    let contours = Contours::extract_at(&s.own, &s.pixels);
     let a = s
         .approximator
-        .step_in_view(&contours, s.view.grid(), SPLITS)
+        .step_in_view(&s.contours, s.view.grid(), SPLITS)
         .clone();
     let ops = diff(&s.previous, &a);
     let bytes = encode(&ops).len();
@@ -165,13 +164,6 @@ fn pipeline(c: &mut Criterion, map: &str, size: u32) {
     let changed = after
         .evidence
         .integrate(&mut after.own, &info, p, &ranges, &laser());
-    group.bench_function("contour_pixels_update", |b| {
-        b.iter_batched(
-            || me.pixels.clone(),
-            |mut px| px.update(&after.own, changed.iter().copied()),
-            BatchSize::LargeInput,
-        )
-    });
     group.bench_function("exploration_view_update", |b| {
         b.iter_batched(
             || me.view.clone(),
@@ -179,12 +171,15 @@ fn pipeline(c: &mut Criterion, map: &str, size: u32) {
             BatchSize::LargeInput,
         )
     });
-    after.pixels.update(&after.own, changed.iter().copied());
     after.view.update(&after.own, changed.iter().copied());
     group.bench_function("contour", |b| {
-        b.iter(|| Contours::extract_at(&after.own, &after.pixels))
+        b.iter_batched(
+            || me.contours.clone(),
+            |mut p| p.update(&after.own, &changed),
+            BatchSize::LargeInput,
+        )
     });
-    let contours = Contours::extract_at(&after.own, &after.pixels);
+    let contours = Contours::extract(&after.own);
     group.bench_function("approx_refine", |b| {
         b.iter_batched(
             || after.approximator.clone(),
@@ -284,7 +279,7 @@ fn full_search(c: &mut Criterion) {
     group.sample_size(20);
     let mut costs = CostMap::default();
     group.bench_function("costs", |b| {
-        b.iter(|| plan::costs_into(&mut costs, &truth, start, None, None))
+        b.iter(|| plan::costs_into(&mut costs, &truth, start, None))
     });
     group.finish();
 }

@@ -200,9 +200,9 @@ impl Agent {
         let free = detour.as_ref().unwrap_or(g);
         self.right_of_way.give_up(&mut self.target);
         let usable = self.target.filter(|&t| self.right_of_way.usable(t, me));
-        // A strategy that keeps a valid target needs only the way to it: search as far as
-        // the target, and all over only when it is gone (explored, unreachable) or the
-        // strategy looks at every frontier each step.
+        // A strategy that keeps a valid target needs only the way to it (an A* search that
+        // finds the full search's path), and a search all over only when the target is gone
+        // (explored, unreachable) or the strategy looks at every frontier each step.
         let keep = usable.filter(|_| self.coordinator.keeps_valid_target());
         // A strategy that looks at the frontiers' costs alone needs the search only as far as
         // the farthest frontier.
@@ -211,19 +211,15 @@ impl Agent {
                 let cells = &self.frontier_cells;
                 plan::costs_to_frontiers(costs, free, me, penalty.as_deref(), cells);
             } else {
-                plan::costs_into(costs, free, me, penalty.as_deref(), None);
+                plan::costs_into(costs, free, me, penalty.as_deref());
             }
         };
-        match keep {
-            Some(t) => plan::costs_into(costs, free, me, penalty.as_deref(), Some(t)),
-            None => everything(costs),
-        }
-        let kept = keep.filter(|&t| plan::is_frontier(g, costs, t));
+        let kept = keep
+            .filter(|&t| g.is_frontier(t))
+            .and_then(|t| plan::path_until(costs, free, me, penalty.as_deref(), t));
         let mut frontiers = Vec::new();
         if kept.is_none() {
-            if keep.is_some() && !costs.is_complete() {
-                everything(costs);
-            }
+            everything(costs);
             frontiers = self.frontier_cells.reachable(costs);
             let valid = usable.is_some_and(|t| frontiers.contains(&t));
             let candidates = self.right_of_way.candidates(&frontiers, me);
@@ -263,7 +259,10 @@ impl Agent {
             return aside.map(|n| w.map.centre_of(n));
         }
         self.idle = self.target.is_none();
-        let path = plan::path_to(costs, self.target?)?;
+        let path = match kept {
+            Some(path) => path,
+            None => plan::path_to(costs, self.target?)?,
+        };
         let next = plan::next_waypoint(free, &w.map, at, &path, max_cells)?;
         (next != me).then(|| w.map.centre_of(next))
     }

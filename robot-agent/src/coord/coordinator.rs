@@ -29,9 +29,9 @@ pub trait Coordinator: Send {
     fn choose(&mut self, s: &Situation<'_>) -> Option<Cell>;
 
     /// Whether [`Coordinator::choose`] keeps a valid target (`s.valid`) without looking at
-    /// anything else. The agent then searches only as far as that target while it stays a
-    /// frontier ([`crate::nav::plan::costs_until`]), and asks `choose` nothing: the step costs the
-    /// way to the target, not everything explored.
+    /// anything else. The agent then searches only for the way to that target while it stays
+    /// a frontier ([`crate::nav::plan::path_until`]), and asks `choose` nothing: the step costs
+    /// the way to the target, not everything explored.
     fn keeps_valid_target(&self) -> bool {
         false
     }

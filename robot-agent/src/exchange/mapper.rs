@@ -14,7 +14,7 @@ use crate::exchange::wire::Encoder;
 use crate::mapping::approx::Approximation;
 use crate::mapping::approx_error::KeptError;
 use crate::mapping::approximator::Approximator;
-use crate::mapping::contour::{ContourPixels, Contours};
+use crate::mapping::contour::Contours;
 use crate::mapping::render::ExplorationView;
 
 /// Counts and encoded bytes of every op appended so far, per package type (indexed by
@@ -56,8 +56,6 @@ pub struct StepReport {
 pub struct Mapper {
     approximator: Approximator,
     contours: Option<Contours>,
-    /// The contour pixels of G_s, kept up to date from the changed cells.
-    pixels: Option<ContourPixels>,
     /// G_s's exploration view, kept up to date from the changed cells, and d_t, kept where
     /// the view or the approximation changed.
     view: Option<(ExplorationView, KeptError)>,
@@ -83,7 +81,6 @@ impl Mapper {
         Mapper {
             approximator: Approximator::new(),
             contours: None,
-            pixels: None,
             view: None,
             known: Vec::new(),
             known_cells: 0,
@@ -102,14 +99,13 @@ impl Mapper {
     /// the cells `changed` changed since the previous step (all of them count as changed at the
     /// first step).
     pub fn step(&mut self, own: &Grid, changed: &[Cell]) -> StepReport {
-        let pixels = match self.pixels.as_mut() {
-            Some(px) => {
-                px.update(own, changed.iter().copied());
-                px
+        let p = match self.contours.take() {
+            Some(mut p) => {
+                p.update(own, changed);
+                p
             }
-            None => self.pixels.insert(ContourPixels::scan(own)),
+            None => Contours::extract(own),
         };
-        let p = Contours::extract_at(own, pixels);
         let (view, error) = match self.view.as_mut() {
             Some((v, e)) => {
                 // The view of a cell follows it and its 4-neighbours.

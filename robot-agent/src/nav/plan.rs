@@ -57,8 +57,9 @@ pub struct CostMap {
     cells: Vec<Reached>,
     /// The current search's stamp (never 0 once a search began).
     search: u32,
-    /// The search settled every cell up to this cost and stopped ([`costs_until`]); costs
-    /// beyond it are unknown and read as unreachable. `f64::INFINITY`: a full search.
+    /// The search settled every cell up to this cost and stopped ([`costs_to_frontiers`]);
+    /// costs beyond it are unknown and read as unreachable. `f64::INFINITY`: a full search;
+    /// `f64::NEG_INFINITY`: none to read ([`path_until`]).
     limit: f64,
 }
 
@@ -92,7 +93,7 @@ impl CostMap {
             .filter(|&d| d.is_finite() && d <= self.limit)
     }
 
-    /// Whether the search covered every cell it could reach (not stopped by [`costs_until`]).
+    /// Whether the search covered every cell it could reach (not stopped early).
     pub fn is_complete(&self) -> bool {
         self.limit == f64::INFINITY
     }
@@ -264,30 +265,18 @@ pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
     map
 }
 
-/// [`costs_with`] (`until: None`) or [`costs_until`] into `map`, in the buffers it has: a robot
-/// searches every step, and a new map over a campus-sized known part is megabytes to allocate
-/// and touch each time.
-pub fn costs_into(
-    map: &mut CostMap,
-    g: &Grid,
-    start: Cell,
-    penalty: Option<&[f32]>,
-    until: Option<Cell>,
-) {
-    dijkstra(
-        map,
-        g,
-        &[start],
-        penalty,
-        until.map_or(Stop::Never, Stop::At),
-    );
+/// [`costs_with`] into `map`, in the buffers it has: a robot searches every step, and a new
+/// map over a campus-sized known part is megabytes to allocate and touch each time.
+pub fn costs_into(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>) {
+    dijkstra(map, g, &[start], penalty, Stop::Never);
 }
 
 /// [`costs_into`] that stops once every frontier cell of the planning grid (`frontiers`, kept
 /// with it; `g` may be that grid or one with more cells blocked) is settled: what a strategy that looks at the frontiers' costs
 /// alone needs, without settling the cells beyond the farthest frontier. The cost of every
-/// frontier, the path to it and [`FrontierCells::reachable`] are [`costs_with`]'s (the
-/// argument of [`costs_until`]); costlier cells read as unreachable. When some frontier is
+/// frontier, the path to it and [`FrontierCells::reachable`] are [`costs_with`]'s (Dijkstra
+/// settles cells in the same order up to there, and a settled cell's cost and predecessor
+/// never change); costlier cells read as unreachable. When some frontier is
 /// not reachable the search runs out by itself and the map is complete.
 pub fn costs_to_frontiers(
     map: &mut CostMap,
@@ -303,17 +292,134 @@ pub fn costs_to_frontiers(
     dijkstra(map, g, &[start], penalty, stop);
 }
 
-/// [`costs_with`] that stops as soon as `target` is settled: a search as far as the target
-/// rather than over everything explored (a robot that keeps its target needs only the way
-/// there). Every cost it reports, and every path to a cell with one — `target`'s first — is
-/// [`costs_with`]'s: Dijkstra settles cells in the same order up to there, and a settled cell's
-/// cost and predecessor never change. Cells costlier than `target` read as unreachable. When
-/// `target` is unreachable the search runs out by itself and the map is complete
-/// ([`CostMap::is_complete`]).
-pub fn costs_until(g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell) -> CostMap {
-    let mut map = CostMap::default();
-    dijkstra(&mut map, g, &[start], penalty, Stop::At(target));
-    map
+/// The path [`path_to`] finds to `target` after a full search from `start` ([`costs_with`]) —
+/// the same cells, `None` when `target` is unreachable — searched by A* into `map`'s buffers:
+/// a robot that keeps its target needs only the way there, and A* settles the cells that may lie
+/// on a cheapest path (cost so far plus the straight-line estimate of the rest not beyond the
+/// target's cost) rather than every cell cheaper than the target.
+///
+/// The same cells, not merely a path as cheap: equal-cost paths abound on a grid, and which
+/// one Dijkstra's predecessors follow decides where the robot goes. Dijkstra settles cells by
+/// (cost, index) and keeps the first predecessor that gives a cell its final cost, so a cell's
+/// predecessor is, among the neighbours whose cost plus the step is exactly the cell's cost, the
+/// one with the lowest (cost, index) — a rule of the final costs alone ([`traced`]). A* finds
+/// those costs for every cell that can be such a neighbour of a cell on a cheapest path (all of
+/// them have cost plus estimate within the target's cost, and it settles all of those), so the
+/// rule, followed back from the target, gives Dijkstra's path. `map` holds no costs afterwards
+/// ([`CostMap::cost`] is `None` everywhere): only its buffers are kept.
+pub fn path_until(
+    map: &mut CostMap,
+    g: &Grid,
+    start: Cell,
+    penalty: Option<&[f32]>,
+    target: Cell,
+) -> Option<Vec<Cell>> {
+    let reached = astar(map, g, start, penalty, target);
+    let path = reached.then(|| traced(map, g, penalty, target)).flatten();
+    map.limit = f64::NEG_INFINITY;
+    path
+}
+
+/// A* from `start` over `g` until every cell whose cost plus estimate is within `target`'s
+/// cost is settled; whether `target` was reached. The estimate is the octile distance (a lower
+/// bound of a path's cost on the 8-connected grid with steps 1 and √2 when no step costs less
+/// than its length), shrunk by a millionth so that float rounding never makes it exceed the
+/// cost left; with a negative penalty somewhere, no estimate (a Dijkstra).
+fn astar(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell) -> bool {
+    map.begin(g, &[start]);
+    let (Some(s), Some(t)) = (map.index(start), map.index(target)) else {
+        return false;
+    };
+    let guided = penalty.is_none_or(|p| p.iter().all(|&v| v >= 0.0));
+    let (w, tx, ty) = (
+        map.width as usize,
+        t % map.width as usize,
+        t / map.width as usize,
+    );
+    let estimate = |i: usize| {
+        let (dx, dy) = ((i % w).abs_diff(tx) as f64, (i / w).abs_diff(ty) as f64);
+        let octile = dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy);
+        if guided {
+            octile * (1.0 - 1e-6)
+        } else {
+            0.0
+        }
+    };
+    let mut heap = BinaryHeap::new();
+    map.reach(s, 0.0, NO_PRED);
+    heap.push(Entry {
+        cost: estimate(s),
+        index: s,
+    });
+    let moves = Moves::new(map, g, penalty);
+    let mut found = false;
+    while let Some(Entry { cost, index }) = heap.pop() {
+        let so_far = map.dist_at(index);
+        if cost > so_far + estimate(index) {
+            continue;
+        }
+        if found && cost > map.dist_at(t) {
+            break;
+        }
+        found |= index == t;
+        moves.each(index, |ni, step| {
+            let next = so_far + step;
+            if next < map.dist_at(ni) {
+                map.reach(ni, next, index as u32);
+                heap.push(Entry {
+                    cost: next + estimate(ni),
+                    index: ni,
+                });
+            }
+        });
+    }
+    found
+}
+
+/// The path to window index of `target` by Dijkstra's predecessor rule over `map`'s final
+/// costs ([`path_until`]): back from the target, each cell's predecessor is the neighbour a
+/// move into it comes from whose cost plus the step is exactly its cost, the lowest by
+/// (cost, index).
+fn traced(map: &CostMap, g: &Grid, penalty: Option<&[f32]>, target: Cell) -> Option<Vec<Cell>> {
+    let moves = Moves::new(map, g, penalty);
+    let (w, h) = (map.width as isize, map.height as isize);
+    let mut i = map.index(target)?;
+    let mut path = vec![target];
+    for _ in 0..map.cells.len() {
+        if map.cell_of(i) == map.start {
+            path.reverse();
+            return Some(path);
+        }
+        let cost = map.dist_at(i);
+        let (x, y) = ((i % w as usize) as isize, (i / w as usize) as isize);
+        let mut best: Option<(f64, usize)> = None;
+        for &(_, _, (dx, dy), between, length) in &moves.offsets {
+            let (nx, ny) = (x - dx, y - dy);
+            if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                continue;
+            }
+            let n = (ny * w + nx) as usize;
+            let from = map.dist_at(n);
+            // A diagonal into `i` passes between the cells of its two orthogonal moves out
+            // of `n`, which lie beside `i` opposite those moves' directions.
+            let blocked = between.is_some_and(|(a, b)| {
+                let side = |m: usize| moves.offsets[m].2;
+                let (sa, sb) = (side(a), side(b));
+                !moves.is_free(i, (sa.0 - dx, sa.1 - dy))
+                    || !moves.is_free(i, (sb.0 - dx, sb.1 - dy))
+            });
+            let step = length * moves.factor(moves.in_grid(i));
+            if blocked || !from.is_finite() || from + step != cost {
+                continue;
+            }
+            if best.is_none_or(|(c, j)| from < c || (from == c && n < j)) {
+                best = Some((from, n));
+            }
+        }
+        i = best?.1;
+        path.push(map.cell_of(i));
+    }
+    None
 }
 
 /// The cost of reaching every cell from the nearest of `sources` (a multi-source Dijkstra, no
@@ -331,19 +437,15 @@ pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
 enum Stop<'a> {
     /// When it runs out.
     Never,
-    /// Once this cell is settled.
-    At(Cell),
     /// Once the last `left` frontier cells `of` are settled.
     Frontiers { of: &'a FrontierCells, left: usize },
 }
 
 impl Stop<'_> {
-    /// Whether the search stops now that it settled a cell — `target`: the cell of
-    /// [`Stop::At`]; `here`: the cell's index in the grid.
-    fn settled(&mut self, target: bool, here: usize) -> bool {
+    /// Whether the search stops now that it settled a cell (`here`: its index in the grid).
+    fn settled(&mut self, here: usize) -> bool {
         match self {
             Stop::Never => false,
-            Stop::At(_) => target,
             Stop::Frontiers { of, left } => {
                 if of.holds(here) {
                     *left = left.saturating_sub(1);
@@ -367,12 +469,6 @@ fn dijkstra(
     mut until: Stop<'_>,
 ) {
     map.begin(g, sources);
-    let (x0, y0) = (map.x0 as usize, map.y0 as usize);
-    let (w, h) = (map.width as usize, map.height as usize);
-    let stop = match until {
-        Stop::At(c) => map.index(c).unwrap_or(usize::MAX),
-        _ => usize::MAX,
-    };
     let mut heap = BinaryHeap::new();
     for &c in sources {
         if let Some(s) = map.index(c) {
@@ -383,45 +479,20 @@ fn dijkstra(
             });
         }
     }
-    let (cells, gw) = (g.cells(), g.width() as usize);
-    let offsets = move_offsets(map.width, g.width());
+    let moves = Moves::new(map, g, penalty);
     while let Some(Entry { cost, index }) = heap.pop() {
         if cost > map.dist_at(index) {
             continue;
         }
-        let (x, y) = (index % w, index / w);
-        let here = (y0 + y) * gw + x0 + x;
-        if until.settled(index == stop, here) {
+        if until.settled(moves.in_grid(index)) {
             // Every cell cheaper than this one is settled; one as cheap that is not yet has
             // its final cost already (it can only be lowered by a cheaper cell), so the limit
             // may include this cost.
             map.limit = cost;
             break;
         }
-        // A cell off the window is not free (the window holds the known part); inside it
-        // every neighbour is in the window.
-        let inner = x > 0 && y > 0 && x + 1 < w && y + 1 < h;
-        let free = |dx: isize, dy: isize| {
-            let on = inner
-                || (x.checked_add_signed(dx).is_some_and(|nx| nx < w)
-                    && y.checked_add_signed(dy).is_some_and(|ny| ny < h));
-            on && cells[here.wrapping_add_signed(dy * gw as isize + dx)] == Occ::Free
-        };
-        // The moves of `moves`, in its order: into free cells, diagonals only between two
-        // free orthogonal neighbours (each neighbour read once).
-        let mut open = [false; 8];
-        for (o, &(_, _, (dx, dy), _, _)) in open.iter_mut().zip(&offsets) {
-            *o = free(dx, dy);
-        }
-        for (k, &(d, gd, _, between, step)) in offsets.iter().enumerate() {
-            if !open[k] || between.is_some_and(|(a, b)| !open[a] || !open[b]) {
-                continue;
-            }
-            let ni = index.wrapping_add_signed(d);
-            let extra = penalty
-                .and_then(|p| p.get(here.wrapping_add_signed(gd)))
-                .map_or(0.0, |&p| f64::from(p));
-            let next = cost + step * (1.0 + extra);
+        moves.each(index, |ni, step| {
+            let next = cost + step;
             if next < map.dist_at(ni) {
                 map.reach(ni, next, index as u32);
                 heap.push(Entry {
@@ -429,7 +500,79 @@ fn dijkstra(
                     index: ni,
                 });
             }
+        });
+    }
+}
+
+/// The moves of a search's window ([`CostMap`]'s) over the grid's cells, read cell by cell:
+/// into free cells, diagonals only between two free orthogonal neighbours, each step costing
+/// its length times (1 + the penalty of the cell stepped into) — [`moves`]' rule.
+struct Moves<'a> {
+    cells: &'a [Occ],
+    penalty: Option<&'a [f32]>,
+    /// The window's corner in the grid, its size and the grid's width.
+    x0: usize,
+    y0: usize,
+    w: usize,
+    h: usize,
+    gw: usize,
+    offsets: [MoveOffsets; 8],
+}
+
+impl<'a> Moves<'a> {
+    fn new(map: &CostMap, g: &'a Grid, penalty: Option<&'a [f32]>) -> Moves<'a> {
+        Moves {
+            cells: g.cells(),
+            penalty,
+            x0: map.x0 as usize,
+            y0: map.y0 as usize,
+            w: map.width as usize,
+            h: map.height as usize,
+            gw: g.width() as usize,
+            offsets: move_offsets(map.width, g.width()),
         }
+    }
+
+    /// The grid index of window index `index`.
+    fn in_grid(&self, index: usize) -> usize {
+        (self.y0 + index / self.w) * self.gw + self.x0 + index % self.w
+    }
+
+    /// Whether the cell `(dx, dy)` from window index `index` is free (a cell off the window
+    /// is not: the window holds the known part).
+    fn is_free(&self, index: usize, (dx, dy): (isize, isize)) -> bool {
+        let (x, y, w) = (index % self.w, index / self.w, self.w);
+        let inner = x > 0 && y > 0 && x + 1 < w && y + 1 < self.h;
+        let on = inner
+            || (x.checked_add_signed(dx).is_some_and(|nx| nx < w)
+                && y.checked_add_signed(dy).is_some_and(|ny| ny < self.h));
+        let here = self.in_grid(index);
+        on && self.cells[here.wrapping_add_signed(dy * self.gw as isize + dx)] == Occ::Free
+    }
+
+    /// `step(neighbour, cost)` for each move out of window index `index`, in [`MOVES`]' order
+    /// (each neighbour read once).
+    fn each(&self, index: usize, mut step: impl FnMut(usize, f64)) {
+        let here = self.in_grid(index);
+        let mut open = [false; 8];
+        for (o, &(_, _, d, _, _)) in open.iter_mut().zip(&self.offsets) {
+            *o = self.is_free(index, d);
+        }
+        for (k, &(d, gd, _, between, length)) in self.offsets.iter().enumerate() {
+            if !open[k] || between.is_some_and(|(a, b)| !open[a] || !open[b]) {
+                continue;
+            }
+            step(
+                index.wrapping_add_signed(d),
+                length * self.factor(here.wrapping_add_signed(gd)),
+            );
+        }
+    }
+
+    /// What a step into grid index `i` costs per cell of length.
+    fn factor(&self, i: usize) -> f64 {
+        let extra = (self.penalty.and_then(|p| p.get(i))).map_or(0.0, |&p| f64::from(p));
+        1.0 + extra
     }
 }
 
@@ -1064,6 +1207,24 @@ mod tests {
         })
     }
 
+    /// Grids up to 24 cells a side with few obstacles (one cell in `1/density`): many
+    /// equal-cost paths between two cells.
+    fn arb_open_grid() -> impl Strategy<Value = Grid> {
+        (1u32..24, 1u32..24, 4u32..40).prop_flat_map(|(w, h, density)| {
+            proptest::collection::vec(0..density, (w * h) as usize).prop_map(move |v| {
+                let mut g = Grid::new(w, h, Occ::Free);
+                for (c, b) in g.cells_mut().iter_mut().zip(v) {
+                    *c = match b {
+                        0 => Occ::Occupied,
+                        1 => Occ::Unknown,
+                        _ => Occ::Free,
+                    };
+                }
+                g
+            })
+        })
+    }
+
     /// Costs by Bellman–Ford relaxation, the plain definition Dijkstra must agree with.
     fn reference_costs(g: &Grid, start: Cell) -> Vec<f64> {
         let mut d = vec![f64::INFINITY; g.len()];
@@ -1210,8 +1371,8 @@ mod tests {
         }
 
         /// One map searched again and again — over grids of other sizes and windows, from
-        /// other starts, stopped at a target or not — reports what a fresh search does: what
-        /// an earlier search reached never shows through the stamps.
+        /// other starts, all over or for the way to a target — reports what a fresh search
+        /// does: what an earlier search reached never shows through the stamps.
         #[test]
         fn a_map_searched_again_is_a_fresh_search(
             searches in proptest::collection::vec(
@@ -1223,13 +1384,16 @@ mod tests {
             for (g, sx, sy, until) in searches {
                 let cell = |x: i32, y: i32| Cell::new(x % g.width() as i32, y % g.height() as i32);
                 let start = cell(sx, sy);
-                let until = until.map(|(x, y)| cell(x, y));
-                costs_into(&mut kept, &g, start, None, until);
-                let fresh = match until {
-                    Some(t) => costs_until(&g, start, None, t),
-                    None => costs(&g, start),
-                };
-                prop_assert_eq!(kept.is_complete(), fresh.is_complete());
+                let fresh = costs(&g, start);
+                if let Some(t) = until.map(|(x, y)| cell(x, y)) {
+                    let path = path_until(&mut kept, &g, start, None, t);
+                    prop_assert_eq!(path, path_to(&fresh, t));
+                    prop_assert!(!kept.is_complete());
+                    prop_assert!((0..g.len()).all(|i| kept.cost(g.cell_of(i)).is_none()));
+                    continue;
+                }
+                costs_into(&mut kept, &g, start, None);
+                prop_assert!(kept.is_complete());
                 for i in 0..g.len() {
                     let c = g.cell_of(i);
                     prop_assert_eq!(kept.cost(c), fresh.cost(c), "{:?}", c);
@@ -1238,30 +1402,23 @@ mod tests {
             }
         }
 
-        /// Stopped at a target, the search reports exactly the full search's costs up to the
-        /// target's and the same paths — the target's among them — and nothing beyond.
+        /// The way to a kept target by A* is the very path the full search's predecessors
+        /// give — not merely one as cheap: on open grids full of equal-cost paths, on mazes,
+        /// with and without the obstacle penalty, from any start (even an unknown or occupied
+        /// cell) to any target, reachable or not.
         #[test]
-        fn the_search_until_a_target_is_the_full_search_as_far_as_it_goes(
-            g in arb_grid(), sx in 0i32..14, sy in 0i32..14, tx in 0i32..14, ty in 0i32..14
+        fn the_way_to_a_target_is_the_full_search_s_path(
+            g in prop_oneof![arb_grid(), arb_open_grid(), crate::testutil::arb_placed_grid()],
+            sx in 0i32..40, sy in 0i32..40, tx in 0i32..40, ty in 0i32..40,
+            weight in prop_oneof![Just(0.0), Just(2.0), Just(0.37)],
         ) {
             let cell = |x: i32, y: i32| Cell::new(x % g.width() as i32, y % g.height() as i32);
             let (start, target) = (cell(sx, sy), cell(tx, ty));
-            let (until, all) = (costs_until(&g, start, None, target), costs(&g, start));
-            let reach = all.cost(target);
-            prop_assert_eq!(until.cost(target), reach);
-            prop_assert_eq!(until.is_complete(), reach.is_none());
-            for i in 0..g.len() {
-                let c = g.cell_of(i);
-                match (until.cost(c), all.cost(c)) {
-                    (Some(u), a) => {
-                        prop_assert_eq!(Some(u), a);
-                        prop_assert_eq!(path_to(&until, c), path_to(&all, c));
-                        prop_assert_eq!(is_frontier(&g, &until, c), is_frontier(&g, &all, c));
-                    }
-                    (None, Some(a)) => prop_assert!(reach.is_some_and(|r| a > r), "{:?} at {} lost", c, a),
-                    (None, None) => {}
-                }
-            }
+            let penalty = obstacle_penalty(&g, 1.0, weight);
+            let penalty = (weight > 0.0).then_some(penalty.as_slice());
+            let want = path_to(&costs_with(&g, start, penalty), target);
+            let got = path_until(&mut CostMap::default(), &g, start, penalty, target);
+            prop_assert_eq!(got, want);
         }
 
         /// The planner reaches exactly the cells of the one rule of reachability
