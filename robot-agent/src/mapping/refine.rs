@@ -155,6 +155,7 @@ pub(crate) fn refine(
         reference,
         queue: BinaryHeap::new(),
         deferred: Vec::new(),
+        scored: Vec::new(),
     };
     for d in 0..r.drafts.len() {
         let n = r.drafts[d].idx.len();
@@ -172,6 +173,12 @@ struct Refiner<'a> {
     reference: Option<&'a Grid>,
     queue: BinaryHeap<Candidate>,
     deferred: Vec<Candidate>,
+    /// Candidates scored ([`Refiner::delta`]) since the last split whose window meets theirs,
+    /// with their score: a split changes the rendering within its window alone (the
+    /// triangle it cuts off or adds and its edges lie there — what deferring relies on too), so
+    /// the lookahead, which scores mostly the same candidates for every split, renders each
+    /// once.
+    scored: Vec<(Candidate, i64)>,
 }
 
 impl Refiner<'_> {
@@ -218,7 +225,7 @@ impl Refiner<'_> {
             let mut rest = Vec::new();
             for _ in 0..LOOKAHEAD {
                 let Some(c) = self.queue.pop() else { break };
-                let d = self.delta(c);
+                let d = self.score(c);
                 match best {
                     _ if d > 0 => self.deferred.push(c),
                     Some((bd, _)) if d >= bd => rest.push(c),
@@ -242,11 +249,12 @@ impl Refiner<'_> {
             self.drafts.to_vec(),
             self.queue.clone(),
             self.deferred.clone(),
+            self.scored.clone(),
         );
         self.queue.extend(self.deferred.drain(..));
         let (mut n, mut total) = (0, 0);
         while let Some(c) = self.queue.pop() {
-            total += self.delta(c);
+            total += self.score(c);
             self.split(c);
             n += 1;
             if total <= 0 || n > room {
@@ -255,7 +263,7 @@ impl Refiner<'_> {
         }
         if n > room {
             self.drafts.clone_from_slice(&saved.0);
-            (self.queue, self.deferred) = (saved.1, saved.2);
+            (self.queue, self.deferred, self.scored) = (saved.1, saved.2, saved.3);
             return None;
         }
         self.queue.extend(self.deferred.drain(..));
@@ -271,12 +279,26 @@ impl Refiner<'_> {
             .extend(evaluate(contour, c.draft, c.from, c.split));
         self.queue.extend(evaluate(contour, c.draft, c.split, c.to));
         let w = self.window(c);
+        let scored = std::mem::take(&mut self.scored);
+        self.scored = (scored.into_iter())
+            .filter(|(k, _)| !same_edge(*k, c) && !overlap(w, self.window(*k)))
+            .collect();
         let deferred = std::mem::take(&mut self.deferred);
         let (touched, kept): (Vec<_>, Vec<_>) = deferred
             .into_iter()
             .partition(|d| overlap(w, self.window(*d)));
         self.deferred = kept;
         self.queue.extend(touched);
+    }
+
+    /// [`Refiner::delta`], kept until a split's window meets `c`'s.
+    fn score(&mut self, c: Candidate) -> i64 {
+        if let Some(&(_, d)) = self.scored.iter().find(|(k, _)| same_edge(*k, c)) {
+            return d;
+        }
+        let d = self.delta(c);
+        self.scored.push((c, d));
+        d
     }
 
     /// The change of d_t if `c` were split (0 without a reference).
@@ -326,6 +348,11 @@ impl Refiner<'_> {
             (y1 - y0 + 1).max(0) as u32,
         )
     }
+}
+
+/// Whether `a` and `b` are the split of the same edge at the same point.
+fn same_edge(a: Candidate, b: Candidate) -> bool {
+    (a.draft, a.from, a.to, a.split) == (b.draft, b.from, b.to, b.split)
 }
 
 fn overlap(a: (Cell, u32, u32), b: (Cell, u32, u32)) -> bool {
