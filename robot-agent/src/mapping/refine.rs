@@ -149,22 +149,29 @@ pub(crate) fn refine(
             waiting: false,
         };
     }
-    let mut r = Refiner {
-        p,
-        drafts,
-        reference,
-        queue: BinaryHeap::new(),
-        deferred: Vec::new(),
-        scored: Vec::new(),
-    };
-    for d in 0..r.drafts.len() {
-        let n = r.drafts[d].idx.len();
-        for k in 0..n {
-            let (from, to) = (r.drafts[d].idx[k], r.drafts[d].idx[(k + 1) % n]);
-            r.queue.extend(evaluate(r.contour(d), d, from, to));
+    Refiner::new(drafts, p, reference).run(budget)
+}
+
+impl<'a> Refiner<'a> {
+    /// A refiner of `drafts` with every edge queued.
+    fn new(drafts: &'a mut [Draft], p: &'a Contours, reference: Option<&'a Grid>) -> Self {
+        let mut r = Refiner {
+            p,
+            drafts,
+            reference,
+            queue: BinaryHeap::new(),
+            deferred: Vec::new(),
+            scored: Vec::new(),
+        };
+        for d in 0..r.drafts.len() {
+            let n = r.drafts[d].idx.len();
+            for k in 0..n {
+                let (from, to) = (r.drafts[d].idx[k], r.drafts[d].idx[(k + 1) % n]);
+                r.queue.extend(evaluate(r.contour(d), d, from, to));
+            }
         }
+        r
     }
-    r.run(budget)
 }
 
 struct Refiner<'a> {
@@ -447,6 +454,28 @@ mod tests {
             let n = dr.idx.len();
             for k in 0..n {
                 assert!(evaluate(c, 0, dr.idx[k], dr.idx[(k + 1) % n]).is_none());
+            }
+        }
+    }
+
+    proptest::proptest! {
+        /// A score the lookahead keeps is the score computed afresh after every split: a split
+        /// changes the rendering within its window alone, so scores whose windows it misses
+        /// stand (on windows of real maps, refined against their exploration view).
+        #[test]
+        fn a_kept_score_is_the_score_afresh(
+            g in crate::testutil::arb_map_window(28, 28), splits in 1usize..40
+        ) {
+            let p = Contours::extract(&g);
+            let view = crate::mapping::render::exploration_view(&g);
+            let mut d = drafts_of(&p);
+            let mut r = Refiner::new(&mut d, &p, Some(&view));
+            for _ in 0..splits {
+                let Some(c) = r.next_split() else { break };
+                r.split(c);
+                for (k, kept) in r.scored.clone() {
+                    proptest::prop_assert_eq!(kept, r.delta(k));
+                }
             }
         }
     }
