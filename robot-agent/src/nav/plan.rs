@@ -57,6 +57,8 @@ pub struct CostMap {
     cells: Vec<Reached>,
     /// The current search's stamp (never 0 once a search began).
     search: u32,
+    /// Dijkstra's queue, its buffers kept from search to search.
+    queue: Buckets,
     /// The search settled every cell up to this cost and stopped ([`costs_to_frontiers`]);
     /// costs beyond it are unknown and read as unreachable. `f64::INFINITY`: a full search;
     /// `f64::NEG_INFINITY`: none to read ([`path_until`]).
@@ -73,6 +75,7 @@ impl Default for CostMap {
             height: 0,
             start: Cell::new(-1, -1),
             cells: Vec::new(),
+            queue: Buckets::default(),
             search: 0,
             limit: f64::INFINITY,
         }
@@ -469,18 +472,19 @@ fn dijkstra(
     mut until: Stop<'_>,
 ) {
     map.begin(g, sources);
-    let mut heap = BinaryHeap::new();
+    let mut queue = std::mem::take(&mut map.queue);
+    queue.reset(penalty.is_none());
     for &c in sources {
         if let Some(s) = map.index(c) {
             map.reach(s, 0.0, NO_PRED);
-            heap.push(Entry {
+            queue.push(Entry {
                 cost: 0.0,
                 index: s,
             });
         }
     }
     let moves = Moves::new(map, g, penalty);
-    while let Some(Entry { cost, index }) = heap.pop() {
+    while let Some(Entry { cost, index }) = queue.pop() {
         if cost > map.dist_at(index) {
             continue;
         }
@@ -495,12 +499,86 @@ fn dijkstra(
             let next = cost + step;
             if next < map.dist_at(ni) {
                 map.reach(ni, next, index as u32);
-                heap.push(Entry {
+                queue.push(Entry {
                     cost: next,
                     index: ni,
                 });
             }
         });
+    }
+    map.queue = queue;
+}
+
+/// Dijkstra's queue: entries come out by (cost, index), exactly as from a `BinaryHeap` of
+/// [`Entry`], but kept in buckets of one unit of cost. Without a penalty every step costs 1 or
+/// √2, so an entry pushed while the bucket of costs in [k, k + 1) is being taken costs k + 1 to
+/// k + 3: the bucket is complete when its turn comes and is sorted once, taking it costs its sort
+/// rather than a heap's sifting per entry, and four buckets in a ring hold everything queued.
+/// With a penalty (steps of any length) a `BinaryHeap`.
+#[derive(Clone, Debug, Default)]
+struct Buckets {
+    unit: bool,
+    /// Bucket k (costs in [k, k + 1)) at `ring[k % 4]`.
+    ring: [Vec<Entry>; 4],
+    /// The bucket being taken, whether it is sorted, and the entries queued in all.
+    current: usize,
+    sorted: bool,
+    len: usize,
+    heap: BinaryHeap<Entry>,
+}
+
+impl Buckets {
+    /// Empty, for steps of 1 and √2 (`unit`) or of any length.
+    fn reset(&mut self, unit: bool) {
+        self.ring.iter_mut().for_each(Vec::clear);
+        (self.unit, self.current, self.sorted, self.len) = (unit, 0, false, 0);
+        self.heap.clear();
+    }
+
+    fn push(&mut self, e: Entry) {
+        if !self.unit {
+            self.heap.push(e);
+            return;
+        }
+        let k = (e.cost as usize).max(self.current);
+        if k > self.current + 3 {
+            // Not a step of 1 or √2: the order is kept by a heap from here on.
+            self.unit = false;
+            self.heap
+                .extend(self.ring.iter_mut().flat_map(|b| b.drain(..)));
+            self.heap.push(e);
+            return;
+        }
+        let b = &mut self.ring[k % 4];
+        if k == self.current && self.sorted {
+            // Cannot happen with such steps; kept in order all the same.
+            let at = b.partition_point(|o| o < &e);
+            b.insert(at, e);
+        } else {
+            b.push(e);
+        }
+        self.len += 1;
+    }
+
+    fn pop(&mut self) -> Option<Entry> {
+        if !self.unit {
+            return self.heap.pop();
+        }
+        while self.len > 0 {
+            let b = &mut self.ring[self.current % 4];
+            if !self.sorted {
+                // `Entry` orders the cheapest last (for the max-heap): take from the back.
+                b.sort_unstable();
+                self.sorted = true;
+            }
+            if let Some(e) = b.pop() {
+                self.len -= 1;
+                return Some(e);
+            }
+            self.current += 1;
+            self.sorted = false;
+        }
+        None
     }
 }
 
