@@ -1480,6 +1480,40 @@ mod tests {
             }
         }
 
+        /// Dijkstra's bucket queue gives entries in the heap's order — by cost, then index —
+        /// when every entry pushed costs one or √2 more than the last taken, as Dijkstra's
+        /// without a penalty do (steps of other lengths hand the queue to a heap).
+        #[test]
+        fn the_bucket_queue_gives_the_heap_s_order(
+            starts in proptest::collection::vec((0u32..100, 0usize..50), 1..6),
+            steps in proptest::collection::vec((0usize..4, 0usize..50, 0u8..3), 0..200),
+        ) {
+            let (mut buckets, mut heap) = (Buckets::default(), BinaryHeap::new());
+            buckets.reset(true);
+            for (c, index) in starts {
+                let e = Entry { cost: f64::from(c) / 100.0, index };
+                buckets.push(e);
+                heap.push(e);
+            }
+            for (takes, index, step) in steps {
+                let mut last = None;
+                for _ in 0..takes {
+                    let (b, h) = (buckets.pop(), heap.pop());
+                    prop_assert_eq!(b, h);
+                    last = b.or(last);
+                }
+                let Some(last) = last else { continue };
+                let length = [1.0, std::f64::consts::SQRT_2, 7.5][usize::from(step)];
+                let e = Entry { cost: last.cost + length, index };
+                buckets.push(e);
+                heap.push(e);
+            }
+            while let Some(h) = heap.pop() {
+                prop_assert_eq!(buckets.pop(), Some(h));
+            }
+            prop_assert_eq!(buckets.pop(), None);
+        }
+
         /// The way to a kept target by A* is the very path the full search's predecessors
         /// give — not merely one as cheap: on open grids full of equal-cost paths, on mazes,
         /// with and without the obstacle penalty, from any start (even an unknown or occupied
