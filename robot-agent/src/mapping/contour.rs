@@ -25,7 +25,7 @@
 use std::collections::{BTreeSet, HashMap};
 use std::hash::{BuildHasherDefault, Hasher};
 
-use proto::grid::{Cell, Grid, Occ};
+use proto::grid::{Cell, Grid, Occ, Rect};
 
 use crate::mapping::qpoint::{area2, QPoint};
 
@@ -77,14 +77,14 @@ const FREE: u32 = u32::MAX;
 
 impl Contours {
     /// Extracts every object of `grid` (Algorithm 3), in the scan order of their first point.
-    /// Examines every cell once; a caller that extracts every step keeps a [`ContourPixels`]
-    /// and calls [`Contours::extract_at`].
+    /// Examines every cell once; a caller that extracts every step keeps the result and calls
+    /// [`Contours::update`].
     pub fn extract(grid: &Grid) -> Contours {
         Contours::extract_at(grid, &ContourPixels::scan(grid))
     }
 
-    /// [`Contours::extract`] with the contour pixels of `grid` already known: time linear in
-    /// their number. `pixels` must be up to date for `grid` (see [`ContourPixels::update`]).
+    /// [`Contours::extract`] with the contour pixels of `grid` already known
+    /// ([`ContourPixels::scan`]): time linear in their number.
     pub fn extract_at(grid: &Grid, pixels: &ContourPixels) -> Contours {
         let mut p = Contours {
             index: HashMap::with_capacity_and_hasher(pixels.len() * 2, Default::default()),
@@ -95,9 +95,7 @@ impl Contours {
         for c in pixels.iter() {
             p.trace_from(grid, c, &mut found);
         }
-        p.objects = found;
-        p.slots = (0..p.objects.len() as u32).collect();
-        p.place = p.slots.clone();
+        p.reorder(found);
         p
     }
 
@@ -112,9 +110,14 @@ impl Contours {
             *self = Contours::extract(grid);
             return;
         }
-        let near = || changed.iter().flat_map(|&c| around(c));
+        // The cells next to a changed cell, each once.
+        let mut near: Vec<Cell> = (changed.iter())
+            .flat_map(|&c| Rect::cell(c).grown(1).cells())
+            .collect();
+        near.sort_unstable_by_key(|c| (c.y, c.x));
+        near.dedup();
         let mut gone = BTreeSet::new();
-        for at in near() {
+        for &at in &near {
             for dir in 0..4 {
                 if let Some(&(slot, _)) = self.index.get(&Aux { at, dir }.point()) {
                     gone.insert(slot);
@@ -130,7 +133,7 @@ impl Contours {
             self.spare.push(slot);
         }
         let mut found = Vec::new();
-        for at in near() {
+        for &at in &near {
             if is_contour(grid, at) {
                 self.trace_from(grid, at, &mut found);
             }
@@ -324,11 +327,6 @@ fn trace(grid: &Grid, start: Aux) -> Contour {
         Kind::Outside
     };
     Contour { kind, points, occ }
-}
-
-/// `c` and the cells around it (8-neighbours).
-fn around(c: Cell) -> impl Iterator<Item = Cell> {
-    (-1..=1).flat_map(move |dy| (-1..=1).map(move |dx| Cell::new(c.x + dx, c.y + dy)))
 }
 
 /// FxHash-style hasher for [`QPoint`] keys: the index is rebuilt every step, so hashing speed
@@ -564,6 +562,7 @@ mod tests {
                 }
                 kept.update(&g, &changed);
                 same(&kept, &Contours::extract(&g))?;
+                assert_invariants(&g, &kept);
             }
         }
     }

@@ -393,7 +393,7 @@ fn traced(map: &CostMap, g: &Grid, penalty: Option<&[f32]>, target: Cell) -> Opt
             path.reverse();
             return Some(path);
         }
-        let cost = map.dist_at(i);
+        let (cost, factor) = (map.dist_at(i), moves.factor(moves.in_grid(i)));
         let (x, y) = ((i % w as usize) as isize, (i / w as usize) as isize);
         let mut best: Option<(f64, usize)> = None;
         for &(_, _, (dx, dy), between, length) in &moves.offsets {
@@ -403,15 +403,10 @@ fn traced(map: &CostMap, g: &Grid, penalty: Option<&[f32]>, target: Cell) -> Opt
             }
             let n = (ny * w + nx) as usize;
             let from = map.dist_at(n);
-            // A diagonal into `i` passes between the cells of its two orthogonal moves out
-            // of `n`, which lie beside `i` opposite those moves' directions.
-            let blocked = between.is_some_and(|(a, b)| {
-                let side = |m: usize| moves.offsets[m].2;
-                let (sa, sb) = (side(a), side(b));
-                !moves.is_free(i, (sa.0 - dx, sa.1 - dy))
-                    || !moves.is_free(i, (sb.0 - dx, sb.1 - dy))
-            });
-            let step = length * moves.factor(moves.in_grid(i));
+            // A diagonal from `n` into `i` passes between the cells beside `i` toward `n`.
+            let blocked =
+                between.is_some() && !(moves.is_free(i, (-dx, 0)) && moves.is_free(i, (0, -dy)));
+            let step = length * factor;
             if blocked || !from.is_finite() || from + step != cost {
                 continue;
             }
@@ -540,23 +535,18 @@ impl Buckets {
             self.heap.push(e);
             return;
         }
-        let k = (e.cost as usize).max(self.current);
-        if k > self.current + 3 {
-            // Not a step of 1 or √2: the order is kept by a heap from here on.
+        let k = e.cost as usize;
+        let taken = k < self.current || (k == self.current && self.sorted);
+        if taken || k > self.current + 3 {
+            // Not a step of 1 or √2 after the last entry taken: a heap keeps the order from
+            // here on.
             self.unit = false;
             self.heap
                 .extend(self.ring.iter_mut().flat_map(|b| b.drain(..)));
             self.heap.push(e);
             return;
         }
-        let b = &mut self.ring[k % 4];
-        if k == self.current && self.sorted {
-            // Cannot happen with such steps; kept in order all the same.
-            let at = b.partition_point(|o| o < &e);
-            b.insert(at, e);
-        } else {
-            b.push(e);
-        }
+        self.ring[k % 4].push(e);
         self.len += 1;
     }
 
