@@ -75,9 +75,12 @@ impl KeptError {
         // bound alone changed is no change, and no window grows by a band.
         let mut a = a.clone();
         a.drop_bounds();
-        for w in self.painting.take(&[(0, &a)]) {
+        let windows = self.painting.take(&[(0, &a)]);
+        for &w in &windows {
             self.differ -= self.differ_in(view, w);
-            self.painting.repaint(w);
+        }
+        self.painting.repaint();
+        for &w in &windows {
             self.differ += self.differ_in(view, w);
         }
         self.differ

@@ -80,9 +80,7 @@ impl Merger {
         let painting = (self.painting)
             .insert(kept.unwrap_or_else(|| Painting::new(size.0, size.1, Bands::Kept)));
         let mut windows = painting.take(others);
-        for &w in &windows {
-            painting.repaint(w);
-        }
+        painting.repaint();
         if fresh {
             // The cells painted, those G_s knows and those `out` knew: every other cell is and
             // stays unknown.

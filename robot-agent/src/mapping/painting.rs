@@ -6,23 +6,32 @@
 //! approximation error ([`crate::mapping::approx_error::KeptError`], its own, bands ignored)
 //! are kept this way.
 //!
-//! A cell's painting depends only on the objects whose reach holds it (their cells, their
-//! edges, the bands within their edges' error bounds): an object that changed between two
-//! vertices it kept changes only cells within reach of its changed edges, old and new
-//! ([`changed_windows`]); so a window holding those, painted afresh with every object that
-//! reaches into it — each with the edges that reach the window's rows ([`EdgeRows`]) — is what
-//! painting everything would give there.
+//! A cell's painting is a function of what each approximation marks there, taken together
+//! ([`crate::mapping::render::Marks`]), and an approximation's marks depend only on its objects
+//! whose reach holds the cell (their cells, their edges, the bands within their edges' error
+//! bounds): an object that changed between two vertices it kept changes its owner's marks only
+//! within reach of its changed edges, old and new ([`changed_windows`]). With one owner, a
+//! window holding those is painted from the owner's marks there; with more, the painting
+//! counts per cell how many owners give each mark, and a changed owner's marks in its windows,
+//! before and after — its objects reaching the window, each with the edges that reach the
+//! window's rows ([`EdgeRows`]) — move the counts: a peer's change costs its own objects near
+//! it, not every teammate's that overlap there.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use proto::grid::{Cell, Occ, Rect};
 use proto::msg::RobotId;
 
 use crate::mapping::approx::{Approximation, ObjectId, Polygon, Vertex};
 use crate::mapping::qpoint::QPoint;
-use crate::mapping::render::{paint_parts, Bands, Part};
+use crate::mapping::render::{marks, Bands, Marks, Part};
 
 /// What the approximations held paint, kept over a `width × height` grid.
+///
+/// A cell's painting is a function of the union of every approximation's marks there
+/// ([`Marks::painted`]); with two owners or more held, the painting counts per cell how many
+/// owners give each mark, so an owner's change is taken in by its own marks alone, before and
+/// after, in the windows where it changed — whatever else is painted there.
 #[derive(Clone, Debug)]
 pub struct Painting {
     width: u32,
@@ -30,8 +39,23 @@ pub struct Painting {
     bands: Bands,
     /// Steps (1)–(5) of every approximation held, row-major over the whole grid.
     painted: Vec<Option<Occ>>,
+    /// Per cell, row-major, how many owners held give it each mark (by [`Marks::index`]),
+    /// modulo 2^16 (a count of 2^16 would need every `RobotId` an owner) — kept once two owners
+    /// were held at once (`None` until then: the one owner's marks are the painting).
+    counts: Option<Vec<[u16; 4]>>,
     /// Per owner, the objects painted, each with its reach and its edges by rows.
     held: BTreeMap<RobotId, BTreeMap<ObjectId, Held>>,
+    /// Taken and not yet repainted: an owner, a window where its marks may have changed
+    /// (inside the grid; one owner's windows apart), and its marks there before (`None`
+    /// without counts).
+    taken: Vec<Taken>,
+}
+
+#[derive(Clone, Debug)]
+struct Taken {
+    owner: RobotId,
+    window: Rect,
+    before: Option<Vec<Marks>>,
 }
 
 impl Painting {
@@ -42,7 +66,9 @@ impl Painting {
             height,
             bands,
             painted: vec![None; width as usize * height as usize],
+            counts: None,
             held: BTreeMap::new(),
+            taken: Vec::new(),
         }
     }
 
@@ -52,16 +78,66 @@ impl Painting {
     }
 
     /// Takes the approximations of this step (owner, approximation; owners left out are
-    /// dropped) and returns the windows to repaint ([`Painting::repaint`], each once, in any
-    /// order) for the painting to be theirs.
+    /// dropped) and returns the windows (inside the grid, apart) outside which the painting
+    /// stays as it is when [`Painting::repaint`] makes it theirs.
     pub fn take(&mut self, others: &[(RobotId, &Approximation)]) -> Vec<Rect> {
-        let mut dirty = Vec::new();
-        self.take_into(others, &mut dirty);
-        coalesce(dirty)
+        self.repaint();
+        let now: BTreeMap<RobotId, &Approximation> = others.iter().copied().collect();
+        let owners: BTreeSet<RobotId> = self.held.keys().chain(now.keys()).copied().collect();
+        if self.counts.is_none() && owners.len() > 1 {
+            self.count_held();
+        }
+        for owner in owners {
+            let a = now.get(&owner).copied();
+            let dirty = dirty_windows(self.held.get(&owner), a);
+            for window in coalesce(dirty) {
+                let Some(window) = window.within(self.width, self.height) else {
+                    continue;
+                };
+                let before = self.counts.is_some().then(|| self.marks(owner, window));
+                self.taken.push(Taken {
+                    owner,
+                    window,
+                    before,
+                });
+            }
+            self.hold(owner, a);
+        }
+        coalesce(self.taken.iter().map(|t| t.window).collect())
+    }
+
+    /// Paints what the approximations taken last changed: per owner and window, the cells
+    /// whose marks changed move their counts (or, with one owner, take its marks).
+    pub fn repaint(&mut self) {
+        for t in std::mem::take(&mut self.taken) {
+            let after = self.marks(t.owner, t.window);
+            let (gw, ww) = (self.width as usize, t.window.width() as usize);
+            let rows = (t.window.min.y..=t.window.max.y).zip(after.chunks(ww));
+            match (&mut self.counts, t.before) {
+                (Some(counts), Some(before)) => {
+                    for ((y, after), before) in rows.zip(before.chunks(ww)) {
+                        let at = y as usize * gw + t.window.min.x as usize;
+                        for (i, (&a, &b)) in after.iter().zip(before).enumerate() {
+                            if a != b {
+                                self.painted[at + i] = recount(&mut counts[at + i], b, a);
+                            }
+                        }
+                    }
+                }
+                _ => {
+                    for (y, after) in rows {
+                        let at = y as usize * gw + t.window.min.x as usize;
+                        for (cell, &m) in self.painted[at..at + ww].iter_mut().zip(after) {
+                            *cell = m.painted();
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// Steps (1)–(5) of every approximation held, row-major over the whole grid (`None`:
-    /// undefined) — as of the windows repainted so far.
+    /// undefined) — as of the last [`Painting::repaint`].
     pub fn painted(&self) -> &[Option<Occ>] {
         &self.painted
     }
@@ -72,86 +148,109 @@ impl Painting {
             .fold(None, |r, h| Rect::union_of(r, Some(h.reach)))
     }
 
-    /// Takes the approximations of this step: the windows where they differ from those held
-    /// go to `dirty`, and they are held from now on.
-    fn take_into(&mut self, others: &[(RobotId, &Approximation)], dirty: &mut Vec<Rect>) {
-        let now: BTreeMap<RobotId, &Approximation> = others.iter().copied().collect();
-        // Owners no longer held: everything they painted.
-        self.held.retain(|owner, objects| {
-            let kept = now.contains_key(owner);
-            if !kept {
-                dirty.extend(objects.values().map(|h| h.reach));
-            }
-            kept
-        });
-        for (&owner, a) in &now {
-            let held = self.held.entry(owner).or_default();
-            held.retain(|id, h| {
-                let kept = a.objects.contains_key(id);
-                if !kept {
-                    dirty.push(h.reach);
-                }
-                kept
-            });
-            for (&id, poly) in &a.objects {
-                match held.get(&id) {
-                    Some(was) if &was.poly == poly => {}
-                    was => {
-                        dirty.extend(changed_windows(was.map(|w| &w.poly), poly, STRIP_ROWS));
-                        match reach(poly) {
-                            Some(reach) => {
-                                let rows = (poly.vertices.len() > INDEXED_EDGES)
-                                    .then(|| EdgeRows::new(poly, self.height, BUCKET_ROWS));
-                                let poly = poly.clone();
-                                held.insert(id, Held { poly, reach, rows });
-                            }
-                            None => {
-                                held.remove(&id);
-                            }
-                        }
+    /// Starts counting: every owner held marks its objects' reach.
+    fn count_held(&mut self) {
+        let mut counts = vec![[0u16; 4]; self.painted.len()];
+        let gw = self.width as usize;
+        for (&owner, objects) in &self.held {
+            let reaches = objects.values().map(|h| h.reach).collect();
+            for w in coalesce(reaches) {
+                let Some(w) = w.within(self.width, self.height) else {
+                    continue;
+                };
+                let marks = self.marks(owner, w);
+                for (y, row) in (w.min.y..=w.max.y).zip(marks.chunks(w.width() as usize)) {
+                    let at = y as usize * gw + w.min.x as usize;
+                    for (c, &m) in counts[at..].iter_mut().zip(row) {
+                        recount(c, Marks::NONE, m);
                     }
                 }
             }
         }
+        self.counts = Some(counts);
     }
 
-    /// Paints window `w` afresh with every object that reaches into it, each with its edges
-    /// that reach the window's rows.
-    pub fn repaint(&mut self, w: Rect) {
-        let Some(w) = w.within(self.width, self.height) else {
+    /// What `owner`'s objects held mark in window `w` (inside the grid), each painted with its
+    /// edges that reach the window's rows.
+    fn marks(&self, owner: RobotId, w: Rect) -> Vec<Marks> {
+        let objects = self.held.get(&owner).into_iter().flat_map(|o| o.values());
+        let edges: Vec<(&Held, Option<Vec<u32>>)> = objects
+            .filter(|h| h.reach.intersects(w))
+            .map(|h| (h, h.rows.as_ref().map(|r| r.edges(w.min.y, w.max.y))))
+            .collect();
+        let parts: Vec<Part<'_>> = (edges.iter())
+            .map(|(h, e)| Part {
+                poly: &h.poly,
+                edges: e.as_deref(),
+                bounds: Some(h.reach),
+            })
+            .collect();
+        marks(&parts, w, self.bands)
+    }
+
+    /// Holds `a` as `owner`'s approximation from now on (`None`: drops the owner).
+    fn hold(&mut self, owner: RobotId, a: Option<&Approximation>) {
+        let Some(a) = a else {
+            self.held.remove(&owner);
             return;
         };
-        let edges: Vec<Reaching<'_>> = (self.held.values())
-            .map(|objects| {
-                (objects.values())
-                    .filter(|h| h.reach.intersects(w))
-                    .map(|h| (h, h.rows.as_ref().map(|r| r.edges(w.min.y, w.max.y))))
-                    .collect()
-            })
-            .collect();
-        let parts: Vec<Vec<Part<'_>>> = (edges.iter())
-            .map(|objects| {
-                (objects.iter())
-                    .map(|(h, e)| Part {
-                        poly: &h.poly,
-                        edges: e.as_deref(),
-                        bounds: Some(h.reach),
-                    })
-                    .collect()
-            })
-            .collect();
-        let fresh = paint_parts(&parts, w.min, w.width(), w.height(), self.bands);
-        let (gw, ww) = (self.width as usize, w.width() as usize);
-        for (y, row) in (w.min.y..=w.max.y).zip(fresh.chunks(ww)) {
-            let at = y as usize * gw + w.min.x as usize;
-            self.painted[at..at + ww].copy_from_slice(row);
+        let held = self.held.entry(owner).or_default();
+        held.retain(|id, _| a.objects.contains_key(id));
+        for (&id, poly) in &a.objects {
+            if held.get(&id).is_some_and(|h| &h.poly == poly) {
+                continue;
+            }
+            match reach(poly) {
+                Some(reach) => {
+                    let rows = (poly.vertices.len() > INDEXED_EDGES)
+                        .then(|| EdgeRows::new(poly, self.height, BUCKET_ROWS));
+                    let poly = poly.clone();
+                    held.insert(id, Held { poly, reach, rows });
+                }
+                None => {
+                    held.remove(&id);
+                }
+            }
         }
     }
 }
 
-/// An owner's objects that reach a window, each with its edges that reach the window's rows
-/// (`None`: all).
-type Reaching<'a> = Vec<(&'a Held, Option<Vec<u32>>)>;
+/// A cell's counts moved from an owner's marks `before` to `after`; the cell's painting.
+fn recount(counts: &mut [u16; 4], before: Marks, after: Marks) -> Option<Occ> {
+    let mut any = Marks::NONE;
+    for m in Marks::EACH {
+        let c = &mut counts[m.index()];
+        match (before.has(m), after.has(m)) {
+            (false, true) => *c = c.wrapping_add(1),
+            (true, false) => *c = c.wrapping_sub(1),
+            _ => {}
+        }
+        if *c != 0 {
+            any |= m;
+        }
+    }
+    any.painted()
+}
+
+/// The windows where an owner's objects held (`None`: none) and its approximation `a`
+/// (`None`: the owner is dropped) mark cells differently.
+fn dirty_windows(held: Option<&BTreeMap<ObjectId, Held>>, a: Option<&Approximation>) -> Vec<Rect> {
+    let objects = held.into_iter().flatten();
+    let Some(a) = a else {
+        return objects.map(|(_, h)| h.reach).collect();
+    };
+    let mut dirty: Vec<Rect> = objects
+        .filter(|(id, _)| !a.objects.contains_key(id))
+        .map(|(_, h)| h.reach)
+        .collect();
+    for (id, poly) in &a.objects {
+        match held.and_then(|h| h.get(id)) {
+            Some(was) if &was.poly == poly => {}
+            was => dirty.extend(changed_windows(was.map(|w| &w.poly), poly, STRIP_ROWS)),
+        }
+    }
+    dirty
+}
 
 /// An object painted: the polygon, the cells it can paint ([`reach`]) and its edges by the rows
 /// they reach.
@@ -528,17 +627,17 @@ fn coalesce(mut ws: Vec<Rect>) -> Vec<Rect> {
 mod tests {
     use super::*;
     use crate::mapping::contour::Contours;
-    use crate::mapping::render::paint;
+    use crate::mapping::render::{paint, paint_parts};
     use proptest::prelude::*;
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(128))]
 
-        /// An object that changed paints differently only inside its changed windows, cut in
-        /// strips of any height: the approximation with that one object changed paints every
-        /// cell outside them as before.
+        /// An object that changed marks differently only inside its changed windows, cut in
+        /// strips of any height: the approximation with that one object changed marks every
+        /// cell outside them as before (and so paints it as before, alone or with others).
         #[test]
-        fn a_changed_object_paints_differently_only_inside_its_windows(
+        fn a_changed_object_marks_differently_only_inside_its_windows(
             steps in crate::testutil::arb_exploration(24, 5),
             s in prop_oneof![Just(0.0), Just(1.0), Just(4.0)],
             strip_rows in 1i32..5,
@@ -546,8 +645,10 @@ mod tests {
             let (w, h) = (steps[0].width(), steps[0].height());
             let mut ax = crate::mapping::approximator::Approximator::new();
             let mut before: Option<Approximation> = None;
+            let grid = Rect { min: Cell::new(0, 0), max: Cell::new(w as i32 - 1, h as i32 - 1) };
             let painted = |a: &Approximation| {
-                paint(&[a.objects.values().collect()], Cell::new(0, 0), w, h, Bands::Kept)
+                let parts: Vec<Part<'_>> = a.objects.values().map(Part::whole).collect();
+                marks(&parts, grid, Bands::Kept)
             };
             for g in &steps {
                 let now = ax.step(&Contours::extract(g), g, s).clone();

@@ -18,37 +18,30 @@ use crate::mapping::contour::Kind;
 use crate::mapping::qpoint::{seg_dist2, QPoint};
 use crate::mapping::raster;
 
-/// A working canvas over the window `[x0, x0+width) × [y0, y0+height)` of the grid frame; a cell
-/// is `None` while no approximation said anything about it (the thesis's `undefined`).
+/// A window `[x0, x0+width) × [y0, y0+height)` of the grid frame, its cells indexed row-major.
 struct Canvas {
     x0: i32,
     y0: i32,
     width: u32,
     height: u32,
-    cells: Vec<Option<Occ>>,
 }
 
 impl Canvas {
     fn new(origin: Cell, width: u32, height: u32) -> Canvas {
-        let cells = vec![None; width as usize * height as usize];
         Canvas {
             x0: origin.x,
             y0: origin.y,
             width,
             height,
-            cells,
         }
     }
 
-    /// The window `r` without cells: for its indices ([`Canvas::fill`], [`Canvas::bands`]).
     fn frame(r: Rect) -> Canvas {
-        Canvas {
-            x0: r.min.x,
-            y0: r.min.y,
-            width: r.width(),
-            height: r.height(),
-            cells: Vec::new(),
-        }
+        Canvas::new(r.min, r.width(), r.height())
+    }
+
+    fn len(&self) -> usize {
+        self.width as usize * self.height as usize
     }
 
     /// The part of `r` (grid frame) inside the window.
@@ -83,8 +76,8 @@ impl Canvas {
         });
     }
 
-    /// Every cell of the window on an edge of `part`, with the edge's occupancy.
-    fn edges(&mut self, part: &Part<'_>, mut f: impl FnMut(&mut Option<Occ>, Occ)) {
+    /// Every cell of the window on an edge of `part`, by index, with the edge's occupancy.
+    fn edges(&self, part: &Part<'_>, mut f: impl FnMut(usize, Occ)) {
         let lo = Cell::new(self.x0, self.y0);
         let hi = Cell::new(
             self.x0 + self.width as i32 - 1,
@@ -94,7 +87,7 @@ impl Canvas {
             let (v, next) = part.edge(i);
             raster::edge(v.p, next, lo, hi, |c| {
                 if let Some(k) = self.index(c) {
-                    f(&mut self.cells[k], v.occ);
+                    f(k, v.occ);
                 }
             });
         }
@@ -206,64 +199,113 @@ pub fn paint_parts(
     height: u32,
     bands: Bands,
 ) -> Vec<Option<Occ>> {
-    paint_on(Canvas::new(origin, width, height), approximations, bands).cells
+    let window = Canvas::new(origin, width, height);
+    let mut any = vec![Marks::NONE; window.len()];
+    for a in approximations {
+        mark_into(&mut any, &window, a, bands);
+    }
+    any.into_iter().map(Marks::painted).collect()
 }
 
-/// Steps (1)–(5) of Algorithm 9 on a canvas; each approximation as the list of its polygons.
-fn paint_on(mut plan: Canvas, others: &[Vec<Part<'_>>], bands: Bands) -> Canvas {
-    let outside = || {
-        others
-            .iter()
-            .flatten()
-            .filter(|o| o.poly.kind == Kind::Outside)
-    };
-    for o in outside() {
-        let mut unknown = Vec::new();
-        plan.fill(o, |k| unknown.push(k));
-        unknown
-            .into_iter()
-            .for_each(|k| plan.cells[k] = Some(Occ::Unknown));
-    }
-    for o in outside() {
-        plan.edges(o, |cell, occ| match occ {
-            Occ::Occupied => *cell = Some(Occ::Occupied),
-            Occ::Unknown if *cell != Some(Occ::Occupied) => *cell = Some(Occ::Unknown),
-            _ => {}
-        });
-    }
-    for a in others {
-        free_inside(&mut plan, a, bands);
-    }
-    for o in others.iter().flatten() {
-        plan.edges(o, |cell, occ| {
-            if occ == Occ::Occupied {
-                *cell = Some(Occ::Occupied);
-            }
-        });
-    }
-    plan
+/// What one approximation (the list of its polygons' parts) marks in the window `r`, row-major
+/// ([`Marks`]).
+pub fn marks(a: &[Part<'_>], r: Rect, bands: Bands) -> Vec<Marks> {
+    let window = Canvas::frame(r);
+    let mut out = vec![Marks::NONE; window.len()];
+    mark_into(&mut out, &window, a, bands);
+    out
 }
 
-/// Step (4) for one approximation: cells inside its inside objects that are undefined, or
-/// unknown but inside an odd number of its polygons, become free — with [`Bands::Kept`], none
-/// within an edge's error bound of it. Only the cells of the window its polygons span are
-/// looked at (nothing outside them is inside one).
-fn free_inside(plan: &mut Canvas, a: &[Part<'_>], bands: Bands) {
+/// What one approximation says of a cell in steps (2)–(5) of Algorithm 9, as marks: the cell's
+/// painting is a function of the marks of all approximations together (their union,
+/// [`Marks::painted`]), so a painting can count each mark per cell and take in one
+/// approximation's change alone ([`crate::mapping::painting`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Marks(u8);
+
+impl Marks {
+    pub const NONE: Marks = Marks(0);
+    /// On an occupied edge of one of its objects (steps (3) and (5)).
+    pub const OCCUPIED: Marks = Marks(1);
+    /// Inside one of its outside objects, or on an unknown edge of one (steps (2) and (3)).
+    pub const UNKNOWN: Marks = Marks(2);
+    /// Inside one of its inside objects and, with [`Bands::Kept`], beyond every error bound of
+    /// its edges: free unless an approximation says unknown or occupied (step (4)).
+    pub const FREE: Marks = Marks(4);
+    /// [`Marks::FREE`] and inside an odd number of its polygons: free even where an
+    /// approximation says unknown (step (4)).
+    pub const FREE_OVER_UNKNOWN: Marks = Marks(8);
+    /// Each mark, in the order of [`Marks::index`].
+    pub const EACH: [Marks; 4] = [
+        Marks::OCCUPIED,
+        Marks::UNKNOWN,
+        Marks::FREE,
+        Marks::FREE_OVER_UNKNOWN,
+    ];
+
+    /// Whether every mark of `m` is one of these.
+    pub fn has(self, m: Marks) -> bool {
+        self.0 & m.0 == m.0
+    }
+
+    /// A mark's place in [`Marks::EACH`] (0–3).
+    pub fn index(self) -> usize {
+        self.0.trailing_zeros() as usize
+    }
+
+    /// The cell painted by steps (1)–(5) where the approximations' marks together are these
+    /// (`None`: undefined): occupied on an occupied edge; otherwise free where some
+    /// approximation frees it past what the others say; otherwise unknown where one says so.
+    pub fn painted(self) -> Option<Occ> {
+        if self.has(Marks::OCCUPIED) {
+            Some(Occ::Occupied)
+        } else if self.has(Marks::UNKNOWN) {
+            Some(if self.has(Marks::FREE_OVER_UNKNOWN) {
+                Occ::Free
+            } else {
+                Occ::Unknown
+            })
+        } else if self.has(Marks::FREE) {
+            Some(Occ::Free)
+        } else {
+            None
+        }
+    }
+}
+
+impl std::ops::BitOr for Marks {
+    type Output = Marks;
+    fn bitor(self, o: Marks) -> Marks {
+        Marks(self.0 | o.0)
+    }
+}
+
+impl std::ops::BitOrAssign for Marks {
+    fn bitor_assign(&mut self, o: Marks) {
+        self.0 |= o.0;
+    }
+}
+
+/// Adds what approximation `a` marks to `out` (the cells of `window`, row-major). Only the
+/// cells of the window its parts span are looked at (a part's bounds hold its cells).
+fn mark_into(out: &mut [Marks], window: &Canvas, a: &[Part<'_>], bands: Bands) {
     const INSIDE: u8 = 1;
     const ODD: u8 = 2;
     const BAND: u8 = 4;
+    const OUTSIDE: u8 = 8;
+    const OCCUPIED_EDGE: u8 = 16;
+    const UNKNOWN_EDGE: u8 = 32;
     let spans = a.iter().fold(None, |r, o| Rect::union_of(r, o.bounds));
-    let Some(r) = spans.and_then(|r| plan.clip(r)) else {
+    let Some(r) = spans.and_then(|r| window.clip(r)) else {
         return;
     };
     // The flags over the window `r` alone, indexed by a frame of it.
     let frame = Canvas::frame(r);
-    let mut flags = vec![0u8; r.width() as usize * r.height() as usize];
+    let mut flags = vec![0u8; frame.len()];
     for o in a {
-        let bit = if o.poly.kind == Kind::Inside {
-            INSIDE
-        } else {
-            0
+        let bit = match o.poly.kind {
+            Kind::Inside => INSIDE,
+            Kind::Outside => OUTSIDE,
         };
         frame.fill(o, |k| flags[k] = (flags[k] | bit) ^ ODD);
     }
@@ -272,22 +314,39 @@ fn free_inside(plan: &mut Canvas, a: &[Part<'_>], bands: Bands) {
             frame.bands(o, |k| flags[k] |= BAND);
         }
     }
-    let (w, rw) = (plan.width as usize, r.width() as usize);
-    let (rx, ry) = ((r.min.x - plan.x0) as usize, (r.min.y - plan.y0) as usize);
+    for o in a {
+        let outside = o.poly.kind == Kind::Outside;
+        frame.edges(o, |k, occ| match occ {
+            Occ::Occupied => flags[k] |= OCCUPIED_EDGE,
+            Occ::Unknown if outside => flags[k] |= UNKNOWN_EDGE,
+            _ => {}
+        });
+    }
+    let marks = |f: u8| {
+        let mut m = Marks::NONE;
+        if f & OCCUPIED_EDGE != 0 {
+            m |= Marks::OCCUPIED;
+        }
+        if f & (OUTSIDE | UNKNOWN_EDGE) != 0 {
+            m |= Marks::UNKNOWN;
+        }
+        if f & INSIDE != 0 && f & BAND == 0 {
+            m |= Marks::FREE;
+            if f & ODD != 0 {
+                m |= Marks::FREE_OVER_UNKNOWN;
+            }
+        }
+        m
+    };
+    let (w, rw) = (window.width as usize, r.width() as usize);
+    let (rx, ry) = (
+        (r.min.x - window.x0) as usize,
+        (r.min.y - window.y0) as usize,
+    );
     for (row, fs) in flags.chunks(rw).enumerate() {
         let at = (ry + row) * w + rx;
-        for (cell, &f) in plan.cells[at..at + rw].iter_mut().zip(fs) {
-            if f & BAND != 0 {
-                continue;
-            }
-            let free = match *cell {
-                None => f & INSIDE != 0,
-                Some(Occ::Unknown) => f & INSIDE != 0 && f & ODD != 0,
-                Some(_) => false,
-            };
-            if free {
-                *cell = Some(Occ::Free);
-            }
+        for (cell, &f) in out[at..at + rw].iter_mut().zip(fs) {
+            *cell |= marks(f);
         }
     }
 }
@@ -469,6 +528,124 @@ mod tests {
         check("#####\n#???#\n#?#?#\n#...#\n#####");
     }
 
+    /// Steps (1)–(5) of Algorithm 9 as the thesis writes them, one after the other over every
+    /// cell of the window (the oracle of [`paint`], which paints from the marks' union).
+    fn steps_in_order(
+        approximations: &[Vec<&Polygon>],
+        origin: Cell,
+        width: u32,
+        height: u32,
+        bands: Bands,
+    ) -> Vec<Option<Occ>> {
+        let (w, h) = (width as i32, height as i32);
+        let index = |c: Cell| {
+            let (x, y) = (c.x - origin.x, c.y - origin.y);
+            (x >= 0 && y >= 0 && x < w && y < h).then(|| (y * w + x) as usize)
+        };
+        let (lo, hi) = (origin, Cell::new(origin.x + w - 1, origin.y + h - 1));
+        let inside = |p: &Polygon| {
+            let mut cells = Vec::new();
+            raster::fill(&p.points(), origin.y..origin.y + h, |y, x0, x1| {
+                cells.extend((x0..=x1).filter_map(|x| index(Cell::new(x, y))));
+            });
+            cells
+        };
+        let on_edges = |p: &Polygon| {
+            let (v, n) = (&p.vertices, p.vertices.len());
+            let mut cells = Vec::new();
+            for i in 0..n {
+                raster::edge(v[i].p, v[(i + 1) % n].p, lo, hi, |c| {
+                    cells.extend(index(c).map(|k| (k, v[i].occ)));
+                });
+            }
+            cells
+        };
+        let mut plan: Vec<Option<Occ>> = vec![None; (w * h) as usize]; // (1)
+        let all = || approximations.iter().flatten();
+        let outside = || all().filter(|p| p.kind == Kind::Outside);
+        for p in outside() {
+            for k in inside(p) {
+                plan[k] = Some(Occ::Unknown); // (2)
+            }
+        }
+        for p in outside() {
+            for (k, occ) in on_edges(p) {
+                match occ {
+                    Occ::Occupied => plan[k] = Some(Occ::Occupied), // (3)
+                    Occ::Unknown if plan[k] != Some(Occ::Occupied) => plan[k] = Some(Occ::Unknown),
+                    _ => {}
+                }
+            }
+        }
+        for a in approximations {
+            // (4): inside one of its inside objects, an odd number of its polygons, a band.
+            let (mut ins, mut odd, mut band) = (
+                vec![false; plan.len()],
+                vec![false; plan.len()],
+                vec![false; plan.len()],
+            );
+            for p in a {
+                for k in inside(p) {
+                    ins[k] |= p.kind == Kind::Inside;
+                    odd[k] = !odd[k];
+                }
+                for (i, v) in p.vertices.iter().enumerate() {
+                    let b = p.vertices[(i + 1) % p.vertices.len()].p;
+                    let e = f64::from(v.bound) * 2.0;
+                    for (k, near) in band.iter_mut().enumerate() {
+                        let c = Cell::new(origin.x + k as i32 % w, origin.y + k as i32 / w);
+                        *near |= bands == Bands::Kept
+                            && v.bound > 0
+                            && seg_dist2(QPoint::centre(c), v.p, b) <= e * e;
+                    }
+                }
+            }
+            for k in 0..plan.len() {
+                let free = !band[k]
+                    && ins[k]
+                    && match plan[k] {
+                        None => true,
+                        Some(Occ::Unknown) => odd[k],
+                        Some(_) => false,
+                    };
+                if free {
+                    plan[k] = Some(Occ::Free);
+                }
+            }
+        }
+        for p in all() {
+            for (k, occ) in on_edges(p) {
+                if occ == Occ::Occupied {
+                    plan[k] = Some(Occ::Occupied); // (5)
+                }
+            }
+        }
+        plan
+    }
+
+    /// Arbitrary polygons near a 16 × 16 window: any kind, occupancy and error bound.
+    fn arb_polygons() -> impl Strategy<Value = Vec<Polygon>> {
+        let vertex = (-12i32..76, -12i32..76, 0u8..3, 0u16..6);
+        proptest::collection::vec(
+            (any::<bool>(), proptest::collection::vec(vertex, 0..7)),
+            0..4,
+        )
+        .prop_map(|polys| {
+            (polys.into_iter())
+                .map(|(inside, vs)| Polygon {
+                    kind: if inside { Kind::Inside } else { Kind::Outside },
+                    vertices: (vs.into_iter())
+                        .map(|(x, y, o, bound)| Vertex {
+                            p: QPoint::new(x, y),
+                            occ: [Occ::Free, Occ::Occupied, Occ::Unknown][usize::from(o)],
+                            bound,
+                        })
+                        .collect(),
+                })
+                .collect()
+        })
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(128))]
 
@@ -528,6 +705,52 @@ mod tests {
                 }
                 prop_assert_eq!(*got, full.get(c), "cell {:?}", c);
             }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        /// Painting from the union of each approximation's marks is painting step after step:
+        /// arbitrary polygons of up to four approximations, any window, bands kept or not.
+        #[test]
+        fn the_marks_paint_what_the_steps_in_order_paint(
+            approximations in proptest::collection::vec(arb_polygons(), 0..5),
+            (x, y, w, h) in (-4i32..12, -4i32..12, 1u32..18, 1u32..18),
+            kept in any::<bool>(),
+        ) {
+            let bands = if kept { Bands::Kept } else { Bands::Ignored };
+            let polys: Vec<Vec<&Polygon>> = approximations.iter().map(|a| a.iter().collect()).collect();
+            let origin = Cell::new(x, y);
+            prop_assert_eq!(
+                paint(&polys, origin, w, h, bands),
+                steps_in_order(&polys, origin, w, h, bands)
+            );
+        }
+
+        /// The same for real approximations of explorations, at any splitting frequency, each
+        /// robot's own.
+        #[test]
+        fn real_approximations_paint_by_marks_as_step_after_step(
+            robots in proptest::collection::vec(crate::testutil::arb_exploration(16, 3), 1..4),
+            s in prop_oneof![Just(0.0), Just(1.0), Just(4.0)],
+        ) {
+            let approximations: Vec<Approximation> = (robots.iter())
+                .map(|steps| {
+                    let mut ax = crate::mapping::approximator::Approximator::new();
+                    let mut a = Approximation::default();
+                    for g in steps {
+                        a = ax.step(&Contours::extract(g), g, s).clone();
+                    }
+                    a
+                })
+                .collect();
+            let polys: Vec<Vec<&Polygon>> = approximations.iter().map(|a| a.objects.values().collect()).collect();
+            let (w, h) = (robots[0][0].width(), robots[0][0].height());
+            prop_assert_eq!(
+                paint(&polys, Cell::new(0, 0), w, h, Bands::Kept),
+                steps_in_order(&polys, Cell::new(0, 0), w, h, Bands::Kept)
+            );
         }
     }
 }
