@@ -264,14 +264,14 @@ pub fn obstacle_penalty(g: &Grid, sigma: f64, weight: f64) -> Vec<f32> {
 /// [`costs`] with a per-cell penalty ([`obstacle_penalty`]; `None`: none).
 pub fn costs_with(g: &Grid, start: Cell, penalty: Option<&[f32]>) -> CostMap {
     let mut map = CostMap::default();
-    dijkstra(&mut map, g, &[start], penalty, Stop::Never);
+    dijkstra(&mut map, g, &[start], penalty, &mut Stop::Never);
     map
 }
 
 /// [`costs_with`] into `map`, in the buffers it has: a robot searches every step, and a new
 /// map over a campus-sized known part is megabytes to allocate and touch each time.
 pub fn costs_into(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>) {
-    dijkstra(map, g, &[start], penalty, Stop::Never);
+    dijkstra(map, g, &[start], penalty, &mut Stop::Never);
 }
 
 /// [`costs_into`] that stops once every frontier cell of the planning grid (`frontiers`, kept
@@ -288,11 +288,11 @@ pub fn costs_to_frontiers(
     penalty: Option<&[f32]>,
     frontiers: &FrontierCells,
 ) {
-    let stop = Stop::Frontiers {
+    let mut stop = Stop::Frontiers {
         of: frontiers,
         left: frontiers.len(),
     };
-    dijkstra(map, g, &[start], penalty, stop);
+    dijkstra(map, g, &[start], penalty, &mut stop);
 }
 
 /// The path [`path_to`] finds to `target` after a full search from `start` ([`costs_with`]) —
@@ -426,22 +426,30 @@ fn traced(map: &CostMap, g: &Grid, penalty: Option<&[f32]>, target: Cell) -> Opt
 /// only through [`path_to`] from it, so do not ask for paths).
 pub fn costs_from(g: &Grid, sources: &[Cell]) -> CostMap {
     let mut map = CostMap::default();
-    dijkstra(&mut map, g, sources, None, Stop::Never);
+    dijkstra(&mut map, g, sources, None, &mut Stop::Never);
     map
 }
 
 /// When a search may stop.
-#[derive(Clone, Copy)]
 enum Stop<'a> {
     /// When it runs out.
     Never,
     /// Once the last `left` frontier cells `of` are settled.
     Frontiers { of: &'a FrontierCells, left: usize },
+    /// Once every cell that [`nearest`] could prefer among the cells `wanted` (by grid index)
+    /// is settled: when a cell costlier by [`nearest`]'s key than the first wanted one comes
+    /// up. The wanted cells settled go to `found`.
+    Nearest {
+        wanted: &'a dyn Fn(usize) -> bool,
+        key: Option<i64>,
+        found: Vec<usize>,
+    },
 }
 
 impl Stop<'_> {
-    /// Whether the search stops now that it settled a cell (`here`: its index in the grid).
-    fn settled(&mut self, here: usize) -> bool {
+    /// Whether the search stops now that it settled a cell (`here`: its index in the grid) at
+    /// `cost`.
+    fn settled(&mut self, here: usize, cost: f64) -> bool {
         match self {
             Stop::Never => false,
             Stop::Frontiers { of, left } => {
@@ -449,6 +457,17 @@ impl Stop<'_> {
                     *left = left.saturating_sub(1);
                 }
                 *left == 0
+            }
+            Stop::Nearest { wanted, key, found } => {
+                let k = tie_key(cost);
+                if key.is_some_and(|first| k > first) {
+                    return true;
+                }
+                if wanted(here) {
+                    key.get_or_insert(k);
+                    found.push(here);
+                }
+                false
             }
         }
     }
@@ -464,7 +483,7 @@ fn dijkstra(
     g: &Grid,
     sources: &[Cell],
     penalty: Option<&[f32]>,
-    mut until: Stop<'_>,
+    until: &mut Stop<'_>,
 ) {
     map.begin(g, sources);
     let mut queue = std::mem::take(&mut map.queue);
@@ -483,7 +502,7 @@ fn dijkstra(
         if cost > map.dist_at(index) {
             continue;
         }
-        if until.settled(moves.in_grid(index)) {
+        if until.settled(moves.in_grid(index), cost) {
             // Every cell cheaper than this one is settled; one as cheap that is not yet has
             // its final cost already (it can only be lowered by a cheaper cell), so the limit
             // may include this cost.
@@ -773,10 +792,12 @@ pub fn nearest(cells: impl IntoIterator<Item = Cell>, costs: &CostMap) -> Option
     cells
         .into_iter()
         .filter(|&c| costs.cost(c).is_some())
-        .min_by_key(|&c| {
-            let cost = costs.cost(c).unwrap_or(f64::INFINITY);
-            ((cost / COST_TIE_QUANTUM).round() as i64, c.y, c.x)
-        })
+        .min_by_key(|&c| (tie_key(costs.cost(c).unwrap_or(f64::INFINITY)), c.y, c.x))
+}
+
+/// A cost rounded to [`COST_TIE_QUANTUM`]: costs this close are a tie.
+fn tie_key(cost: f64) -> i64 {
+    (cost / COST_TIE_QUANTUM).round() as i64
 }
 
 /// The cells of a cheapest path from the start of `costs` to `target`, both included, following
@@ -852,7 +873,9 @@ pub fn move_is_free(g: &Grid, from: (f64, f64), to: (f64, f64), exempt: Cell) ->
 /// path over `g` to `their_target` when that is known and reachable, else the straight line
 /// from `other` through `me` and on for [`GIVE_WAY_LINE_CELLS`] (it was coming this way).
 /// Returns the path to that cell on the grid with the other robot's disc blocked, starting at
-/// `me` (a single cell when `me` is already clear); `None` when no cell is clear.
+/// `me` (a single cell when `me` is already clear); `None` when no cell is clear. The other's
+/// way is searched by A* ([`path_until`]) and the search from `me` stops once no cheaper clear
+/// cell can come: both are the full searches' answers, at the cost of the way and the way aside.
 pub fn give_way(
     g: &Grid,
     me: Cell,
@@ -860,7 +883,9 @@ pub fn give_way(
     their_target: Option<Cell>,
     clearance: f64,
 ) -> Option<(Grid, Vec<Cell>)> {
-    let way: Vec<Cell> = match their_target.and_then(|t| path_to(&costs(g, other), t)) {
+    let mut search = CostMap::default();
+    let their_way = their_target.and_then(|t| path_until(&mut search, g, other, None, t));
+    let way: Vec<Cell> = match their_way {
         Some(path) => path,
         None => {
             let dx = f64::from(me.x) - f64::from(other.x);
@@ -882,22 +907,30 @@ pub fn give_way(
         }
     };
     // Both ways start at `other`.
-    let mut in_the_way = vec![false; g.len()];
-    for &at in &way {
-        for c in disc(g, at, clearance) {
-            if let Some(i) = g.index(c) {
-                in_the_way[i] = true;
-            }
-        }
-    }
+    let mut in_the_way: Vec<usize> = (way.iter())
+        .flat_map(|&at| disc(g, at, clearance))
+        .filter_map(|c| g.index(c))
+        .collect();
+    in_the_way.sort_unstable();
+    in_the_way.dedup();
     let blocked = around(g, me, other, clearance);
-    let from_me = costs(&blocked, me);
-    let aside = (0..g.len())
-        .filter(|&i| !in_the_way[i] && (g.cells()[i] == Occ::Free || g.cell_of(i) == me))
-        .map(|i| g.cell_of(i))
-        .filter(|&c| from_me.cost(c).is_some());
-    let aside = nearest(aside, &from_me)?;
-    Some((blocked, path_to(&from_me, aside)?))
+    let me_at = g.index(me);
+    let clear = |i: usize| {
+        (g.cells()[i] == Occ::Free || Some(i) == me_at) && in_the_way.binary_search(&i).is_err()
+    };
+    // The search from `me` stops once the nearest clear cell is certain: it costs the way
+    // aside, not the known part.
+    let mut stop = Stop::Nearest {
+        wanted: &clear,
+        key: None,
+        found: Vec::new(),
+    };
+    dijkstra(&mut search, &blocked, &[me], None, &mut stop);
+    let Stop::Nearest { found, .. } = stop else {
+        return None;
+    };
+    let aside = nearest(found.into_iter().map(|i| g.cell_of(i)), &search)?;
+    Some((blocked, path_to(&search, aside)?))
 }
 
 /// `g` with the robot at `other` in it: the cells nearer than `clearance` to it are occupied,
@@ -1615,6 +1648,47 @@ mod tests {
                 if let Some(way) = known.then(|| path_to(&costs(&g, other), target)).flatten() {
                     prop_assert!(way.iter().all(|&w| far(aside, w)), "{:?} is in the way", aside);
                 }
+            }
+        }
+
+        /// Giving way searches from `me` only until the nearest clear cell is certain, and the
+        /// other robot's way by A*, yet finds what the full searches find: the same cell, the
+        /// same path, the same blocked grid.
+        #[test]
+        fn giving_way_bounded_is_giving_way_over_full_searches(
+            g in arb_grid(),
+            cells in proptest::collection::vec((0i32..14, 0i32..14), 3),
+            known in any::<bool>(),
+            clearance in 0.5f64..3.0,
+        ) {
+            let cell = |(x, y): (i32, i32)| Cell::new(x % g.width() as i32, y % g.height() as i32);
+            let (me, other, target) = (cell(cells[0]), cell(cells[1]), cell(cells[2]));
+            // The full searches: the other's way from a search of everything, then every clear
+            // cell of a search of everything from `me`.
+            let way = known.then(|| path_to(&costs(&g, other), target)).flatten();
+            let way = way.unwrap_or_else(|| {
+                let (dx, dy) = (f64::from(me.x - other.x), f64::from(me.y - other.y));
+                let len = dx.hypot(dy).max(1.0);
+                let steps = ((len + GIVE_WAY_LINE_CELLS) * 2.0).ceil() as i32;
+                (0..=steps)
+                    .map(|k| {
+                        let t = f64::from(k) * 0.5 / len;
+                        let at = |o: i32, d: f64| (f64::from(o) + d * t).round() as i32;
+                        Cell::new(at(other.x, dx), at(other.y, dy))
+                    })
+                    .collect()
+            });
+            let in_the_way: Vec<Cell> = way.iter().flat_map(|&at| disc(&g, at, clearance)).collect();
+            let blocked = around(&g, me, other, clearance);
+            let from_me = costs(&blocked, me);
+            let clear = (0..g.len())
+                .map(|i| g.cell_of(i))
+                .filter(|c| (g.get(*c) == Occ::Free || *c == me) && !in_the_way.contains(c));
+            let full = nearest(clear, &from_me).and_then(|aside| path_to(&from_me, aside));
+            let got = give_way(&g, me, other, known.then_some(target), clearance);
+            prop_assert_eq!(got.as_ref().map(|(_, path)| path), full.as_ref());
+            if let Some((b, _)) = got {
+                prop_assert_eq!(b.to_ascii(), blocked.to_ascii());
             }
         }
 
