@@ -89,7 +89,7 @@ impl Painting {
         }
         for owner in owners {
             let a = now.get(&owner).copied();
-            let dirty = dirty_windows(self.held.get(&owner), a);
+            let (dirty, changed) = dirty_windows(self.held.get(&owner), a);
             for window in coalesce(dirty) {
                 let Some(window) = window.within(self.width, self.height) else {
                     continue;
@@ -101,7 +101,7 @@ impl Painting {
                     before,
                 });
             }
-            self.hold(owner, a);
+            self.hold(owner, a, &changed);
         }
         coalesce(self.taken.iter().map(|t| t.window).collect())
     }
@@ -188,18 +188,19 @@ impl Painting {
         marks(&parts, w, self.bands)
     }
 
-    /// Holds `a` as `owner`'s approximation from now on (`None`: drops the owner).
-    fn hold(&mut self, owner: RobotId, a: Option<&Approximation>) {
+    /// Holds `a` as `owner`'s approximation from now on (`None`: drops the owner), its objects
+    /// `changed` (new or not as held; [`dirty_windows`]) taken again.
+    fn hold(&mut self, owner: RobotId, a: Option<&Approximation>, changed: &[ObjectId]) {
         let Some(a) = a else {
             self.held.remove(&owner);
             return;
         };
         let held = self.held.entry(owner).or_default();
         held.retain(|id, _| a.objects.contains_key(id));
-        for (&id, poly) in &a.objects {
-            if held.get(&id).is_some_and(|h| &h.poly == poly) {
-                continue;
-            }
+        for (id, poly) in changed
+            .iter()
+            .filter_map(|id| Some((*id, a.objects.get(id)?)))
+        {
             match reach(poly) {
                 Some(reach) => {
                     let rows = (poly.vertices.len() > INDEXED_EDGES)
@@ -233,23 +234,31 @@ fn recount(counts: &mut [u16; 4], before: Marks, after: Marks) -> Option<Occ> {
 }
 
 /// The windows where an owner's objects held (`None`: none) and its approximation `a`
-/// (`None`: the owner is dropped) mark cells differently.
-fn dirty_windows(held: Option<&BTreeMap<ObjectId, Held>>, a: Option<&Approximation>) -> Vec<Rect> {
+/// (`None`: the owner is dropped) mark cells differently, and the objects of `a` that are new or
+/// not as held.
+fn dirty_windows(
+    held: Option<&BTreeMap<ObjectId, Held>>,
+    a: Option<&Approximation>,
+) -> (Vec<Rect>, Vec<ObjectId>) {
     let objects = held.into_iter().flatten();
     let Some(a) = a else {
-        return objects.map(|(_, h)| h.reach).collect();
+        return (objects.map(|(_, h)| h.reach).collect(), Vec::new());
     };
     let mut dirty: Vec<Rect> = objects
         .filter(|(id, _)| !a.objects.contains_key(id))
         .map(|(_, h)| h.reach)
         .collect();
-    for (id, poly) in &a.objects {
-        match held.and_then(|h| h.get(id)) {
+    let mut changed = Vec::new();
+    for (&id, poly) in &a.objects {
+        match held.and_then(|h| h.get(&id)) {
             Some(was) if &was.poly == poly => {}
-            was => dirty.extend(changed_windows(was.map(|w| &w.poly), poly, STRIP_ROWS)),
+            was => {
+                dirty.extend(changed_windows(was.map(|w| &w.poly), poly, STRIP_ROWS));
+                changed.push(id);
+            }
         }
     }
-    dirty
+    (dirty, changed)
 }
 
 /// An object painted: the polygon, the cells it can paint ([`reach`]) and its edges by the rows
