@@ -1343,6 +1343,17 @@ mod tests {
         d
     }
 
+    /// A grid, the robot that gives way, the other robot, the other's target, whether that is
+    /// known, and the clearance.
+    fn arb_giving_way() -> impl Strategy<Value = (Grid, Cell, Cell, Cell, bool, f64)> {
+        let cells = proptest::collection::vec((0i32..14, 0i32..14), 3);
+        (arb_grid(), cells, any::<bool>(), 0.5f64..3.0).prop_map(|(g, cells, known, clearance)| {
+            let cell = |(x, y): (i32, i32)| Cell::new(x % g.width() as i32, y % g.height() as i32);
+            let (me, other, target) = (cell(cells[0]), cell(cells[1]), cell(cells[2]));
+            (g, me, other, target, known, clearance)
+        })
+    }
+
     proptest! {
         /// Searched over the explored part of a bigger map only, costs, paths and frontiers
         /// are those of the search over every cell — the robot may stand anywhere, even on an
@@ -1630,13 +1641,8 @@ mod tests {
 
         #[test]
         fn giving_way_keeps_clear(
-            g in arb_grid(),
-            cells in proptest::collection::vec((0i32..14, 0i32..14), 3),
-            known in any::<bool>(),
-            clearance in 0.5f64..3.0,
+            (g, me, other, target, known, clearance) in arb_giving_way(),
         ) {
-            let cell = |(x, y): (i32, i32)| Cell::new(x % g.width() as i32, y % g.height() as i32);
-            let (me, other, target) = (cell(cells[0]), cell(cells[1]), cell(cells[2]));
             if let Some((blocked, path)) = give_way(&g, me, other, known.then_some(target), clearance) {
                 prop_assert_eq!(path.first(), Some(&me));
                 for pair in path.windows(2) {
@@ -1656,13 +1662,8 @@ mod tests {
         /// same path, the same blocked grid.
         #[test]
         fn giving_way_bounded_is_giving_way_over_full_searches(
-            g in arb_grid(),
-            cells in proptest::collection::vec((0i32..14, 0i32..14), 3),
-            known in any::<bool>(),
-            clearance in 0.5f64..3.0,
+            (g, me, other, target, known, clearance) in arb_giving_way(),
         ) {
-            let cell = |(x, y): (i32, i32)| Cell::new(x % g.width() as i32, y % g.height() as i32);
-            let (me, other, target) = (cell(cells[0]), cell(cells[1]), cell(cells[2]));
             // The full searches: the other's way from a search of everything, then every clear
             // cell of a search of everything from `me`.
             let way = known.then(|| path_to(&costs(&g, other), target)).flatten();
