@@ -59,6 +59,8 @@ pub struct CostMap {
     search: u32,
     /// Dijkstra's queue, its buffers kept from search to search.
     queue: Buckets,
+    /// A*'s queue ([`path_until`]), its buffer kept likewise.
+    guided: BinaryHeap<Guided>,
     /// The search settled every cell up to this cost and stopped ([`costs_to_frontiers`]);
     /// costs beyond it are unknown and read as unreachable. `f64::INFINITY`: a full search;
     /// `f64::NEG_INFINITY`: none to read ([`path_until`]).
@@ -76,6 +78,7 @@ impl Default for CostMap {
             start: Cell::new(-1, -1),
             cells: Vec::new(),
             queue: Buckets::default(),
+            guided: BinaryHeap::new(),
             search: 0,
             limit: f64::INFINITY,
         }
@@ -185,6 +188,29 @@ impl Ord for Entry {
 }
 
 impl PartialOrd for Entry {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// An A* queue entry: cost so far plus estimate, cost so far, cell — popped by (cost plus
+/// estimate, index) as [`Entry`]; the cost so far tells a stale entry without the estimate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Guided {
+    f: f64,
+    g: f64,
+    index: usize,
+}
+
+impl Eq for Guided {}
+
+impl Ord for Guided {
+    fn cmp(&self, other: &Self) -> Ordering {
+        (other.f.total_cmp(&self.f)).then_with(|| other.index.cmp(&self.index))
+    }
+}
+
+impl PartialOrd for Guided {
     fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
         Some(self.cmp(other))
     }
@@ -348,20 +374,26 @@ fn astar(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>, targ
             0.0
         }
     };
-    let mut heap = BinaryHeap::new();
+    let mut heap = std::mem::take(&mut map.guided);
+    heap.clear();
     map.reach(s, 0.0, NO_PRED);
-    heap.push(Entry {
-        cost: estimate(s),
+    heap.push(Guided {
+        f: estimate(s),
+        g: 0.0,
         index: s,
     });
     let moves = Moves::new(map, g, penalty);
     let mut found = false;
-    while let Some(Entry { cost, index }) = heap.pop() {
-        let so_far = map.dist_at(index);
-        if cost > so_far + estimate(index) {
-            continue;
+    while let Some(Guided {
+        f,
+        g: so_far,
+        index,
+    }) = heap.pop()
+    {
+        if so_far > map.dist_at(index) {
+            continue; // a cheaper way to it came later
         }
-        if found && cost > map.dist_at(t) {
+        if found && f > map.dist_at(t) {
             break;
         }
         found |= index == t;
@@ -369,13 +401,15 @@ fn astar(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>, targ
             let next = so_far + step;
             if next < map.dist_at(ni) {
                 map.reach(ni, next, index as u32);
-                heap.push(Entry {
-                    cost: next + estimate(ni),
+                heap.push(Guided {
+                    f: next + estimate(ni),
+                    g: next,
                     index: ni,
                 });
             }
         });
     }
+    map.guided = heap;
     found
 }
 
