@@ -111,20 +111,14 @@ impl Painting {
     pub fn repaint(&mut self) {
         for t in std::mem::take(&mut self.taken) {
             let after = self.marks(t.owner, t.window);
-            let (gw, ww) = (self.width as usize, t.window.width() as usize);
-            let rows = (t.window.min.y..=t.window.max.y).zip(after.chunks(ww));
             match (&mut self.counts, t.before) {
                 (Some(counts), Some(before)) => {
-                    for ((y, after), before) in rows.zip(before.chunks(ww)) {
-                        let at = y as usize * gw + t.window.min.x as usize;
-                        for (i, (&a, &b)) in after.iter().zip(before).enumerate() {
-                            if a != b {
-                                self.painted[at + i] = recount(&mut counts[at + i], b, a);
-                            }
-                        }
-                    }
+                    let (painted, width) = (&mut self.painted, self.width);
+                    recount_window(counts, painted, width, t.window, &before, &after);
                 }
                 _ => {
+                    let (gw, ww) = (self.width as usize, t.window.width() as usize);
+                    let rows = (t.window.min.y..=t.window.max.y).zip(after.chunks(ww));
                     for (y, after) in rows {
                         let at = y as usize * gw + t.window.min.x as usize;
                         for (cell, &m) in self.painted[at..at + ww].iter_mut().zip(after) {
@@ -148,26 +142,23 @@ impl Painting {
             .fold(None, |r, h| Rect::union_of(r, Some(h.reach)))
     }
 
-    /// Starts counting: every owner held marks its objects' reach.
+    /// Starts counting: every owner held marks its objects' reach (the painting, up to date,
+    /// is what the counts give).
     fn count_held(&mut self) {
         let mut counts = vec![[0u16; 4]; self.painted.len()];
-        let gw = self.width as usize;
+        let mut painted = std::mem::take(&mut self.painted);
         for (&owner, objects) in &self.held {
             let reaches = objects.values().map(|h| h.reach).collect();
             for w in coalesce(reaches) {
                 let Some(w) = w.within(self.width, self.height) else {
                     continue;
                 };
-                let marks = self.marks(owner, w);
-                for (y, row) in (w.min.y..=w.max.y).zip(marks.chunks(w.width() as usize)) {
-                    let at = y as usize * gw + w.min.x as usize;
-                    for (c, &m) in counts[at..].iter_mut().zip(row) {
-                        recount(c, Marks::NONE, m);
-                    }
-                }
+                let after = self.marks(owner, w);
+                let before = vec![Marks::NONE; after.len()];
+                recount_window(&mut counts, &mut painted, self.width, w, &before, &after);
             }
         }
-        self.counts = Some(counts);
+        (self.painted, self.counts) = (painted, Some(counts));
     }
 
     /// What `owner`'s objects held mark in window `w` (inside the grid), each painted with its
@@ -211,6 +202,29 @@ impl Painting {
                 None => {
                     held.remove(&id);
                 }
+            }
+        }
+    }
+}
+
+/// The counts of window `w` (inside a grid `width` cells wide, row-major like `counts` and
+/// `painted`) moved from an owner's marks `before` to `after` (the window's cells, row-major),
+/// and the cells whose marks changed painted from their counts.
+fn recount_window(
+    counts: &mut [[u16; 4]],
+    painted: &mut [Option<Occ>],
+    width: u32,
+    w: Rect,
+    before: &[Marks],
+    after: &[Marks],
+) {
+    let ww = w.width() as usize;
+    let rows = (w.min.y..=w.max.y).zip(after.chunks(ww).zip(before.chunks(ww)));
+    for (y, (after, before)) in rows {
+        let at = y as usize * width as usize + w.min.x as usize;
+        for (i, (&a, &b)) in after.iter().zip(before).enumerate() {
+            if a != b {
+                painted[at + i] = recount(&mut counts[at + i], b, a);
             }
         }
     }

@@ -193,20 +193,25 @@ impl PartialOrd for Entry {
     }
 }
 
-/// An A* queue entry: cost so far plus estimate, cost so far, cell — popped by (cost plus
-/// estimate, index) as [`Entry`]; the cost so far tells a stale entry without the estimate.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// An A* queue entry: an [`Entry`] of cost so far plus estimate, popped in its order, and the
+/// cost so far, which tells a stale entry without the estimate.
+#[derive(Clone, Copy, Debug)]
 struct Guided {
-    f: f64,
+    entry: Entry,
     g: f64,
-    index: usize,
+}
+
+impl PartialEq for Guided {
+    fn eq(&self, other: &Self) -> bool {
+        self.entry == other.entry
+    }
 }
 
 impl Eq for Guided {}
 
 impl Ord for Guided {
     fn cmp(&self, other: &Self) -> Ordering {
-        (other.f.total_cmp(&self.f)).then_with(|| other.index.cmp(&self.index))
+        self.entry.cmp(&other.entry)
     }
 }
 
@@ -378,22 +383,20 @@ fn astar(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>, targ
     heap.clear();
     map.reach(s, 0.0, NO_PRED);
     heap.push(Guided {
-        f: estimate(s),
+        entry: Entry {
+            cost: estimate(s),
+            index: s,
+        },
         g: 0.0,
-        index: s,
     });
     let moves = Moves::new(map, g, penalty);
     let mut found = false;
-    while let Some(Guided {
-        f,
-        g: so_far,
-        index,
-    }) = heap.pop()
-    {
+    while let Some(Guided { entry, g: so_far }) = heap.pop() {
+        let Entry { cost, index } = entry;
         if so_far > map.dist_at(index) {
             continue; // a cheaper way to it came later
         }
-        if found && f > map.dist_at(t) {
+        if found && cost > map.dist_at(t) {
             break;
         }
         found |= index == t;
@@ -402,9 +405,11 @@ fn astar(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>, targ
             if next < map.dist_at(ni) {
                 map.reach(ni, next, index as u32);
                 heap.push(Guided {
-                    f: next + estimate(ni),
+                    entry: Entry {
+                        cost: next + estimate(ni),
+                        index: ni,
+                    },
                     g: next,
-                    index: ni,
                 });
             }
         });
@@ -476,7 +481,7 @@ enum Stop<'a> {
     Nearest {
         wanted: &'a dyn Fn(usize) -> bool,
         key: Option<i64>,
-        found: Vec<usize>,
+        found: &'a mut Vec<usize>,
     },
 }
 
@@ -493,12 +498,11 @@ impl Stop<'_> {
                 *left == 0
             }
             Stop::Nearest { wanted, key, found } => {
-                let k = tie_key(cost);
-                if key.is_some_and(|first| k > first) {
+                if key.is_some_and(|first| tie_key(cost) > first) {
                     return true;
                 }
                 if wanted(here) {
-                    key.get_or_insert(k);
+                    key.get_or_insert_with(|| tie_key(cost));
                     found.push(here);
                 }
                 false
@@ -954,15 +958,13 @@ pub fn give_way(
     };
     // The search from `me` stops once the nearest clear cell is certain: it costs the way
     // aside, not the known part.
+    let mut found = Vec::new();
     let mut stop = Stop::Nearest {
         wanted: &clear,
         key: None,
-        found: Vec::new(),
+        found: &mut found,
     };
     dijkstra(&mut search, &blocked, &[me], None, &mut stop);
-    let Stop::Nearest { found, .. } = stop else {
-        return None;
-    };
     let aside = nearest(found.into_iter().map(|i| g.cell_of(i)), &search)?;
     Some((blocked, path_to(&search, aside)?))
 }
