@@ -50,6 +50,9 @@ pub struct Agent {
     planning_report: Option<GridReport>,
     /// The path costs of the last step, whose buffers the next step's search reuses.
     costs: plan::CostMap,
+    /// The way to the target the robot last followed: a step later, the way there from a cell
+    /// along it is searched by [`plan::path_along`].
+    way: Vec<Cell>,
     /// The planning grid's frontier cells, kept as it changes.
     frontier_cells: plan::FrontierCells,
     /// What it shares and how peers' shares reach its planning grid (by exchange mode).
@@ -117,6 +120,7 @@ impl Agent {
             unreported: [None; 2],
             planning_report: None,
             costs: plan::CostMap::default(),
+            way: Vec::new(),
             frontier_cells: plan::FrontierCells::default(),
             pose: Pose::default(),
             step: 0,
@@ -200,9 +204,9 @@ impl Agent {
         let free = detour.as_ref().unwrap_or(g);
         self.right_of_way.give_up(&mut self.target);
         let usable = self.target.filter(|&t| self.right_of_way.usable(t, me));
-        // A strategy that keeps a valid target needs only the way to it (an A* search that
-        // finds the full search's path), and a search all over only when the target is gone
-        // (explored, unreachable) or the strategy looks at every frontier each step.
+        // A strategy that keeps a valid target needs only the way to it (a search bounded by
+        // the way followed a step before, or an A*: the full search's path), and a search all
+        // over only when the target is gone or the strategy looks at every frontier each step.
         let keep = usable.filter(|_| self.coordinator.keeps_valid_target());
         // A strategy that looks at the frontiers' costs alone needs the search only as far as
         // the farthest frontier.
@@ -216,7 +220,7 @@ impl Agent {
         };
         let kept = keep
             .filter(|&t| g.is_frontier(t))
-            .and_then(|t| plan::path_until(costs, free, me, penalty.as_deref(), t));
+            .and_then(|t| plan::path_along(costs, free, me, penalty.as_deref(), t, &self.way));
         let mut frontiers = Vec::new();
         if kept.is_none() {
             everything(costs);
@@ -263,8 +267,9 @@ impl Agent {
             Some(path) => path,
             None => plan::path_to(costs, self.target?)?,
         };
-        let next = plan::next_waypoint(free, &w.map, at, &path, max_cells)?;
-        (next != me).then(|| w.map.centre_of(next))
+        let next = plan::next_waypoint(free, &w.map, at, &path, max_cells);
+        self.way = path;
+        next.and_then(|next| (next != me).then(|| w.map.centre_of(next)))
     }
 
     /// Messages to send this step: the strategy's, the target when it changed, periodic

@@ -64,6 +64,9 @@ pub struct Mapper {
     known_cells: usize,
     log: OpLog,
     previous: Approximation,
+    /// `previous`'s [`Approximation::digest`], computed when it changed (a full pass over it:
+    /// late in a big map, thousands of vertices that most steps leave as they were).
+    digest: u64,
     /// Douglas–Peucker splits per step (fractional values accumulate).
     pub splits_per_step: f64,
     /// Whether the logged approximation keeps its edges' error bounds
@@ -86,6 +89,7 @@ impl Mapper {
             known_cells: 0,
             log: OpLog::new(),
             previous: Approximation::default(),
+            digest: Approximation::default().digest(),
             splits_per_step,
             edge_bounds: true,
             stats: OpStats::default(),
@@ -154,6 +158,10 @@ impl Mapper {
             error_cells,
             known_cells,
         };
+        if ops > 0 {
+            // The ops are empty exactly when A_t is A_{t-1} (`delta::diff`).
+            self.digest = a.digest();
+        }
         self.previous = a;
         self.contours = Some(p);
         report
@@ -191,6 +199,11 @@ impl Mapper {
         &self.previous
     }
 
+    /// A_t's [`Approximation::digest`].
+    pub fn digest(&self) -> u64 {
+        self.digest
+    }
+
     pub fn log(&self) -> &OpLog {
         &self.log
     }
@@ -208,10 +221,11 @@ mod tests {
     use crate::exchange::oplog::Replica;
 
     #[test]
-    fn the_log_replays_to_the_current_approximation() {
+    fn the_log_replays_to_the_current_approximation_and_its_digest_is_kept() {
         let frames = [
             "??????????\n??????????\n???....???\n??????????\n",
             "??????????\n??#....#??\n??#....#??\n??######??\n",
+            "?########?\n?#......#?\n?#..##..#?\n?########?\n",
             "?########?\n?#......#?\n?#..##..#?\n?########?\n",
         ];
         let mut m = Mapper::new(3.0);
@@ -225,6 +239,8 @@ mod tests {
             let r = m.step(&g, &changed);
             assert!(r.vertices > 0);
             assert_eq!(r.contour_points, Contours::extract(&g).len());
+            // The digest kept is the approximation's, whether the step changed it or not.
+            assert_eq!(m.digest(), m.approximation().digest());
             before = g;
         }
         let mut replica = Replica::new();

@@ -395,7 +395,7 @@ impl Sharing for Polygon {
     fn own_save(&self) -> Option<(u32, u64)> {
         Some((
             u32::try_from(self.mapper.log().len()).unwrap_or(u32::MAX),
-            self.mapper.approximation().digest(),
+            self.mapper.digest(),
         ))
     }
 

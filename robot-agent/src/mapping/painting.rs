@@ -24,7 +24,7 @@ use proto::msg::RobotId;
 
 use crate::mapping::approx::{Approximation, ObjectId, Polygon, Vertex};
 use crate::mapping::qpoint::QPoint;
-use crate::mapping::render::{marks, Bands, Marks, Part};
+use crate::mapping::render::{band_cells, marks, Bands, EdgeRows, Marks, Part};
 
 /// What the approximations held paint, kept over a `width × height` grid.
 ///
@@ -167,7 +167,7 @@ impl Painting {
         let objects = self.held.get(&owner).into_iter().flat_map(|o| o.values());
         let edges: Vec<(&Held, Option<Vec<u32>>)> = objects
             .filter(|h| h.reach.intersects(w))
-            .map(|h| (h, h.rows.as_ref().map(|r| r.edges(w.min.y, w.max.y))))
+            .map(|h| (h, h.rows.as_ref().map(|r| r.reaching(&h.poly, w))))
             .collect();
         let parts: Vec<Part<'_>> = (edges.iter())
             .map(|(h, e)| Part {
@@ -195,7 +195,7 @@ impl Painting {
             match reach(poly) {
                 Some(reach) => {
                     let rows = (poly.vertices.len() > INDEXED_EDGES)
-                        .then(|| EdgeRows::new(poly, self.height, BUCKET_ROWS));
+                        .then(|| EdgeRows::of(poly, self.bands));
                     let poly = poly.clone();
                     held.insert(id, Held { poly, reach, rows });
                 }
@@ -288,86 +288,11 @@ struct Held {
 /// with all its edges (an index would cost more than it saves).
 const INDEXED_EDGES: usize = 128;
 
-/// Rows of the grid per bucket of [`EdgeRows`].
-const BUCKET_ROWS: i32 = 32;
-
-/// An object's edges by the rows of the grid they reach — the rows their scan-line crossings,
-/// their cells and their bands lie in — in buckets of [`BUCKET_ROWS`] rows: a window is painted
-/// with the edges of the buckets of its rows, not with every edge of every object reaching it.
-#[derive(Clone, Debug)]
-struct EdgeRows {
-    /// Rows per bucket.
-    rows: i32,
-    /// The first bucket held, and from it each bucket's edges (by first vertex, ascending).
-    first: usize,
-    buckets: Vec<Vec<u32>>,
-}
-
-impl EdgeRows {
-    /// The edges of `p` over the rows `0..height`, in buckets of `rows` rows.
-    fn new(p: &Polygon, height: u32, rows: i32) -> EdgeRows {
-        let rows = rows.max(1);
-        let n = p.vertices.len();
-        let last_row = i32::try_from(height).unwrap_or(i32::MAX) - 1;
-        let mut by_bucket: Vec<(usize, u32)> = Vec::new();
-        for (i, v) in p.vertices.iter().enumerate() {
-            let (a, b) = (v.p.cell().y, p.vertices[(i + 1) % n].p.cell().y);
-            let grow = 1 + band_cells(v.bound);
-            let lo = a.min(b).saturating_sub(grow).max(0);
-            let hi = a.max(b).saturating_add(grow).min(last_row);
-            let buckets = (lo / rows)..=(hi / rows);
-            by_bucket.extend(
-                (lo <= hi)
-                    .then_some(buckets)
-                    .into_iter()
-                    .flatten()
-                    .map(|k| (k as usize, i as u32)),
-            );
-        }
-        let first = by_bucket.iter().map(|&(k, _)| k).min().unwrap_or(0);
-        let count = by_bucket
-            .iter()
-            .map(|&(k, _)| k + 1 - first)
-            .max()
-            .unwrap_or(0);
-        let mut buckets = vec![Vec::new(); count];
-        for (k, i) in by_bucket {
-            buckets[k - first].push(i);
-        }
-        EdgeRows {
-            rows,
-            first,
-            buckets,
-        }
-    }
-
-    /// The edges reaching the rows `y0..=y1` (and maybe a few more), each once, ascending.
-    fn edges(&self, y0: i32, y1: i32) -> Vec<u32> {
-        let bucket = |y: i32| (y.max(0) / self.rows) as usize;
-        let (from, to) = (bucket(y0).max(self.first), bucket(y1));
-        let mut out: Vec<u32> = (from..=to)
-            .filter_map(|k| self.buckets.get(k.checked_sub(self.first)?))
-            .flatten()
-            .copied()
-            .collect();
-        if to > from {
-            out.sort_unstable();
-            out.dedup();
-        }
-        out
-    }
-}
-
 /// The cells an object can paint: its cells and edges, and the bands within its edges' error
 /// bounds ([`crate::mapping::render`]); `None` without vertices.
 pub fn reach(p: &Polygon) -> Option<Rect> {
     let band = p.vertices.iter().map(|v| v.bound).max()?;
     Some(p.cell_bounds()?.grown(band_cells(band)))
-}
-
-/// Cells within an error bound (half cells) of an edge, beyond the edge's own cells.
-fn band_cells(bound: u16) -> i32 {
-    i32::from(bound) / 2 + 1
 }
 
 /// The windows where an object that was `was` (`None`: new) and is `now` paints differently.
@@ -698,13 +623,12 @@ mod tests {
         // Cheap cases; an index that leaves out an edge's band shows in few of them.
         #![proptest_config(ProptestConfig::with_cases(2048))]
 
-        /// A window painted with each object's edges that reach its rows (by buckets of any
-        /// height), each object bounded by its reach, is the window painted with every edge.
+        /// A window painted with each object's edges that reach its rows (found by bands of
+        /// rows), each object bounded by its reach, is the window painted with every edge.
         #[test]
         fn a_window_painted_with_the_edges_of_its_rows_is_painted_with_every_edge(
             steps in crate::testutil::arb_exploration(24, 3),
             s in prop_oneof![Just(0.0), Just(1.0), Just(4.0)],
-            rows in 1i32..6,
             (x, y, ww, wh) in (0i32..24, 0i32..24, 0i32..24, 0i32..24),
         ) {
             let g = steps.last().expect("a step");
@@ -714,9 +638,9 @@ mod tests {
             let min = Cell::new(x % w as i32, y % h as i32);
             let win = Rect { min, max: Cell::new(min.x + ww, min.y + wh) }.within(w, h).expect("inside");
             let index: Vec<(&Polygon, EdgeRows)> = (a.objects.values())
-                .map(|p| (p, EdgeRows::new(p, h, rows)))
+                .map(|p| (p, EdgeRows::of(p, Bands::Kept)))
                 .collect();
-            let edges: Vec<Vec<u32>> = index.iter().map(|(_, e)| e.edges(win.min.y, win.max.y)).collect();
+            let edges: Vec<Vec<u32>> = index.iter().map(|(p, e)| e.reaching(p, win)).collect();
             let parts: Vec<Part<'_>> = (index.iter().zip(&edges))
                 .map(|((p, _), e)| Part { poly: p, edges: Some(e), bounds: reach(p) })
                 .collect();

@@ -32,7 +32,7 @@ use proto::grid::{Cell, Grid, Occ};
 use crate::mapping::approx::{ObjectId, Polygon, Vertex};
 use crate::mapping::contour::{Contour, Contours};
 use crate::mapping::qpoint::seg_dist2;
-use crate::mapping::render::render_window;
+use crate::mapping::render::{render_near, window_of, Bands, EdgeRows};
 
 /// How many of the most valuable edges are scored for each split (monotone mode).
 pub const LOOKAHEAD: usize = 8;
@@ -155,6 +155,7 @@ pub(crate) fn refine(
 impl<'a> Refiner<'a> {
     /// A refiner of `drafts` with every edge queued.
     fn new(drafts: &'a mut [Draft], p: &'a Contours, reference: Option<&'a Grid>) -> Self {
+        let count = drafts.len();
         let mut r = Refiner {
             p,
             drafts,
@@ -162,6 +163,7 @@ impl<'a> Refiner<'a> {
             queue: BinaryHeap::new(),
             deferred: Vec::new(),
             scored: Vec::new(),
+            rows: vec![None; count],
         };
         for d in 0..r.drafts.len() {
             let n = r.drafts[d].idx.len();
@@ -186,6 +188,10 @@ struct Refiner<'a> {
     /// the lookahead, which scores mostly the same candidates for every split, renders each
     /// once.
     scored: Vec<(Candidate, i64)>,
+    /// Per draft, its edges by row, indexed when a score first renders near it and dropped
+    /// when a split changes it: a window's rendering takes the edges of the window's rows
+    /// from it, not a pass over every vertex of every draft.
+    rows: Vec<Option<EdgeRows>>,
 }
 
 impl Refiner<'_> {
@@ -270,6 +276,7 @@ impl Refiner<'_> {
         }
         if n > room {
             self.drafts.clone_from_slice(&saved.0);
+            self.rows.iter_mut().for_each(|r| *r = None);
             (self.queue, self.deferred, self.scored) = (saved.1, saved.2, saved.3);
             return None;
         }
@@ -282,6 +289,7 @@ impl Refiner<'_> {
         let p = self.p;
         let contour = &p.objects()[self.drafts[c.draft].pobj];
         self.drafts[c.draft].insert(contour, c.from, c.split);
+        self.rows[c.draft] = None;
         self.queue
             .extend(evaluate(contour, c.draft, c.from, c.split));
         self.queue.extend(evaluate(contour, c.draft, c.split, c.to));
@@ -314,18 +322,46 @@ impl Refiner<'_> {
             return 0;
         };
         let (origin, w, h) = self.window(c);
-        let before = self.window_error(reference, origin, w, h);
+        let before = self.window_error(reference, origin, w, h, None);
         let p = self.p;
         let contour = &p.objects()[self.drafts[c.draft].pobj];
         let at = self.drafts[c.draft].insert(contour, c.from, c.split);
-        let after = self.window_error(reference, origin, w, h);
+        let after = self.window_error(reference, origin, w, h, Some((c.draft, at)));
         self.drafts[c.draft].remove(contour, at);
         after as i64 - before as i64
     }
 
-    fn window_error(&self, reference: &Grid, origin: Cell, w: u32, h: u32) -> usize {
+    /// The cells of the window where the drafts' rendering and `reference` differ; `inserted`:
+    /// a draft holds a vertex inserted at a position since its rows were indexed.
+    fn window_error(
+        &mut self,
+        reference: &Grid,
+        origin: Cell,
+        w: u32,
+        h: u32,
+        inserted: Option<(usize, usize)>,
+    ) -> usize {
+        let Some(window) = window_of(origin, w, h) else {
+            return 0;
+        };
+        let mut near = Vec::with_capacity(self.drafts.len());
+        for (d, draft) in self.drafts.iter().enumerate() {
+            let rows = self.rows[d].get_or_insert_with(|| match inserted {
+                // Indexed as it was before the insertion (the insertion is undone next).
+                Some((k, at)) if k == d => {
+                    let mut before = draft.poly.clone();
+                    before.vertices.remove(at);
+                    EdgeRows::of(&before, Bands::Ignored)
+                }
+                _ => EdgeRows::of(&draft.poly, Bands::Ignored),
+            });
+            near.push(match inserted {
+                Some((k, at)) if k == d => rows.near_inserted(&draft.poly, at, window),
+                _ => rows.near(&draft.poly, window),
+            });
+        }
         let polys: Vec<&Polygon> = self.drafts.iter().map(|d| &d.poly).collect();
-        let got = render_window(&polys, origin, w, h);
+        let got = render_near(&polys, &near, origin, w, h);
         let mut k = 0;
         let mut wrong = 0;
         for y in origin.y..origin.y + h as i32 {

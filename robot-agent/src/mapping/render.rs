@@ -358,18 +358,40 @@ fn mark_into(out: &mut [Marks], window: &Canvas, a: &[Part<'_>], bands: Bands) {
 /// alone ([`paint_parts`]), and one whose cells miss the window not at all: a small window of a
 /// big approximation costs the edges near it, not every edge several times over.
 pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) -> Vec<Occ> {
-    let (Ok(w), Ok(h)) = (i32::try_from(width), i32::try_from(height)) else {
+    let Some(window) = window_of(origin, width, height) else {
         return Vec::new();
     };
-    let window = Rect {
+    let near: Vec<(Vec<u32>, Option<Rect>)> = polys.iter().map(|p| near(p, window)).collect();
+    render_near(polys, &near, origin, width, height)
+}
+
+/// The cells of a `width × height` window at `origin` (`None`: too big to address).
+pub(crate) fn window_of(origin: Cell, width: u32, height: u32) -> Option<Rect> {
+    let (Ok(w), Ok(h)) = (i32::try_from(width), i32::try_from(height)) else {
+        return None;
+    };
+    Some(Rect {
         min: origin,
         max: Cell::new(
             origin.x.saturating_add(w - 1),
             origin.y.saturating_add(h - 1),
         ),
+    })
+}
+
+/// [`render_window`] given each polygon's [`near`] edges and bounds for the window (as
+/// [`EdgeRows`] finds them).
+pub(crate) fn render_near(
+    polys: &[&Polygon],
+    near: &[(Vec<u32>, Option<Rect>)],
+    origin: Cell,
+    width: u32,
+    height: u32,
+) -> Vec<Occ> {
+    let Some(window) = window_of(origin, width, height) else {
+        return Vec::new();
     };
-    let near: Vec<(Vec<u32>, Option<Rect>)> = polys.iter().map(|p| near(p, window)).collect();
-    let parts: Vec<Part<'_>> = (polys.iter().zip(&near))
+    let parts: Vec<Part<'_>> = (polys.iter().zip(near))
         .filter(|(_, (_, bounds))| bounds.is_some_and(|b| b.intersects(window)))
         .map(|(&poly, (edges, bounds))| Part {
             poly,
@@ -383,36 +405,173 @@ pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) 
         .collect()
 }
 
-/// The edges of `p` that reach the rows of `window` — their scan-line crossings and their
-/// cells lie within their ends' rows, and one more on either side is kept — and `p`'s
+/// The rows edge `i` of `p` (from vertex i to the next, the last to the first) reaches when
+/// painted: its scan-line crossings and its cells lie within its ends' rows, one more on either
+/// side is kept, and with [`Bands::Kept`] the rows of its band ([`band_cells`]) too.
+fn edge_rows(p: &Polygon, i: usize, bands: Bands) -> (i32, i32) {
+    let n = p.vertices.len();
+    let (v, b) = (&p.vertices[i], p.vertices[(i + 1) % n].p.cell());
+    let a = v.p.cell();
+    let grow = match bands {
+        Bands::Kept => 1 + band_cells(v.bound),
+        Bands::Ignored => 1,
+    };
+    (
+        a.y.min(b.y).saturating_sub(grow),
+        a.y.max(b.y).saturating_add(grow),
+    )
+}
+
+/// Cells within an error bound (half cells) of an edge, beyond the edge's own cells.
+pub(crate) fn band_cells(bound: u16) -> i32 {
+    i32::from(bound) / 2 + 1
+}
+
+/// Whether rows `lo..=hi` meet the rows of `window`.
+fn reaches((lo, hi): (i32, i32), window: Rect) -> bool {
+    lo <= window.max.y && window.min.y <= hi
+}
+
+/// The edges of `p` that reach the rows of `window` ([`edge_rows`]) and `p`'s
 /// [`Polygon::cell_bounds`], in one pass over its vertices.
 fn near(p: &Polygon, window: Rect) -> (Vec<u32>, Option<Rect>) {
-    let Some(v0) = p.vertices.first() else {
-        return (Vec::new(), None);
-    };
-    let mut edges = Vec::new();
-    let first = v0.p.cell();
-    let (mut min, mut max) = (first, first);
-    // Edge i runs from vertex i to vertex i + 1 (the last to the first).
-    let mut next = first;
-    for i in 0..p.vertices.len() {
-        let a = next;
-        next = p.vertices.get(i + 1).map_or(first, |v| v.p.cell());
-        (min.x, min.y, max.x, max.y) = (
-            min.x.min(a.x),
-            min.y.min(a.y),
-            max.x.max(a.x),
-            max.y.max(a.y),
-        );
-        let (lo, hi) = (
-            a.y.min(next.y).saturating_sub(1),
-            a.y.max(next.y).saturating_add(1),
-        );
-        if lo <= window.max.y && window.min.y <= hi {
-            edges.push(i as u32);
+    let edges = (0..p.vertices.len())
+        .filter(|&i| reaches(edge_rows(p, i, Bands::Ignored), window))
+        .map(|i| i as u32)
+        .collect();
+    (edges, vertex_cells(p).map(|r| r.grown(1)))
+}
+
+/// The rectangle of `p`'s vertices' cells.
+fn vertex_cells(p: &Polygon) -> Option<Rect> {
+    let first = p.vertices.first()?.p.cell();
+    let (min, max) = (p.vertices.iter()).fold((first, first), |(min, max), v| {
+        let c = v.p.cell();
+        (
+            Cell::new(min.x.min(c.x), min.y.min(c.y)),
+            Cell::new(max.x.max(c.x), max.y.max(c.y)),
+        )
+    });
+    Some(Rect { min, max })
+}
+
+/// Rows per band of [`EdgeRows`].
+const BAND: i32 = 16;
+
+/// A polygon's edges by the rows they reach when painted ([`edge_rows`]), in bands of [`BAND`]
+/// rows: the edges near a window are found from the window's bands rather than by a pass over
+/// every vertex. The painting kept from step to step paints windows of objects with thousands of
+/// edges ([`crate::mapping::painting`]), the refinement many small windows of its drafts, one
+/// edge split at a time ([`EdgeRows::near_inserted`]).
+#[derive(Clone, Debug)]
+pub(crate) struct EdgeRows {
+    bands: Bands,
+    /// The band of the first one (rows `first * BAND ..`).
+    first: i32,
+    /// Band `k`'s edges (ascending: those whose rows reach it) are
+    /// `edges[starts[k]..starts[k + 1]]`.
+    starts: Vec<usize>,
+    edges: Vec<u32>,
+    /// The rectangle of the vertices' cells.
+    cells: Option<Rect>,
+}
+
+impl EdgeRows {
+    /// `p`'s edges by the rows they reach, painted with or without bands.
+    pub(crate) fn of(p: &Polygon, bands: Bands) -> EdgeRows {
+        let span = |(lo, hi): (i32, i32)| (lo.div_euclid(BAND), hi.div_euclid(BAND));
+        let rows: Vec<(i32, i32)> = (0..p.vertices.len())
+            .map(|i| span(edge_rows(p, i, bands)))
+            .collect();
+        let first = rows.iter().map(|r| r.0).min().unwrap_or(0);
+        let last = rows.iter().map(|r| r.1).max().unwrap_or(first - 1);
+        // Counted per band, then placed: one buffer for all bands.
+        let mut starts = vec![0; (last - first + 2) as usize];
+        for &(lo, hi) in &rows {
+            for k in lo..=hi {
+                starts[(k - first) as usize + 1] += 1;
+            }
+        }
+        for k in 1..starts.len() {
+            starts[k] += starts[k - 1];
+        }
+        let mut next = starts.clone();
+        let mut edges = vec![0; starts[starts.len() - 1]];
+        for (i, &(lo, hi)) in rows.iter().enumerate() {
+            for k in lo..=hi {
+                let at = &mut next[(k - first) as usize];
+                edges[*at] = i as u32;
+                *at += 1;
+            }
+        }
+        EdgeRows {
+            bands,
+            first,
+            starts,
+            edges,
+            cells: vertex_cells(p),
         }
     }
-    (edges, Some(Rect { min, max }.grown(1)))
+
+    /// The edges of `p` (the polygon indexed) that reach the rows of `window`, ascending.
+    pub(crate) fn reaching(&self, p: &Polygon, window: Rect) -> Vec<u32> {
+        self.edges(p, window, None)
+    }
+
+    /// [`near`]`(p, window)`, `p` being the polygon indexed.
+    pub(crate) fn near(&self, p: &Polygon, window: Rect) -> (Vec<u32>, Option<Rect>) {
+        (self.reaching(p, window), self.cells.map(|r| r.grown(1)))
+    }
+
+    /// [`near`]`(q, window)`, `q` being the polygon indexed with a vertex inserted at position
+    /// `at` (1 ≤ `at` ≤ its length before): its edge `at - 1` became edges `at - 1` and `at`,
+    /// and the edges after it moved one place on.
+    pub(crate) fn near_inserted(
+        &self,
+        q: &Polygon,
+        at: usize,
+        window: Rect,
+    ) -> (Vec<u32>, Option<Rect>) {
+        let added = q.vertices.get(at).map(|v| Rect::cell(v.p.cell()));
+        let cells = Rect::union_of(self.cells, added);
+        (self.edges(q, window, Some(at)), cells.map(|r| r.grown(1)))
+    }
+
+    /// The edges of `q` reaching the rows of `window`: the indexed ones from the window's
+    /// bands, each taken in the first of them it reaches, renumbered after an insertion at
+    /// `at` (whose two new edges are tested apart).
+    fn edges(&self, q: &Polygon, window: Rect, at: Option<usize>) -> Vec<u32> {
+        let last = self.first + self.starts.len() as i32 - 2;
+        let (b1, b2) = (
+            window.min.y.div_euclid(BAND).max(self.first),
+            window.max.y.div_euclid(BAND).min(last),
+        );
+        let mut out = Vec::new();
+        for b in b1..=b2 {
+            let k = (b - self.first) as usize;
+            for &e in &self.edges[self.starts[k]..self.starts[k + 1]] {
+                let e = match at {
+                    Some(at) if e as usize + 1 == at => continue,
+                    Some(at) if e as usize >= at => e as usize + 1,
+                    _ => e as usize,
+                };
+                let rows = edge_rows(q, e, self.bands);
+                if reaches(rows, window) && rows.0.div_euclid(BAND).max(b1) == b {
+                    out.push(e as u32);
+                }
+            }
+        }
+        if let Some(at) = at {
+            let split = [at - 1, at].into_iter();
+            out.extend(
+                split
+                    .filter(|&e| reaches(edge_rows(q, e, self.bands), window))
+                    .map(|e| e as u32),
+            );
+        }
+        out.sort_unstable();
+        out
+    }
 }
 
 /// The grid an approximation stands for on its own (`width × height`, the owner's frame):
@@ -710,6 +869,33 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(512))]
+
+        /// The edges near a window found by rows are [`near`]'s — of a polygon as indexed and
+        /// of one with a vertex inserted since — and so are the bounds.
+        #[test]
+        fn edges_by_rows_are_the_edges_near_a_window(
+            polys in arb_polygons(),
+            (x, y, w, h) in (-30i32..160, -30i32..160, 1u32..40, 1u32..40),
+            (at, nx, ny) in (1usize..8, -100i32..620, -100i32..620),
+        ) {
+            let window = window_of(Cell::new(x, y), w, h).expect("a small window");
+            // Spread over several bands of rows: vertices 8 quarter cells (2 cells) apart.
+            let spread = |mut p: Polygon| {
+                p.vertices.iter_mut().for_each(|v| v.p = QPoint::new(8 * v.p.x, 8 * v.p.y));
+                p
+            };
+            for p in &polys.into_iter().map(spread).collect::<Vec<_>>() {
+                let rows = EdgeRows::of(p, Bands::Ignored);
+                prop_assert_eq!(rows.near(p, window), near(p, window));
+                if p.vertices.is_empty() {
+                    continue;
+                }
+                let at = at.min(p.vertices.len());
+                let mut q = p.clone();
+                q.vertices.insert(at, Vertex { p: QPoint::new(nx, ny), ..q.vertices[at - 1] });
+                prop_assert_eq!(rows.near_inserted(&q, at, window), near(&q, window));
+            }
+        }
 
         /// Painting from the union of each approximation's marks is painting step after step:
         /// arbitrary polygons of up to four approximations, any window, bands kept or not.

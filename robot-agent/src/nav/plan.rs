@@ -354,31 +354,128 @@ pub fn path_until(
     path
 }
 
-/// A* from `start` over `g` until every cell whose cost plus estimate is within `target`'s
-/// cost is settled; whether `target` was reached. The estimate is the octile distance (a lower
+/// [`path_until`] — the same cells, `None` alike — helped by a way to `target` that may still
+/// hold (`way`, e.g. the one found a step before from a cell this way passes through): when
+/// `start` lies on it and the rest of it is still a way over `g`, that rest's cost bounds the
+/// target's, and a Dijkstra from `start` that leaves out every cell whose cost plus estimate
+/// exceeds the bound, stopping once it settles the target, finds what the A* finds with a
+/// bucket queue instead of a heap. Every cell on a cheapest path has cost plus estimate below
+/// the target's cost, so none is left out and each is settled with its final cost before the
+/// target: [`traced`] follows the same predecessors. Without such a way, or when the target is
+/// not within the bound (the way is not the robot's any more), [`path_until`].
+pub fn path_along(
+    map: &mut CostMap,
+    g: &Grid,
+    start: Cell,
+    penalty: Option<&[f32]>,
+    target: Cell,
+    way: &[Cell],
+) -> Option<Vec<Cell>> {
+    let rest = way.iter().position(|&c| c == start).map(|i| &way[i..]);
+    let bound = rest
+        .filter(|rest| rest.len() > 1 && rest.last() == Some(&target))
+        .and_then(|rest| way_cost(g, penalty, rest));
+    bound
+        .and_then(|bound| bounded(map, g, start, penalty, target, bound))
+        .or_else(|| path_until(map, g, start, penalty, target))
+}
+
+/// The path [`path_until`] finds when the target's cost is within `bound`, by the bounded
+/// search of [`path_along`]; `None` when it is not (or the target is unreachable).
+fn bounded(
+    map: &mut CostMap,
+    g: &Grid,
+    start: Cell,
+    penalty: Option<&[f32]>,
+    target: Cell,
+    bound: f64,
+) -> Option<Vec<Cell>> {
+    let mut stop = Stop::Within {
+        target,
+        bound,
+        toward: None,
+    };
+    dijkstra(map, g, &[start], penalty, &mut stop);
+    let reached = map.index(target).is_some_and(|t| map.dist_at(t) <= bound);
+    let path = reached.then(|| traced(map, g, penalty, target)).flatten();
+    map.limit = f64::NEG_INFINITY;
+    path
+}
+
+/// The cost of going along `way` over `g` from its first cell, summed step by step as a search
+/// sums it; `None` when a step of it is not a move over `g` (into a free cell, a diagonal
+/// between two free cells).
+fn way_cost(g: &Grid, penalty: Option<&[f32]>, way: &[Cell]) -> Option<f64> {
+    let free = |c: Cell| g.contains(c) && g.get(c) == Occ::Free;
+    way.windows(2).try_fold(0.0, |cost, pair| {
+        let (a, b) = (pair[0], pair[1]);
+        let (dx, dy) = (b.x - a.x, b.y - a.y);
+        let diagonal = dx != 0 && dy != 0;
+        let legal = MOVES.contains(&(dx, dy))
+            && free(b)
+            && (!diagonal || (free(Cell::new(a.x + dx, a.y)) && free(Cell::new(a.x, a.y + dy))));
+        let length = if diagonal {
+            std::f64::consts::SQRT_2
+        } else {
+            1.0
+        };
+        let extra = penalty
+            .and_then(|p| p.get(g.index(b)?))
+            .map_or(0.0, |&p| f64::from(p));
+        legal.then_some(cost + length * (1.0 + extra))
+    })
+}
+
+/// The estimate of the cost left from a window cell to a target: the octile distance (a lower
 /// bound of a path's cost on the 8-connected grid with steps 1 and √2 when no step costs less
 /// than its length), shrunk by a millionth so that float rounding never makes it exceed the
-/// cost left; with a negative penalty somewhere, no estimate (a Dijkstra).
+/// cost left — and so that a cell on a cheapest path has cost plus estimate below the
+/// target's cost by a margin no rounding closes; with a negative penalty somewhere, none (0:
+/// A* is then a Dijkstra, and the bounded search bounds the cost alone).
+#[derive(Clone, Copy, Debug)]
+struct Octile {
+    w: usize,
+    tx: usize,
+    ty: usize,
+    guided: bool,
+}
+
+impl Octile {
+    /// Toward window index `t` of `map` (begun).
+    fn to(map: &CostMap, t: usize, penalty: Option<&[f32]>) -> Octile {
+        let w = map.width as usize;
+        let guided = penalty.is_none_or(|p| p.iter().all(|&v| v >= 0.0));
+        Octile {
+            w,
+            tx: t % w,
+            ty: t / w,
+            guided,
+        }
+    }
+
+    fn estimate(&self, i: usize) -> f64 {
+        let (dx, dy) = (
+            (i % self.w).abs_diff(self.tx) as f64,
+            (i / self.w).abs_diff(self.ty) as f64,
+        );
+        let octile = dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy);
+        if self.guided {
+            octile * (1.0 - 1e-6)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// A* from `start` over `g` until every cell whose cost plus estimate is within `target`'s
+/// cost is settled; whether `target` was reached. The estimate is [`Octile`]'s.
 fn astar(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>, target: Cell) -> bool {
     map.begin(g, &[start]);
     let (Some(s), Some(t)) = (map.index(start), map.index(target)) else {
         return false;
     };
-    let guided = penalty.is_none_or(|p| p.iter().all(|&v| v >= 0.0));
-    let (w, tx, ty) = (
-        map.width as usize,
-        t % map.width as usize,
-        t / map.width as usize,
-    );
-    let estimate = |i: usize| {
-        let (dx, dy) = ((i % w).abs_diff(tx) as f64, (i / w).abs_diff(ty) as f64);
-        let octile = dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy);
-        if guided {
-            octile * (1.0 - 1e-6)
-        } else {
-            0.0
-        }
-    };
+    let octile = Octile::to(map, t, penalty);
+    let estimate = |i: usize| octile.estimate(i);
     let mut heap = std::mem::take(&mut map.guided);
     heap.clear();
     map.reach(s, 0.0, NO_PRED);
@@ -483,12 +580,37 @@ enum Stop<'a> {
         key: Option<i64>,
         found: &'a mut Vec<usize>,
     },
+    /// Once `target` is settled, leaving out every cell whose cost plus estimate toward it
+    /// (`toward`, set when the search begins) exceeds `bound` ([`path_along`]).
+    Within {
+        target: Cell,
+        bound: f64,
+        toward: Option<(Octile, usize)>,
+    },
 }
 
 impl Stop<'_> {
-    /// Whether the search stops now that it settled a cell (`here`: its index in the grid) at
-    /// `cost`.
-    fn settled(&mut self, here: usize, cost: f64) -> bool {
+    /// The search began over `map`'s window.
+    fn begin(&mut self, map: &CostMap, penalty: Option<&[f32]>) {
+        if let Stop::Within { target, toward, .. } = self {
+            // A target off the window (never reached) leaves every cell out.
+            *toward = map.index(*target).map(|t| (Octile::to(map, t, penalty), t));
+        }
+    }
+
+    /// Whether the search takes in window index `i` reached at `cost`.
+    fn admits(&self, i: usize, cost: f64) -> bool {
+        match self {
+            Stop::Within { bound, toward, .. } => {
+                toward.is_some_and(|(o, _)| cost + o.estimate(i) <= *bound)
+            }
+            _ => true,
+        }
+    }
+
+    /// Whether the search stops now that it settled a cell (`window`: its index in the search's
+    /// window, `here`: in the grid) at `cost`.
+    fn settled(&mut self, window: usize, here: usize, cost: f64) -> bool {
         match self {
             Stop::Never => false,
             Stop::Frontiers { of, left } => {
@@ -497,6 +619,7 @@ impl Stop<'_> {
                 }
                 *left == 0
             }
+            Stop::Within { toward, .. } => toward.is_some_and(|(_, t)| t == window),
             Stop::Nearest { wanted, key, found } => {
                 if key.is_some_and(|first| tie_key(cost) > first) {
                     return true;
@@ -524,6 +647,7 @@ fn dijkstra(
     until: &mut Stop<'_>,
 ) {
     map.begin(g, sources);
+    until.begin(map, penalty);
     let mut queue = std::mem::take(&mut map.queue);
     queue.reset(penalty.is_none());
     for &c in sources {
@@ -540,7 +664,7 @@ fn dijkstra(
         if cost > map.dist_at(index) {
             continue;
         }
-        if until.settled(moves.in_grid(index), cost) {
+        if until.settled(index, moves.in_grid(index), cost) {
             // Every cell cheaper than this one is settled; one as cheap that is not yet has
             // its final cost already (it can only be lowered by a cheaper cell), so the limit
             // may include this cost.
@@ -549,7 +673,7 @@ fn dijkstra(
         }
         moves.each(index, |ni, step| {
             let next = cost + step;
-            if next < map.dist_at(ni) {
+            if next < map.dist_at(ni) && until.admits(ni, next) {
                 map.reach(ni, next, index as u32);
                 queue.push(Entry {
                     cost: next,
@@ -1344,6 +1468,24 @@ mod tests {
         })
     }
 
+    /// A grid (random, open or placed in a bigger one), two cells of it and an obstacle
+    /// penalty weight (0: none): what the tests of the way to a target search over.
+    fn arb_way_search() -> impl Strategy<Value = (Grid, Cell, Cell, f64)> {
+        let grid = prop_oneof![
+            arb_grid(),
+            arb_open_grid(),
+            crate::testutil::arb_placed_grid()
+        ];
+        let weight = prop_oneof![Just(0.0), Just(2.0), Just(0.37)];
+        (grid, (0i32..40, 0i32..40, 0i32..40, 0i32..40), weight).prop_map(
+            |(g, (ax, ay, bx, by), w)| {
+                let cell = |x: i32, y: i32| Cell::new(x % g.width() as i32, y % g.height() as i32);
+                let (a, b) = (cell(ax, ay), cell(bx, by));
+                (g, a, b, w)
+            },
+        )
+    }
+
     /// Grids up to 24 cells a side with few obstacles (one cell in `1/density`): many
     /// equal-cost paths between two cells.
     fn arb_open_grid() -> impl Strategy<Value = Grid> {
@@ -1590,17 +1732,59 @@ mod tests {
         /// cell) to any target, reachable or not.
         #[test]
         fn the_way_to_a_target_is_the_full_search_s_path(
-            g in prop_oneof![arb_grid(), arb_open_grid(), crate::testutil::arb_placed_grid()],
-            sx in 0i32..40, sy in 0i32..40, tx in 0i32..40, ty in 0i32..40,
-            weight in prop_oneof![Just(0.0), Just(2.0), Just(0.37)],
+            (g, start, target, weight) in arb_way_search(),
         ) {
-            let cell = |x: i32, y: i32| Cell::new(x % g.width() as i32, y % g.height() as i32);
-            let (start, target) = (cell(sx, sy), cell(tx, ty));
             let penalty = obstacle_penalty(&g, 1.0, weight);
             let penalty = (weight > 0.0).then_some(penalty.as_slice());
             let want = path_to(&costs_with(&g, start, penalty), target);
             let got = path_until(&mut CostMap::default(), &g, start, penalty, target);
             prop_assert_eq!(got, want);
+        }
+
+        /// The way to a kept target searched along the way of a step before is the full
+        /// search's path as well: from a cell of that way or anywhere else, after cells of the
+        /// grid changed (free ones blocked, blocked ones freed), with and without the penalty.
+        #[test]
+        fn the_way_along_the_last_one_is_the_full_search_s_path(
+            (g, earlier, target, weight) in arb_way_search(),
+            along in proptest::option::of(0usize..8), sx in 0i32..40, sy in 0i32..40,
+            flips in proptest::collection::vec((0i32..40, 0i32..40), 0..4),
+        ) {
+            let cell = |x: i32, y: i32| Cell::new(x % g.width() as i32, y % g.height() as i32);
+            let way = path_to(&costs(&g, earlier), target).unwrap_or_default();
+            let mut now = g.clone();
+            for &(x, y) in &flips {
+                let c = cell(x, y);
+                let flipped = if now.get(c) == Occ::Free { Occ::Occupied } else { Occ::Free };
+                now.set(c, flipped);
+            }
+            let start = match along {
+                Some(k) if !way.is_empty() => way[k.min(way.len() - 1)],
+                _ => cell(sx, sy),
+            };
+            let penalty = obstacle_penalty(&now, 1.0, weight);
+            let penalty = (weight > 0.0).then_some(penalty.as_slice());
+            let want = path_to(&costs_with(&now, start, penalty), target);
+            let got = path_along(&mut CostMap::default(), &now, start, penalty, target, &way);
+            prop_assert_eq!(got, want);
+        }
+
+        /// A way still there bounds the search: from a cell along it, over the grid it was
+        /// found in, the bounded search alone finds the full search's path (no A* after it).
+        #[test]
+        fn a_way_still_there_bounds_the_search(
+            (g, earlier, target, weight) in arb_way_search(), k in 0usize..8,
+        ) {
+            let penalty = obstacle_penalty(&g, 1.0, weight);
+            let penalty = (weight > 0.0).then_some(penalty.as_slice());
+            let way = path_to(&costs_with(&g, earlier, penalty), target);
+            prop_assume!(way.as_ref().is_some_and(|w| w.len() > 1));
+            let way = way.unwrap_or_default();
+            let rest = &way[k.min(way.len() - 2)..];
+            let bound = way_cost(&g, penalty, rest);
+            prop_assert!(bound.is_some());
+            let got = bounded(&mut CostMap::default(), &g, rest[0], penalty, target, bound.unwrap_or(0.0));
+            prop_assert_eq!(got, path_to(&costs_with(&g, rest[0], penalty), target));
         }
 
         /// The planner reaches exactly the cells of the one rule of reachability
