@@ -6,9 +6,9 @@
 //   BASE_URL carries the run's token as its path (http://ADDR/token/TOKEN): this client uses
 //   fetch, which refuses credentials in a URL, and cannot send headers of its own.
 // Prints one JSON line per phase: {"phase", "link", "before", "after", "removed_before",
-// "removed_after", "first", "last", "later"} — the steps netem reported just before and just
-// after the phase's toxic (or cut) went on and came off, and the link's GET /links rows in
-// between; tests/toxiproxy_client.rs checks links.csv in those windows, and the counters that
+// "removed_after", "start", "first", "last", "later", "again"} — the steps netem reported just before
+// and just after the phase's toxic (or cut) went on and came off, and the link's GET /links rows
+// around them; tests/toxiproxy_client.rs checks links.csv in those windows, and the counters that
 // links.csv leaves out (writes, connections, toxics) in the rows.
 // Exits non-zero on the first thing that is not as expected.
 "use strict";
@@ -61,8 +61,12 @@ async function row(link) {
 }
 
 // Runs `on` (puts a fault on), waits `hold` steps, runs `off`; prints the phase's steps and the
-// link's rows one step after `on` (first), just before `off` (last) and two steps after (later).
-async function phase(name, link, hold, on, off) {
+// link's rows just before `on` (start), one step after it (first), just before `off` (last) and
+// two steps after (later). A fault that ends connections (`reconnects`) also gets the row once
+// the robots connected again (again; at most 60 steps after `later`: a reconnection takes
+// wall time, which a loaded machine stretches over more steps).
+async function phase(name, link, hold, on, off, reconnects = false) {
+  const start = await row(link);
   const before = await step();
   const result = await on();
   const after = await step();
@@ -75,10 +79,19 @@ async function phase(name, link, hold, on, off) {
   const removedAfter = await step();
   await steps(2);
   const later = await row(link);
+  let again = null;
+  if (reconnects) {
+    const until = (await step()) + 60;
+    again = later;
+    while (again.established_total <= start.established_total && (await step()) < until) {
+      await new Promise((r) => setTimeout(r, 20));
+      again = await row(link);
+    }
+  }
   console.log(JSON.stringify({
     phase: name, link, before, after,
     removed_before: removedBefore, removed_after: removedAfter,
-    first, last, later,
+    start, first, last, later, again,
   }));
   await steps(2);
 }
@@ -183,13 +196,13 @@ async function main() {
       name: "rst", type: "reset_peer", stream: "downstream", toxicity: 1,
       attributes: { timeout: 500 },
     }),
-    async (t) => t.remove());
+    async (t) => t.remove(), true);
   await phase("limit_data", "r0-r1", 8,
     async () => p01.addToxic({
       name: "cap", type: "limit_data", stream: "downstream", toxicity: 1,
       attributes: { bytes: 3000 },
     }),
-    async (t) => t.remove());
+    async (t) => t.remove(), true);
 
   // reset: a cut and two toxics, all gone at once.
   await phase("reset", "r0-r2", 4,
