@@ -195,7 +195,7 @@ impl Painting {
             match reach(poly) {
                 Some(reach) => {
                     let rows = (poly.vertices.len() > INDEXED_EDGES)
-                        .then(|| EdgeRows::of(poly, self.bands));
+                        .then(|| EdgeRows::of(poly, self.bands, self.height));
                     let poly = poly.clone();
                     held.insert(id, Held { poly, reach, rows });
                 }
@@ -638,7 +638,7 @@ mod tests {
             let min = Cell::new(x % w as i32, y % h as i32);
             let win = Rect { min, max: Cell::new(min.x + ww, min.y + wh) }.within(w, h).expect("inside");
             let index: Vec<(&Polygon, EdgeRows)> = (a.objects.values())
-                .map(|p| (p, EdgeRows::of(p, Bands::Kept)))
+                .map(|p| (p, EdgeRows::of(p, Bands::Kept, h)))
                 .collect();
             let edges: Vec<Vec<u32>> = index.iter().map(|(p, e)| e.reaching(p, win)).collect();
             let parts: Vec<Part<'_>> = (index.iter().zip(&edges))

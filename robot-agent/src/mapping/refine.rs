@@ -345,15 +345,16 @@ impl Refiner<'_> {
             return 0;
         };
         let mut near = Vec::with_capacity(self.drafts.len());
+        let height = reference.height();
         for (d, draft) in self.drafts.iter().enumerate() {
             let rows = self.rows[d].get_or_insert_with(|| match inserted {
                 // Indexed as it was before the insertion (the insertion is undone next).
                 Some((k, at)) if k == d => {
                     let mut before = draft.poly.clone();
                     before.vertices.remove(at);
-                    EdgeRows::of(&before, Bands::Ignored)
+                    EdgeRows::of(&before, Bands::Ignored, height)
                 }
-                _ => EdgeRows::of(&draft.poly, Bands::Ignored),
+                _ => EdgeRows::of(&draft.poly, Bands::Ignored, height),
             });
             near.push(match inserted {
                 Some((k, at)) if k == d => rows.near_inserted(&draft.poly, at, window),

@@ -477,17 +477,28 @@ pub(crate) struct EdgeRows {
 }
 
 impl EdgeRows {
-    /// `p`'s edges by the rows they reach, painted with or without bands.
-    pub(crate) fn of(p: &Polygon, bands: Bands) -> EdgeRows {
-        let span = |(lo, hi): (i32, i32)| (lo.div_euclid(BAND), hi.div_euclid(BAND));
-        let rows: Vec<(i32, i32)> = (0..p.vertices.len())
+    /// `p`'s edges by the rows they reach among rows `0..height` (the grid's: windows lie in
+    /// it, and a polygon received from a peer may reach anywhere), painted with or without
+    /// bands.
+    pub(crate) fn of(p: &Polygon, bands: Bands, height: u32) -> EdgeRows {
+        let last_row = i32::try_from(height).unwrap_or(i32::MAX) - 1;
+        let span = |(lo, hi): (i32, i32)| {
+            let (lo, hi) = (lo.max(0), hi.min(last_row));
+            (lo <= hi).then(|| (lo.div_euclid(BAND), hi.div_euclid(BAND)))
+        };
+        let rows: Vec<Option<(i32, i32)>> = (0..p.vertices.len())
             .map(|i| span(edge_rows(p, i, bands)))
             .collect();
-        let first = rows.iter().map(|r| r.0).min().unwrap_or(0);
-        let last = rows.iter().map(|r| r.1).max().unwrap_or(first - 1);
+        let first = rows.iter().flatten().map(|r| r.0).min().unwrap_or(0);
+        let last = rows
+            .iter()
+            .flatten()
+            .map(|r| r.1)
+            .max()
+            .unwrap_or(first - 1);
         // Counted per band, then placed: one buffer for all bands.
         let mut starts = vec![0; (last - first + 2) as usize];
-        for &(lo, hi) in &rows {
+        for &(lo, hi) in rows.iter().flatten() {
             for k in lo..=hi {
                 starts[(k - first) as usize + 1] += 1;
             }
@@ -497,7 +508,11 @@ impl EdgeRows {
         }
         let mut next = starts.clone();
         let mut edges = vec![0; starts[starts.len() - 1]];
-        for (i, &(lo, hi)) in rows.iter().enumerate() {
+        for (i, &(lo, hi)) in rows
+            .iter()
+            .enumerate()
+            .filter_map(|(i, r)| Some((i, r.as_ref()?)))
+        {
             for k in lo..=hi {
                 let at = &mut next[(k - first) as usize];
                 edges[*at] = i as u32;
@@ -513,7 +528,8 @@ impl EdgeRows {
         }
     }
 
-    /// The edges of `p` (the polygon indexed) that reach the rows of `window`, ascending.
+    /// The edges of `p` (the polygon indexed) that reach the rows of `window` (within the
+    /// indexed rows), ascending.
     pub(crate) fn reaching(&self, p: &Polygon, window: Rect) -> Vec<u32> {
         self.edges(p, window, None)
     }
@@ -867,6 +883,33 @@ mod tests {
         }
     }
 
+    /// A polygon received from a peer may reach anywhere: indexed over the grid's rows, its
+    /// index holds those rows' bands, not a band per 16 rows of its own span.
+    #[test]
+    fn edges_by_rows_stay_within_the_grid_s_rows() {
+        let vertex = |x: i32, y: i32| Vertex {
+            p: QPoint::new(x, y),
+            occ: Occ::Occupied,
+            bound: 0,
+        };
+        let p = Polygon {
+            kind: Kind::Inside,
+            vertices: vec![
+                vertex(0, -2_000_000_000),
+                vertex(40, 2_000_000_000),
+                vertex(80, 40),
+            ],
+        };
+        let rows = EdgeRows::of(&p, Bands::Kept, 100);
+        assert!(
+            rows.starts.len() <= 100 / BAND as usize + 2,
+            "{} bands",
+            rows.starts.len()
+        );
+        let window = window_of(Cell::new(0, 0), 30, 100).expect("a window");
+        assert_eq!(rows.reaching(&p, window), vec![0, 1, 2]);
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(512))]
 
@@ -875,7 +918,7 @@ mod tests {
         #[test]
         fn edges_by_rows_are_the_edges_near_a_window(
             polys in arb_polygons(),
-            (x, y, w, h) in (-30i32..160, -30i32..160, 1u32..40, 1u32..40),
+            (x, y, w, h) in (-30i32..160, 0i32..160, 1u32..40, 1u32..40),
             (at, nx, ny) in (1usize..8, -100i32..620, -100i32..620),
         ) {
             let window = window_of(Cell::new(x, y), w, h).expect("a small window");
@@ -885,7 +928,7 @@ mod tests {
                 p
             };
             for p in &polys.into_iter().map(spread).collect::<Vec<_>>() {
-                let rows = EdgeRows::of(p, Bands::Ignored);
+                let rows = EdgeRows::of(p, Bands::Ignored, 200);
                 prop_assert_eq!(rows.near(p, window), near(p, window));
                 if p.vertices.is_empty() {
                     continue;
