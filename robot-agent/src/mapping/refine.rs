@@ -32,7 +32,7 @@ use proto::grid::{Cell, Grid, Occ};
 use crate::mapping::approx::{ObjectId, Polygon, Vertex};
 use crate::mapping::contour::{Contour, Contours};
 use crate::mapping::qpoint::seg_dist2;
-use crate::mapping::render::{render_near, window_of, Bands, EdgeRows};
+use crate::mapping::render::{self, render_near, window_of, Bands, EdgeRows};
 
 /// How many of the most valuable edges are scored for each split (monotone mode).
 pub const LOOKAHEAD: usize = 8;
@@ -332,7 +332,8 @@ impl Refiner<'_> {
     }
 
     /// The cells of the window where the drafts' rendering and `reference` differ; `inserted`:
-    /// a draft holds a vertex inserted at a position since its rows were indexed.
+    /// a draft holds a vertex inserted at a position since its rows were indexed (a draft not
+    /// indexed yet is indexed only when none is).
     fn window_error(
         &mut self,
         reference: &Grid,
@@ -344,21 +345,19 @@ impl Refiner<'_> {
         let Some(window) = window_of(origin, w, h) else {
             return 0;
         };
-        let mut near = Vec::with_capacity(self.drafts.len());
         let height = reference.height();
+        let mut near = Vec::with_capacity(self.drafts.len());
         for (d, draft) in self.drafts.iter().enumerate() {
-            let rows = self.rows[d].get_or_insert_with(|| match inserted {
-                // Indexed as it was before the insertion (the insertion is undone next).
-                Some((k, at)) if k == d => {
-                    let mut before = draft.poly.clone();
-                    before.vertices.remove(at);
-                    EdgeRows::of(&before, Bands::Ignored, height)
+            if inserted.is_none() && self.rows[d].is_none() {
+                self.rows[d] = Some(EdgeRows::of(&draft.poly, Bands::Ignored, height));
+            }
+            near.push(match (&self.rows[d], inserted) {
+                (Some(rows), Some((k, at))) if k == d => {
+                    rows.near_inserted(&draft.poly, at, window)
                 }
-                _ => EdgeRows::of(&draft.poly, Bands::Ignored, height),
-            });
-            near.push(match inserted {
-                Some((k, at)) if k == d => rows.near_inserted(&draft.poly, at, window),
-                _ => rows.near(&draft.poly, window),
+                (Some(rows), _) => rows.near(&draft.poly, window),
+                // Not indexed (only while a candidate's vertex is in): every vertex.
+                (None, _) => render::near(&draft.poly, window),
             });
         }
         let polys: Vec<&Polygon> = self.drafts.iter().map(|d| &d.poly).collect();

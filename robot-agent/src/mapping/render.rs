@@ -433,26 +433,13 @@ fn reaches((lo, hi): (i32, i32), window: Rect) -> bool {
 }
 
 /// The edges of `p` that reach the rows of `window` ([`edge_rows`]) and `p`'s
-/// [`Polygon::cell_bounds`], in one pass over its vertices.
-fn near(p: &Polygon, window: Rect) -> (Vec<u32>, Option<Rect>) {
+/// [`Polygon::cell_bounds`]: a pass over its vertices ([`EdgeRows`] finds the same without).
+pub(crate) fn near(p: &Polygon, window: Rect) -> (Vec<u32>, Option<Rect>) {
     let edges = (0..p.vertices.len())
         .filter(|&i| reaches(edge_rows(p, i, Bands::Ignored), window))
         .map(|i| i as u32)
         .collect();
-    (edges, vertex_cells(p).map(|r| r.grown(1)))
-}
-
-/// The rectangle of `p`'s vertices' cells.
-fn vertex_cells(p: &Polygon) -> Option<Rect> {
-    let first = p.vertices.first()?.p.cell();
-    let (min, max) = (p.vertices.iter()).fold((first, first), |(min, max), v| {
-        let c = v.p.cell();
-        (
-            Cell::new(min.x.min(c.x), min.y.min(c.y)),
-            Cell::new(max.x.max(c.x), max.y.max(c.y)),
-        )
-    });
-    Some(Rect { min, max })
+    (edges, p.cell_bounds())
 }
 
 /// Rows per band of [`EdgeRows`].
@@ -472,8 +459,8 @@ pub(crate) struct EdgeRows {
     /// `edges[starts[k]..starts[k + 1]]`.
     starts: Vec<usize>,
     edges: Vec<u32>,
-    /// The rectangle of the vertices' cells.
-    cells: Option<Rect>,
+    /// The polygon's [`Polygon::cell_bounds`].
+    bounds: Option<Rect>,
 }
 
 impl EdgeRows {
@@ -524,7 +511,7 @@ impl EdgeRows {
             first,
             starts,
             edges,
-            cells: vertex_cells(p),
+            bounds: p.cell_bounds(),
         }
     }
 
@@ -536,7 +523,7 @@ impl EdgeRows {
 
     /// [`near`]`(p, window)`, `p` being the polygon indexed.
     pub(crate) fn near(&self, p: &Polygon, window: Rect) -> (Vec<u32>, Option<Rect>) {
-        (self.reaching(p, window), self.cells.map(|r| r.grown(1)))
+        (self.reaching(p, window), self.bounds)
     }
 
     /// [`near`]`(q, window)`, `q` being the polygon indexed with a vertex inserted at position
@@ -548,9 +535,9 @@ impl EdgeRows {
         at: usize,
         window: Rect,
     ) -> (Vec<u32>, Option<Rect>) {
-        let added = q.vertices.get(at).map(|v| Rect::cell(v.p.cell()));
-        let cells = Rect::union_of(self.cells, added);
-        (self.edges(q, window, Some(at)), cells.map(|r| r.grown(1)))
+        let added = q.vertices.get(at).map(|v| Rect::cell(v.p.cell()).grown(1));
+        let bounds = Rect::union_of(self.bounds, added);
+        (self.edges(q, window, Some(at)), bounds)
     }
 
     /// The edges of `q` reaching the rows of `window`: the indexed ones from the window's

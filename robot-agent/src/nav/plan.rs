@@ -224,7 +224,6 @@ impl PartialOrd for Guided {
 /// The moves allowed out of `c`: into free cells, 8-connected, diagonals only between two free
 /// orthogonal neighbours. Returns (neighbour, step cost). The rule, cell by cell: the search
 /// reads it from the grid's cells over its window, and its property tests hold it to this.
-#[cfg(test)]
 fn moves(g: &Grid, c: Cell) -> impl Iterator<Item = (Cell, f64)> + '_ {
     let free = move |x: i32, y: i32| g.get(Cell::new(x, y)) == Occ::Free;
     MOVES.iter().filter_map(move |&(dx, dy)| {
@@ -406,24 +405,16 @@ fn bounded(
 /// sums it; `None` when a step of it is not a move over `g` (into a free cell, a diagonal
 /// between two free cells).
 fn way_cost(g: &Grid, penalty: Option<&[f32]>, way: &[Cell]) -> Option<f64> {
-    let free = |c: Cell| g.contains(c) && g.get(c) == Occ::Free;
     way.windows(2).try_fold(0.0, |cost, pair| {
-        let (a, b) = (pair[0], pair[1]);
-        let (dx, dy) = (b.x - a.x, b.y - a.y);
-        let diagonal = dx != 0 && dy != 0;
-        let legal = MOVES.contains(&(dx, dy))
-            && free(b)
-            && (!diagonal || (free(Cell::new(a.x + dx, a.y)) && free(Cell::new(a.x, a.y + dy))));
-        let length = if diagonal {
-            std::f64::consts::SQRT_2
-        } else {
-            1.0
-        };
-        let extra = penalty
-            .and_then(|p| p.get(g.index(b)?))
-            .map_or(0.0, |&p| f64::from(p));
-        legal.then_some(cost + length * (1.0 + extra))
+        let (_, length) = moves(g, pair[0]).find(|&(n, _)| n == pair[1])?;
+        Some(cost + length * factor(penalty, g.index(pair[1])?))
     })
+}
+
+/// What a step into grid index `i` costs per cell of length: 1 plus the cell's penalty.
+fn factor(penalty: Option<&[f32]>, i: usize) -> f64 {
+    let extra = (penalty.and_then(|p| p.get(i))).map_or(0.0, |&p| f64::from(p));
+    1.0 + extra
 }
 
 /// The estimate of the cost left from a window cell to a target: the octile distance (a lower
@@ -818,10 +809,9 @@ impl<'a> Moves<'a> {
         }
     }
 
-    /// What a step into grid index `i` costs per cell of length.
+    /// What a step into grid index `i` costs per cell of length ([`factor`]).
     fn factor(&self, i: usize) -> f64 {
-        let extra = (self.penalty.and_then(|p| p.get(i))).map_or(0.0, |&p| f64::from(p));
-        1.0 + extra
+        factor(self.penalty, i)
     }
 }
 
