@@ -78,6 +78,7 @@ enum Command {
 /// One line a subcommand: the library does the work, [`entry`] and [`outcome`] turn its result
 /// into the exit code (an error printed once, as `swarm <sub>: …`).
 fn main() -> ExitCode {
+    proto::node::lean_zenoh_threads();
     use swarm::{cmd, process::remote, run, sweep, view};
     match Cli::parse().command {
         Command::Run(args) => entry("swarm", run::launch::command(args)),

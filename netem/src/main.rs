@@ -3,5 +3,6 @@
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
+    proto::node::lean_zenoh_threads();
     netem::cli::main(netem::cli::Args::parse())
 }
