@@ -341,6 +341,8 @@ fn a_run_over_four_namespaces_one_over_ssh_crosses_netem_and_equals_the_same_run
         let over_ssh = ["robot-2", "robot-5"].contains(&r.process.as_str());
         assert_eq!(r.exit, "exit code 0", "{r:?}");
         assert_eq!(r.peak_rss_kb == 0, over_ssh, "{r:?}");
+        assert_eq!(r.peak_threads == 0, over_ssh, "{r:?}");
+        assert_eq!(r.peak_fds == 0, over_ssh, "{r:?}");
     }
     let leftover: Vec<_> = std::fs::read_dir(&remote)
         .map(|d| d.flatten().map(|e| e.path()).collect())

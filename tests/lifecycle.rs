@@ -107,6 +107,21 @@ fn a_normal_run_leaves_no_process_behind() {
     let out = l.wait_output(Duration::from_secs(300));
     assert!(out.status.code().is_some(), "launcher exited normally");
     wait_gone(&kids);
+    // processes.csv holds each process's peaks as sampled from /proc while it ran.
+    let rows: Vec<swarm::process::children::ProcessRow> =
+        swarm::rundir::tables::read_rows(&dir.path().join("run/processes.csv"))
+            .expect("processes.csv");
+    assert_eq!(
+        rows.len(),
+        4,
+        "world-server, netem and two robots: {rows:?}"
+    );
+    for r in &rows {
+        assert!(r.peak_rss_kb > 0, "{r:?}");
+        // A zenoh process runs its own threads beside the main one; stdin, stdout, stderr.
+        assert!(r.peak_threads > 1, "{r:?}");
+        assert!(r.peak_fds >= 3, "{r:?}");
+    }
 }
 
 /// Killing the world-server ends the run with `world-server-exited` (netem and the robots exit

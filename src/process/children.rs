@@ -23,6 +23,9 @@ pub struct Proc {
     pub exited: Option<ExitStatus>,
     /// The largest resident set seen while it ran (sampled, [`Children::sample_memory`]), kB.
     pub peak_rss_kb: u64,
+    /// The most threads and open descriptors seen while it ran (sampled likewise).
+    pub peak_threads: u32,
+    pub peak_fds: u32,
     /// For a process on another host (`swarm on-host` through ssh): its leash, the pipe to
     /// its stdin that signals go down ([`leash_word`]). `pid` is then the local
     /// ssh client's, and the process's memory is not sampled.
@@ -42,6 +45,13 @@ pub struct ProcessRow {
     /// Its largest resident set seen (sampled every 200 ms while the run went on), kB; 0 for
     /// a process on an ssh host (not sampled; `pid` is then the local ssh client's).
     pub peak_rss_kb: u64,
+    /// The most threads it had at once (sampled as `peak_rss_kb`); 0 when not sampled.
+    #[serde(default)]
+    pub peak_threads: u32,
+    /// The most file descriptors it held open at once (sampled as `peak_rss_kb`, every
+    /// [`FDS_EVERY_SAMPLES`]th sample); 0 when not sampled.
+    #[serde(default)]
+    pub peak_fds: u32,
 }
 
 /// A row of `memory.csv`: a process's resident set when the run reached a step (every
@@ -57,6 +67,10 @@ pub struct MemoryRow {
 /// How often (in steps) `memory.csv` gets a row per running process.
 pub const MEMORY_EVERY_STEPS: u32 = 100;
 
+/// Descriptors are counted at every this many samples (once a second): counting lists a
+/// directory entry per descriptor, thousands for netem in a big run.
+pub const FDS_EVERY_SAMPLES: u32 = 5;
+
 /// How long a process on another host may take to end after its leash said `kill`, before
 /// its ssh client is killed instead (which ends it too, as its stdin closes).
 const LEASH_WAIT: Duration = Duration::from_secs(10);
@@ -68,6 +82,8 @@ pub struct Children {
     memory: Vec<MemoryRow>,
     /// The last step a row of `memory` was taken at.
     memory_step: Option<u32>,
+    /// Samples taken ([`Children::sample_memory`]).
+    samples: u32,
 }
 
 /// What a child runs between fork and exec: asks the kernel to SIGKILL it when the spawning
@@ -157,6 +173,8 @@ impl Children {
             child,
             exited: None,
             peak_rss_kb: 0,
+            peak_threads: 0,
+            peak_fds: 0,
             leash,
         });
         Ok(pid)
@@ -224,20 +242,31 @@ impl Children {
         true
     }
 
-    /// Samples the resident set of every running child (`VmRSS` in `/proc/<pid>/status`),
-    /// keeping each one's peak; the run being at `step`, every [`MEMORY_EVERY_STEPS`] steps
+    /// Samples the resident set and threads of every running child (`VmRSS`, `Threads` in
+    /// `/proc/<pid>/status`) and, every [`FDS_EVERY_SAMPLES`]th time, its open descriptors,
+    /// keeping each one's peaks; the run being at `step`, every [`MEMORY_EVERY_STEPS`] steps
     /// also a row of `memory.csv` per process.
     pub fn sample_memory(&mut self, step: Option<u32>) {
         let row_due = step.filter(|&s| {
             self.memory_step
                 .is_none_or(|m| s / MEMORY_EVERY_STEPS > m / MEMORY_EVERY_STEPS)
         });
+        let fds_due = self.samples.is_multiple_of(FDS_EVERY_SAMPLES);
+        self.samples = self.samples.wrapping_add(1);
         for p in self.procs.iter_mut() {
             if p.exited.is_some() || p.leash.is_some() {
                 continue;
             }
-            if let Some(kb) = rss_kb(p.pid) {
+            if fds_due {
+                p.peak_fds = p.peak_fds.max(fds(p.pid).unwrap_or(0));
+            }
+            if let Some(Sample {
+                rss_kb: kb,
+                threads,
+            }) = sample(p.pid)
+            {
                 p.peak_rss_kb = p.peak_rss_kb.max(kb);
+                p.peak_threads = p.peak_threads.max(threads);
                 if let Some(step) = row_due {
                     self.memory.push(MemoryRow {
                         step,
@@ -268,6 +297,8 @@ impl Children {
                 pid: p.pid,
                 exit: p.exited.map_or_else(|| "running".into(), describe),
                 peak_rss_kb: p.peak_rss_kb,
+                peak_threads: p.peak_threads,
+                peak_fds: p.peak_fds,
             })
             .collect()
     }
@@ -300,14 +331,31 @@ impl Children {
     }
 }
 
-/// The resident set of process `pid` in kB, from `/proc/<pid>/status`.
-pub fn rss_kb(pid: u32) -> Option<u64> {
+/// What `/proc/<pid>/status` says of a process: its resident set (kB) and threads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sample {
+    pub rss_kb: u64,
+    pub threads: u32,
+}
+
+/// The resident set and threads of process `pid`, from `/proc/<pid>/status`.
+pub fn sample(pid: u32) -> Option<Sample> {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.split_whitespace().next())
-        .and_then(|n| n.parse().ok())
+    let field = |name: &str| {
+        (status.lines())
+            .find_map(|l| l.strip_prefix(name))
+            .and_then(|v| v.split_whitespace().next())
+    };
+    Some(Sample {
+        rss_kb: field("VmRSS:")?.parse().ok()?,
+        threads: field("Threads:")?.parse().ok()?,
+    })
+}
+
+/// How many file descriptors process `pid` holds open (the entries of `/proc/<pid>/fd`).
+pub fn fds(pid: u32) -> Option<u32> {
+    let entries = std::fs::read_dir(format!("/proc/{pid}/fd")).ok()?;
+    u32::try_from(entries.count()).ok()
 }
 
 /// A human description of an exit status ("exit code 1", "signal 9 (SIGKILL)").
@@ -333,3 +381,23 @@ pub const LEASH: [(&str, libc::c_int); 4] = [
     ("term", libc::SIGTERM),
     ("kill", libc::SIGKILL),
 ];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_process_s_memory_threads_and_descriptors_are_read_from_proc() {
+        let me = std::process::id();
+        let s = sample(me).expect("this process's status");
+        assert!(s.rss_kb > 0, "{s:?}");
+        assert!(s.threads >= 1, "{s:?}");
+        assert!(
+            fds(me).is_some_and(|n| n >= 3),
+            "stdin, stdout, stderr at least"
+        );
+        // No such process: nothing, not a zero.
+        assert_eq!(sample(u32::MAX), None);
+        assert_eq!(fds(u32::MAX), None);
+    }
+}
