@@ -242,11 +242,9 @@ pub fn entry_logged<E: std::fmt::Display>(
     }
 }
 
-/// zenoh's own thread pools for every process of a run, unless the user set `ZENOH_RUNTIME`:
-/// one thread reads every link (zenoh's default is two) and also accepts links and runs zenoh's
-/// network tasks, which otherwise have a thread each. A run puts tens to hundreds of processes
-/// on a few cores, so a process wakes fewer threads per frame and holds fewer (docs/design.md
-/// §1.1, docs/results.md T6). zenoh reads the variable once, when it first starts a pool.
+/// Sets zenoh's thread pools for this process to [`LEAN_ZENOH_RUNTIME`] unless the user set
+/// `ZENOH_RUNTIME` (why: docs/design.md §1.1). zenoh reads the variable once, when it first
+/// starts a pool.
 ///
 /// Call first thing in `main`, before any thread is started (the environment is the process's).
 pub fn lean_zenoh_threads() {
@@ -258,9 +256,8 @@ pub fn lean_zenoh_threads() {
 /// The variable zenoh reads its thread pools from.
 const ZENOH_RUNTIME: &str = "ZENOH_RUNTIME";
 
-/// See [`lean_zenoh_threads`] (RON, zenoh's format). The transmit pool is not handed over: with
-/// it, the reading pool and the rest handed to the application's, a run stalled before its
-/// first step.
+/// One thread reads the links and also takes the acceptor's and the network tasks' work (RON,
+/// zenoh's format); the transmit pool stays its own (docs/design.md §1.1).
 const LEAN_ZENOH_RUNTIME: &str =
     "(rx: (worker_threads: 1), acc: (handover: rx), net: (handover: rx))";
 
