@@ -51,20 +51,24 @@ const MAX_COORD_CELLS: f64 = 1e9;
 /// `from`. Non-finite coordinates, or coordinates beyond ±10⁹ cells, give an empty line. Work and
 /// output are proportional to the number of cells touched; callers bound their segments.
 pub fn supercover(from: (f64, f64), to: (f64, f64)) -> Vec<Cell> {
-    walk(from, to).into_iter().map(|(c, _)| c).collect()
+    let mut out = Vec::new();
+    walk(from, to, &mut out);
+    out.into_iter().map(|(c, _)| c).collect()
 }
 
 /// [`supercover`] with the parameter `t ∈ [0, 1]` at which the segment enters each cell (0 for the
 /// first cell; the two side cells and the diagonal cell of a corner crossing share one `t`).
-fn walk(from: (f64, f64), to: (f64, f64)) -> Vec<(Cell, f64)> {
+/// Written into `out` (cleared first): a scan walks hundreds of beams into one buffer.
+fn walk(from: (f64, f64), to: (f64, f64), out: &mut Vec<(Cell, f64)>) {
+    out.clear();
     let usable = |v: f64| v.is_finite() && v.abs() <= MAX_COORD_CELLS;
     if ![from.0, from.1, to.0, to.1].into_iter().all(usable) {
-        return Vec::new();
+        return;
     }
     // The segment walk counts the remaining crossings per axis (rather than comparing against
     // `t = 1`), so it ends exactly in the cell of `to` whatever the rounding of the `t` values.
     let line = Traversal::segment(from, to, Corners::Supercover { eps: CORNER_EPS });
-    let mut out = vec![(line.cell(), 0.0)];
+    out.push((line.cell(), 0.0));
     for Crossing { t, cell, corner } in line {
         // The parameter of this crossing, clamped against rounding past the segment's ends.
         let t = t.clamp(0.0, 1.0);
@@ -72,7 +76,6 @@ fn walk(from: (f64, f64), to: (f64, f64)) -> Vec<(Cell, f64)> {
         out.extend(corner.into_iter().flatten().map(|side| (side, t)));
         out.push((cell, t));
     }
-    out
 }
 
 /// Integrates one laser scan taken at `pose` into `g`; returns how many cells changed.
@@ -100,15 +103,16 @@ pub fn integrate_scan(
     ranges: &[f32],
     spec: &LaserSpec,
 ) -> usize {
-    let beams = trace_scan(g, info, pose, ranges, spec);
+    let mut beams = Beams::default();
+    trace_scan(g, info, pose, ranges, spec, &mut beams);
     let mut changed = 0;
-    for c in beams.iter().filter_map(|b| b.hit) {
+    for c in beams.each().filter_map(|(_, hit)| hit) {
         if g.contains(c) && g.get(c) != Occ::Occupied {
             g.set(c, Occ::Occupied);
             changed += 1;
         }
     }
-    for c in beams.iter().flat_map(|b| &b.free) {
+    for c in &beams.free {
         if g.contains(*c) && g.get(*c) == Occ::Unknown {
             g.set(*c, Occ::Free);
             changed += 1;
@@ -117,29 +121,32 @@ pub fn integrate_scan(
     changed
 }
 
-/// Every beam of a scan, traced in cell units (empty for an unusable pose or frame).
-fn trace_scan(g: &Grid, info: &MapInfo, pose: Pose, ranges: &[f32], spec: &LaserSpec) -> Vec<Beam> {
+/// Every beam of a scan, traced in cell units into `beams` (none for an unusable pose or frame).
+fn trace_scan(
+    g: &Grid,
+    info: &MapInfo,
+    pose: Pose,
+    ranges: &[f32],
+    spec: &LaserSpec,
+    beams: &mut Beams,
+) {
+    beams.free.clear();
+    beams.ends.clear();
     let res = info.resolution_m;
     let max_range_m = spec.max_range_m;
     let sane = res.is_finite() && res > 0.0 && max_range_m.is_finite() && max_range_m > 0.0;
     if !sane || ![pose.x, pose.y, pose.theta].iter().all(|v| v.is_finite()) {
-        return Vec::new();
+        return;
     }
     let robot = info.in_cells(pose.xy());
-    ranges
-        .iter()
-        .zip(0..spec.beams)
-        .filter_map(|(&r, i)| {
-            trace(
-                g,
-                robot,
-                pose.theta + spec.beam_angle(i),
-                r,
-                res,
-                max_range_m,
-            )
-        })
-        .collect()
+    for (&r, i) in ranges.iter().zip(0..spec.beams) {
+        let angle = pose.theta + spec.beam_angle(i);
+        let walked = &mut beams.walk;
+        if let Some((free, hit)) = trace(g, robot, angle, r, res, max_range_m, walked) {
+            (beams.free).extend(walked[..free].iter().map(|&(c, _)| c));
+            beams.ends.push((beams.free.len(), hit));
+        }
+    }
 }
 
 /// Per-cell evidence: how many beams stopped in a cell and how many crossed it.
@@ -154,6 +161,8 @@ fn trace_scan(g: &Grid, info: &MapInfo, pose: Pose, ranges: &[f32], spec: &Laser
 pub struct Evidence {
     hits: Vec<u16>,
     passes: Vec<u16>,
+    /// The buffers a scan is traced into, kept from scan to scan.
+    beams: Beams,
 }
 
 impl Evidence {
@@ -162,6 +171,7 @@ impl Evidence {
         Evidence {
             hits: vec![0; g.len()],
             passes: vec![0; g.len()],
+            beams: Beams::default(),
         }
     }
 
@@ -186,18 +196,20 @@ impl Evidence {
         if g.len() != self.hits.len() {
             return Vec::new();
         }
-        let beams = trace_scan(g, info, pose, ranges, spec);
+        let mut beams = std::mem::take(&mut self.beams);
+        trace_scan(g, info, pose, ranges, spec, &mut beams);
         let mut touched = Vec::new();
-        for b in &beams {
-            if let Some(i) = b.hit.and_then(|c| g.index(c)) {
+        for (free, hit) in beams.each() {
+            if let Some(i) = hit.and_then(|c| g.index(c)) {
                 self.hits[i] = self.hits[i].saturating_add(1);
                 touched.push(i);
             }
-            for i in b.free.iter().filter_map(|&c| g.index(c)) {
+            for i in free.iter().filter_map(|&c| g.index(c)) {
                 self.passes[i] = self.passes[i].saturating_add(1);
                 touched.push(i);
             }
         }
+        self.beams = beams;
         let mut changed = Vec::new();
         let w = g.width() as usize;
         for i in touched {
@@ -211,24 +223,35 @@ impl Evidence {
     }
 }
 
-/// What one beam says: the cells it crossed and the cell it stopped in. Either may lie outside
-/// the grid.
-struct Beam {
+/// What the beams of a scan say, beam by beam: the cells each crossed and the cell it stopped
+/// in (either may lie outside the grid). In flat buffers kept from scan to scan: a scan is
+/// hundreds of beams of tens of cells each, and two vectors per beam were a good part of a
+/// robot's allocations.
+#[derive(Clone, Debug, Default)]
+struct Beams {
+    /// Every beam's free cells, one beam after another.
     free: Vec<Cell>,
-    hit: Option<Cell>,
+    /// Per beam, where its free cells end in `free`, and the cell it stopped in.
+    ends: Vec<(usize, Option<Cell>)>,
+    /// One beam's walk ([`trace`]'s).
+    walk: Vec<(Cell, f64)>,
 }
 
-impl Beam {
-    /// A beam that saw only free cells.
-    fn free(cells: impl IntoIterator<Item = Cell>) -> Beam {
-        Beam {
-            free: cells.into_iter().collect(),
-            hit: None,
-        }
+impl Beams {
+    /// Each beam's free cells and the cell it stopped in, in the scan's order.
+    fn each(&self) -> impl Iterator<Item = (&[Cell], Option<Cell>)> {
+        let mut start = 0;
+        self.ends.iter().map(move |&(end, hit)| {
+            let free = &self.free[start..end];
+            start = end;
+            (free, hit)
+        })
     }
 }
 
-/// Traces one beam from `robot` (cell units) at `angle`; `None` for a range without information.
+/// Traces one beam from `robot` (cell units) at `angle` into `cells` (the walk along it, with
+/// [`walk`]'s parameters): how many of them the beam crossed free (they lead the walk) and the
+/// cell it stopped in; `None` for a range without information.
 fn trace(
     g: &Grid,
     robot: (f64, f64),
@@ -236,7 +259,8 @@ fn trace(
     range_m: f32,
     res: f64,
     max_range_m: f64,
-) -> Option<Beam> {
+    cells: &mut Vec<(Cell, f64)>,
+) -> Option<(usize, Option<Cell>)> {
     if range_m.is_nan() || range_m < 0.0 {
         return None;
     }
@@ -257,7 +281,8 @@ fn trace(
     let lo = (-1.0, -1.0);
     let hi = (f64::from(g.width()) + 1.0, f64::from(g.height()) + 1.0);
     let Some((t0, t1)) = clip(robot, end, lo, hi) else {
-        return Some(Beam::free([]));
+        cells.clear();
+        return Some((0, None));
     };
     let at = |t: f64| {
         (
@@ -265,9 +290,9 @@ fn trace(
             robot.1 + t * len_cells * dir.1,
         )
     };
-    let cells = walk(at(t0), at(t1));
+    walk(at(t0), at(t1), cells);
     if no_return {
-        return Some(Beam::free(cells.into_iter().map(|(c, _)| c)));
+        return Some((cells.len(), None));
     }
     // Distance (cells) from the robot at which the beam enters each cell of the clipped walk. The
     // robot's own cell is not entered at all; when the robot stands outside the grown grid the
@@ -279,7 +304,7 @@ fn trace(
         .get(first_crossing)
         .map_or(f64::INFINITY, |&(_, t)| entered(t));
     if robot_inside && range_cells + OWN_CELL_MARGIN_CELLS < own_cell_ends {
-        return Some(Beam::free(cells.first().map(|&(c, _)| c)));
+        return Some((cells.len().min(1), None));
     }
     // The nearest crossing; `<=` lets the farther of equally near crossings win.
     let mut best: Option<(usize, f64)> = None;
@@ -291,11 +316,7 @@ fn trace(
         }
     }
     let hit = best.map(|(k, _)| k);
-    let free_len = hit.unwrap_or(cells.len());
-    Some(Beam {
-        free: cells[..free_len].iter().map(|&(c, _)| c).collect(),
-        hit: hit.map(|k| cells[k].0),
-    })
+    Some((hit.unwrap_or(cells.len()), hit.map(|k| cells[k].0)))
 }
 
 /// A box world for the tests of the modules that integrate scans: a `w × h` grid whose ring of
@@ -649,7 +670,9 @@ mod tests {
             let wall = box_exit(p, angle, w, h);
             let len = wall + 1.0;
             let end = (p.0 + len * angle.cos(), p.1 + len * angle.sin());
-            for (c, t) in walk(p, end) {
+            let mut cells = Vec::new();
+            walk(p, end, &mut cells);
+            for (c, t) in cells {
                 if !is_wall(c, w, h) && (t * len - wall).abs() < 1e-4 * wall.max(1.0) {
                     out.insert(c);
                 }
