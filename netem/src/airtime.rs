@@ -2,21 +2,21 @@
 //!
 //! The channel carries `capacity` bytes a step. A sender's bytes occupy it for every node within
 //! its interference range, itself included: the nodes `u` with `hears[w]` containing `u`, or
-//! `w == u`, form w's closed neighbourhood N[w], and the channel as node w hears it is busy for
-//! the airtime of every sender in N[w]. The one constraint of the model is that no node's channel
+//! `w == u`, form w's closed neighbourhood N\[w\], and the channel as node w hears it is busy for
+//! the airtime of every sender in N\[w\]. The one constraint of the model is that no node's channel
 //! is busy beyond its capacity:
 //!
-//!   for every node w:  Σ_{u ∈ N[w]} (x_u + pre_u) ≤ capacity
+//!   for every node w:  Σ_{u ∈ N\[w\]} (x_u + pre_u) ≤ capacity
 //!
 //! with x_u the airtime sender u is given and pre_u what it already has in the air (a frame it
 //! sends again, bytes it ran over its last share). Senders that no node hears together share
 //! nothing (spatial reuse); n senders that all hear each other share one capacity. Among the
-//! allocations that meet the constraint, [`allocate`] gives the max-min fair one (progressive
-//! filling, Bertsekas & Gallager's water-filling over the neighbourhoods): every sender's share
-//! grows at the same pace until its demand is met or a neighbourhood it is in is full. It fills
-//! twice: first up to each sender's demand, then what is left of the channel to every sender
-//! that has a link (the demand is an estimate from the step before; a sender that suddenly has
-//! more to say finds room at once when the channel has room).
+//! allocations that meet the constraint, [`allocate`](crate::airtime::allocate) gives the max-min
+//! fair one (progressive filling, Bertsekas & Gallager's water-filling over the neighbourhoods):
+//! every sender's share grows at the same pace until its demand is met or a neighbourhood it is in
+//! is full. It fills twice: first up to each sender's demand, then what is left of the channel to
+//! every sender that has a link (the demand is an estimate from the step before; a sender that
+//! suddenly has more to say finds room at once when the channel has room).
 //!
 //! This is a fluid model of a perfect MAC: it has no collisions, no back-off, and no hidden
 //! terminals: in a chain A – B – C where A and C do not hear each other, B hears both, so its

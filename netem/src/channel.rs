@@ -2,27 +2,30 @@
 //! airtime shares on a shared channel ([`crate::airtime`]) and its lost frames ([`crate::radio`]'s
 //! draws), which netem's step plan announces, and what the step that ends used of the channel.
 //!
-//! A step opens ([`Channel::open`]): the nodes that hear each other (`shared`: all of them;
-//! `airtime`: those within interference range) and each sender's claim — its demand, estimated
-//! from the step before ([`Channel::demand`]), and what it has in the air already (frames it
-//! sends again, what it ran over its share). [`crate::airtime::allocate`] gives each sender its
-//! airtime, [`crate::airtime::split`] divides it among its links, and each direction of a link
-//! gets a credit: its share plus [`MARK_RESERVE_BYTES`], the frame's header that the robot always
-//! sends (the step marker is the lockstep protocol's, not the radio's: a real radio would not
-//! send it, so it costs no airtime). Each direction also draws whether its frame of the step is
-//! lost: a lost frame is sent again — its receiver acts on it a step later (the plan's delay
-//! plus one) and it costs its airtime again in the next step, before anybody's share.
+//! A step opens ([`Channel::open`](crate::channel::Channel::open)): the nodes that hear each other
+//! (`shared`: all of them; `airtime`: those within interference range) and each sender's claim —
+//! its demand, estimated from the step before (`Channel::demand`), and what it has in the air
+//! already (frames it sends again, what it ran over its share). [`crate::airtime::allocate`] gives
+//! each sender its airtime, [`crate::airtime::split`] divides it among its links, and each
+//! direction of a link gets a credit: its share plus
+//! [`MARK_RESERVE_BYTES`](proto::msg::MARK_RESERVE_BYTES), the frame's header that the robot always
+//! sends (the step marker is the lockstep protocol's, not the radio's: a real radio would not send
+//! it, so it costs no airtime). Each direction also draws whether its frame of the step is lost: a
+//! lost frame is sent again — its receiver acts on it a step later (the plan's delay plus one) and
+//! it costs its airtime again in the next step, before anybody's share.
 //!
-//! A direction saves the share it leaves unused, up to [`SAVE_STEPS`] of its share or the largest
-//! message the exchange sends whole, whichever is more, and its credit is its share plus what it
-//! saved: a message larger than one step's share (a raw scan among 30 senders) goes out after
-//! quiet steps, as a link layer would send it in fragments over them, instead of never. What it
-//! spends of its savings runs over its share, and is paid back like any overrun.
+//! A direction saves the share it leaves unused, up to [`SAVE_STEPS`](proto::budget::SAVE_STEPS) of
+//! its share or the largest message the exchange sends whole, whichever is more, and its credit is
+//! its share plus what it saved: a message larger than one step's share (a raw scan among 30
+//! senders) goes out after quiet steps, as a link layer would send it in fragments over them,
+//! instead of never. What it spends of its savings runs over its share, and is paid back like any
+//! overrun.
 //!
-//! A step closes ([`Channel::close`]) with the bytes netem counted: a direction's airtime is its
-//! bytes less [`MARK_RESERVE_BYTES`]; what it ran over its share is taken off the channel in the
-//! next step. netem does not hold bytes back on a shared channel in lockstep (a held marker would
-//! stall the step); the robots keep to their credits, and a sender that runs over pays it back.
+//! A step closes ([`Channel::close`](crate::channel::Channel::close)) with the bytes netem counted:
+//! a direction's airtime is its bytes less [`MARK_RESERVE_BYTES`](proto::msg::MARK_RESERVE_BYTES);
+//! what it ran over its share is taken off the channel in the next step. netem does not hold bytes
+//! back on a shared channel in lockstep (a held marker would stall the step); the robots keep to
+//! their credits, and a sender that runs over pays it back.
 
 use std::collections::BTreeMap;
 

@@ -56,7 +56,7 @@ pub(crate) struct Shared {
     pub(crate) by_pair: HashMap<Pair, usize>,
     pub(crate) radio: Radio,
     /// How far apart two nodes may be for their pair to have a row in a step's report though
-    /// its link is down (`None`: any distance, the `always` model). See [`reported`].
+    /// its link is down (`None`: any distance, the `always` model). See `reported`.
     pub(crate) report_within_m: Option<f64>,
     /// `airtime`: the radio whose range is the interference range (`None`: the links' own).
     pub(crate) interference: Option<Radio>,
@@ -65,7 +65,7 @@ pub(crate) struct Shared {
     /// Each node's use of the channel in the last step closed.
     pub(crate) nodes_air: Mutex<Vec<proto::msg::NodeAir>>,
     pub(crate) step_seconds: f64,
-    /// See [`NetemConfig::markers`](crate::NetemConfig::markers).
+    /// See `NetemConfig::markers`.
     pub(crate) markers: bool,
     pub(crate) steps: Mutex<StepState>,
     pub(crate) toxic_ids: AtomicU64,

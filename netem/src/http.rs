@@ -1,6 +1,6 @@
-//! Runtime control over HTTP, in toxiproxy's model so that its clients and `curl` work (docs/design.md
-//! §5 "Faults … injected at runtime through a control endpoint"; "names and semantics follow
-//! toxiproxy").
+//! Runtime control over HTTP, in toxiproxy's model so that its clients and `curl` work
+//! (docs/design.md §5 "Faults … injected at runtime through a control endpoint"; "names and
+//! semantics follow toxiproxy").
 //!
 //! Every robot pair is a proxy named `r{a}-r{b}`; faults are toxics. Routes:
 //! `GET /proxies`, `GET /proxies/{name}`, `POST|PATCH /proxies/{name}` (`{"enabled": bool}`:
@@ -8,7 +8,7 @@
 //! `GET|POST|PATCH|DELETE /proxies/{name}/toxics/{toxic}`, `POST /reset`, `GET /version`, and
 //! ours: `GET /metrics` (Prometheus text) and `GET /links` (the telemetry rows as JSON, without
 //! resetting the per-step counters), and `POST /processes/{name}` (a process fault — kill,
-//! restart, freeze, thaw — handed on to the launcher; see [`process_fault`]). Proxies
+//! restart, freeze, thaw — handed on to the launcher; see `process_fault`). Proxies
 //! are fixed by the scenario: creating or deleting one (`POST /proxies`, `POST /populate`,
 //! `DELETE /proxies/{name}`) is `405`, and an update that would move one (another `listen` or
 //! `upstream`) or rename it is `409` — the body is well-formed and toxiproxy would honour it, but
@@ -16,7 +16,7 @@
 //! Like toxiproxy, requests from browsers (`User-Agent: Mozilla/…`) are refused, so that a web
 //! page cannot drive the API (the run's viewer forwards a click from its own server instead).
 //!
-//! When the run set a token, every request carries it in one of three ways ([`gate`]):
+//! When the run set a token, every request carries it in one of three ways (`gate`):
 //! `Authorization: Bearer <token>`; `Authorization: Basic` whose password (any user name) or whose
 //! user name (empty password) is the token — what Go's net/http, Python's requests and curl send
 //! for a base URL `http://:<token>@host:port`; or a base URL whose path starts `/token/<token>`
@@ -25,9 +25,12 @@
 //! compared in time independent of where they differ.
 //!
 //! HTTP itself is axum's (on hyper): the request head is bounded by hyper, a body by
-//! [`MAX_BODY_BYTES`] (`413` past it). What is ours is what a request means: the routes below,
-//! JSON bodies decoded totally into [`ProxyUpdate`], [`ToxicWire`] and a [`ProcessAction`]
-//! (fuzzed: [`decode_only`]), every error in toxiproxy's shape `{"error": "...", "status": N}`.
+//! [`MAX_BODY_BYTES`](crate::http::MAX_BODY_BYTES) (`413` past it). What is ours is what a request
+//! means: the routes below, JSON bodies decoded totally into
+//! [`ProxyUpdate`](crate::http::ProxyUpdate), [`ToxicWire`](crate::faults::ToxicWire) and a
+//! [`ProcessAction`](proto::process::ProcessAction) (fuzzed:
+//! [`decode_only`](crate::http::decode_only)), every error in toxiproxy's shape `{"error": "...",
+//! "status": N}`.
 
 use std::sync::Arc;
 use std::time::Duration;

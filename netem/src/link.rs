@@ -1,6 +1,6 @@
 //! One robot pair's link: its TCP proxy, its state (up or down, and why), its toxics and its
-//! counters (docs/design.md §1, §5: "one listener per unordered pair {i, j}; a connection is forwarded
-//! to robot max(i,j)'s radio listener").
+//! counters (docs/design.md §1, §5: "one listener per unordered pair {i, j}; a connection is
+//! forwarded to robot max(i,j)'s radio listener").
 //!
 //! The structure is tokio's `examples/proxy.rs` — an accept loop that spawns one task per
 //! connection — with each direction run through the shaping pipeline (`shaping/`) instead of
@@ -8,23 +8,24 @@
 //!
 //! **Link cut.** A link is up iff it is enabled (no cut, no partition), in radio range, and both
 //! robots are alive. When it goes down, every connection is reset (RST both ways: what netem holds
-//! and what the kernel has not sent yet is lost, as on a real radio). While it is down the
-//! listener stays bound and a new connection is *accepted and held*: nothing is forwarded or
-//! counted, what the robot sends is kept (its session's opening message, [`HELD_BYTES`] at
-//! most), and when the link comes up netem connects to the peer and passes it on — the robot's
+//! and what the kernel has not sent yet is lost, as on a real radio). While it is down the listener
+//! stays bound and a new connection is *accepted and held*: nothing is forwarded or counted, what
+//! the robot sends is kept (its session's opening message, [`HELD_BYTES`](crate::link::HELD_BYTES)
+//! at most), and when the link comes up netem connects to the peer and passes it on — the robot's
 //! session opens as if the radio had been silent until then. A held connection the robot closes
 //! (its handshake timed out) is dropped. A peer that does not listen yet (a robot being started
 //! again) is tried again with a backoff, the connection held meanwhile. (Refusing a connection
-//! instead, as netem once did, made every robot retry every link out of range every 20 ms —
-//! 8 000 pairs at 128 robots, 400 000 connections a second; closing the listener would risk
-//! losing the port to another process and turn a reconnect into a rebind.)
+//! instead, as netem once did, made every robot retry every link out of range every 20 ms — 8 000
+//! pairs at 128 robots, 400 000 connections a second; closing the listener would risk losing the
+//! port to another process and turn a reconnect into a rebind.)
 //!
-//! **A proxy while in range.** That is a link whose port was given (robots were told it at
-//! start and keep trying it). A link given only its host ([`Link::while_up`]) listens only
-//! while it is up: it binds a free port the moment it comes up — before the step's plan is
-//! made, which tells robot a where to connect ([`PlannedLink::proxy`]) — and closes it when it
-//! goes down, so netem holds descriptors for the pairs in range, not for every pair (`swarm
-//! run` makes every link so). It binds the port it had before when it can.
+//! **A proxy while in range.** That is a link whose port was given (robots were told it at start
+//! and keep trying it). A link given only its host
+//! ([`Link::while_up`](crate::link::Link::while_up)) listens only while it is up: it binds a free
+//! port the moment it comes up — before the step's plan is made, which tells robot a where to
+//! connect ([`PlannedLink::proxy`](proto::msg::PlannedLink::proxy)) — and closes it when it goes
+//! down, so netem holds descriptors for the pairs in range, not for every pair (`swarm run` makes
+//! every link so). It binds the port it had before when it can.
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -428,7 +429,8 @@ impl Link {
         *self.through.borrow() > 0
     }
 
-    /// Resets every connection and waits (up to `wait`) until their tasks have ended; aborts the rest.
+    /// Resets every connection and waits (up to `wait`) until their tasks have ended; aborts the
+    /// rest.
     pub async fn close_all(&self, wait: Duration) {
         self.reset_connections();
         let deadline = tokio::time::Instant::now() + wait;
@@ -892,9 +894,9 @@ fn on_direction_end(
 /// One direction of a connection: the pipeline from `reader` to `writer`, until it ends or a
 /// kill arrives (`None` then). On `Kill::Reset` the writer's socket is closed with RST.
 ///
-/// `[link, conn]` are the two kill signals: the link's (set synchronously when the link goes
-/// down; it also gates every write, see [`shaping::sink`]) and the connection's own (toxic
-/// timers, the other direction's end).
+/// `[link, conn]` are the two kill signals: the link's (set synchronously when the link goes down;
+/// it also gates every write, see [`shaping::sink`](crate::shaping::pipeline::sink)) and the
+/// connection's own (toxic timers, the other direction's end).
 async fn direction(
     reader: impl tokio::io::AsyncRead + Unpin,
     mut writer: OwnedWriteHalf,

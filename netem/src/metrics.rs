@@ -1,22 +1,24 @@
-//! The link counters for Prometheus (`GET /metrics`), so a Prometheus server, `promtool` or a
-//! plain `curl` can watch a run: bytes and chunks delivered per link and direction, bytes lost,
-//! bytes queued inside netem, whether each link is up, and — when the radio channel is shared or
-//! lossy — each node's airtime, share, lost frames and how busy the channel is where it is (docs/design.md §5 "Publishes per-step
-//! link telemetry"; the per-step view itself goes through `Netem::telemetry`).
+//! The link counters for Prometheus (`GET /metrics`), so a Prometheus server, `promtool` or a plain
+//! `curl` can watch a run: bytes and chunks delivered per link and direction, bytes lost, bytes
+//! queued inside netem, whether each link is up, and — when the radio channel is shared or lossy —
+//! each node's airtime, share, lost frames and how busy the channel is where it is (docs/design.md
+//! §5 "Publishes per-step link telemetry"; the per-step view itself goes through
+//! `Netem::telemetry`).
 //!
-//! Two expositions of the same families, chosen by the request's `Accept` ([`Format::negotiate`]):
-//! OpenMetrics text, the `prometheus-client` crate's (what a Prometheus scrape asks for first),
-//! and Prometheus's classic text format 0.0.4 (what a client asks for that does not list
-//! OpenMetrics, or prefers the classic one), written here. They differ in how a counter is
-//! declared: OpenMetrics names the family without `_total` and its samples with it; the classic
-//! format names family and samples alike, with `_total`, and knows no `# UNIT` or `# EOF`. A
-//! classic parser reading OpenMetrics sees every counter as a `# TYPE` without samples and its
-//! samples as untyped families — hence the negotiation.
+//! Two expositions of the same families, chosen by the request's `Accept`
+//! ([`Format::negotiate`](crate::metrics::Format::negotiate)): OpenMetrics text, the
+//! `prometheus-client` crate's (what a Prometheus scrape asks for first), and Prometheus's classic
+//! text format 0.0.4 (what a client asks for that does not list OpenMetrics, or prefers the classic
+//! one), written here. They differ in how a counter is declared: OpenMetrics names the family
+//! without `_total` and its samples with it; the classic format names family and samples alike,
+//! with `_total`, and knows no `# UNIT` or `# EOF`. A classic parser reading OpenMetrics sees every
+//! counter as a `# TYPE` without samples and its samples as untyped families — hence the
+//! negotiation.
 //!
-//! Names follow Prometheus's conventions: base units spelled out as suffixes (`_bytes`,
-//! `_seconds`, `_meters`), counters ending `_total`, HELP on every family. netem's counters live
-//! in its links and are read as snapshots, so each scrape is one list of [`Family`]s over the
-//! snapshots of that moment, written by [`render`] in either format. Label values are escaped
+//! Names follow Prometheus's conventions: base units spelled out as suffixes (`_bytes`, `_seconds`,
+//! `_meters`), counters ending `_total`, HELP on every family. netem's counters live in its links
+//! and are read as snapshots, so each scrape is one list of `Family`s over the snapshots of that
+//! moment, written by [`render`](crate::metrics::render) in either format. Label values are escaped
 //! here (the crate writes them as given).
 
 use prometheus_client::collector::Collector;

@@ -233,7 +233,7 @@ fn channel_config(cfg: &NetemConfig) -> ChannelConfig {
 }
 
 /// A pair whose link is down has a row in a step's report while its nodes are within this many
-/// radio ranges of each other ([`reported`]).
+/// radio ranges of each other (`reported`).
 pub const REPORT_RANGES: f64 = 2.0;
 
 /// Whether a pair has a row in the report of the step that ends (`links.csv`): its link was up

@@ -1,7 +1,8 @@
 //! netem on the sim plane: follows the world-server's per-step status (robot poses) to drive the
-//! simulated clock and every link's radio verdict, and publishes a [`LinkReport`] per step for
-//! the launcher's `links.csv`; hands the process faults its API is asked for on to the launcher.
-//! Thin adapter over [`crate::netem::Netem`]; no link logic here.
+//! simulated clock and every link's radio verdict, and publishes a
+//! [`LinkReport`](proto::msg::LinkReport) per step for the launcher's `links.csv`; hands the
+//! process faults its API is asked for on to the launcher. Thin adapter over
+//! [`crate::netem::Netem`]; no link logic here.
 
 use std::time::Duration;
 

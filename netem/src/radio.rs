@@ -13,14 +13,14 @@
 //!   default the threshold is derived from `radio.range_m` so that the free-space range equals
 //!   `range_m` and walls only shorten it.
 //!
-//! Links that degrade (docs/guide/radio.md): with `pathloss`, each pair's signal is off the
-//! model's by a fixed log-normal shadowing draw (σ = `radio.shadowing_db`, seeded by the scenario
-//! seed and the pair, the same both ways), which moves its range; in each step a frame is
-//! delivered with probability (1 − `radio.frame_loss`)·Φ(margin / σ_f), the margin being the
-//! shadowed signal above the threshold and σ_f `radio.fading_db` ([`delivery`]). A lost frame is
+//! Links that degrade (docs/guide/radio.md): with `pathloss`, each pair's signal is off the model's
+//! by a fixed log-normal shadowing draw (σ = `radio.shadowing_db`, seeded by the scenario seed and
+//! the pair, the same both ways), which moves its range; in each step a frame is delivered with
+//! probability (1 − `radio.frame_loss`)·Φ(margin / σ_f), the margin being the shadowed signal above
+//! the threshold and σ_f `radio.fading_db` ([`delivery`](crate::radio::delivery)). A lost frame is
 //! sent again (netem's `channel`); each direction draws its own loss, so the two ways of a link
-//! lose different frames. Every draw is a hash of the seed, the pair, the direction and the
-//! step: the same scenario loses the same frames.
+//! lose different frames. Every draw is a hash of the seed, the pair, the direction and the step:
+//! the same scenario loses the same frames.
 //!
 //! A wall is a maximal run of non-free cells along the segment, so a thick wall counts once. The
 //! segment is walked cell by cell with the workspace's grid traversal ([`proto::traverse`], the

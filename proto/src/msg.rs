@@ -341,7 +341,7 @@ impl Traffic {
 
 /// netem → robots, when a step opens: the links that are up for it (lockstep with markers). A
 /// robot talks to exactly the neighbours whose link is up and not held, and waits for each
-/// one's [`Mark`].
+/// one's `Mark`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LinkPlan {
     pub step: Step,

@@ -1,10 +1,10 @@
 //! The process side shared by every binary: the scenario flags ([`ScenarioArgs`]), the zenoh
-//! arguments ([`ZenohArgs`], after zenoh's own `CommonArgs`), the one place that turns them into a `zenoh::Config`, payload
-//! helpers and logging.
+//! arguments ([`ZenohArgs`], after zenoh's own `CommonArgs`), the one place that turns them into a
+//! `zenoh::Config`, payload helpers and logging.
 //!
-//! Two planes (docs/design.md §1): the **sim plane** is a hub — the world-server runs a zenoh router,
-//! everybody else joins it as a client. The **radio plane** is peer-to-peer with every form of
-//! scouting off: a robot listens on one endpoint and connects only to the endpoints the launcher
+//! Two planes (docs/design.md §1): the **sim plane** is a hub — the world-server runs a zenoh
+//! router, everybody else joins it as a client. The **radio plane** is peer-to-peer with every form
+//! of scouting off: a robot listens on one endpoint and connects only to the endpoints the launcher
 //! (later: netem) gives it, so that no byte between robots takes another path.
 
 use std::path::{Path, PathBuf};
@@ -58,7 +58,8 @@ pub struct ZenohArgs {
     /// A zenoh JSON5 configuration file applied before the flags.
     #[arg(long = "config", value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Extra zenoh configuration as KEY:VALUE with a JSON5 value, e.g. --cfg 'transport/link/tx/batch_size:1024'.
+    /// Extra zenoh configuration as KEY:VALUE with a JSON5 value, e.g. --cfg
+    /// 'transport/link/tx/batch_size:1024'.
     #[arg(long = "cfg", value_name = "KEY:VALUE")]
     pub cfg: Vec<String>,
     /// Clients: log in to the sim plane's router with the `user:password` line of FILE (swarm
@@ -242,7 +243,7 @@ pub fn entry_logged<E: std::fmt::Display>(
     }
 }
 
-/// Sets zenoh's thread pools for this process to [`LEAN_ZENOH_RUNTIME`] unless the user set
+/// Sets zenoh's thread pools for this process to `LEAN_ZENOH_RUNTIME` unless the user set
 /// `ZENOH_RUNTIME` (why: docs/design.md §1.1). zenoh reads the variable once, when it first
 /// starts a pool.
 ///

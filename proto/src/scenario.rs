@@ -1,9 +1,9 @@
 //! The scenario schema: one TOML file (plus `--set KEY=VALUE` overrides) fully determines a run
 //! together with its `seed` (docs/design.md §6). Every key is documented in `configs/default.toml`.
 //!
-//! Loading is two explicit steps (after ripgrep's config loading): the raw TOML table with overrides
-//! applied is first checked key by key against the schema (unknown keys and wrong types are
-//! named with their full dotted path), then deserialized and range-checked
+//! Loading is two explicit steps (after ripgrep's config loading): the raw TOML table with
+//! overrides applied is first checked key by key against the schema (unknown keys and wrong types
+//! are named with their full dotted path), then deserialized and range-checked
 //! ([`Scenario::validate`]). Every error is one line that names the key, the value and what is
 //! allowed.
 
@@ -820,7 +820,7 @@ const CLEARED_STRIP_M: f64 = 1.0;
 impl Scenario {
     /// The step limit of a scenario that leaves `max_steps` out, for a world of `reachable_cells`
     /// free cells reachable from the spawn area: twice the steps one robot needs to drive a
-    /// lawn-mower path over that area with strips [`CLEARED_STRIP_M`] wide (narrower when the
+    /// lawn-mower path over that area with strips `CLEARED_STRIP_M` wide (narrower when the
     /// sensor's range is shorter than half of it) at `robots.speed_m_per_s`. The team's size does
     /// not enter: a team is never slower than its one robot, so the limit is generous for
     /// teams; it is only a limit — a run ends as soon as it is explored. Clamped to

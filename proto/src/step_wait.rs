@@ -4,20 +4,23 @@
 //!
 //! * Never less than `clock.step_timeout_ms`, the floor (a small team on an idle machine).
 //! * Until a step has been seen whole, the start allowance: the floor once for every
-//!   [`NODES_PER_FLOOR`] nodes ([`start_ms`]). The first steps open every radio session at once,
-//!   and take the longer the more processes share the machine (128 robots on two cores: about
-//!   4 s for step 0).
-//! * Then [`FACTOR`] times the longest of the last [`WINDOW`] whole steps: the wait follows the
-//!   run as its steps grow slower (more robots, bigger maps, a loaded machine).
+//!   [`NODES_PER_FLOOR`](crate::step_wait::NODES_PER_FLOOR) nodes
+//!   ([`start_ms`](crate::step_wait::start_ms)). The first steps open every radio session at once,
+//!   and take the longer the more processes share the machine (128 robots on two cores: about 4 s
+//!   for step 0).
+//! * Then [`FACTOR`](crate::step_wait::FACTOR) times the longest of the last
+//!   [`WINDOW`](crate::step_wait::WINDOW) whole steps: the wait follows the run as its steps grow
+//!   slower (more robots, bigger maps, a loaded machine).
 //!
 //! A step is whole when nobody was waited out. A step cut short by a silent robot is not
 //! measured, so a hung robot does not lengthen the wait for the next. In a deterministic run no
 //! wait runs out, so the rule decides nothing there; it decides how soon a hung process is
 //! found: a robot silent for `clock.dead_after` steps in a row is declared dead after at most
-//! `dead_after` × [`StepWait::limit`] of wall time.
+//! `dead_after` × [`StepWait::limit`](crate::step_wait::StepWait::limit) of wall time.
 //!
-//! **Invariant:** the limit is never below the floor, and never below [`FACTOR`] times a whole
-//! step of the window (property test `the_limit_covers_the_floor_and_every_recent_step`).
+//! **Invariant:** the limit is never below the floor, and never below
+//! [`FACTOR`](crate::step_wait::FACTOR) times a whole step of the window (property test
+//! `the_limit_covers_the_floor_and_every_recent_step`).
 
 use std::collections::VecDeque;
 use std::time::Duration;

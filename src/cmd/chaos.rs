@@ -4,7 +4,7 @@
 //! The schedule is a function of (scenario, `--faults`, `--seed`, `--within`, `--only`): the
 //! faults become `[[faults]]` tables appended to the resolved scenario (written as
 //! `scenario.toml` beside `chaos.json`), and `swarm run` carries them out like any scheduled
-//! fault. The checker ([`check`]) asks of the finished run:
+//! fault. The checker (`check`) asks of the finished run:
 //!
 //! * `completes` — the exploration completed (else the reason it did not);
 //! * `logs` — no op a node other than its writer ever held is gone at the end: a log whose
@@ -57,7 +57,7 @@ pub struct ChaosArgs {
     /// The bound the `memory` check holds every process's peak resident set to, MB.
     #[arg(long, default_value_t = 1024, value_name = "MB")]
     pub max_rss_mb: u64,
-    /// Directory to write (default: runs/chaos-<time>-seed<S>); the run goes to its `run/`.
+    /// Directory to write (default: `runs/chaos-<time>-seed<S>`); the run goes to its `run/`.
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Override a scenario key, as for `swarm run` (repeatable).

@@ -79,7 +79,7 @@ pub enum NetemCommand {
     },
     /// Restore every link and remove every toxic (toxiproxy's POST /reset).
     Reset(ApiArgs),
-    /// Kill a process of the run (SIGKILL) at its next step: robot-<id>, base-station, netem or
+    /// Kill a process of the run (SIGKILL) at its next step: `robot-<id>`, base-station, netem or
     /// world-server (which ends the run). Recorded in summary.json's process_events (cause api).
     Kill {
         #[command(flatten)]

@@ -43,7 +43,7 @@ pub struct ReplayArgs {
     /// Steps at which to write PNGs of G_s, P_t and A_t, comma-separated (the last step always).
     #[arg(long, value_delimiter = ',', value_name = "STEPS")]
     pub png_at: Vec<u32>,
-    /// Output directory (default: runs/replay-<map>).
+    /// Output directory (default: `runs/replay-<map>`).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
 }

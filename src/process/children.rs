@@ -2,9 +2,9 @@
 //! for unexpected exits, and always reaped.
 //!
 //! **Invariant:** no child outlives the launcher. Three layers make that hold: an orderly
-//! [`Children::shutdown`] (grace period, then SIGKILL, then wait), `kill_on_drop` for every
-//! early return, and `PR_SET_PDEATHSIG = SIGKILL` set in each child, so that even a launcher
-//! killed with SIGKILL takes its children with it.
+//! [`Children::shutdown`](crate::process::children::Children::shutdown) (grace period, then
+//! SIGKILL, then wait), `kill_on_drop` for every early return, and `PR_SET_PDEATHSIG = SIGKILL` set
+//! in each child, so that even a launcher killed with SIGKILL takes its children with it.
 
 use std::io::Write;
 use std::path::Path;
@@ -116,7 +116,7 @@ fn die_with_parent(cmd: &mut Command) {
     }
 }
 
-/// [`die_with_parent`] for a `std` command (the sweep's runs).
+/// `die_with_parent` for a `std` command (the sweep's runs).
 #[allow(unsafe_code)]
 pub fn die_with_parent_std(cmd: &mut std::process::Command) {
     use std::os::unix::process::CommandExt;

@@ -1,22 +1,22 @@
 //! Free ports for the processes of a run (on loopback, or on a host's address), so that several
 //! runs (and tests) can go on side by side.
 //!
-//! Ports are chosen *below* the kernel's ephemeral range (`ip_local_port_range`): the kernel
-//! hands ephemeral ports to every outgoing connection (every zenoh client, for one), so a port
-//! taken from that range with bind-to-0 and released can be grabbed by an unrelated connection
-//! before the child process binds it. Below the range only explicit binds compete; each port is
-//! checked by binding it (and let go at once: a run of 128 robots needs over 8 000 ports, more than a
-//! process may usually hold open), the search walks the range from a random offset, so the
-//! ports are distinct and concurrent launchers rarely meet. The check binds without
-//! `SO_REUSEADDR`, so a port that any socket still holds — a connection netem accepted on it
-//! after closing its listener, or one in TIME_WAIT — counts as taken.
+//! Ports are chosen *below* the kernel's ephemeral range (`ip_local_port_range`): the kernel hands
+//! ephemeral ports to every outgoing connection (every zenoh client, for one), so a port taken from
+//! that range with bind-to-0 and released can be grabbed by an unrelated connection before the
+//! child process binds it. Below the range only explicit binds compete; each port is checked by
+//! binding it (and let go at once: a run of 128 robots needs over 8 000 ports, more than a process
+//! may usually hold open), the search walks the range from a random offset, so the ports are
+//! distinct and concurrent launchers rarely meet. The check binds without `SO_REUSEADDR`, so a port
+//! that any socket still holds — a connection netem accepted on it after closing its listener, or
+//! one in TIME_WAIT — counts as taken.
 //!
-//! A port checked and let go is free until a child binds it, and another launcher searching at
-//! the same moment could pick it too. So ports come in blocks of [`BLOCK`], and a process takes
-//! ports only from blocks it holds: a lock (`flock`) on the block's file in
-//! `$TMPDIR/swarm-ports/`, kept until the process exits — the kernel lets go of the lock of a
-//! process that died, so a crashed launcher leaves no block taken. Launchers on one machine
-//! never hand out the same port; a 128-robot run holds some 130 blocks.
+//! A port checked and let go is free until a child binds it, and another launcher searching at the
+//! same moment could pick it too. So ports come in blocks of
+//! [`BLOCK`](crate::process::ports::BLOCK), and a process takes ports only from blocks it holds: a
+//! lock (`flock`) on the block's file in `$TMPDIR/swarm-ports/`, kept until the process exits — the
+//! kernel lets go of the lock of a process that died, so a crashed launcher leaves no block taken.
+//! Launchers on one machine never hand out the same port; a 128-robot run holds some 130 blocks.
 
 use std::collections::BTreeMap;
 use std::fs::File;

@@ -12,10 +12,11 @@
 //!
 //! A restarted process gets the flags, ports and log of its first life; a robot (or the base
 //! station) also its life number, so that it writes a new log and takes its earlier lives' logs
-//! back from its peers (`proto::msg::log_owner`). Everything done is an [`Event`] in
-//! `summary.json`'s `process_events`.
+//! back from its peers (`proto::msg::log_owner`). Everything done is an
+//! [`Event`](crate::process::supervise::Event) in `summary.json`'s `process_events`.
 //!
-//! This module decides; `run::follow` carries the [`Action`]s out on the children.
+//! This module decides; `run::follow` carries the [`Action`](crate::process::supervise::Action)s
+//! out on the children.
 //!
 //! **Invariant:** a process killed on purpose is never taken for a crash, and a process is
 //! never restarted more often than its policy says, nor beyond [`proto::msg::MAX_LIVES`].

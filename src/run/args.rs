@@ -7,9 +7,10 @@ use crate::rundir::summary::Summary;
 /// Flags of `swarm run`.
 #[derive(clap::Args, Debug, Clone, PartialEq)]
 pub struct RunArgs {
-    /// Scenario TOML file; without one, the embedded default (configs/default.toml: intel_lab, 4 robots).
+    /// Scenario TOML file; without one, the embedded default (configs/default.toml: intel_lab, 4
+    /// robots).
     pub scenario: Option<PathBuf>,
-    /// Run directory to write (default: runs/<time>-<map>-<N>r).
+    /// Run directory to write (default: `runs/<time>-<map>-<N>r`).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Override a scenario key, e.g. --set robots.count=8 --set world.map=office (repeatable).

@@ -1,9 +1,9 @@
 //! `swarm run`: one exploration run, every participant its own OS process.
 //!
-//! [`prepare`]: resolve the scenario, create the run directory, pick the ports →
-//! [`spawn`]: start the world-server (sim-plane router), join the sim plane, fetch the truth,
-//! start netem and the robots → [`follow`]: status and telemetry (evaluate, show progress,
-//! watch children) until done, the step limit, a failure or a signal → [`finish`]: stop
+//! `prepare`: resolve the scenario, create the run directory, pick the ports →
+//! `spawn`: start the world-server (sim-plane router), join the sim plane, fetch the truth,
+//! start netem and the robots → `follow`: status and telemetry (evaluate, show progress,
+//! watch children) until done, the step limit, a failure or a signal → `finish`: stop
 //! everyone, reap every child, write the run directory.
 
 /// The flags of `swarm run` and how a run ended.

@@ -1,13 +1,14 @@
 //! Telemetry taken a whole step at a time, in robot order (lockstep runs).
 //!
-//! Robots report each step on the sim plane, and their reports reach the launcher in whatever
-//! order the processes and zenoh's queues happened to deliver them — a robot's report of step t
-//! can even come after the world's status of t+2. What the launcher records and when it decides
-//! that a run is over must not depend on that: it takes step t only once every robot alive at t
-//! has reported it, and then the reports in robot id order. A robot is not awaited once a later
-//! status shows it dead or says the world went on without its command for t (a timeout, which
-//! makes the run nondeterministic anyway), nor once the world is [`GIVE_UP_STEPS`] steps further
-//! (a report that comes after that is late, and said so).
+//! Robots report each step on the sim plane, and their reports reach the launcher in whatever order
+//! the processes and zenoh's queues happened to deliver them — a robot's report of step t can even
+//! come after the world's status of t+2. What the launcher records and when it decides that a run
+//! is over must not depend on that: it takes step t only once every robot alive at t has reported
+//! it, and then the reports in robot id order. A robot is not awaited once a later status shows it
+//! dead or says the world went on without its command for t (a timeout, which makes the run
+//! nondeterministic anyway), nor once the world is
+//! [`GIVE_UP_STEPS`](crate::run::steps::GIVE_UP_STEPS) steps further (a report that comes after
+//! that is late, and said so).
 
 use std::collections::{BTreeMap, BTreeSet};
 

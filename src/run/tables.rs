@@ -1,9 +1,11 @@
-//! The run's per-step tables written while it goes ([`StepTables`]): a step is written once it
-//! is *closed* — its telemetry taken and netem's report of it in (netem reports a step when the
-//! next one opens) — with the columns that need the step's links filled in (steps since contact
-//! with the base station, the communication level). Its rows then leave the launcher's memory:
-//! what the summary needs of them is kept as tallies ([`LinkTally`], [`RowTally`]). A launcher
-//! killed mid-run leaves every step it closed on disk.
+//! The run's per-step tables written while it goes
+//! ([`StepTables`](crate::rundir::tables::StepTables)): a step is written once it is *closed* — its
+//! telemetry taken and netem's report of it in (netem reports a step when the next one opens) —
+//! with the columns that need the step's links filled in (steps since contact with the base
+//! station, the communication level). Its rows then leave the launcher's memory: what the summary
+//! needs of them is kept as tallies ([`LinkTally`](crate::rundir::tables::LinkTally),
+//! [`RowTally`](crate::run::tables::RowTally)). A launcher killed mid-run leaves every step it
+//! closed on disk.
 
 use std::collections::BTreeMap;
 use std::path::Path;

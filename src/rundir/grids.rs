@@ -5,7 +5,7 @@
 //! (the largest y; proto's grid row 0 is the bottom). The YAML names the PGM by its file name
 //! (relative to the YAML, so the pair can be moved together), the run's map frame (`resolution`,
 //! `origin` = the lower-left corner of cell (0, 0), yaw 0) and the thresholds that give the
-//! three greys back exactly (see [`OCCUPIED_THRESH`]).
+//! three greys back exactly (see [`OCCUPIED_THRESH`](crate::rundir::grids::OCCUPIED_THRESH)).
 
 use std::path::Path;
 

@@ -1,6 +1,6 @@
 //! The run directory: a stable, documented schema users script against (docs/run-directory.md).
 //! Names of files and fields do not change without a version bump
-//! ([`summary::SCHEMA_VERSION`]).
+//! ([`summary::SCHEMA_VERSION`](crate::rundir::summary::SCHEMA_VERSION)).
 
 /// The grids (`grids/`) as ROS map_server maps: PGM and YAML.
 pub mod grids;

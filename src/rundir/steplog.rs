@@ -1,19 +1,23 @@
 //! The run's step log, `steps.log` in the run directory: what a viewer needs to show a run again
-//! step by step — where every robot stood and where it was going, every link's state and bytes,
-//! and how every robot's planning grid changed. Changes, not whole grids: a robot's grid is
-//! written whole at its first report, after a restart and every [`KEYFRAME_STEPS`] steps (so a
-//! replay can seek), otherwise as runs of the cells that changed since its last report.
+//! step by step — where every robot stood and where it was going, every link's state and bytes, and
+//! how every robot's planning grid changed. Changes, not whole grids: a robot's grid is written
+//! whole at its first report, after a restart and every
+//! [`KEYFRAME_STEPS`](crate::rundir::steplog::KEYFRAME_STEPS) steps (so a replay can seek),
+//! otherwise as runs of the cells that changed since its last report.
 //!
-//! The launcher writes it as it takes the run's reports ([`StepLogWriter`]); `swarm view` and
-//! `swarm export-mcap` read it ([`read`]). The file is a sequence of records, each a
-//! little-endian `u32` length and the record in postcard; the first is a [`Header`]. Reading is
-//! total: a file that is not a step log gives an error naming the file and where it stops — never
-//! a panic. A log cut short mid-record (a launcher that died) reads to its last whole record and
-//! says where it was cut ([`StepLog::cut`]); a log still being written (the
-//! launcher flushes it at every step) the same way: [`read`] is both.
+//! The launcher writes it as it takes the run's reports
+//! ([`StepLogWriter`](crate::rundir::steplog::StepLogWriter)); `swarm view` and `swarm export-mcap`
+//! read it ([`read`](crate::rundir::steplog::read)). The file is a sequence of records, each a
+//! little-endian `u32` length and the record in postcard; the first is a
+//! [`Header`](crate::rundir::steplog::Header). Reading is total: a file that is not a step log
+//! gives an error naming the file and where it stops — never a panic. A log cut short mid-record (a
+//! launcher that died) reads to its last whole record and says where it was cut
+//! ([`StepLog::cut`](crate::rundir::steplog::StepLog::cut)); a log still being written (the
+//! launcher flushes it at every step) the same way: [`read`](crate::rundir::steplog::read) is both.
 //!
-//! **Invariant:** replaying a robot's grid changes from its last whole grid gives exactly the
-//! grid it reported at that step (property-tested: [`diff`] then [`apply`]).
+//! **Invariant:** replaying a robot's grid changes from its last whole grid gives exactly the grid
+//! it reported at that step (property-tested: [`diff`](crate::rundir::steplog::diff) then
+//! [`apply`](crate::rundir::steplog::apply)).
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -108,7 +112,8 @@ pub struct Pose {
 /// What robot `robot` reported of step `step` — the launcher's one record of a robot's step: built
 /// from its telemetry ([`StepLogWriter::robot_step`]), written to `steps.log` (beside its grid's
 /// change), read by the MCAP export, and served to the page as it is ([`crate::view::timeline`]).
-/// Numbers are `f32`: the log keeps a run of 128 robots small, and a millimetre is finer than a cell.
+/// Numbers are `f32`: the log keeps a run of 128 robots small, and a millimetre is finer than a
+/// cell.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RobotStep {
     pub step: Step,

@@ -1,5 +1,6 @@
-//! `summary.json`: what a run ended with, typed ([`Summary`]); written by the launcher and read
-//! back through the same type by every reader (chaos checker, sweep results, tests).
+//! `summary.json`: what a run ended with, typed ([`Summary`](crate::rundir::summary::Summary));
+//! written by the launcher and read back through the same type by every reader (chaos checker,
+//! sweep results, tests).
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -4,20 +4,23 @@
 //! Environments* (TAROS 2010, Fig. 5; the fourth, the share known at the base station, is the
 //! base station's own coverage, which the evaluator already gives).
 //!
-//! * **Team coverage** (Fig. 5a): the share of the truth's reachable free cells that at least
-//!   one robot knows, |K_1 ∪ … ∪ K_N| — from the same per-cell holder counts, a counter of the
-//!   cells with a holder ([`SharedKnowledge::known_by_anyone`]).
-//! * **Shared knowledge** (Fig. 5c): for robot r with known space K_r, the share of K_r that
-//!   every robot of the team knows, |K_1 ∩ … ∩ K_N| / |K_r| × 100 (100 when K_r is empty). K_q
-//!   is what the evaluator counts as coverage: the truth's reachable free cells that robot q's
-//!   planning grid has free or occupied ([`knows`]). [`SharedKnowledge`] keeps, per cell,
-//!   how many robots know it, so that a robot's changed cells are told one by one and
-//!   the intersection's size is a counter — never a comparison of every pair of robots.
-//! * **Contact with the base station** (Fig. 5d): steps since a robot last had contact with
-//!   the base station, directly or carried by robots in between ([`Contact`]). Contact
-//!   is transitive within a step (a chain of up links is a multi-hop route) and carried over
-//!   time by mobile relays: a relay that touched the base at step 100 and meets the explorer at
-//!   step 150 brings the explorer the base's state of step 100.
+//! * **Team coverage** (Fig. 5a): the share of the truth's reachable free cells that at least one
+//!   robot knows, |K_1 ∪ … ∪ K_N| — from the same per-cell holder counts, a counter of the cells
+//!   with a holder
+//!   ([`SharedKnowledge::known_by_anyone`](crate::score::awareness::SharedKnowledge::known_by_anyone)).
+//! * **Shared knowledge** (Fig. 5c): for robot r with known space K_r, the share of K_r that every
+//!   robot of the team knows, |K_1 ∩ … ∩ K_N| / |K_r| × 100 (100 when K_r is empty). K_q is what
+//!   the evaluator counts as coverage: the truth's reachable free cells that robot q's planning
+//!   grid has free or occupied ([`knows`](crate::score::awareness::knows)).
+//!   [`SharedKnowledge`](crate::score::awareness::SharedKnowledge) keeps, per cell, how many robots
+//!   know it, so that a robot's changed cells are told one by one and the intersection's size is a
+//!   counter — never a comparison of every pair of robots.
+//! * **Contact with the base station** (Fig. 5d): steps since a robot last had contact with the
+//!   base station, directly or carried by robots in between
+//!   ([`Contact`](crate::score::awareness::Contact)). Contact is transitive within a step (a chain
+//!   of up links is a multi-hop route) and carried over time by mobile relays: a relay that touched
+//!   the base at step 100 and meets the explorer at step 150 brings the explorer the base's state
+//!   of step 100.
 
 use std::collections::BTreeMap;
 

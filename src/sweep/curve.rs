@@ -2,11 +2,12 @@
 //! averaged over the seeds of a grid point — de Hoog, Cameron and Visser (TAROS 2010) Fig. 5a–b:
 //! what the team, or the base station, knows over time.
 //!
-//! A run's table is read once, row by row, into one value per step ([`Rows`] says which rows of
-//! the step make it), so a sweep's tables are never all in memory. The seeds of a point are then
-//! averaged step by step ([`mean_over_runs`]) up to the last step of the point's longest run; a
-//! run that ended sooner keeps its last value — it is finished, and what it had at its end it
-//! has at every later step.
+//! A run's table is read once, row by row, into one value per step
+//! ([`Rows`](crate::sweep::curve::Rows) says which rows of the step make it), so a sweep's tables
+//! are never all in memory. The seeds of a point are then averaged step by step
+//! ([`mean_over_runs`](crate::sweep::curve::mean_over_runs)) up to the last step of the point's
+//! longest run; a run that ended sooner keeps its last value — it is finished, and what it had at
+//! its end it has at every later step.
 
 use std::collections::btree_map::Entry;
 use std::collections::{BTreeMap, BTreeSet};

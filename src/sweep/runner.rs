@@ -69,7 +69,7 @@ use world_server::scenario::resolve;
 pub struct SweepArgs {
     /// The experiment file (TOML; see configs/experiments/).
     pub experiment: PathBuf,
-    /// Output directory (default: sweeps/<name>, or sweeps/<name>-quick with --quick).
+    /// Output directory (default: `sweeps/<name>`, or `sweeps/<name>-quick` with --quick).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Runs at a time (default: half the cores, at least 1; each run is several processes).
@@ -78,7 +78,7 @@ pub struct SweepArgs {
     /// Seeds per grid point (overrides the file).
     #[arg(long)]
     pub seeds: Option<u32>,
-    /// The experiment's quick variant (its [quick] table): fewer seeds and points, smaller runs.
+    /// The experiment's quick variant (its `[quick]` table): fewer seeds and points, smaller runs.
     #[arg(long)]
     pub quick: bool,
     /// Only the grid points where KEY is VALUE, e.g. --only robots.count=8 (repeatable; several

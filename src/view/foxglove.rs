@@ -1,13 +1,14 @@
 //! A run in Foxglove, through Foxglove's official SDK (the `foxglove` crate): the step log's
 //! records ([`crate::rundir::steplog`]) turned into messages of Foxglove's well-known schemas
-//! (protobuf, as the SDK encodes them) and two plottable messages of ours, logged on the
-//! channels of one SDK [`Context`]. What listens on the context decides where they go: an MCAP
-//! file (`swarm export-mcap`, [`crate::view::export_mcap`]), or the SDK's WebSocket server that
-//! Foxglove connects to, live while a run goes (`swarm run --foxglove`) or replaying a finished
-//! one (`swarm view RUN_DIR --foxglove`).
+//! (protobuf, as the SDK encodes them) and two plottable messages of ours, logged on the channels
+//! of one SDK [`Context`](::foxglove::Context). What listens on the context decides where they go:
+//! an MCAP file (`swarm export-mcap`, [`crate::view::export_mcap`]), or the SDK's WebSocket server
+//! that Foxglove connects to, live while a run goes (`swarm run --foxglove`) or replaying a
+//! finished one (`swarm view RUN_DIR --foxglove`).
 //!
 //! The topics, their schemas and when each is sent are listed once, for users, in
-//! docs/guide/viewer.md; [`TEAM_TOPICS`] and `Channels` are what the code publishes.
+//! docs/guide/viewer.md; [`TEAM_TOPICS`](crate::view::foxglove::TEAM_TOPICS) and `Channels` are
+//! what the code publishes.
 //!
 //! Times are the run's simulated clock (step × `clock.step_seconds`, from 0). Messages leave in
 //! log-time order: a step's messages wait until the records of the step after next come (the
@@ -400,9 +401,9 @@ impl Scene {
         }
     }
 
-    /// Holds each step back until records `steps` steps later have come (at least
-    /// [`HOLD_STEPS`]): a finished run's [`StepLog::lateness`](crate::rundir::steplog::StepLog::lateness),
-    /// so that every record goes out with its step.
+    /// Holds each step back until records `steps` steps later have come (at least `HOLD_STEPS`): a
+    /// finished run's [`StepLog::lateness`](crate::rundir::steplog::StepLog::lateness), so that
+    /// every record goes out with its step.
     pub fn hold_back(&mut self, steps: Step) {
         self.hold = steps.max(HOLD_STEPS);
     }

@@ -1,16 +1,17 @@
 //! The run viewer: a web page that follows a run live (`swarm run --view`) or replays a finished
-//! one (`swarm view RUN_DIR`), served by this process on axum. The page (`assets/view/`) is
-//! static and built into the binary; its data comes from a [`Timeline`] fed with the step
-//! log's records — live by the launcher as it writes them, in a replay from `steps.log`.
+//! one (`swarm view RUN_DIR`), served by this process on axum. The page (`assets/view/`) is static
+//! and built into the binary; its data comes from a [`Timeline`](crate::view::timeline::Timeline)
+//! fed with the step log's records — live by the launcher as it writes them, in a replay from
+//! `steps.log`.
 //!
-//! Routes: `GET /` (and `/app.js`, `/style.css`), `GET /api/info`, `GET /api/truth.png`,
-//! `GET /api/series`, `GET /api/frame/{step|latest}` (with every trajectory up to the step),
-//! `GET /api/robot/{id}` and `GET /api/robot/{id}/grid.png` (`?step=N`; `404` for a robot the
-//! run does not have or that has not reported yet), and in a live run `GET /ws` (a WebSocket:
-//! one JSON [`Frame`] per step), `GET /api/robot/{id}/polygons` (the robot's own polygonal
-//! approximation and its peers' as it holds them, asked of the robot on the sim plane),
-//! `POST /api/link/{name}` (cut, restore, bandwidth, latency: forwarded to netem's API with the
-//! run's token — netem itself refuses browsers) and `POST /api/clock/{pause|resume|step}`.
+//! Routes: `GET /` (and `/app.js`, `/style.css`), `GET /api/info`, `GET /api/truth.png`, `GET
+//! /api/series`, `GET /api/frame/{step|latest}` (with every trajectory up to the step), `GET
+//! /api/robot/{id}` and `GET /api/robot/{id}/grid.png` (`?step=N`; `404` for a robot the run does
+//! not have or that has not reported yet), and in a live run `GET /ws` (a WebSocket: one JSON
+//! [`Frame`](crate::view::timeline::Frame) per step), `GET /api/robot/{id}/polygons` (the robot's
+//! own polygonal approximation and its peers' as it holds them, asked of the robot on the sim
+//! plane), `POST /api/link/{name}` (cut, restore, bandwidth, latency: forwarded to netem's API with
+//! the run's token — netem itself refuses browsers) and `POST /api/clock/{pause|resume|step}`.
 //!
 //! The viewer never slows the run: the launcher hands it each record under a short lock, and
 //! a page that reads frames slower than they come misses some (a bounded broadcast queue

@@ -1,18 +1,19 @@
 //! Seeded map generators: `unstructured` (scattered obstacles, outdoor-like), `office` (rooms
 //! and corridors, no furniture) and `mixed` (a building amid scattered obstacles); Simmons et
 //! al.'s `corridor`, `two-corridors`, `empty` and `random`; and `library` (rows of shelves in a
-//! hall ringed by rooms, in [`library`]).
+//! hall ringed by rooms, in `library`).
 //!
-//! docs/design.md §3 lets a scenario generate its truth map from a seed instead of loading one, with
-//! the three environment types of the thesis's experiments. A generated map is a closed world:
-//! an outer wall, everything else occupied or free (no unknown), and all free cells one
-//! 4-connected region, so that "explored everything reachable" is well defined. Two rules make
-//! that hold by construction: obstacles keep a gap of more than [`PASSAGE_M`] to everything else
-//! (so they are islands), and every room has a door at least [`DOOR_M`] wide onto a corridor
-//! that the corridor spines connect. A final pass then enforces both guarantees on whatever was
-//! built: free cells not inside any free `PASSAGE_M`-square become occupied (no slivers narrower
-//! than a robot's passage), and free cells outside the largest component become occupied.
-//! The same seed always gives the same map (`ChaCha8Rng`, no other source of randomness).
+//! docs/design.md §3 lets a scenario generate its truth map from a seed instead of loading one,
+//! with the three environment types of the thesis's experiments. A generated map is a closed world:
+//! an outer wall, everything else occupied or free (no unknown), and all free cells one 4-connected
+//! region, so that "explored everything reachable" is well defined. Two rules make that hold by
+//! construction: obstacles keep a gap of more than [`PASSAGE_M`](crate::generate::PASSAGE_M) to
+//! everything else (so they are islands), and every room has a door at least
+//! [`DOOR_M`](crate::generate::DOOR_M) wide onto a corridor that the corridor spines connect. A
+//! final pass then enforces both guarantees on whatever was built: free cells not inside any free
+//! `PASSAGE_M`-square become occupied (no slivers narrower than a robot's passage), and free cells
+//! outside the largest component become occupied. The same seed always gives the same map
+//! (`ChaCha8Rng`, no other source of randomness).
 
 use proto::geom::MapInfo;
 use proto::grid::{Cell, Grid, Occ, MAX_CELLS};

@@ -1,5 +1,5 @@
-//! Decoding map images (PGM P2/P5 and PNG) into a ternary [`Grid`], pixel by pixel as ROS
-//! `map_server` classifies them.
+//! Decoding map images (PGM P2/P5 and PNG) into a ternary [`Grid`](proto::grid::Grid), pixel by
+//! pixel as ROS `map_server` classifies them.
 //!
 //! docs/design.md §3 has the world-server load "the format robotics users already have": a
 //! `map_server` YAML beside a PGM or PNG image. This module is the image half (the YAML half and
@@ -10,7 +10,8 @@
 //! picture, while grid row 0 is the bottom (proto's convention), so rows are flipped here.
 //!
 //! Decoding is total: the bytes come from a file, so any input either decodes or gives an
-//! [`ImageError`]; sizes are checked against [`MAX_CELLS`] before anything is allocated.
+//! [`ImageError`](crate::image::ImageError); sizes are checked against
+//! [`MAX_CELLS`](proto::grid::MAX_CELLS) before anything is allocated.
 
 use proto::grid::{Grid, Occ, MAX_CELLS};
 

@@ -1,15 +1,15 @@
 //! The truth map: loading ROS `map_server` maps and resampling them to the world's resolution.
 //!
-//! docs/design.md §3: the world-server loads a truth map from a ROS `map_server` YAML plus PGM/PNG image
-//! (keys `image`, `resolution`, `origin`, `negate`, `occupied_thresh`, `free_thresh`, optional
-//! `mode`), then resamples it to `world.resolution_m` so that speeds and ranges are physical, not
-//! per-cell. Resampling is conservative: a coarse cell is occupied if any fine cell in it is, and
-//! free only if all of them are free, which also erases the one-pixel free laser streaks that raw
-//! SLAM maps carry into the unknown.
+//! docs/design.md §3: the world-server loads a truth map from a ROS `map_server` YAML plus PGM/PNG
+//! image (keys `image`, `resolution`, `origin`, `negate`, `occupied_thresh`, `free_thresh`,
+//! optional `mode`), then resamples it to `world.resolution_m` so that speeds and ranges are
+//! physical, not per-cell. Resampling is conservative: a coarse cell is occupied if any fine cell
+//! in it is, and free only if all of them are free, which also erases the one-pixel free laser
+//! streaks that raw SLAM maps carry into the unknown.
 //!
 //! The YAML reader understands the flat subset `map_server` files use (`key: value` lines,
 //! `[a, b, c]` lists, `#` comments, quoted scalars) and is total: anything else is a
-//! [`MapError`] naming the file and the line, never a panic.
+//! [`MapError`](crate::map::MapError) naming the file and the line, never a panic.
 
 use std::io::Read;
 use std::path::{Path, PathBuf};

@@ -2,17 +2,18 @@
 //!
 //! docs/design.md §3: each step a robot asks for a waypoint within its speed along a collision-free
 //! straight segment; the world-server moves it there or rejects the move "into obstacles or other
-//! robots, and say why in the robot's next scan message" ([`MoveOutcome`]). A waypoint beyond
-//! the step length is not an error: the robot goes as far as it may in that direction, which is
-//! what a speed limit means. The segment test is [`proto::traverse::swept`]: every cell the closed
-//! segment touches must be free, including both side cells where it passes exactly through a
-//! corner, so a robot never slips through a diagonal gap between two blocked cells (the reason
-//! free space is 4-connected in [`crate::reachable`]). The robots' planner checks its waypoints
-//! with the same walk (`robot_agent::nav::plan::next_waypoint`).
-//! Robots are points for the map and discs of `robot_radius_m` for each other; the world-server
-//! looks for the robots a move ends near in a [`Crowd`] (buckets of the collision distance), so a
-//! step of n moves costs O(n), not O(n²) — what a move costs grows with its length and the
-//! robots around its end, never with the map or the team.
+//! robots, and say why in the robot's next scan message"
+//! ([`MoveOutcome`](proto::msg::MoveOutcome)). A waypoint beyond the step length is not an error:
+//! the robot goes as far as it may in that direction, which is what a speed limit means. The
+//! segment test is [`proto::traverse::swept`]: every cell the closed segment touches must be free,
+//! including both side cells where it passes exactly through a corner, so a robot never slips
+//! through a diagonal gap between two blocked cells (the reason free space is 4-connected in
+//! [`crate::reachable`]). The robots' planner checks its waypoints with the same walk
+//! (`robot_agent::nav::plan::next_waypoint`). Robots are points for the map and discs of
+//! `robot_radius_m` for each other; the world-server looks for the robots a move ends near in a
+//! [`Crowd`](crate::motion::Crowd) (buckets of the collision distance), so a step of n moves costs
+//! O(n), not O(n²) — what a move costs grows with its length and the robots around its end, never
+//! with the map or the team.
 
 use std::collections::HashMap;
 
@@ -40,7 +41,7 @@ impl Others for [(RobotId, Metres)] {
 }
 
 /// The live robots of a team by position: a robot's index is its id, and it sits in the bucket
-/// of side [`Crowd::bucket_m`] its position falls in, so the robots closer than that to a point
+/// of side `Crowd::bucket_m` its position falls in, so the robots closer than that to a point
 /// are in the 3 × 3 buckets around it.
 #[derive(Clone, Debug)]
 pub struct Crowd {

@@ -1,27 +1,30 @@
-//! Refused logins on the sim plane, in the world-server's log: who tried, from where, and why —
-//! the first refusal from an address at once, later ones from it counted, one line per
-//! [`REPORT_EVERY`], so that an attacker who retries in a loop cannot flood the log.
+//! Refused logins on the sim plane, in the world-server's log: who tried, from where, and why — the
+//! first refusal from an address at once, later ones from it counted, one line per
+//! [`REPORT_EVERY`](crate::refusals::REPORT_EVERY), so that an attacker who retries in a loop
+//! cannot flood the log.
 //!
 //! Where a refusal can be seen. zenoh 1.10 checks a client's user and password inside its
-//! transport, in the handshake that establishes the link (the `auth_usrpwd` extension of the
-//! accept state machine, `zenoh-transport`'s `unicast/establishment`), before any transport or
-//! session exists. A refused client therefore never reaches what the application can hook:
-//! transport event handlers, the interceptors of access control and the admin space all start
-//! from an established transport, and the session API has no callback for a failed accept. What
-//! zenoh does is log it, with `tracing`, from the task that accepts the link (target
-//! [`ACCEPT_TARGET`]): at trace, the InitSyn it received ("Establishment Accept InitSyn: {local}
-//! => {remote}. Received: …", which holds the client's zenoh id), and at debug the error that
-//! ended the handshake ("UsrPwd extension - Recv OpenSyn. Invalid password.", "… Invalid user.",
-//! "UsrPwd extension - Recv InitSyn. Expected extension." for a client without a login). zenoh
-//! accepts each link in a task of its own, so [`RefusalLayer`], a `tracing` layer with its own
-//! filter (only that target; the stderr log's filter is untouched), ties the two events together
-//! by the tokio task id and records a [`Refusal`]. This depends on the wording of zenoh's
-//! messages, which a minor zenoh release may change: `tests/confine.rs` fails when refusals stop
-//! being reported. The user name tried is in neither event (zenoh keeps it inside the encoded
-//! OpenSyn extension), so "who" is the client's zenoh id.
+//! transport, in the handshake that establishes the link (the `auth_usrpwd` extension of the accept
+//! state machine, `zenoh-transport`'s `unicast/establishment`), before any transport or session
+//! exists. A refused client therefore never reaches what the application can hook: transport event
+//! handlers, the interceptors of access control and the admin space all start from an established
+//! transport, and the session API has no callback for a failed accept. What zenoh does is log it,
+//! with `tracing`, from the task that accepts the link (target
+//! [`ACCEPT_TARGET`](crate::refusals::ACCEPT_TARGET)): at trace, the InitSyn it received
+//! ("Establishment Accept InitSyn: {local} => {remote}. Received: …", which holds the client's
+//! zenoh id), and at debug the error that ended the handshake ("UsrPwd extension - Recv OpenSyn.
+//! Invalid password.", "… Invalid user.", "UsrPwd extension - Recv InitSyn. Expected extension."
+//! for a client without a login). zenoh accepts each link in a task of its own, so `RefusalLayer`,
+//! a `tracing` layer with its own filter (only that target; the stderr log's filter is untouched),
+//! ties the two events together by the tokio task id and records a
+//! [`Refusal`](crate::refusals::Refusal). This depends on the wording of zenoh's messages, which a
+//! minor zenoh release may change: `tests/confine.rs` fails when refusals stop being reported. The
+//! user name tried is in neither event (zenoh keeps it inside the encoded OpenSyn extension), so
+//! "who" is the client's zenoh id.
 //!
-//! The layer only records: `tracing` drops events emitted while it dispatches another, so the
-//! lines are logged by [`Refusals::report`], a task of the world-server.
+//! The layer only records: `tracing` drops events emitted while it dispatches another, so the lines
+//! are logged by [`Refusals::report`](crate::refusals::Refusals::report), a task of the
+//! world-server.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::{Arc, Mutex, MutexGuard};

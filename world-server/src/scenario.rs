@@ -1,8 +1,9 @@
 //! A scenario made ready to run, the one way every entry point does it (`swarm run`, `swarm
-//! replay`, `swarm sweep`'s checks, the world-server): a file or the embedded default, with
-//! `--set` overrides; a map name found relative to the file's directory and made an absolute
-//! path; `radio.range_pct_of_diagonal` turned into `radio.range_m`; a left-out `max_steps`
-//! derived from the world's reachable area ([`Scenario::derived_max_steps`]).
+//! replay`, `swarm sweep`'s checks, the world-server): a file or the embedded default, with `--set`
+//! overrides; a map name found relative to the file's directory and made an absolute path;
+//! `radio.range_pct_of_diagonal` turned into `radio.range_m`; a left-out `max_steps` derived from
+//! the world's reachable area
+//! ([`Scenario::derived_max_steps`](proto::scenario::Scenario::derived_max_steps)).
 
 use std::path::{Path, PathBuf};
 

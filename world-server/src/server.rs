@@ -1,13 +1,13 @@
 //! The world-server on the sim plane: the clock (lockstep or realtime, docs/design.md §2) driving
-//! [`World`] over zenoh.
+//! [`World`](crate::world::World) over zenoh.
 //!
-//! Per step t: publish every live robot's scan for t; collect commands for t until all live
-//! robots answered (lockstep) or the step timed out (lockstep: [`proto::step_wait`], at least
-//! `step_timeout_ms`; realtime: the step period); apply them; publish [`proto::msg::Status`] for t+1. A robot whose sim-plane
-//! liveliness token vanishes is dead at once; one that misses `dead_after` steps in a row too.
-//! A dead robot that shows life again — its token appears (a restarted process) or it sends a
-//! command (a thawed one) — is alive again from the next step, where it stood.
-//! Everything received is validated; bad input is counted and logged, never fatal.
+//! Per step t: publish every live robot's scan for t; collect commands for t until all live robots
+//! answered (lockstep) or the step timed out (lockstep: [`proto::step_wait`], at least
+//! `step_timeout_ms`; realtime: the step period); apply them; publish [`proto::msg::Status`] for
+//! t+1. A robot whose sim-plane liveliness token vanishes is dead at once; one that misses
+//! `dead_after` steps in a row too. A dead robot that shows life again — its token appears (a
+//! restarted process) or it sends a command (a thawed one) — is alive again from the next step,
+//! where it stood. Everything received is validated; bad input is counted and logged, never fatal.
 
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -37,8 +37,9 @@ pub enum End {
     Ended { step: Step, reason: ExitReason },
 }
 
-/// The step gate (the step clock's pause): what the launcher's [`Control::Pause`], [`Control::Resume`] and
-/// [`Control::Step`] leave it at. A pause never cuts a step short; it holds the next one.
+/// The step gate (the step clock's pause): what the launcher's [`Control::Pause`],
+/// [`Control::Resume`] and [`Control::Step`] leave it at. A pause never cuts a step short; it holds
+/// the next one.
 #[derive(Debug, Default)]
 struct StepGate {
     paused: bool,

@@ -14,7 +14,8 @@ pub const CHUNK_MAX: usize = 64 * 1024;
 /// Capacity (in chunks) of the channel into the latency stage: it holds the pieces "on the air".
 pub const IN_FLIGHT_CHUNKS: usize = 256;
 
-/// A run of bytes read from one socket, with the room it holds in its [`Buffer`].
+/// A run of bytes read from one socket, with the room it holds in its
+/// [`Buffer`](crate::accounting::Buffer).
 #[derive(Debug)]
 pub struct Chunk {
     data: Vec<u8>,

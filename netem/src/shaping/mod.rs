@@ -1,6 +1,7 @@
 //! Shaping one direction of one connection (docs/design.md §5 "Shaping"), after noxious /
-//! toxiproxy: every network effect is one file with one plain async function from an input
-//! stream of [`chunk::Chunk`]s to an output sink; [`pipeline`] joins them.
+//! toxiproxy: every network effect is one file with one plain async function from an input stream
+//! of [`chunk::Chunk`](crate::shaping::chunk::Chunk)s to an output sink;
+//! [`pipeline`](crate::shaping::pipeline) joins them.
 
 /// Bytes pass as fast as their budgets allow.
 pub mod bandwidth;

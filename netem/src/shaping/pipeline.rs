@@ -121,7 +121,7 @@ impl Unsent for tokio::io::DuplexStream {}
 
 /// Asks a socket how much of what was written to it is still unsent. It holds the descriptor of
 /// a writer that [`sink`] borrows for its whole life, and is only used while that descriptor is
-/// open: by the sink itself, and by a step's count through [`InKernel`]'s shared state, under
+/// open: by the sink itself, and by a step's count through `InKernel`'s shared state, under
 /// its lock and only while it is marked open — the mark is cleared, under the same lock, by
 /// `InKernel`'s `Drop`, which runs inside `sink`.
 #[derive(Clone, Copy, Debug)]

@@ -1,13 +1,13 @@
 //! `burgard` (Burgard et al., "Coordinated multi-robot exploration", 2005, Algorithm 1): the
-//! sub-team that can talk, transitively, assigns targets greedily — the best (robot, frontier)
-//! pair first, then the utilities discounted by it, and so on — on one robot's data; every
-//! member computes the same assignment and takes its own. [`permutation_search`] is Algorithm
-//! 2's alternative (randomized search with hill-climbing over Σ U − β·V², favouring balanced
-//! trajectories).
+//! sub-team that can talk, transitively, assigns targets greedily — the best (robot, frontier) pair
+//! first, then the utilities discounted by it, and so on — on one robot's data; every member
+//! computes the same assignment and takes its own.
+//! [`permutation_search`](crate::coord::burgard::permutation_search) is Algorithm 2's alternative
+//! (randomized search with hill-climbing over Σ U − β·V², favouring balanced trajectories).
 //!
 //! Its state is the sub-team table: every robot's latest report (step, cell, target, radio
-//! neighbours), heard directly or relayed as [`Team`] messages from neighbour to neighbour. It
-//! replans when its target is no longer usable, when its sub-team changes and every
+//! neighbours), heard directly or relayed as [`Team`](proto::msg::Team) messages from neighbour to
+//! neighbour. It replans when its target is no longer usable, when its sub-team changes and every
 //! `replan_every_steps` steps.
 
 use proto::grid::{Cell, Grid};

@@ -14,15 +14,15 @@ use crate::nav::plan::CostMap;
 
 /// How the agent talks to a coordination strategy, whichever it is.
 ///
-/// A trait object rather than an enum: the strategies share no state (Burgard's sub-team table,
-/// a bidding robot's open auctions, a relay's role are each one strategy's business), so an enum
-/// would make every method a match over all of them and every new strategy an edit of each
-/// match. With the trait, a strategy is one file implementing it, plus a line in [`new`] and,
-/// if it talks, a variant of [`CoordMsg`]. The agent asks it once per step for a target
-/// ([`Coordinator::choose`], given the planning grid, this robot's costs, the candidate
-/// frontiers and what was heard of other robots), once per step for its radio messages
-/// ([`Coordinator::messages`], given this robot's state and neighbours), and hands it every
-/// coordination message received ([`Coordinator::on_message`]). The radio encodes, counts and
+/// A trait object rather than an enum: the strategies share no state (Burgard's sub-team table, a
+/// bidding robot's open auctions, a relay's role are each one strategy's business), so an enum
+/// would make every method a match over all of them and every new strategy an edit of each match.
+/// With the trait, a strategy is one file implementing it, plus a line in
+/// [`new`](crate::coord::registry::new) and, if it talks, a variant of [`CoordMsg`]. The agent asks
+/// it once per step for a target ([`Coordinator::choose`], given the planning grid, this robot's
+/// costs, the candidate frontiers and what was heard of other robots), once per step for its radio
+/// messages ([`Coordinator::messages`], given this robot's state and neighbours), and hands it
+/// every coordination message received ([`Coordinator::on_message`]). The radio encodes, counts and
 /// decodes those messages ([`crate::radio::station`]); a strategy never sees bytes.
 pub trait Coordinator: Send {
     /// This step's target: keep `s.target` or pick another (`None`: no target).

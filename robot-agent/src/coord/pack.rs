@@ -2,21 +2,22 @@
 //! exploration that keeps every robot in touch with the others, directly or through others.
 //!
 //! * A **configuration change** moves every robot of a group to one of its 9 candidate positions:
-//!   stay, or one step of the robot's step length in one of 8 directions ([`offsets`]).
-//! * Each step the group's leader scores `k` random changes (and standing still) and takes the
-//!   best ([`best_change`]): each robot's new position scores `impossible` (into an obstacle or
-//!   unknown space on the leader's map, or onto a teammate — [`Scoring::utility`]), `frontier` or
-//!   `other`; a change whose communication graph is not connected gets the disconnection
-//!   penalty δ on top.
+//!   stay, or one step of the robot's step length in one of 8 directions
+//!   ([`offsets`](crate::coord::pack::offsets)).
+//! * Each step the group's leader scores `k` random changes (and standing still) and takes the best
+//!   ([`best_change`](crate::coord::pack::best_change)): each robot's new position scores
+//!   `impossible` (into an obstacle or unknown space on the leader's map, or onto a teammate —
+//!   [`Scoring::utility`](crate::coord::pack::Scoring::utility)), `frontier` or `other`; a change
+//!   whose communication graph is not connected gets the disconnection penalty δ on top.
 //! * **Frontier at our scale**: in the paper a robot senses only the cells around it, so the
 //!   frontier is always a step away and "moves onto a frontier cell" is how the pack advances.
 //!   Our robots' lasers see metres, so frontier cells lie metres away and a robot would hardly
 //!   ever stand on one; a position scores `frontier` when it is a frontier cell or a step nearer
 //!   the nearest one (path cost on the leader's map) than where the robot stands — the same
 //!   pull toward unexplored space, at the sensor's scale.
-//! * **Connectivity** is judged from what the pack knows ([`crate::radio::reach::Reach::linked`]: the
-//!   radio model's parameters, walls counted on the leader's own map), never from the truth. The
-//!   leader's judgement of the links it expects goes to the launcher (`Judged` in telemetry),
+//! * **Connectivity** is judged from what the pack knows ([`crate::radio::reach::Reach::linked`]:
+//!   the radio model's parameters, walls counted on the leader's own map), never from the truth.
+//!   The leader's judgement of the links it expects goes to the launcher (`Judged` in telemetry),
 //!   which checks it against what netem then does.
 //! * **Leader and moves**: a group is what the team table ([`crate::coord::team`]) says can talk,
 //!   transitively; its leader is its lowest id. The leader's decisions travel over the radio

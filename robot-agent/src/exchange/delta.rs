@@ -1,20 +1,21 @@
 //! Deltas between approximations and the op log with save points (thesis §4.2.3,
 //! Algorithms 4–5, §6.4 Table 6.1; docs/design.md §4.3).
 //!
-//! One step's change A_{t−1} → A_t is a list of [`Op`]s: per object whose vertices or kind
-//! changed a `chg` (or `em` for a new object, `rm` for a vanished one) that selects it, then the
-//! minimum edit script of its vertex array — Levenshtein DP with substitution cost 0 for equal
-//! vertices (the extracted Algorithm 4 prints this test inverted), backtraced from the end so
-//! that positions always refer to the array as the receiver holds it — and a closing `save`.
-//! A vertex is its point *and* its edge occupancy, so an edge turning occupied is a `rep`.
+//! One step's change A_{t−1} → A_t is a list of [`Op`](crate::exchange::delta::Op)s: per object
+//! whose vertices or kind changed a `chg` (or `em` for a new object, `rm` for a vanished one) that
+//! selects it, then the minimum edit script of its vertex array — Levenshtein DP with substitution
+//! cost 0 for equal vertices (the extracted Algorithm 4 prints this test inverted), backtraced from
+//! the end so that positions always refer to the array as the receiver holds it — and a closing
+//! `save`. A vertex is its point *and* its edge occupancy, so an edge turning occupied is a `rep`.
 //!
 //! `em`/`chg` carry the object's vertex count after its edits, so a receiver
-//! ([`crate::exchange::oplog::Replica`]) catches a corrupt or misordered stream at the next object op or
-//! save instead of silently producing a wrong map.
+//! ([`crate::exchange::oplog::Replica`]) catches a corrupt or misordered stream at the next object
+//! op or save instead of silently producing a wrong map.
 //!
-//! For huge objects the DP is bounded: after trimming the common prefix and suffix, a middle
-//! larger than [`DP_LIMIT`] cells is cut at anchors (points unique in both arrays, in the same
-//! order) and each gap gets its own DP — near-minimal, and linear-ish instead of quadratic.
+//! For huge objects the DP is bounded: after trimming the common prefix and suffix, a middle larger
+//! than [`DP_LIMIT`](crate::exchange::delta::DP_LIMIT) cells is cut at anchors (points unique in
+//! both arrays, in the same order) and each gap gets its own DP — near-minimal, and linear-ish
+//! instead of quadratic.
 
 use std::collections::HashMap;
 

@@ -2,10 +2,11 @@
 //! (thesis §4.2.3, §5.1.2; docs/design.md §4.3).
 //!
 //! Each robot appends every step's delta ([`crate::exchange::delta::diff`]) to its own append-only,
-//! indexed [`OpLog`]; each step ends with a save point. Receivers store other robots' logs as
-//! prefixes and apply them to a [`Replica`], which shows only the state at the last save point
-//! it has applied: a transfer cut off mid-step never yields a broken polygon. Steps without
-//! change append nothing (not even a save point).
+//! indexed [`OpLog`](crate::exchange::oplog::OpLog); each step ends with a save point. Receivers
+//! store other robots' logs as prefixes and apply them to a
+//! [`Replica`](crate::exchange::oplog::Replica), which shows only the state at the last save point
+//! it has applied: a transfer cut off mid-step never yields a broken polygon. Steps without change
+//! append nothing (not even a save point).
 
 use crate::exchange::delta::{diff, Op};
 use crate::mapping::approx::{Approximation, ObjectId, Polygon, Vertex};

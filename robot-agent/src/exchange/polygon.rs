@@ -1,18 +1,20 @@
-//! The polygon exchange (thesis §5.1, Algorithm 10 step 6; docs/design.md §4.4): every robot's op log
-//! of its incremental approximation (§4.2.3) travels over the transitive log exchange of
-//! [`crate::exchange::transitive`], as [`OpChunk`]s in the compact op encoding of [`crate::exchange::wire`]. For every
-//! other owner a robot keeps a [`Replica`] fed with that owner's ops in log order; what it
-//! plans with is the replica's approximation **at its last complete save point** — a step whose
-//! ops arrived only in part is never shown (atomicity).
+//! The polygon exchange (thesis §5.1, Algorithm 10 step 6; docs/design.md §4.4): every robot's op
+//! log of its incremental approximation (§4.2.3) travels over the transitive log exchange of
+//! [`crate::exchange::transitive`], as [`OpChunk`](proto::msg::OpChunk)s in the compact op encoding
+//! of [`crate::exchange::wire`]. For every other owner a robot keeps a
+//! [`Replica`](crate::exchange::oplog::Replica) fed with that owner's ops in log order; what it
+//! plans with is the replica's approximation **at its last complete save point** — a step whose ops
+//! arrived only in part is never shown (atomicity).
 //!
 //! **Snapshots** (beyond the thesis; `exchange.snapshots`, docs/design.md §4.4): a peer far behind
-//! on an owner's log — a link that just came up, a robot that heard nothing of that owner yet —
-//! is sent the owner's approximation at the last save point we show, as the ops that build it
-//! from nothing, when those are fewer than the ops of the history it lacks. A snapshot may take
-//! several chunks; the receiver shows nothing of it until it is whole, then holds the owner's log
-//! from that index on ([`LogExchange::install`]) and relays it onwards the same way to any peer
-//! that knows less than that. Ops after the snapshot follow as usual. Either way the receiver
-//! ends with exactly the approximation that replaying the whole log gives.
+//! on an owner's log — a link that just came up, a robot that heard nothing of that owner yet — is
+//! sent the owner's approximation at the last save point we show, as the ops that build it from
+//! nothing, when those are fewer than the ops of the history it lacks. A snapshot may take several
+//! chunks; the receiver shows nothing of it until it is whole, then holds the owner's log from that
+//! index on ([`LogExchange::install`](crate::exchange::transitive::LogExchange::install)) and
+//! relays it onwards the same way to any peer that knows less than that. Ops after the snapshot
+//! follow as usual. Either way the receiver ends with exactly the approximation that replaying the
+//! whole log gives.
 //!
 //! A chunk whose ops do not decode, or whose op count disagrees with its header, is refused as a
 //! whole (nothing is appended). Ops that decode but cannot be applied (possible only with bytes

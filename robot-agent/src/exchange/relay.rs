@@ -10,19 +10,20 @@
 //! With the relay tree each robot takes each owner's records from one neighbour: the one fewest
 //! radio hops from the robot that writes the log (a distance-vector protocol). A robot tells its
 //! neighbours per owner how many hops it is from the writer and which neighbour it takes the log
-//! from ([`Routes`]; only what changed, all of it when a link comes up), and sends owner O's
-//! records to neighbour P only if P takes O from it — or if P knows no way to O's writer (a
-//! robot that is gone or out of reach, or before P's routes are heard), as the thesis does. So a
-//! record crosses each link of the tree once. What is sent stays the exchange's business
+//! from ([`Routes`](proto::msg::Routes); only what changed, all of it when a link comes up), and
+//! sends owner O's records to neighbour P only if P takes O from it — or if P knows no way to O's
+//! writer (a robot that is gone or out of reach, or before P's routes are heard), as the thesis
+//! does. So a record crosses each link of the tree once. What is sent stays the exchange's business
 //! (suffixes or snapshots, within the budget); the tree only says to whom.
 //!
-//! Ties go to the neighbour taken from already, then to the lowest id, so routes change only
-//! when the topology does. A robot never takes an owner from a neighbour that takes it from the
-//! robot itself (poisoned reverse), and a route longer than [`MAX_HOPS`] counts as none, so
-//! routes to a writer that went away vanish within about [`MAX_HOPS`] steps and its log is then
-//! flooded like the thesis's. Routes lag the links by a step (a neighbour's routes of step t
-//! reach us for step t+1): a record may then come twice, or a step late — never not at all,
-//! since routes that do not deliver are replaced once the links are known.
+//! Ties go to the neighbour taken from already, then to the lowest id, so routes change only when
+//! the topology does. A robot never takes an owner from a neighbour that takes it from the robot
+//! itself (poisoned reverse), and a route longer than
+//! [`MAX_HOPS`](crate::exchange::relay::MAX_HOPS) counts as none, so routes to a writer that went
+//! away vanish within about [`MAX_HOPS`](crate::exchange::relay::MAX_HOPS) steps and its log is
+//! then flooded like the thesis's. Routes lag the links by a step (a neighbour's routes of step t
+//! reach us for step t+1): a record may then come twice, or a step late — never not at all, since
+//! routes that do not deliver are replaced once the links are known.
 
 use std::collections::{BTreeMap, BTreeSet};
 

@@ -3,17 +3,21 @@
 //!
 //! * `raw-scans` — the baseline: every robot's laser scans, relayed transitively; received
 //!   scans are integrated into a grid of the peers' knowledge (never overriding G_s).
-//! * `polygon` — the thesis: every robot's op log of its incremental approximation A_t
-//!   (Algorithm 10 steps 2–6, [`crate::exchange::mapper`]), relayed transitively; the planning grid is
-//!   merged from G_s and every peer's approximation at its last save point (Algorithm 9).
+//! * `polygon` — the thesis: every robot's op log of its incremental approximation A_t (Algorithm
+//!   10 steps 2–6, [`crate::exchange::mapper`]), relayed transitively; the planning grid is merged
+//!   from G_s and every peer's approximation at its last save point (Algorithm 9).
 //!
 //! * `grid-snapshots` — the second baseline: per step, the cells of G_s the scan changed,
 //!   relayed transitively and written into a grid of the peers' knowledge (never overriding
 //!   G_s).
 //!
-//! All speak the same handshake (`conn`) and budget rules; only the records differ. Each mode
-//! is one implementation of [`Sharing`] ([`RawScans`], [`Polygon`], [`GridSnapshots`]), chosen
-//! by [`new`]; what crosses the radio is a [`Share`].
+//! All speak the same handshake (`conn`) and budget rules; only the records differ. Each mode is
+//! one implementation of [`Sharing`](crate::exchange::sharing::Sharing)
+//! ([`RawScans`](crate::exchange::sharing::RawScans),
+//! [`Polygon`](crate::exchange::sharing::Polygon),
+//! [`GridSnapshots`](crate::exchange::sharing::GridSnapshots)), chosen by
+//! [`new`](crate::exchange::sharing::new); what crosses the radio is a
+//! [`Share`](crate::exchange::sharing::Share).
 
 use proto::geom::{LaserSpec, MapInfo};
 use proto::grid::{Cell, Grid, Occ, Rect};

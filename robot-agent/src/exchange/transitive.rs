@@ -1,24 +1,25 @@
-//! The transitive exchange of append-only logs (thesis §5.1.2, Algorithm 8; docs/design.md §4.4), as
-//! a pure state machine generic over the record type: the caller moves the messages.
+//! The transitive exchange of append-only logs (thesis §5.1.2, Algorithm 8; docs/design.md §4.4),
+//! as a pure state machine generic over the record type: the caller moves the messages.
 //!
-//! Every robot keeps an append-only log of its own records and a copy of a prefix of every
-//! other robot's log it has heard of, and relays what it knows, so that A's records reach C
-//! through B even if A and C never meet. A sent-index table S[peer][owner] records how far we
-//! believe `peer` knows `owner`'s log; a handshake ([`Hello`], the thesis's `conn`) tells the
-//! truth about the peer and replaces our belief, deltas we send raise it optimistically, and
-//! deltas we receive raise it too (the sender holds what it sends). A receiver appends only
-//! contiguous records, ignores duplicates and reports a gap, on which the caller sends a
-//! handshake so the sender learns where to resume. Messages lost with a dropped link are
-//! harmless: the link's S row is forgotten, and the next handshake re-establishes it.
+//! Every robot keeps an append-only log of its own records and a copy of a prefix of every other
+//! robot's log it has heard of, and relays what it knows, so that A's records reach C through B
+//! even if A and C never meet. A sent-index table S\[peer\]\[owner\] records how far we believe
+//! `peer` knows `owner`'s log; a handshake ([`Hello`](proto::msg::Hello), the thesis's `conn`)
+//! tells the truth about the peer and replaces our belief, deltas we send raise it optimistically,
+//! and deltas we receive raise it too (the sender holds what it sends). A receiver appends only
+//! contiguous records, ignores duplicates and reports a gap, on which the caller sends a handshake
+//! so the sender learns where to resume. Messages lost with a dropped link are harmless: the link's
+//! S row is forgotten, and the next handshake re-establishes it.
 //!
-//! A log may be held from an index on rather than from its start ([`LogExchange::install`]): the
-//! polygon exchange replaces a long history by the state it leads to (a snapshot), and a robot
-//! that took one holds the owner's records only from there. Records below that base cannot be
-//! sent; [`LogExchange::outgoing`] skips an owner a peer knows less of than our base, and the
-//! caller serves it otherwise.
+//! A log may be held from an index on rather than from its start
+//! ([`LogExchange::install`](crate::exchange::transitive::LogExchange::install)): the polygon
+//! exchange replaces a long history by the state it leads to (a snapshot), and a robot that took
+//! one holds the owner's records only from there. Records below that base cannot be sent;
+//! [`LogExchange::outgoing`](crate::exchange::transitive::LogExchange::outgoing) skips an owner a
+//! peer knows less of than our base, and the caller serves it otherwise.
 //!
-//! [`crate::exchange::raw_scans`] instantiates it with laser scans (the baseline); its tests exercise this
-//! module.
+//! [`crate::exchange::raw_scans`] instantiates it with laser scans (the baseline); its tests
+//! exercise this module.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::ops::Range;
@@ -36,8 +37,8 @@ pub struct LogExchange<R> {
     own: RobotId,
     /// Per owner, the part of its log we hold (our own log is complete).
     logs: BTreeMap<RobotId, Held<R>>,
-    /// S[peer][owner]: how far we believe `peer` knows `owner`'s log. A peer has a row only after
-    /// its handshake; an owner missing from a row counts as known up to 0.
+    /// S\[peer\]\[owner\]: how far we believe `peer` knows `owner`'s log. A peer has a row only
+    /// after its handshake; an owner missing from a row counts as known up to 0.
     sent: BTreeMap<RobotId, BTreeMap<RobotId, u32>>,
     /// Per peer, the owners whose records it takes from another neighbour (the relay tree,
     /// [`crate::exchange::relay`]): we send it none of them, and they are no backlog of ours.
@@ -177,9 +178,9 @@ impl<R: Clone> LogExchange<R> {
     /// one delta on the wire), and updates S optimistically for what is returned.
     ///
     /// Each delta carries a contiguous run of one owner's records that the peer lacks by S. Owners
-    /// go in policy order (docs/design.md §4.4): largest lag first, ties → our own log, then the lowest
-    /// id. Records are added while the deltas' total size stays within the budget; at the first
-    /// record that does not fit, the call stops (later owners wait rather than overtake the
+    /// go in policy order (docs/design.md §4.4): largest lag first, ties → our own log, then the
+    /// lowest id. Records are added while the deltas' total size stays within the budget; at the
+    /// first record that does not fit, the call stops (later owners wait rather than overtake the
     /// policy). So a record larger than the whole budget blocks everything behind it until a call
     /// with a larger budget. Nothing is sent to a peer whose handshake we have not had, nor of an
     /// owner the peer knows less of than our base.
@@ -246,7 +247,7 @@ impl<R: Clone> LogExchange<R> {
     }
 
     /// Takes a received delta: appends the records beyond what we hold if they follow on
-    /// contiguously, and raises S[d.from][d.owner] to the delta's end (the sender holds what it
+    /// contiguously, and raises S\[d.from\]\[d.owner\] to the delta's end (the sender holds what it
     /// sent) if we have had the sender's handshake.
     ///
     /// Records of our own log are never taken from anyone (only we write it; a restarted robot

@@ -20,7 +20,7 @@
 //!
 //! Mean sizes on exploration runs stay below Table 6.1 (ins 6, rep 6, del 2, em 5, chg 5,
 //! rm 2, save 1 bytes); the tests measure them. Decoding is total: every byte string decodes
-//! or yields a [`WireError`].
+//! or yields a [`WireError`](crate::exchange::wire::WireError).
 
 use proto::grid::Occ;
 

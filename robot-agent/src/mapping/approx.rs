@@ -1,15 +1,17 @@
-//! Polygonal approximations A_t and their edge occupancy (thesis §3.4, §4.2.2; docs/design.md §4.2).
+//! Polygonal approximations A_t and their edge occupancy (thesis §3.4, §4.2.2; docs/design.md
+//! §4.2).
 //!
-//! An [`Approximation`] is what a robot shares: objects keyed by a stable [`ObjectId`], each a
-//! polygon of P_t's points in P_t's order. Each [`Vertex`] carries f_occ of the edge that starts
-//! at it. f_occ is precautious (§4.2.2): an edge is occupied only if every P_t point it spans
-//! (from its start up to, not including, its end) lies on an occupied cell; otherwise it is
-//! free for an inside object and unknown for an outside object, so that exploration never
-//! stops early because of a coarse edge.
+//! An [`Approximation`](crate::mapping::approx::Approximation) is what a robot shares: objects
+//! keyed by a stable [`ObjectId`](crate::mapping::approx::ObjectId), each a polygon of P_t's points
+//! in P_t's order. Each [`Vertex`](crate::mapping::approx::Vertex) carries f_occ of the edge that
+//! starts at it. f_occ is precautious (§4.2.2): an edge is occupied only if every P_t point it
+//! spans (from its start up to, not including, its end) lies on an occupied cell; otherwise it is
+//! free for an inside object and unknown for an outside object, so that exploration never stops
+//! early because of a coarse edge.
 //!
-//! How A_t follows from A_{t−1} and P_t is [`crate::mapping::approximator`]'s; how it is painted back onto
-//! cells, [`crate::mapping::render`]'s. This module is the model both share, and imports no other mapping
-//! module but [`crate::mapping::contour`].
+//! How A_t follows from A_{t−1} and P_t is [`crate::mapping::approximator`]'s; how it is painted
+//! back onto cells, [`crate::mapping::render`]'s. This module is the model both share, and imports
+//! no other mapping module but [`crate::mapping::contour`].
 
 use std::collections::BTreeMap;
 

@@ -2,11 +2,12 @@
 //! self-explored grid G_s and the grid rendered from the approximation A_t differ, and its
 //! average e_avg = Σ_{t=1}^{n} d_t / (g · n) (eq. 6.1) over n steps and g explored cells.
 //!
-//! Interpretation: G_s is compared in its [`exploration_view`] — non-free cells with no free
-//! 4-neighbour read unknown — because no contour model carries cells buried behind other
-//! non-free cells (the thesis's own rendering fills them with unknown as well). So d_t is 0
-//! for the unsimplified approximation and counts exactly what simplification loses or invents.
-//! Both grids must share one frame.
+//! Interpretation: G_s is compared in its
+//! [`exploration_view`](crate::mapping::render::exploration_view) — non-free cells with no free
+//! 4-neighbour read unknown — because no contour model carries cells buried behind other non-free
+//! cells (the thesis's own rendering fills them with unknown as well). So d_t is 0 for the
+//! unsimplified approximation and counts exactly what simplification loses or invents. Both grids
+//! must share one frame.
 
 use proto::grid::{Grid, Occ, Rect};
 
@@ -19,9 +20,9 @@ pub fn approx_error(own: &Grid, a: &Approximation) -> usize {
     approx_error_in_view(&exploration_view(own), a)
 }
 
-/// [`approx_error`] given G_s's exploration view (kept: [`crate::mapping::render::ExplorationView`]).
-/// Compares only where either says something: the known part of the view and the cells the
-/// approximation paints.
+/// [`approx_error`] given G_s's exploration view (kept:
+/// [`crate::mapping::render::ExplorationView`]). Compares only where either says something: the
+/// known part of the view and the cells the approximation paints.
 pub fn approx_error_in_view(view: &Grid, a: &Approximation) -> usize {
     let Some(r) = Rect::union_of(view.known_bounds(), a.cell_bounds())
         .and_then(|r| r.within(view.width(), view.height()))

@@ -1,11 +1,12 @@
 //! The incremental approximation A_t of a robot's self-explored grid (thesis §4.2.1, §5.1.1).
 //!
-//! [`Approximator`] derives A_t ([`crate::mapping::approx`]) from A_{t−1} and P_t (§4.2.1): vertices no longer on P_t are
+//! [`Approximator`](crate::mapping::approximator::Approximator) derives A_t
+//! ([`crate::mapping::approx`]) from A_{t−1} and P_t (§4.2.1): vertices no longer on P_t are
 //! dropped (their neighbours connect); the rest are grouped by the P_t object they lie on, which
 //! cuts objects that split; each group is closed along P_t by ordering it in P_t's cyclic order
-//! (the same as tracing P_t from a chain end to the next vertex); a lone vertex gets the P_t
-//! point farthest from it, an object without vertices its first point and the one farthest from
-//! that. The group also joins objects that merged. Then [`crate::mapping::refine`] splits edges at the
+//! (the same as tracing P_t from a chain end to the next vertex); a lone vertex gets the P_t point
+//! farthest from it, an object without vertices its first point and the one farthest from that. The
+//! group also joins objects that merged. Then [`crate::mapping::refine`] splits edges at the
 //! splitting frequency s (§5.1.1): s accumulates, so s = 0.2 splits once every fifth step.
 //!
 //! Identity (docs/design.md §4.2): an old object and a P_t object are matched greedily by how many
@@ -13,9 +14,9 @@
 //! unchanged objects give empty edit scripts), every other P_t object gets a fresh id.
 //!
 //! Place among the mapping modules: it builds on [`crate::mapping::approx`] (the model),
-//! [`crate::mapping::refine`] (the splits) and [`crate::mapping::render`] (the exploration view the monotone
-//! splits are scored against). Of the crate, only the mapping pipeline ([`crate::exchange::mapper`]) uses
-//! it.
+//! [`crate::mapping::refine`] (the splits) and [`crate::mapping::render`] (the exploration view the
+//! monotone splits are scored against). Of the crate, only the mapping pipeline
+//! ([`crate::exchange::mapper`]) uses it.
 
 use std::collections::BTreeMap;
 
@@ -75,7 +76,8 @@ impl Approximator {
         self.step_in_view(p, &exploration_view(own), splits_per_step)
     }
 
-    /// [`Self::step`] given G_s's exploration view (kept: [`crate::mapping::render::ExplorationView`]).
+    /// [`Self::step`] given G_s's exploration view (kept:
+    /// [`crate::mapping::render::ExplorationView`]).
     pub fn step_in_view(
         &mut self,
         p: &Contours,
@@ -210,8 +212,8 @@ mod tests {
     use crate::testutil::{arb_exploration, arb_grid, arb_grid_sequence, arb_map_window};
     use proptest::prelude::*;
 
-    /// docs/design.md §4.2's validity: only P_t points, one object per P_t object with ≥ 2 vertices in
-    /// P_t's cyclic order, kind and f_occ as P_t says.
+    /// docs/design.md §4.2's validity: only P_t points, one object per P_t object with ≥ 2 vertices
+    /// in P_t's cyclic order, kind and f_occ as P_t says.
     pub(crate) fn assert_valid(a: &Approximation, p: &Contours) {
         assert_eq!(
             a.objects.len(),

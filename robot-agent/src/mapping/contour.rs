@@ -4,23 +4,24 @@
 //! A *contour pixel* is an occupied or unknown cell with a free 4-neighbour. Every contour edge
 //! (between a contour pixel `c` and a free neighbour in direction `n`) gets an *auxiliary point*
 //! 0.25 cell from `c`'s centre toward the free side, `4c + 2 + n` in quarter cells
-//! ([`QPoint`]). We trace with the non-free pixel on the left and the free cell on the right,
-//! i.e. counter-clockwise around every obstacle; from each auxiliary point the successor is the
-//! edge 90° right (around the free cell), else straight ahead, else 90° left — Table 4.1's
-//! offsets (3m+3n, 4m, m−n in quarter cells, m the direction of movement). That order makes
-//! obstacles 8-connected and free space 4-connected, so contours never cross or touch.
+//! ([`QPoint`](crate::mapping::qpoint::QPoint)). We trace with the non-free pixel on the left and
+//! the free cell on the right, i.e. counter-clockwise around every obstacle; from each auxiliary
+//! point the successor is the edge 90° right (around the free cell), else straight ahead, else 90°
+//! left — Table 4.1's offsets (3m+3n, 4m, m−n in quarter cells, m the direction of movement). That
+//! order makes obstacles 8-connected and free space 4-connected, so contours never cross or touch.
 //!
-//! The grid is read as if padded with one ring of unknown cells, so free space touching the
-//! border is closed by contour pixels just outside the grid. Every cycle of auxiliary points is
-//! one object: clockwise cycles enclose a free region (**inside objects**, one per 4-connected
-//! free region), counter-clockwise cycles enclose obstacles or unknown islands (**outside
-//! objects**). P_t is kept from step to step ([`Contours::update`]): an object follows from the
-//! cells within one cell of its points, so only the objects next to the cells a scan changed are
-//! traced anew — from the contour pixels next to those cells, each from its first point in scan
-//! order, in the order a fresh extraction finds them. Tracing marks each auxiliary point in the
-//! point index as it goes (the thesis's `auxPointIndex`, where removal is marking), so nothing is
-//! proportional to the grid's area; a fresh extraction ([`Contours::extract`], the first step)
-//! examines every cell once (the thesis's Algorithm 3 step 1).
+//! The grid is read as if padded with one ring of unknown cells, so free space touching the border
+//! is closed by contour pixels just outside the grid. Every cycle of auxiliary points is one
+//! object: clockwise cycles enclose a free region (**inside objects**, one per 4-connected free
+//! region), counter-clockwise cycles enclose obstacles or unknown islands (**outside objects**).
+//! P_t is kept from step to step ([`Contours::update`](crate::mapping::contour::Contours::update)):
+//! an object follows from the cells within one cell of its points, so only the objects next to the
+//! cells a scan changed are traced anew — from the contour pixels next to those cells, each from
+//! its first point in scan order, in the order a fresh extraction finds them. Tracing marks each
+//! auxiliary point in the point index as it goes (the thesis's `auxPointIndex`, where removal is
+//! marking), so nothing is proportional to the grid's area; a fresh extraction
+//! ([`Contours::extract`](crate::mapping::contour::Contours::extract), the first step) examines
+//! every cell once (the thesis's Algorithm 3 step 1).
 
 use std::collections::{BTreeSet, HashMap};
 use std::hash::{BuildHasherDefault, Hasher};

@@ -1,13 +1,15 @@
-//! Scan integration into the self-explored ternary grid G_s (thesis §4.1; docs/design.md §4, step 1).
+//! Scan integration into the self-explored ternary grid G_s (thesis §4.1; docs/design.md §4, step
+//! 1).
 //!
 //! Every step a robot marks the cells along each laser beam free and the cell a beam stops in
 //! occupied. The thesis's contour extraction (§4.1) assumes that the free space seen from one pose
-//! is a single 4-connected region, so beams are rasterized as 4-connected *supercover* lines
-//! (every cell the segment touches, both cells at an exact corner crossing) rather than
-//! Bresenham lines, whose diagonal steps would split the free region. The same [`supercover`] is
-//! the planner's line-of-sight test (`crate::nav::plan`), so "the robot may drive this segment" and
-//! "this beam saw these cells" mean the same set of cells. The walk is the workspace's one grid
-//! traversal, [`proto::traverse`], which the world-server's laser casts its rays with.
+//! is a single 4-connected region, so beams are rasterized as 4-connected *supercover* lines (every
+//! cell the segment touches, both cells at an exact corner crossing) rather than Bresenham lines,
+//! whose diagonal steps would split the free region. The same
+//! [`supercover`](crate::mapping::grid::supercover) is the planner's line-of-sight test
+//! (`crate::nav::plan`), so "the robot may drive this segment" and "this beam saw these cells" mean
+//! the same set of cells. The walk is the workspace's one grid traversal, [`proto::traverse`],
+//! which the world-server's laser casts its rays with.
 //!
 //! The world-server reports the distance at which a ray *enters* its blocking cell, so a hit is
 //! a boundary crossing: the hit cell is the cell entered at the crossing nearest to the reported

@@ -1,20 +1,20 @@
-//! Approximations painted over a grid and kept from step to step (thesis §5.2, steps (1)–(5)
-//! of Algorithm 9, [`crate::mapping::render`]): a [`Painting`] holds what every approximation
-//! it was given paints, over the whole grid, and repaints only the windows where an object
-//! changed — so a step costs what changed, not everything held. The planning grid
-//! ([`crate::mapping::merge::Merger`], the peers' approximations, bands kept) and the owner's
-//! approximation error ([`crate::mapping::approx_error::KeptError`], its own, bands ignored)
-//! are kept this way.
+//! Approximations painted over a grid and kept from step to step (thesis §5.2, steps (1)–(5) of
+//! Algorithm 9, [`crate::mapping::render`]): a [`Painting`](crate::mapping::painting::Painting)
+//! holds what every approximation it was given paints, over the whole grid, and repaints only the
+//! windows where an object changed — so a step costs what changed, not everything held. The
+//! planning grid ([`crate::mapping::merge::Merger`], the peers' approximations, bands kept) and the
+//! owner's approximation error ([`crate::mapping::approx_error::KeptError`], its own, bands
+//! ignored) are kept this way.
 //!
 //! A cell's painting is a function of what each approximation marks there, taken together
 //! ([`crate::mapping::render::Marks`]), and an approximation's marks depend only on its objects
 //! whose reach holds the cell (their cells, their edges, the bands within their edges' error
 //! bounds): an object that changed between two vertices it kept changes its owner's marks only
-//! within reach of its changed edges, old and new ([`changed_windows`]). With one owner, a
+//! within reach of its changed edges, old and new (`changed_windows`). With one owner, a
 //! window holding those is painted from the owner's marks there; with more, the painting
 //! counts per cell how many owners give each mark, and a changed owner's marks in its windows,
 //! before and after — its objects reaching the window, each with the edges that reach the
-//! window's rows ([`EdgeRows`]) — move the counts: a peer's change costs its own objects near
+//! window's rows (`EdgeRows`) — move the counts: a peer's change costs its own objects near
 //! it, not every teammate's that overlap there.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -59,7 +59,8 @@ struct Taken {
 }
 
 impl Painting {
-    /// Nothing painted over a `width × height` grid; `bands` as [`crate::mapping::render::paint`] takes them.
+    /// Nothing painted over a `width × height` grid; `bands` as [`crate::mapping::render::paint`]
+    /// takes them.
     pub fn new(width: u32, height: u32, bands: Bands) -> Painting {
         Painting {
             width,

@@ -1,9 +1,10 @@
 //! Quarter-cell integer coordinates: the vocabulary of contour vertices (thesis §4.1).
 //!
-//! Auxiliary points sit 0.25 cell from a pixel centre, so every contour vertex has coordinates
-//! that are multiples of a quarter cell. A [`QPoint`] stores them as integers in quarter cells
-//! in the frame of [`proto::grid::Grid`]: cell `(x, y)` covers `[4x, 4x+4) × [4y, 4y+4)`, its
-//! centre is `(4x+2, 4y+2)`. Cells are [`Cell`]s, metres are `f64`: never mixed silently.
+//! Auxiliary points sit 0.25 cell from a pixel centre, so every contour vertex has coordinates that
+//! are multiples of a quarter cell. A [`QPoint`](crate::mapping::qpoint::QPoint) stores them as
+//! integers in quarter cells in the frame of [`proto::grid::Grid`]: cell `(x, y)` covers `[4x,
+//! 4x+4) × [4y, 4y+4)`, its centre is `(4x+2, 4y+2)`. Cells are [`Cell`](proto::grid::Cell)s,
+//! metres are `f64`: never mixed silently.
 
 use proto::grid::Cell;
 

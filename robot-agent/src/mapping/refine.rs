@@ -1,28 +1,27 @@
 //! Douglas–Peucker refinement of a valid approximation (thesis §4.3.2, Algorithm 6, §5.1.1).
 //!
-//! Every object already has ≥ 2 vertices, so each polygon is split into chains between
-//! consecutive vertices (Fig. 4.11) and all chains of all polygons share **one priority
-//! queue**. An edge's value is the maximum segment distance d(p, e), in cells, of the P_t
-//! points it spans; each split pops the most valuable edge, inserts its farthest point and
-//! queues the two new edges. Beyond the thesis, an edge whose spanned points mix occupied with
-//! non-occupied cells is worth at least [`OCC_MIX_VALUE`] (half a cell): precautious f_occ
-//! would otherwise hide those walls forever, and with it unlimited splits reach d_t = 0.
-//! Such an edge is split where the occupancy changes when its geometry is already within
-//! that half cell.
+//! Every object already has ≥ 2 vertices, so each polygon is split into chains between consecutive
+//! vertices (Fig. 4.11) and all chains of all polygons share **one priority queue**. An edge's
+//! value is the maximum segment distance d(p, e), in cells, of the P_t points it spans; each split
+//! pops the most valuable edge, inserts its farthest point and queues the two new edges. Beyond the
+//! thesis, an edge whose spanned points mix occupied with non-occupied cells is worth at least
+//! [`OCC_MIX_VALUE`](crate::mapping::refine::OCC_MIX_VALUE) (half a cell): precautious f_occ would
+//! otherwise hide those walls forever, and with it unlimited splits reach d_t = 0. Such an edge is
+//! split where the occupancy changes when its geometry is already within that half cell.
 //!
-//! **Monotone refinement** (beyond the thesis; on when a reference grid is given). A DP split
-//! can raise d_t — a chord through a free corner cell drawn occupied, a triangle of cells
-//! flipping side — so each split is scored by re-rendering just its window
-//! ([`crate::mapping::render::render_window`]). Of the [`LOOKAHEAD`] most valuable edges the split that
-//! lowers d_t most is taken; one that would raise d_t is deferred (and retried when a later
-//! split touches its window). When only deferred splits are left, the next splits in DP
-//! order are taken as one atomic group, up to the first point where d_t is back at or below its
-//! value before the group (at the latest when everything is exact and d_t = 0). A budget of k
-//! splits takes the longest prefix of this sequence of groups that fits, so more splits never
-//! raise d_t on a fixed P_t. The price: about 1–3 ms per step on 600×600 maps, and splits that
-//! would pay off only after a temporary rise are postponed, so over a whole exploration the
-//! mean d_t can be higher than plain DP's (set `Approximator::monotone = false` for the
-//! thesis's plain DP).
+//! **Monotone refinement** (beyond the thesis; on when a reference grid is given). A DP split can
+//! raise d_t — a chord through a free corner cell drawn occupied, a triangle of cells flipping side
+//! — so each split is scored by re-rendering just its window
+//! ([`crate::mapping::render::render_window`]). Of the
+//! [`LOOKAHEAD`](crate::mapping::refine::LOOKAHEAD) most valuable edges the split that lowers d_t
+//! most is taken; one that would raise d_t is deferred (and retried when a later split touches its
+//! window). When only deferred splits are left, the next splits in DP order are taken as one atomic
+//! group, up to the first point where d_t is back at or below its value before the group (at the
+//! latest when everything is exact and d_t = 0). A budget of k splits takes the longest prefix of
+//! this sequence of groups that fits, so more splits never raise d_t on a fixed P_t. The price:
+//! about 1–3 ms per step on 600×600 maps, and splits that would pay off only after a temporary rise
+//! are postponed, so over a whole exploration the mean d_t can be higher than plain DP's (set
+//! `Approximator::monotone = false` for the thesis's plain DP).
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;

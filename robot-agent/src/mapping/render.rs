@@ -1,15 +1,18 @@
 //! Rendering polygonal approximations onto cells (thesis §5.2).
 //!
-//! An approximation A_t stands for a grid: the one Algorithm 9 ([`crate::mapping::merge`], where its
-//! principles and steps are written down) paints from it. This module paints: [`paint`] does
-//! steps (1)–(5) for any set of approximations over any window of the grid frame, [`render`] is
-//! one approximation on its own (Algorithm 9 with an empty G_s), [`render_window`] a window of
-//! that, used to score one split locally ([`crate::mapping::refine`]). [`exploration_view`] is the other
-//! side of the comparison: G_s as any polygonal model can represent it.
+//! An approximation A_t stands for a grid: the one Algorithm 9 ([`crate::mapping::merge`], where
+//! its principles and steps are written down) paints from it. This module paints:
+//! [`paint`](crate::mapping::render::paint) does steps (1)–(5) for any set of approximations over
+//! any window of the grid frame, [`render`] is one approximation on its own (Algorithm 9 with an
+//! empty G_s), [`render_window`](crate::mapping::render::render_window) a window of that, used to
+//! score one split locally ([`crate::mapping::refine`]).
+//! [`exploration_view`](crate::mapping::render::exploration_view) is the other side of the
+//! comparison: G_s as any polygonal model can represent it.
 //!
-//! Place among the mapping modules (each imports only those before it): [`crate::mapping::contour`] →
-//! [`crate::mapping::approx`] → `render` → [`crate::mapping::refine`] → [`crate::mapping::approximator`] →
-//! [`crate::mapping::painting`] → [`crate::mapping::merge`], [`crate::mapping::approx_error`].
+//! Place among the mapping modules (each imports only those before it): [`crate::mapping::contour`]
+//! → [`crate::mapping::approx`] → `render` → [`crate::mapping::refine`] →
+//! [`crate::mapping::approximator`] → [`crate::mapping::painting`] → [`crate::mapping::merge`],
+//! [`crate::mapping::approx_error`].
 
 use proto::grid::{Cell, Grid, Occ, Rect};
 
@@ -174,9 +177,9 @@ impl<'a> Part<'a> {
     }
 }
 
-/// Steps (1)–(5) of Algorithm 9 ([`crate::mapping::merge`]) for `approximations`, each as the list of its
-/// polygons, over the window of `width × height` cells at `origin`: per cell, row-major, what
-/// they say together, `None` where none of them says anything (the thesis's `undefined`).
+/// Steps (1)–(5) of Algorithm 9 ([`crate::mapping::merge`]) for `approximations`, each as the list
+/// of its polygons, over the window of `width × height` cells at `origin`: per cell, row-major,
+/// what they say together, `None` where none of them says anything (the thesis's `undefined`).
 pub fn paint(
     approximations: &[Vec<&Polygon>],
     origin: Cell,
@@ -351,12 +354,12 @@ fn mark_into(out: &mut [Marks], window: &Canvas, a: &[Part<'_>], bands: Bands) {
     }
 }
 
-/// [`render`] of the approximation made of `polys`, restricted to the window of
-/// `width × height` cells at `origin`, row-major: inside the grid identical to the same cells of the full
-/// rendering, at the cost of the window and one pass over the vertices — used to score a
-/// single split locally. Each polygon is painted with the edges that reach the window's rows
-/// alone ([`paint_parts`]), and one whose cells miss the window not at all: a small window of a
-/// big approximation costs the edges near it, not every edge several times over.
+/// [`render`] of the approximation made of `polys`, restricted to the window of `width × height`
+/// cells at `origin`, row-major: inside the grid identical to the same cells of the full rendering,
+/// at the cost of the window and one pass over the vertices — used to score a single split locally.
+/// Each polygon is painted with the edges that reach the window's rows alone ([`paint_parts`]), and
+/// one whose cells miss the window not at all: a small window of a big approximation costs the
+/// edges near it, not every edge several times over.
 pub fn render_window(polys: &[&Polygon], origin: Cell, width: u32, height: u32) -> Vec<Occ> {
     let Some(window) = window_of(origin, width, height) else {
         return Vec::new();

@@ -1,5 +1,5 @@
-//! Path planning on a ternary grid: costs, frontiers, paths and waypoints (docs/design.md §4.6, first
-//! paragraph; thesis §4.5).
+//! Path planning on a ternary grid: costs, frontiers, paths and waypoints (docs/design.md §4.6,
+//! first paragraph; thesis §4.5).
 //!
 //! Every coordination strategy needs the same three things from the planning grid G_p: the cost
 //! V of reaching each cell from the robot's cell, the frontiers (reachable free cells next to
@@ -10,8 +10,9 @@
 //! diagonal step's straight segment (which passes through the shared corner) touches only free
 //! cells — the same walk ([`proto::traverse::swept`]) the world-server applies to a move.
 //!
-//! The path to a target follows the Dijkstra predecessors; [`next_waypoint`] then shortcuts it to
-//! the farthest path cell that one move can reach along a verified straight segment.
+//! The path to a target follows the Dijkstra predecessors;
+//! [`next_waypoint`](crate::nav::plan::next_waypoint) then shortcuts it to the farthest path cell
+//! that one move can reach along a verified straight segment.
 
 use std::cmp::Ordering;
 use std::collections::{BTreeSet, BinaryHeap};
@@ -304,13 +305,13 @@ pub fn costs_into(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f3
     dijkstra(map, g, &[start], penalty, &mut Stop::Never);
 }
 
-/// [`costs_into`] that stops once every frontier cell of the planning grid (`frontiers`, kept
-/// with it; `g` may be that grid or one with more cells blocked) is settled: what a strategy that looks at the frontiers' costs
-/// alone needs, without settling the cells beyond the farthest frontier. The cost of every
-/// frontier, the path to it and [`FrontierCells::reachable`] are [`costs_with`]'s (Dijkstra
-/// settles cells in the same order up to there, and a settled cell's cost and predecessor
-/// never change); costlier cells read as unreachable. When some frontier is
-/// not reachable the search runs out by itself and the map is complete.
+/// [`costs_into`] that stops once every frontier cell of the planning grid (`frontiers`, kept with
+/// it; `g` may be that grid or one with more cells blocked) is settled: what a strategy that looks
+/// at the frontiers' costs alone needs, without settling the cells beyond the farthest frontier.
+/// The cost of every frontier, the path to it and [`FrontierCells::reachable`] are [`costs_with`]'s
+/// (Dijkstra settles cells in the same order up to there, and a settled cell's cost and predecessor
+/// never change); costlier cells read as unreachable. When some frontier is not reachable the
+/// search runs out by itself and the map is complete.
 pub fn costs_to_frontiers(
     map: &mut CostMap,
     g: &Grid,
@@ -335,7 +336,7 @@ pub fn costs_to_frontiers(
 /// one Dijkstra's predecessors follow decides where the robot goes. Dijkstra settles cells by
 /// (cost, index) and keeps the first predecessor that gives a cell its final cost, so a cell's
 /// predecessor is, among the neighbours whose cost plus the step is exactly the cell's cost, the
-/// one with the lowest (cost, index) — a rule of the final costs alone ([`traced`]). A* finds
+/// one with the lowest (cost, index) — a rule of the final costs alone (`traced`). A* finds
 /// those costs for every cell that can be such a neighbour of a cell on a cheapest path (all of
 /// them have cost plus estimate within the target's cost, and it settles all of those), so the
 /// rule, followed back from the target, gives Dijkstra's path. `map` holds no costs afterwards
@@ -360,7 +361,7 @@ pub fn path_until(
 /// exceeds the bound, stopping once it settles the target, finds what the A* finds with a
 /// bucket queue instead of a heap. Every cell on a cheapest path has cost plus estimate below
 /// the target's cost, so none is left out and each is settled with its final cost before the
-/// target: [`traced`] follows the same predecessors. Without such a way, or when the target is
+/// target: `traced` follows the same predecessors. Without such a way, or when the target is
 /// not within the bound (the way is not the robot's any more), [`path_until`].
 pub fn path_along(
     map: &mut CostMap,

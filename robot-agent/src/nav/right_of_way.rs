@@ -1,17 +1,17 @@
 //! Right of way: how a robot gets past other robots and past moves the world keeps refusing.
 //!
-//! * Rejected moves: after [`MAX_REJECTIONS`] refused moves in a row (blocked, a collision, out
+//! * Rejected moves: after `MAX_REJECTIONS` refused moves in a row (blocked, a collision, out
 //!   of the map) the robot gives up its target, which stays blacklisted for
-//!   [`BLACKLIST_STEPS`] steps (another robot may be standing in a narrow passage). A robot never
+//!   `BLACKLIST_STEPS` steps (another robot may be standing in a narrow passage). A robot never
 //!   stops while it sees a reachable frontier: when every one is blacklisted, they count again.
-//! * A collision with another robot (a bump) shapes this robot's moves for [`BUMP_STEPS`] steps:
+//! * A collision with another robot (a bump) shapes this robot's moves for `BUMP_STEPS` steps:
 //!   it gives way ([`crate::nav::plan::give_way`]) when the other has the right of way — a lower id
 //!   and a target, or a target not heard of — and plans around it ([`crate::nav::plan::around`])
 //!   when the other has no target (an idle robot never moves, so it never learns it stands in
 //!   somebody's way).
 //!
-//! The geometry (discs, detours, the way out) is [`crate::nav::plan`]'s; this module holds the state
-//! and the rules.
+//! The geometry (discs, detours, the way out) is [`crate::nav::plan`]'s; this module holds the
+//! state and the rules.
 
 use std::collections::HashMap;
 

@@ -1,8 +1,8 @@
 //! Opening a robot's radio sessions as links come up: a robot connects to netem's proxy of each
 //! pair in which it has the lower id when a step's plan gives the proxy's address
-//! ([`PlannedLink::proxy`]) — netem listens for a pair only while its link is up, so a team's
-//! radio costs descriptors and sessions for the pairs in range, not for every pair
-//! (docs/design.md §1.1).
+//! ([`PlannedLink::proxy`](proto::msg::PlannedLink::proxy)) — netem listens for a pair only while
+//! its link is up, so a team's radio costs descriptors and sessions for the pairs in range, not for
+//! every pair (docs/design.md §1.1).
 //!
 //! zenoh's configuration fixes the endpoints a session connects to when it opens; a connection
 //! opened later goes through its runtime (`Runtime::connect_peer`, zenoh's `internal` API),

@@ -2,14 +2,14 @@
 //! [`crate::node`] drives it from zenoh. Every byte still crosses netem; what makes a run a
 //! function of its scenario is *when* the robot acts on what arrived:
 //!
-//! 1. Step t starts once the robot holds the world's scan for t and netem's [`LinkPlan`] for t
-//!    (which links are up during t).
+//! 1. Step t starts once the robot holds the world's scan for t and netem's
+//!    [`LinkPlan`](proto::msg::LinkPlan) for t (which links are up during t).
 //! 2. The neighbours of t are exactly the plan's. A link that is new in the plan is used once
 //!    its zenoh session is up: the peer's radio liveliness token is seen (after the token of an
 //!    earlier session, cut by netem, has gone) and zenoh lists a session to the peer itself
 //!    (a token can also arrive through a third robot).
 //! 3. The robot decides, then sends its traffic of t to each neighbour as one frame
-//!    ([`proto::msg::Frame`]), which ends with the step: its [`Mark`].
+//!    ([`proto::msg::Frame`]), which ends with the step: its [`Mark`](crate::radio::station::Mark).
 //! 4. It waits for the frame of t from every neighbour: then it holds everything they sent in
 //!    t; nothing of t+1 can have come, because no robot gets the scan of t+1 before every robot
 //!    sent its command for t, which each sends only now.
@@ -17,10 +17,11 @@
 //!    messages in the order sent), sends its command and telemetry for t. Answers that taking
 //!    them produces (a handshake after a gap) go out with its traffic of t+1.
 //!
-//! So the world, netem's clock and every robot move together: a step's bytes cross netem
-//! within the step, and the world advances only when every robot has taken its neighbours'
-//! traffic of the step. If the world goes on without this robot (its step timed out), a newer
-//! scan arrives while it waits, and it gives the step up ([`Lockstep::newer_than`]).
+//! So the world, netem's clock and every robot move together: a step's bytes cross netem within the
+//! step, and the world advances only when every robot has taken its neighbours' traffic of the
+//! step. If the world goes on without this robot (its step timed out), a newer scan arrives while
+//! it waits, and it gives the step up
+//! ([`Lockstep::newer_than`](crate::radio::lockstep::Lockstep::newer_than)).
 
 use std::collections::{BTreeMap, BTreeSet};
 

@@ -2,12 +2,13 @@
 //! byte budget on the **simulated** clock ([`proto::budget`], the one netem shapes links with too)
 //! meters the bytes the robot sends: the rate is the link's bandwidth, the burst a few steps of it
 //! (and at least one whole log entry, so an entry larger than one step's budget still goes every
-//! few steps instead of blocking the log forever). What does not fit waits in the logs; [`crate::exchange::sharing`] reports how much.
+//! few steps instead of blocking the log forever). What does not fit waits in the logs;
+//! [`crate::exchange::sharing`] reports how much.
 //!
 //! The budget answers "may these n bytes pass now?", while the exchange needs "how many bytes may
-//! pass now?" to fill a message. So [`Pacer::available`] takes one byte as a probe, which tells
-//! the remaining burst capacity, and holds that byte for the next [`Pacer::spend`]: nothing is
-//! lost or granted twice.
+//! pass now?" to fill a message. So [`Pacer::available`](crate::radio::pacing::Pacer::available)
+//! takes one byte as a probe, which tells the remaining burst capacity, and holds that byte for the
+//! next [`Pacer::spend`](crate::radio::pacing::Pacer::spend): nothing is lost or granted twice.
 
 use std::collections::HashMap;
 

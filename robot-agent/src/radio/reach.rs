@@ -3,10 +3,10 @@
 //! [`proto::pathloss`], the one implementation of the path loss model and its wall count; a robot
 //! counts as walls only the cells it knows occupied.
 //!
-//! * [`Reach::estimate`]: how far a robot at a place could be heard (de Hoog et al.'s rendezvous
-//!   points prefer the best reach).
-//! * [`Reach::linked`]: whether robots at two places could talk (Rooker and Birk's pack judges
-//!   its configurations with it).
+//! * [`Reach::estimate`](crate::radio::reach::Reach::estimate): how far a robot at a place could be
+//!   heard (de Hoog et al.'s rendezvous points prefer the best reach).
+//! * [`Reach::linked`](crate::radio::reach::Reach::linked): whether robots at two places could talk
+//!   (Rooker and Birk's pack judges its configurations with it).
 
 use proto::geom::{MapInfo, Metres};
 use proto::grid::{Cell, Grid, Occ};
@@ -47,7 +47,7 @@ impl Reach {
         }
     }
 
-    /// The mean, over [`REACH_RAYS`] directions from the centre of `p`, of the farthest distance
+    /// The mean, over `REACH_RAYS` directions from the centre of `p`, of the farthest distance
     /// (cells) at which a robot there would still be heard: the free-space range for `disk`; for
     /// `pathloss` the farthest point of each ray whose signal, through the walls the ray has
     /// crossed so far, is at least the threshold.

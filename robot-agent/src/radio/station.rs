@@ -1,20 +1,24 @@
 //! The robot's side of the radio: who is in range, what each step sends them within each link's
 //! budget, and every byte in and out counted once.
 //!
-//! * Neighbours: the robots whose radio liveliness token this robot sees ([`Radio::link_up`],
-//!   [`Radio::link_down`]).
-//! * Pacing: per neighbour, a budget on the simulated clock of the link's bandwidth with bursts
-//!   of [`proto::budget::SAVE_STEPS`] steps (and at least the largest single-scan delta), kept by
-//!   [`crate::radio::pacing::Pacer`]. On average a link is offered no more than its bandwidth, whatever
-//!   the robot would like to send, so queues in netem and the kernel stay short and keep-alives
-//!   are not stuck behind data. What does not fit waits in the exchange's logs: the backlog.
-//! * Accounting: a message is encoded in one place ([`Msg::pack`]), its bytes counted by package
-//!   type, and handed to [`crate::node`] as an [`Outgoing`] (key and bytes). Incoming bytes come
-//!   back with their key's kind ([`Radio::receive`]), are counted and decoded here.
-//! * Frames (lockstep with step markers): a step's messages to one neighbour wait in the radio
-//!   and leave as one [`Frame`] with the step marker ([`Radio::frames`]), so zenoh's framing and
-//!   the marker are paid once per link and step; a frame received is unpacked into its messages
-//!   and its [`Mark`].
+//! * Neighbours: the robots whose radio liveliness token this robot sees
+//!   ([`Radio::link_up`](crate::radio::station::Radio::link_up),
+//!   [`Radio::link_down`](crate::radio::station::Radio::link_down)).
+//! * Pacing: per neighbour, a budget on the simulated clock of the link's bandwidth with bursts of
+//!   [`proto::budget::SAVE_STEPS`] steps (and at least the largest single-scan delta), kept by
+//!   [`crate::radio::pacing::Pacer`]. On average a link is offered no more than its bandwidth,
+//!   whatever the robot would like to send, so queues in netem and the kernel stay short and
+//!   keep-alives are not stuck behind data. What does not fit waits in the exchange's logs: the
+//!   backlog.
+//! * Accounting: a message is encoded in one place (`Msg::pack`), its bytes counted by package
+//!   type, and handed to [`crate::node`] as an [`Outgoing`](crate::radio::station::Outgoing) (key
+//!   and bytes). Incoming bytes come back with their key's kind
+//!   ([`Radio::receive`](crate::radio::station::Radio::receive)), are counted and decoded here.
+//! * Frames (lockstep with step markers): a step's messages to one neighbour wait in the radio and
+//!   leave as one [`Frame`](proto::msg::Frame) with the step marker
+//!   ([`Radio::frames`](crate::radio::station::Radio::frames)), so zenoh's framing and the marker
+//!   are paid once per link and step; a frame received is unpacked into its messages and its
+//!   [`Mark`](crate::radio::station::Mark).
 
 use std::collections::{BTreeSet, HashMap};
 

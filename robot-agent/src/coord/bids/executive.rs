@@ -1,14 +1,15 @@
-//! Assigning tasks (Simmons et al., "Coordination for multi-robot exploration and mapping",
-//! AAAI 2000, section "Assigning Tasks"): the executive collects the robots' bids
-//! ([`crate::coord::bids::robot`]) and assigns greedily — the bid location of highest net utility (gain minus
-//! cost) goes to its robot; the remaining robots' gains are then discounted by the regions
-//! already assigned, and the highest remaining net utility is chosen, until every robot has a
-//! task or no task's discounted gain is above a minimum threshold.
+//! Assigning tasks (Simmons et al., "Coordination for multi-robot exploration and mapping", AAAI
+//! 2000, section "Assigning Tasks"): the executive collects the robots' bids
+//! ([`crate::coord::bids::robot`]) and assigns greedily — the bid location of highest net utility
+//! (gain minus cost) goes to its robot; the remaining robots' gains are then discounted by the
+//! regions already assigned, and the highest remaining net utility is chosen, until every robot has
+//! a task or no task's discounted gain is above a minimum threshold.
 //!
-//! * Discount: d_j = Area(IGR_j ∩ ∪_{i∈R} IGR_i) / Area(IGR_j) ([`overlap`], exact), and the
-//!   discounted utility u_j = (1 − d_j)·i_j − c_j (weighted by [`Weights`]). R holds the tasks
-//!   assigned so far and, from the start, those of robots that keep their task because they sent
-//!   no new bid.
+//! * Discount: d_j = Area(IGR_j ∩ ∪_{i∈R} IGR_i) / Area(IGR_j)
+//!   ([`overlap`](crate::coord::bids::executive::overlap), exact), and the discounted utility u_j =
+//!   (1 − d_j)·i_j − c_j (weighted by [`Weights`](crate::coord::bids::offer::Weights)). R holds the
+//!   tasks assigned so far and, from the start, those of robots that keep their task because they
+//!   sent no new bid.
 //! * Hysteresis: an offer whose cell lies in the IGR of its robot's current task has its gain
 //!   divided by h (0 < h ≤ 1), before discounting, so that a robot is less disposed to switch.
 //! * Where the paper is silent: the threshold is on the weighted discounted gain (not on the

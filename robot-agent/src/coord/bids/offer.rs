@@ -3,21 +3,22 @@
 //! explore, each with its cost, its expected information gain and the region that gain lies in;
 //! the executive ([`crate::coord::bids::executive`]) assigns the tasks.
 //!
-//! * Frontier cells ([`frontier_cells`]): clear cells next to unknown ones, each at least a
-//!   minimum distance (≈ the robot's radius) from all other frontier cells. The paper does not
-//!   say how the spaced set is picked; here, greedily in order of increasing path cost (ties by
-//!   `(y, x)`), so that the choice is deterministic and near cells win. "Next to" is 4-adjacency
-//!   inside the grid, as in [`crate::nav::plan::frontiers`].
+//! * Frontier cells ([`frontier_cells`](crate::coord::bids::offer::frontier_cells)): clear cells
+//!   next to unknown ones, each at least a minimum distance (≈ the robot's radius) from all other
+//!   frontier cells. The paper does not say how the spaced set is picked; here, greedily in order
+//!   of increasing path cost (ties by `(y, x)`), so that the choice is deterministic and near cells
+//!   win. "Next to" is 4-adjacency inside the grid, as in [`crate::nav::plan::frontiers`].
 //! * Cost: the optimal path length from the robot, for all cells by one flood fill over clear
 //!   cells ([`crate::nav::plan::costs`]).
-//! * Information gain ([`information_gain`]): the unknown cells within the nominal sensor range of
-//!   the frontier cell that form a connected set with it — a flood fill that stops at clear and
-//!   obstacle cells and beyond the range — and their bounding rectangle, the information-gain
-//!   region ([`Igr`]). The paper leaves the connectivity open; here it is 4-connectivity, seeded
-//!   at the frontier cell's unknown 4-neighbours, so that a fill does not leak through the
-//!   diagonal gap between two wall cells.
-//! * A bid ([`bid`]): (cell, gain, cost, IGR) per frontier cell, the best ones by net utility
-//!   ([`Weights`]).
+//! * Information gain ([`information_gain`](crate::coord::bids::offer::information_gain)): the
+//!   unknown cells within the nominal sensor range of the frontier cell that form a connected set
+//!   with it — a flood fill that stops at clear and obstacle cells and beyond the range — and their
+//!   bounding rectangle, the information-gain region ([`Igr`](crate::coord::bids::offer::Igr)). The
+//!   paper leaves the connectivity open; here it is 4-connectivity, seeded at the frontier cell's
+//!   unknown 4-neighbours, so that a fill does not leak through the diagonal gap between two wall
+//!   cells.
+//! * A bid ([`bid`](crate::coord::bids::offer::bid)): (cell, gain, cost, IGR) per frontier cell,
+//!   the best ones by net utility ([`Weights`](crate::coord::bids::offer::Weights)).
 
 use std::collections::HashMap;
 

@@ -1,5 +1,6 @@
-//! A bidding robot (Simmons et al. 2000): it bids what [`super::offer`] constructs, follows the
-//! executive's assignment while it is fresh, and decides alone when cut off.
+//! A bidding robot (Simmons et al. 2000): it bids what [`super::offer`](crate::coord::bids::offer)
+//! constructs, follows the executive's assignment while it is fresh, and decides alone when cut
+//! off.
 
 use proto::grid::Cell;
 use proto::msg::{encode, Bid, Bids, RobotId, Step};

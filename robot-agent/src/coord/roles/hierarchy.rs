@@ -3,13 +3,14 @@
 //! a tree rooted at the base station whose root has any number of children and every other node
 //! at most one — a branch is a chain of relays ending in an explorer.
 //!
-//! * [`Shape`]: the branches and their lengths, fixed for the run (`[coordination.roles]`). A
-//!   [`Place`] is a slot in it; the last place of a branch is the explorer's.
-//! * [`Roster`]: which robot holds which place. Role swaps move robots between places, so every
-//!   robot keeps its own roster and merges what it hears: for each robot, the newest claim wins
-//!   (a [`Seat`]'s `since`). A robot's parent or child is whoever holds the place above or below
-//!   its own in its roster.
-//! * [`swap_pays`]: the role swap rule of §V.
+//! * [`Shape`](crate::coord::roles::hierarchy::Shape): the branches and their lengths, fixed for
+//!   the run (`[coordination.roles]`). A [`Place`](proto::msg::Place) is a slot in it; the last
+//!   place of a branch is the explorer's.
+//! * [`Roster`](crate::coord::roles::hierarchy::Roster): which robot holds which place. Role swaps
+//!   move robots between places, so every robot keeps its own roster and merges what it hears: for
+//!   each robot, the newest claim wins (a [`Seat`](proto::msg::Seat)'s `since`). A robot's parent
+//!   or child is whoever holds the place above or below its own in its roster.
+//! * [`swap_pays`](crate::coord::roles::hierarchy::swap_pays): the role swap rule of §V.
 
 use std::collections::BTreeMap;
 

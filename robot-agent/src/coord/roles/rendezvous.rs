@@ -2,16 +2,16 @@
 //! explorer, or a relay below another relay) meets its parent next. The child agrees it while the
 //! two are in range, on its own planning grid — the map the two have just shared.
 //!
-//! * Where: the rendezvous points of the known free space ([`crate::coord::roles::skeleton`]: Hilditch's
-//!   skeleton, its junctions and filling points, pruned); of the `candidates` points nearest the
-//!   place the child heads for next (an explorer's next frontier), the one with the highest
-//!   neighbour traversal T — the most important junction — and on ties the best estimated radio
-//!   reach ([`crate::radio::reach::Reach`]), then the nearest. The fallback point is where the parent stands at the
-//!   agreement: both have just been there.
+//! * Where: the rendezvous points of the known free space ([`crate::coord::roles::skeleton`]:
+//!   Hilditch's skeleton, its junctions and filling points, pruned); of the `candidates` points
+//!   nearest the place the child heads for next (an explorer's next frontier), the one with the
+//!   highest neighbour traversal T — the most important junction — and on ties the best estimated
+//!   radio reach ([`crate::radio::reach::Reach`]), then the nearest. The fallback point is where
+//!   the parent stands at the agreement: both have just been there.
 //! * By when: the parent's trip — from where it stands to its own meeting point (the base station,
 //!   or its parent's rendezvous), and from there to the new point — at the robots' speed, on the
-//!   same map ([`agree`]). The paper's explorer uses that prediction to explore until it must turn
-//!   back; so does ours ([`crate::coord::roles::robot`]).
+//!   same map ([`agree`](crate::coord::roles::rendezvous::agree)). The paper's explorer uses that
+//!   prediction to explore until it must turn back; so does ours ([`crate::coord::roles::robot`]).
 
 use proto::grid::{Cell, Grid};
 use proto::msg::{Rendezvous, Step};

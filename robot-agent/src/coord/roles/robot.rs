@@ -4,9 +4,11 @@
 //! back; robots that meet swap roles when that shortens their ways.
 //!
 //! * The hierarchy, the roster of who holds which place, and the role swap rule:
-//!   [`crate::coord::roles::hierarchy`]. Where and by when a child meets its parent: [`crate::coord::roles::rendezvous`].
-//! * The state machines of Fig. 2 ([`explorer_next`], [`relay_next`]), pure functions of what the
-//!   robot senses this step ([`Sense`]):
+//!   [`crate::coord::roles::hierarchy`]. Where and by when a child meets its parent:
+//!   [`crate::coord::roles::rendezvous`].
+//! * The state machines of Fig. 2 ([`explorer_next`](crate::coord::roles::robot::explorer_next),
+//!   [`relay_next`](crate::coord::roles::robot::relay_next)), pure functions of what the robot
+//!   senses this step ([`Sense`](crate::coord::roles::robot::Sense)):
 //!   - explorer: `Explore` until the time left before the rendezvous is the trip back to it,
 //!     then `Return`, `Wait` at the point, and `Deliver` once the parent is in range (it stays
 //!     until what it carries has crossed, at most `linger_steps`). A parent that has not come

@@ -2,21 +2,22 @@
 //! Visser, "Autonomous multi-robot exploration in communication-limited environments", TAROS
 //! 2010, §IV and Algorithm 1).
 //!
-//! * [`thin`]: Hilditch's thinning (C. Hilditch, "Linear skeletons from square cupboards", 1969)
-//!   of the free cells — a free cell is peeled off while it is a border cell whose removal keeps
-//!   the shape connected and does not shorten a line to nothing, pass after pass until a pass
-//!   removes nothing. A pass picks its candidates on the grid as the pass found it and removes
-//!   each, in row order, only if it is still removable then (two-cell-thick lines would
-//!   otherwise vanish from both sides at once). What stays is one cell wide, connected and
-//!   centred.
-//! * [`traversal`]: the neighbour traversal T(p1), the number of free-after-blocked patterns in
-//!   the ring p2, p3, …, p9, p2 around p1 (paper Fig. 3); on the skeleton, T ≥ 3 marks a
-//!   junction.
-//! * [`rendezvous_points`]: Algorithm 1 — the junctions (T ≥ 3), then skeleton cells farther
-//!   than `fill` cells from every point taken so far (filling long stretches), then pruning:
-//!   a point is dropped when a point kept before it lies within `prune` cells. The paper's
-//!   pruning removes a point when any other lies that close, which drops both of a close pair;
-//!   here the earlier point (junctions first, higher T first) stays.
+//! * [`thin`](crate::coord::roles::skeleton::thin): Hilditch's thinning (C. Hilditch, "Linear
+//!   skeletons from square cupboards", 1969) of the free cells — a free cell is peeled off while it
+//!   is a border cell whose removal keeps the shape connected and does not shorten a line to
+//!   nothing, pass after pass until a pass removes nothing. A pass picks its candidates on the grid
+//!   as the pass found it and removes each, in row order, only if it is still removable then
+//!   (two-cell-thick lines would otherwise vanish from both sides at once). What stays is one cell
+//!   wide, connected and centred.
+//! * [`traversal`](crate::coord::roles::skeleton::traversal): the neighbour traversal T(p1), the
+//!   number of free-after-blocked patterns in the ring p2, p3, …, p9, p2 around p1 (paper Fig. 3);
+//!   on the skeleton, T ≥ 3 marks a junction.
+//! * [`rendezvous_points`](crate::coord::roles::skeleton::rendezvous_points): Algorithm 1 — the
+//!   junctions (T ≥ 3), then skeleton cells farther than `fill` cells from every point taken so far
+//!   (filling long stretches), then pruning: a point is dropped when a point kept before it lies
+//!   within `prune` cells. The paper's pruning removes a point when any other lies that close,
+//!   which drops both of a close pair; here the earlier point (junctions first, higher T first)
+//!   stays.
 
 use proto::grid::{Cell, Grid, Occ};
 
