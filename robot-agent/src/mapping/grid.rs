@@ -283,7 +283,6 @@ fn trace(
     let lo = (-1.0, -1.0);
     let hi = (f64::from(g.width()) + 1.0, f64::from(g.height()) + 1.0);
     let Some((t0, t1)) = clip(robot, end, lo, hi) else {
-        cells.clear();
         return Some((0, None));
     };
     let at = |t: f64| {
