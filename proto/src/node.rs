@@ -243,7 +243,7 @@ pub fn entry_logged<E: std::fmt::Display>(
     }
 }
 
-/// Sets zenoh's thread pools for this process to `LEAN_ZENOH_RUNTIME` unless the user set
+/// Sets zenoh's thread pools for this process to [`LEAN_ZENOH_RUNTIME`] unless the user set
 /// `ZENOH_RUNTIME` (why: docs/design.md §1.1). zenoh reads the variable once, when it first
 /// starts a pool.
 ///

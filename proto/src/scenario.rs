@@ -820,7 +820,7 @@ const CLEARED_STRIP_M: f64 = 1.0;
 impl Scenario {
     /// The step limit of a scenario that leaves `max_steps` out, for a world of `reachable_cells`
     /// free cells reachable from the spawn area: twice the steps one robot needs to drive a
-    /// lawn-mower path over that area with strips `CLEARED_STRIP_M` wide (narrower when the
+    /// lawn-mower path over that area with strips [`CLEARED_STRIP_M`] wide (narrower when the
     /// sensor's range is shorter than half of it) at `robots.speed_m_per_s`. The team's size does
     /// not enter: a team is never slower than its one robot, so the limit is generous for
     /// teams; it is only a limit — a run ends as soon as it is explored. Clamped to

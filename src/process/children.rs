@@ -116,7 +116,7 @@ fn die_with_parent(cmd: &mut Command) {
     }
 }
 
-/// `die_with_parent` for a `std` command (the sweep's runs).
+/// [`die_with_parent`] for a `std` command (the sweep's runs).
 #[allow(unsafe_code)]
 pub fn die_with_parent_std(cmd: &mut std::process::Command) {
     use std::os::unix::process::CommandExt;

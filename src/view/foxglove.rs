@@ -401,8 +401,8 @@ impl Scene {
         }
     }
 
-    /// Holds each step back until records `steps` steps later have come (at least `HOLD_STEPS`): a
-    /// finished run's [`StepLog::lateness`](crate::rundir::steplog::StepLog::lateness), so that
+    /// Holds each step back until records `steps` steps later have come (at least [`HOLD_STEPS`]):
+    /// a finished run's [`StepLog::lateness`](crate::rundir::steplog::StepLog::lateness), so that
     /// every record goes out with its step.
     pub fn hold_back(&mut self, steps: Step) {
         self.hold = steps.max(HOLD_STEPS);

@@ -336,7 +336,7 @@ pub fn costs_to_frontiers(
 /// one Dijkstra's predecessors follow decides where the robot goes. Dijkstra settles cells by
 /// (cost, index) and keeps the first predecessor that gives a cell its final cost, so a cell's
 /// predecessor is, among the neighbours whose cost plus the step is exactly the cell's cost, the
-/// one with the lowest (cost, index) — a rule of the final costs alone (`traced`). A* finds
+/// one with the lowest (cost, index) — a rule of the final costs alone ([`traced`]). A* finds
 /// those costs for every cell that can be such a neighbour of a cell on a cheapest path (all of
 /// them have cost plus estimate within the target's cost, and it settles all of those), so the
 /// rule, followed back from the target, gives Dijkstra's path. `map` holds no costs afterwards
@@ -361,7 +361,7 @@ pub fn path_until(
 /// exceeds the bound, stopping once it settles the target, finds what the A* finds with a
 /// bucket queue instead of a heap. Every cell on a cheapest path has cost plus estimate below
 /// the target's cost, so none is left out and each is settled with its final cost before the
-/// target: `traced` follows the same predecessors. Without such a way, or when the target is
+/// target: [`traced`] follows the same predecessors. Without such a way, or when the target is
 /// not within the bound (the way is not the robot's any more), [`path_until`].
 pub fn path_along(
     map: &mut CostMap,

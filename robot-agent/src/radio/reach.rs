@@ -47,7 +47,7 @@ impl Reach {
         }
     }
 
-    /// The mean, over `REACH_RAYS` directions from the centre of `p`, of the farthest distance
+    /// The mean, over [`REACH_RAYS`] directions from the centre of `p`, of the farthest distance
     /// (cells) at which a robot there would still be heard: the free-space range for `disk`; for
     /// `pathloss` the farthest point of each ray whose signal, through the walls the ray has
     /// crossed so far, is at least the threshold.

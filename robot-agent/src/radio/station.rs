@@ -10,9 +10,10 @@
 //!   whatever the robot would like to send, so queues in netem and the kernel stay short and
 //!   keep-alives are not stuck behind data. What does not fit waits in the exchange's logs: the
 //!   backlog.
-//! * Accounting: a message is encoded in one place (`Msg::pack`), its bytes counted by package
-//!   type, and handed to [`crate::node`] as an [`Outgoing`](crate::radio::station::Outgoing) (key
-//!   and bytes). Incoming bytes come back with their key's kind
+//! * Accounting: a message is encoded in one place
+//!   ([`Msg::pack`](crate::radio::station::Msg::pack)), its bytes counted by package type, and
+//!   handed to [`crate::node`] as an [`Outgoing`](crate::radio::station::Outgoing) (key and bytes).
+//!   Incoming bytes come back with their key's kind
 //!   ([`Radio::receive`](crate::radio::station::Radio::receive)), are counted and decoded here.
 //! * Frames (lockstep with step markers): a step's messages to one neighbour wait in the radio and
 //!   leave as one [`Frame`](proto::msg::Frame) with the step marker
