@@ -63,7 +63,8 @@ pub struct Contours {
     objects: Vec<Contour>,
     /// Per object, its slot.
     slots: Vec<u32>,
-    /// Per slot, its object's place in `objects` ([`FREE`]: none).
+    /// Per slot, its object's place in `objects` ([`FREE`]: none; [`TRACED`]: traced in the
+    /// update under way).
     place: Vec<u32>,
     /// Slots free for new objects.
     spare: Vec<u32>,
@@ -75,6 +76,9 @@ pub struct Contours {
 
 /// A slot without an object ([`Contours::place`]).
 const FREE: u32 = u32::MAX;
+
+/// The slot of an object traced in this update, not yet given its place.
+const TRACED: u32 = u32::MAX - 1;
 
 impl Contours {
     /// Extracts every object of `grid` (Algorithm 3), in the scan order of their first point.
@@ -125,13 +129,15 @@ impl Contours {
                 }
             }
         }
+        // A gone object's points stay in the index, read as absent while its slot has no
+        // place, and are overwritten as the objects through them are traced anew: each of its
+        // points off the cells `near` still lies on P_t (its pixel and free side are not next to
+        // a change), on an object that passes next to a change (or it would be the gone object
+        // itself, unchanged) and so is traced. What is left of the gone objects is their points
+        // on the cells `near` that P_t lost — removed below — rather than every point of the
+        // object bounding the explored space, removed and entered again at every step.
         for &slot in &gone {
-            let o = &self.objects[self.place[slot as usize] as usize];
-            for q in &o.points {
-                self.index.remove(q);
-            }
             self.place[slot as usize] = FREE;
-            self.spare.push(slot);
         }
         let mut found = Vec::new();
         for &at in &near {
@@ -139,7 +145,25 @@ impl Contours {
                 self.trace_from(grid, at, &mut found);
             }
         }
+        // What is left of the gone objects: their points on the cells `near` that P_t lost.
+        for &at in &near {
+            for dir in 0..4 {
+                let q = Aux { at, dir }.point();
+                if (self.index.get(&q)).is_some_and(|&(slot, _)| self.place[slot as usize] == FREE)
+                {
+                    self.index.remove(&q);
+                }
+            }
+        }
+        // Slots freed here are given out from the next update on: while tracing, a point
+        // under a freed slot is one of a gone object's.
+        self.spare.extend(gone);
         self.reorder(found);
+    }
+
+    /// Whether `q` is a point of an object that lives (kept, or traced in this update).
+    fn holds(&self, q: QPoint) -> bool {
+        (self.index.get(&q)).is_some_and(|&(slot, _)| self.place[slot as usize] != FREE)
     }
 
     /// Traces, in [`DIRS`] order, every object through a point of contour pixel `c` that
@@ -148,7 +172,7 @@ impl Contours {
     fn trace_from(&mut self, grid: &Grid, c: Cell, found: &mut Vec<Contour>) {
         for dir in 0..4 {
             let start = Aux { at: c, dir };
-            if !is_free(grid, step(c, dir)) || self.index.contains_key(&start.point()) {
+            if !is_free(grid, step(c, dir)) || self.holds(start.point()) {
                 continue;
             }
             let mut contour = trace(grid, start);
@@ -161,6 +185,8 @@ impl Contours {
                 self.place.push(FREE);
                 self.place.len() as u32 - 1
             });
+            // Live, its place in the order given by `reorder`.
+            self.place[slot as usize] = TRACED;
             for (i, &q) in contour.points.iter().enumerate() {
                 self.index.insert(q, (slot, i as u32));
             }

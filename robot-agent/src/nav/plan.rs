@@ -179,6 +179,35 @@ struct Entry {
 
 impl Eq for Entry {}
 
+impl Entry {
+    /// (cost, index) as one integer in their order: the cost's bits as `f64::total_cmp` orders
+    /// them (the sign bit flipped, the rest too for a negative cost), then the index — one
+    /// comparison where [`Entry::cmp`] takes two and a float's bit twiddling each time.
+    fn key(&self) -> u128 {
+        let bits = self.cost.to_bits();
+        let ordered = if bits >> 63 == 0 {
+            bits | 1 << 63
+        } else {
+            !bits
+        };
+        u128::from(ordered) << 64 | self.index as u128
+    }
+
+    /// The entry whose [`Entry::key`] `key` is (the same bits).
+    fn of_key(key: u128) -> Entry {
+        let ordered = (key >> 64) as u64;
+        let bits = if ordered >> 63 == 1 {
+            ordered & !(1 << 63)
+        } else {
+            !ordered
+        };
+        Entry {
+            cost: f64::from_bits(bits),
+            index: key as u64 as usize,
+        }
+    }
+}
+
 impl Ord for Entry {
     fn cmp(&self, other: &Self) -> Ordering {
         other
@@ -446,10 +475,12 @@ impl Octile {
     }
 
     fn estimate(&self, i: usize) -> f64 {
-        let (dx, dy) = (
-            (i % self.w).abs_diff(self.tx) as f64,
-            (i / self.w).abs_diff(self.ty) as f64,
-        );
+        self.estimate_at((i % self.w, i / self.w))
+    }
+
+    /// [`Octile::estimate`] of the window cell at `(x, y)`.
+    fn estimate_at(&self, (x, y): (usize, usize)) -> f64 {
+        let (dx, dy) = (x.abs_diff(self.tx) as f64, y.abs_diff(self.ty) as f64);
         let octile = dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy);
         if self.guided {
             octile * (1.0 - 1e-6)
@@ -489,13 +520,13 @@ fn astar(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>, targ
             break;
         }
         found |= index == t;
-        moves.each(index, |ni, step| {
+        moves.each(index, |ni, at, step| {
             let next = so_far + step;
             if next < map.dist_at(ni) {
                 map.reach(ni, next, index as u32);
                 heap.push(Guided {
                     entry: Entry {
-                        cost: next + estimate(ni),
+                        cost: next + octile.estimate_at(at),
                         index: ni,
                     },
                     g: next,
@@ -590,11 +621,11 @@ impl Stop<'_> {
         }
     }
 
-    /// Whether the search takes in window index `i` reached at `cost`.
-    fn admits(&self, i: usize, cost: f64) -> bool {
+    /// Whether the search takes in the window cell at `at` reached at `cost`.
+    fn admits(&self, at: (usize, usize), cost: f64) -> bool {
         match self {
             Stop::Within { bound, toward, .. } => {
-                toward.is_some_and(|(o, _)| cost + o.estimate(i) <= *bound)
+                toward.is_some_and(|(o, _)| cost + o.estimate_at(at) <= *bound)
             }
             _ => true,
         }
@@ -663,9 +694,9 @@ fn dijkstra(
             map.limit = cost;
             break;
         }
-        moves.each(index, |ni, step| {
+        moves.each(index, |ni, at, step| {
             let next = cost + step;
-            if next < map.dist_at(ni) && until.admits(ni, next) {
+            if next < map.dist_at(ni) && until.admits(at, next) {
                 map.reach(ni, next, index as u32);
                 queue.push(Entry {
                     cost: next,
@@ -686,8 +717,9 @@ fn dijkstra(
 #[derive(Clone, Debug, Default)]
 struct Buckets {
     unit: bool,
-    /// Bucket k (costs in [k, k + 1)) at `ring[k % 4]`.
-    ring: [Vec<Entry>; 4],
+    /// Bucket k (costs in [k, k + 1)) at `ring[k % 4]`, its entries as their keys
+    /// ([`Entry::key`]), which sort as the entries do.
+    ring: [Vec<u128>; 4],
     /// The bucket being taken, whether it is sorted, and the entries queued in all.
     current: usize,
     sorted: bool,
@@ -703,24 +735,34 @@ impl Buckets {
         self.heap.clear();
     }
 
+    /// Queues `e`: into its bucket while every step costs 1 or √2 after the last entry taken
+    /// (a few instructions, inlined into the search), else into the heap.
+    #[inline]
     fn push(&mut self, e: Entry) {
-        if !self.unit {
-            self.heap.push(e);
-            return;
-        }
         let k = e.cost as usize;
         let taken = k < self.current || (k == self.current && self.sorted);
-        if taken || k > self.current + 3 {
-            // Not a step of 1 or √2 after the last entry taken: a heap keeps the order from
-            // here on.
-            self.unit = false;
-            self.heap
-                .extend(self.ring.iter_mut().flat_map(|b| b.drain(..)));
-            self.heap.push(e);
-            return;
+        if self.unit && !taken && k <= self.current + 3 {
+            self.ring[k % 4].push(e.key());
+            self.len += 1;
+        } else {
+            self.push_heap(e);
         }
-        self.ring[k % 4].push(e);
-        self.len += 1;
+    }
+
+    /// [`Buckets::push`] into the heap. The first entry that is not a step of 1 or √2 after the
+    /// last one taken moves every bucket into the heap, which keeps the order from there on.
+    #[inline(never)]
+    fn push_heap(&mut self, e: Entry) {
+        if self.unit {
+            self.unit = false;
+            self.heap.extend(
+                self.ring
+                    .iter_mut()
+                    .flat_map(|b| b.drain(..))
+                    .map(Entry::of_key),
+            );
+        }
+        self.heap.push(e);
     }
 
     fn pop(&mut self) -> Option<Entry> {
@@ -730,13 +772,13 @@ impl Buckets {
         while self.len > 0 {
             let b = &mut self.ring[self.current % 4];
             if !self.sorted {
-                // `Entry` orders the cheapest last (for the max-heap): take from the back.
-                b.sort_unstable();
+                // The cheapest last: take from the back.
+                b.sort_unstable_by(|x, y| y.cmp(x));
                 self.sorted = true;
             }
-            if let Some(e) = b.pop() {
+            if let Some(key) = b.pop() {
                 self.len -= 1;
-                return Some(e);
+                return Some(Entry::of_key(key));
             }
             self.current += 1;
             self.sorted = false;
@@ -791,20 +833,27 @@ impl<'a> Moves<'a> {
         on && self.cells[here.wrapping_add_signed(dy * self.gw as isize + dx)] == Occ::Free
     }
 
-    /// `step(neighbour, cost)` for each move out of window index `index`, in [`MOVES`]' order
-    /// (each neighbour read once).
-    fn each(&self, index: usize, mut step: impl FnMut(usize, f64)) {
-        let here = self.in_grid(index);
+    /// `step(neighbour, its (x, y) in the window, cost)` for each move out of window index
+    /// `index`, in [`MOVES`]' order — each neighbour read once, the cell's place in the window
+    /// and the grid worked out once ([`Moves::is_free`]'s rule).
+    fn each(&self, index: usize, mut step: impl FnMut(usize, (usize, usize), f64)) {
+        let (x, y) = (index % self.w, index / self.w);
+        let here = (self.y0 + y) * self.gw + self.x0 + x;
+        let inner = x > 0 && y > 0 && x + 1 < self.w && y + 1 < self.h;
         let mut open = [false; 8];
-        for (o, &(_, _, d, _, _)) in open.iter_mut().zip(&self.offsets) {
-            *o = self.is_free(index, d);
+        for (o, &(_, gd, (dx, dy), _, _)) in open.iter_mut().zip(&self.offsets) {
+            let on = inner
+                || (x.checked_add_signed(dx).is_some_and(|nx| nx < self.w)
+                    && y.checked_add_signed(dy).is_some_and(|ny| ny < self.h));
+            *o = on && self.cells[here.wrapping_add_signed(gd)] == Occ::Free;
         }
-        for (k, &(d, gd, _, between, length)) in self.offsets.iter().enumerate() {
+        for (k, &(d, gd, (dx, dy), between, length)) in self.offsets.iter().enumerate() {
             if !open[k] || between.is_some_and(|(a, b)| !open[a] || !open[b]) {
                 continue;
             }
             step(
                 index.wrapping_add_signed(d),
+                (x.wrapping_add_signed(dx), y.wrapping_add_signed(dy)),
                 length * self.factor(here.wrapping_add_signed(gd)),
             );
         }
@@ -1524,6 +1573,21 @@ mod tests {
     }
 
     proptest! {
+        /// An entry's key orders entries as `Entry::cmp` does, reversed (that one is for the
+        /// max-heap): by `f64::total_cmp` of the cost — any float, signed zeros and NaNs
+        /// included — then by index; and it gives back the entry, bit for bit.
+        #[test]
+        fn an_entrys_key_orders_as_entries_do(
+            a in proptest::num::f64::ANY, b in proptest::num::f64::ANY,
+            same in proptest::bool::ANY, i in 0usize..1 << 40, j in 0usize..1 << 40
+        ) {
+            let b = if same { a } else { b };
+            let (x, y) = (Entry { cost: a, index: i }, Entry { cost: b, index: j });
+            prop_assert_eq!(x.key().cmp(&y.key()), y.cmp(&x));
+            let back = Entry::of_key(x.key());
+            prop_assert_eq!((back.cost.to_bits(), back.index), (a.to_bits(), i));
+        }
+
         /// Searched over the explored part of a bigger map only, costs, paths and frontiers
         /// are those of the search over every cell — the robot may stand anywhere, even on an
         /// unknown cell beside the explored part.
