@@ -130,12 +130,8 @@ impl Contours {
             }
         }
         // A gone object's points stay in the index, read as absent while its slot has no
-        // place, and are overwritten as the objects through them are traced anew: each of its
-        // points off the cells `near` still lies on P_t (its pixel and free side are not next to
-        // a change), on an object that passes next to a change (or it would be the gone object
-        // itself, unchanged) and so is traced. What is left of the gone objects is their points
-        // on the cells `near` that P_t lost — removed below — rather than every point of the
-        // object bounding the explored space, removed and entered again at every step.
+        // place, and are written over as the objects through them are traced again; what is
+        // left of them afterwards lies on the cells `near` (why: docs/design.md §4.1).
         for &slot in &gone {
             self.place[slot as usize] = FREE;
         }

@@ -498,13 +498,12 @@ fn astar(map: &mut CostMap, g: &Grid, start: Cell, penalty: Option<&[f32]>, targ
         return false;
     };
     let octile = Octile::to(map, t, penalty);
-    let estimate = |i: usize| octile.estimate(i);
     let mut heap = std::mem::take(&mut map.guided);
     heap.clear();
     map.reach(s, 0.0, NO_PRED);
     heap.push(Guided {
         entry: Entry {
-            cost: estimate(s),
+            cost: octile.estimate(s),
             index: s,
         },
         g: 0.0,
@@ -816,36 +815,44 @@ impl<'a> Moves<'a> {
         }
     }
 
-    /// The grid index of window index `index`.
-    fn in_grid(&self, index: usize) -> usize {
-        (self.y0 + index / self.w) * self.gw + self.x0 + index % self.w
+    /// Where window index `index` lies ([`Place`]).
+    fn place(&self, index: usize) -> Place {
+        let (x, y) = (index % self.w, index / self.w);
+        Place {
+            x,
+            y,
+            here: (self.y0 + y) * self.gw + self.x0 + x,
+            inner: x > 0 && y > 0 && x + 1 < self.w && y + 1 < self.h,
+        }
     }
 
-    /// Whether the cell `(dx, dy)` from window index `index` is free (a cell off the window
-    /// is not: the window holds the known part).
-    fn is_free(&self, index: usize, (dx, dy): (isize, isize)) -> bool {
-        let (x, y, w) = (index % self.w, index / self.w, self.w);
-        let inner = x > 0 && y > 0 && x + 1 < w && y + 1 < self.h;
-        let on = inner
-            || (x.checked_add_signed(dx).is_some_and(|nx| nx < w)
-                && y.checked_add_signed(dy).is_some_and(|ny| ny < self.h));
-        let here = self.in_grid(index);
-        on && self.cells[here.wrapping_add_signed(dy * self.gw as isize + dx)] == Occ::Free
+    /// The grid index of window index `index`.
+    fn in_grid(&self, index: usize) -> usize {
+        self.place(index).here
+    }
+
+    /// Whether the cell `(dx, dy)` from window index `index` is free.
+    fn is_free(&self, index: usize, d: (isize, isize)) -> bool {
+        self.is_free_from(&self.place(index), d)
+    }
+
+    /// Whether the cell `(dx, dy)` from the cell at `p` is free (a cell off the window is not:
+    /// the window holds the known part).
+    fn is_free_from(&self, p: &Place, (dx, dy): (isize, isize)) -> bool {
+        let on = p.inner
+            || (p.x.checked_add_signed(dx).is_some_and(|nx| nx < self.w)
+                && p.y.checked_add_signed(dy).is_some_and(|ny| ny < self.h));
+        on && self.cells[p.here.wrapping_add_signed(dy * self.gw as isize + dx)] == Occ::Free
     }
 
     /// `step(neighbour, its (x, y) in the window, cost)` for each move out of window index
-    /// `index`, in [`MOVES`]' order — each neighbour read once, the cell's place in the window
-    /// and the grid worked out once ([`Moves::is_free`]'s rule).
+    /// `index`, in [`MOVES`]' order — each neighbour read once, the cell's [`Place`] worked
+    /// out once.
     fn each(&self, index: usize, mut step: impl FnMut(usize, (usize, usize), f64)) {
-        let (x, y) = (index % self.w, index / self.w);
-        let here = (self.y0 + y) * self.gw + self.x0 + x;
-        let inner = x > 0 && y > 0 && x + 1 < self.w && y + 1 < self.h;
+        let p = self.place(index);
         let mut open = [false; 8];
-        for (o, &(_, gd, (dx, dy), _, _)) in open.iter_mut().zip(&self.offsets) {
-            let on = inner
-                || (x.checked_add_signed(dx).is_some_and(|nx| nx < self.w)
-                    && y.checked_add_signed(dy).is_some_and(|ny| ny < self.h));
-            *o = on && self.cells[here.wrapping_add_signed(gd)] == Occ::Free;
+        for (o, &(_, _, d, _, _)) in open.iter_mut().zip(&self.offsets) {
+            *o = self.is_free_from(&p, d);
         }
         for (k, &(d, gd, (dx, dy), between, length)) in self.offsets.iter().enumerate() {
             if !open[k] || between.is_some_and(|(a, b)| !open[a] || !open[b]) {
@@ -853,8 +860,8 @@ impl<'a> Moves<'a> {
             }
             step(
                 index.wrapping_add_signed(d),
-                (x.wrapping_add_signed(dx), y.wrapping_add_signed(dy)),
-                length * self.factor(here.wrapping_add_signed(gd)),
+                (p.x.wrapping_add_signed(dx), p.y.wrapping_add_signed(dy)),
+                length * self.factor(p.here.wrapping_add_signed(gd)),
             );
         }
     }
@@ -863,6 +870,15 @@ impl<'a> Moves<'a> {
     fn factor(&self, i: usize) -> f64 {
         factor(self.penalty, i)
     }
+}
+
+/// Where a window cell lies: its (x, y) in the window, its grid index, and whether all eight
+/// neighbours are inside the window.
+struct Place {
+    x: usize,
+    y: usize,
+    here: usize,
+    inner: bool,
 }
 
 /// A move's offsets ([`move_offsets`]).
