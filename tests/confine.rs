@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use proto::keys;
 use proto::msg::{encode, Control};
 use proto::node::ZenohArgs;
-use zenoh::handlers::FifoChannelHandler;
+use zenoh::handlers::{FifoChannel, FifoChannelHandler};
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 use zenoh::Session;
@@ -41,8 +41,17 @@ async fn join(endpoint: &str, credentials: Option<&Path>) -> zenoh::Result<Sessi
     zenoh::open(cfg).await
 }
 
+/// Samples a test's subscriber holds until it reads them: more than a run publishes on one key
+/// while the test is busy elsewhere (a lockstep run steps several hundred times a second).
+/// zenoh's default channel holds 256 and then blocks the session's reception; the router's
+/// put to a client that does not read blocks too (`CongestionControl::Block`, until zenoh
+/// closes the link after `wait_before_close`, 5 s), and with it the world's lockstep — a test
+/// whose client stops reading stalls the run it observes.
+const SUB_CAPACITY: usize = 1 << 16;
+
 async fn sub(s: &Session, key: &str) -> Sub {
     s.declare_subscriber(key.to_string())
+        .with(FifoChannel::new(SUB_CAPACITY))
         .await
         .expect("declare a subscriber")
 }
@@ -74,7 +83,7 @@ async fn a_rogue_with_robot_1s_login_cannot_see_or_move_robot_3_nor_stop_the_run
     // Robots that crawl: the run lasts until the test ends it.
     let sets = [
         "robots.count=4",
-        "robots.speed_m_per_s=0.01",
+        "robots.speed_m_per_s=0.001",
         "max_steps=1000000",
     ];
     run_args(&mut cmd, &run, &sets);

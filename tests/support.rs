@@ -29,8 +29,14 @@ impl TempDir {
     }
 }
 
+/// Removed when dropped — except while its test panics: a failed test leaves its run
+/// directory (logs, tables) for diagnosis and says where.
 impl Drop for TempDir {
     fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("kept for diagnosis: {}", self.0.display());
+            return;
+        }
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
