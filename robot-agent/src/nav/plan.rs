@@ -251,6 +251,36 @@ impl PartialOrd for Guided {
     }
 }
 
+/// Per set of free neighbours (bit k: the cell [`MOVES`]`[k]` away is free), the moves they
+/// allow (bit k: move k) — [`moves`]' rule: into a free cell, a diagonal only between two free
+/// orthogonal neighbours.
+const ALLOWED: [u8; 256] = {
+    let mut table = [0u8; 256];
+    let mut open = 0;
+    while open < 256 {
+        let mut k = 0;
+        while k < 8 {
+            let (dx, dy) = MOVES[k];
+            let free = is_open(open, (dx, dy));
+            if free && (dx == 0 || dy == 0 || (is_open(open, (dx, 0)) && is_open(open, (0, dy)))) {
+                table[open] |= 1 << k;
+            }
+            k += 1;
+        }
+        open += 1;
+    }
+    table
+};
+
+/// Whether the neighbour `m` away is free in the set `open` ([`ALLOWED`]'s bits).
+const fn is_open(open: usize, m: (i32, i32)) -> bool {
+    let mut j = 0;
+    while j < 8 && !(MOVES[j].0 == m.0 && MOVES[j].1 == m.1) {
+        j += 1;
+    }
+    j < 8 && open >> j & 1 == 1
+}
+
 /// The moves allowed out of `c`: into free cells, 8-connected, diagonals only between two free
 /// orthogonal neighbours. Returns (neighbour, step cost). The rule, cell by cell: the search
 /// reads it from the grid's cells over its window, and its property tests hold it to this.
@@ -480,7 +510,12 @@ impl Octile {
 
     /// [`Octile::estimate`] of the window cell at `(x, y)`.
     fn estimate_at(&self, (x, y): (usize, usize)) -> f64 {
-        let (dx, dy) = (x.abs_diff(self.tx) as f64, y.abs_diff(self.ty) as f64);
+        // Window coordinates fit in u32 (`CostMap::width`, `height`): from there to f64 is one
+        // instruction, from usize several.
+        let (dx, dy) = (
+            f64::from((x as u32).abs_diff(self.tx as u32)),
+            f64::from((y as u32).abs_diff(self.ty as u32)),
+        );
         let octile = dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy);
         if self.guided {
             octile * (1.0 - 1e-6)
@@ -631,12 +666,12 @@ impl Stop<'_> {
     }
 
     /// Whether the search stops now that it settled a cell (`window`: its index in the search's
-    /// window, `here`: in the grid) at `cost`.
-    fn settled(&mut self, window: usize, here: usize, cost: f64) -> bool {
+    /// window; `here` works out its index in the grid, which only some stops read) at `cost`.
+    fn settled(&mut self, window: usize, here: impl Fn() -> usize, cost: f64) -> bool {
         match self {
             Stop::Never => false,
             Stop::Frontiers { of, left } => {
-                if of.holds(here) {
+                if of.holds(here()) {
                     *left = left.saturating_sub(1);
                 }
                 *left == 0
@@ -646,6 +681,7 @@ impl Stop<'_> {
                 if key.is_some_and(|first| tie_key(cost) > first) {
                     return true;
                 }
+                let here = here();
                 if wanted(here) {
                     key.get_or_insert_with(|| tie_key(cost));
                     found.push(here);
@@ -686,7 +722,7 @@ fn dijkstra(
         if cost > map.dist_at(index) {
             continue;
         }
-        if until.settled(index, moves.in_grid(index), cost) {
+        if until.settled(index, || moves.in_grid(index), cost) {
             // Every cell cheaper than this one is settled; one as cheap that is not yet has
             // its final cost already (it can only be lowered by a cheaper cell), so the limit
             // may include this cost.
@@ -738,7 +774,9 @@ impl Buckets {
     /// (a few instructions, inlined into the search), else into the heap.
     #[inline]
     fn push(&mut self, e: Entry) {
-        let k = e.cost as usize;
+        // Through u32, which is cheaper to convert to and far above any bucket held (a
+        // cost beyond it, as beyond `current + 3`, goes to the heap).
+        let k = e.cost as u32 as usize;
         let taken = k < self.current || (k == self.current && self.sorted);
         if self.unit && !taken && k <= self.current + 3 {
             self.ring[k % 4].push(e.key());
@@ -832,32 +870,33 @@ impl<'a> Moves<'a> {
     }
 
     /// Whether the cell `(dx, dy)` from window index `index` is free.
-    fn is_free(&self, index: usize, d: (isize, isize)) -> bool {
-        self.is_free_from(&self.place(index), d)
+    fn is_free(&self, index: usize, (dx, dy): (isize, isize)) -> bool {
+        self.is_free_from(&self.place(index), (dx, dy), dy * self.gw as isize + dx)
     }
 
-    /// Whether the cell `(dx, dy)` from the cell at `p` is free (a cell off the window is not:
-    /// the window holds the known part).
-    fn is_free_from(&self, p: &Place, (dx, dy): (isize, isize)) -> bool {
+    /// Whether the cell `(dx, dy)` from the cell at `p` — `grid` away in the grid — is free (a
+    /// cell off the window is not: the window holds the known part).
+    fn is_free_from(&self, p: &Place, (dx, dy): (isize, isize), grid: isize) -> bool {
         let on = p.inner
             || (p.x.checked_add_signed(dx).is_some_and(|nx| nx < self.w)
                 && p.y.checked_add_signed(dy).is_some_and(|ny| ny < self.h));
-        on && self.cells[p.here.wrapping_add_signed(dy * self.gw as isize + dx)] == Occ::Free
+        on && self.cells[p.here.wrapping_add_signed(grid)] == Occ::Free
     }
 
     /// `step(neighbour, its (x, y) in the window, cost)` for each move out of window index
     /// `index`, in [`MOVES`]' order — each neighbour read once, the cell's [`Place`] worked
-    /// out once.
+    /// out once, the moves its free neighbours allow looked up ([`ALLOWED`]).
     fn each(&self, index: usize, mut step: impl FnMut(usize, (usize, usize), f64)) {
         let p = self.place(index);
-        let mut open = [false; 8];
-        for (o, &(_, _, d, _, _)) in open.iter_mut().zip(&self.offsets) {
-            *o = self.is_free_from(&p, d);
+        let mut open = 0u8;
+        for (k, &(_, gd, d, _, _)) in self.offsets.iter().enumerate() {
+            open |= u8::from(self.is_free_from(&p, d, gd)) << k;
         }
-        for (k, &(d, gd, (dx, dy), between, length)) in self.offsets.iter().enumerate() {
-            if !open[k] || between.is_some_and(|(a, b)| !open[a] || !open[b]) {
-                continue;
-            }
+        let mut allowed = ALLOWED[usize::from(open)];
+        while allowed != 0 {
+            let k = allowed.trailing_zeros() as usize;
+            allowed &= allowed - 1;
+            let (d, gd, (dx, dy), _, length) = self.offsets[k & 7];
             step(
                 index.wrapping_add_signed(d),
                 (p.x.wrapping_add_signed(dx), p.y.wrapping_add_signed(dy)),
@@ -1180,6 +1219,26 @@ pub const GIVE_WAY_LINE_CELLS: f64 = 10.0;
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn the_moves_a_set_of_free_neighbours_allows_are_the_rule_s() {
+        // Every one of the 256 neighbourhoods of a free cell, the neighbours free by the bits.
+        for (open, allowed) in ALLOWED.iter().enumerate() {
+            let mut g = Grid::new(3, 3, Occ::Occupied);
+            g.set(Cell::new(1, 1), Occ::Free);
+            for (k, &(dx, dy)) in MOVES.iter().enumerate() {
+                if open >> k & 1 == 1 {
+                    g.set(Cell::new(1 + dx, 1 + dy), Occ::Free);
+                }
+            }
+            let by_rule: Vec<Cell> = moves(&g, Cell::new(1, 1)).map(|(n, _)| n).collect();
+            let by_table: Vec<Cell> = (MOVES.iter().enumerate())
+                .filter(|(k, _)| allowed >> k & 1 == 1)
+                .map(|(_, &(dx, dy))| Cell::new(1 + dx, 1 + dy))
+                .collect();
+            assert_eq!(by_table, by_rule, "free neighbours {open:08b}");
+        }
+    }
 
     #[test]
     fn the_obstacle_penalty_keeps_paths_off_walls() {
