@@ -743,23 +743,43 @@ fn dijkstra(
     map.queue = queue;
 }
 
+/// [`Buckets`] per unit of cost: a bucket is no wider than the cheapest step (1).
+const PER_UNIT: f64 = 4.0;
+/// [`Buckets`]' ring: the bucket being taken and those up to √2 + a bucket's width above it.
+const RING: usize = 8;
+
 /// Dijkstra's queue: entries come out by (cost, index), exactly as from a `BinaryHeap` of
-/// [`Entry`], but kept in buckets of one unit of cost. Without a penalty every step costs 1 or
-/// √2, so an entry pushed while the bucket of costs in [k, k + 1) is being taken costs k + 1 to
-/// k + 3: the bucket is complete when its turn comes and is sorted once, taking it costs its sort
-/// rather than a heap's sifting per entry, and four buckets in a ring hold everything queued.
-/// With a penalty (steps of any length) a `BinaryHeap`.
-#[derive(Clone, Debug, Default)]
+/// [`Entry`], but kept in buckets of a quarter unit of cost ([`PER_UNIT`]). Without a penalty
+/// every step costs 1 or √2, so an entry pushed while the bucket of costs in [k/4, (k + 1)/4)
+/// is being taken lands in bucket k + 4 to k + 6: the bucket is complete when its turn comes and
+/// is sorted once, taking it costs its sort rather than a heap's sifting per entry, and
+/// [`RING`] buckets in a ring hold everything queued. (Narrower buckets sort less and are
+/// switched more often: a quarter executed the fewest instructions in the campus benchmark,
+/// docs/benchmarks.md.) With a penalty (steps of any length) a `BinaryHeap`.
+#[derive(Clone, Debug)]
 struct Buckets {
     unit: bool,
-    /// Bucket k (costs in [k, k + 1)) at `ring[k % 4]`, its entries as their keys
+    /// Bucket k (costs in [k/4, (k + 1)/4)) at `ring[k % RING]`, its entries as their keys
     /// ([`Entry::key`]), which sort as the entries do.
-    ring: [Vec<u128>; 4],
+    ring: [Vec<u128>; RING],
     /// The bucket being taken, whether it is sorted, and the entries queued in all.
     current: usize,
     sorted: bool,
     len: usize,
     heap: BinaryHeap<Entry>,
+}
+
+impl Default for Buckets {
+    fn default() -> Buckets {
+        Buckets {
+            unit: false,
+            ring: std::array::from_fn(|_| Vec::new()),
+            current: 0,
+            sorted: false,
+            len: 0,
+            heap: BinaryHeap::new(),
+        }
+    }
 }
 
 impl Buckets {
@@ -775,11 +795,11 @@ impl Buckets {
     #[inline]
     fn push(&mut self, e: Entry) {
         // Through u32, which is cheaper to convert to and far above any bucket held (a
-        // cost beyond it, as beyond `current + 3`, goes to the heap).
-        let k = e.cost as u32 as usize;
+        // cost beyond it, as beyond the ring, goes to the heap).
+        let k = (e.cost * PER_UNIT) as u32 as usize;
         let taken = k < self.current || (k == self.current && self.sorted);
-        if self.unit && !taken && k <= self.current + 3 {
-            self.ring[k % 4].push(e.key());
+        if self.unit && !taken && k < self.current + RING {
+            self.ring[k % RING].push(e.key());
             self.len += 1;
         } else {
             self.push_heap(e);
@@ -807,7 +827,7 @@ impl Buckets {
             return self.heap.pop();
         }
         while self.len > 0 {
-            let b = &mut self.ring[self.current % 4];
+            let b = &mut self.ring[self.current % RING];
             if !self.sorted {
                 // The cheapest last: take from the back.
                 b.sort_unstable_by(|x, y| y.cmp(x));
