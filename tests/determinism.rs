@@ -13,7 +13,10 @@ use std::time::Duration;
 
 use swarm::rundir::summary::Summary;
 
-use crate::support::{summary_typed, swarm_run, Launcher, TempDir, SWARM};
+use crate::support::{
+    children_of, kill, poll, run_args, running, stderr, summary_typed, swarm_run, wait_for_step,
+    Launcher, TempDir, SWARM,
+};
 
 /// The robots' tables and grids, compared file by file: the first difference, named by file and
 /// line.
@@ -252,5 +255,55 @@ fn the_faults_happened(run: &Path) {
     assert!(
         bw_bytes <= 2000,
         "a step carried {bw_bytes} bytes at 300 B/s"
+    );
+}
+
+/// A launcher that falls behind the world at the very end — stopped (SIGSTOP) near the step
+/// limit while the world-server finishes the run and exits, then let go — still takes the
+/// statuses on their way and ends the run as a launcher that kept up does: the same exit
+/// reason, steps and `run_digest`. (It used to judge the world-server's exit before its last
+/// statuses and end the run "world-server-exited", with another digest.)
+#[test]
+fn a_launcher_behind_the_world_at_the_end_ends_the_run_as_one_that_kept_up() {
+    let sets = ["max_steps=150"];
+    let quiet_dir = TempDir::new("det-behind-quiet");
+    let (quiet_out, quiet_run) = swarm_run(&quiet_dir, None, &sets, Duration::from_secs(120));
+    let quiet = summary_typed(&quiet_run);
+
+    let dir = TempDir::new("det-behind");
+    let run = dir.path().join("run");
+    let mut cmd = Command::new(SWARM);
+    run_args(&mut cmd, &run, &sets);
+    let launcher = Launcher::spawn(cmd);
+    wait_for_step(&run, 100, Duration::from_secs(60));
+    kill(launcher.pid, 19); // SIGSTOP
+    let world = children_of(launcher.pid).into_iter().find(|&p| {
+        std::fs::read_to_string(format!("/proc/{p}/cmdline"))
+            .is_ok_and(|c| c.split('\0').any(|a| a == "world-server"))
+    });
+    // The world does not wait for the launcher: it runs to the limit and exits (a zombie until
+    // the launcher, stopped, reaps it).
+    let gone = world.map(|w| {
+        poll(Duration::from_secs(60), Duration::from_millis(20), || {
+            (!running(w))
+                .then_some(())
+                .ok_or_else(|| "the world-server still runs".to_string())
+        })
+    });
+    kill(launcher.pid, 18); // SIGCONT
+    assert!(gone.is_some(), "no world-server under the launcher");
+    let out = launcher.wait_output(Duration::from_secs(60));
+    let behind = summary_typed(&run);
+    // The step limit: both runs end incomplete, with the same exit code.
+    assert_eq!(
+        out.status.code(),
+        quiet_out.status.code(),
+        "{}",
+        stderr(&out)
+    );
+    assert_eq!(
+        (behind.exit_reason, behind.steps, &behind.run_digest),
+        (quiet.exit_reason, quiet.steps, &quiet.run_digest),
+        "{behind:?}"
     );
 }

@@ -67,6 +67,9 @@ pub struct Record {
     /// `steps.log`, written as the reports are taken (dropped, with a warning, if it cannot be
     /// written: the run goes on).
     pub log: Option<StepLogWriter>,
+    /// The world-server exited cleanly before the launcher knew the run's end: when, and how
+    /// (pid, status), until the statuses still on their way tell the end ([`Record::on_exits`]).
+    world_gone: Option<(Instant, u32, std::process::ExitStatus)>,
 }
 
 /// Per log owner: (ops, encoded bytes if measured) of its log.
@@ -96,6 +99,7 @@ impl Record {
             idle_since: None,
             newest: None,
             end: None,
+            world_gone: None,
             settled_in_time: true,
             log: None,
         }
@@ -341,6 +345,12 @@ impl Record {
     /// seen gone the world-server's exit is the cause. A child seen gone may have exited because
     /// another one, looked at just before it, went first: once a process the run needs is seen
     /// gone, the children are looked at once more, which then shows every earlier exit.
+    ///
+    /// The world-server exits cleanly (code 0) only once it ended the run, right after its last
+    /// status: a launcher behind by a step or two (a loaded machine) sees the exit before that
+    /// status, still on its way. Such an exit is held ([`Record::world_gone`]) until the
+    /// statuses tell the run's end, or [`SETTLE`] passes ([`Record::world_gone_end`]); netem,
+    /// which follows the world-server out, is then no cause either.
     fn on_exits(
         &mut self,
         children: &mut Children,
@@ -355,6 +365,14 @@ impl Record {
         exits.sort_by_key(|(name, _, _)| !matches!(name.parse(), Ok(Process::WorldServer)));
         let mut end = None;
         for (name, pid, status) in &exits {
+            let world = matches!(name.parse(), Ok(Process::WorldServer));
+            if world && status.success() && self.world_gone.is_none() {
+                self.world_gone = Some((Instant::now(), *pid, *status));
+                continue;
+            }
+            if self.world_gone.is_some() && status.success() {
+                continue;
+            }
             self.exited(name, *pid, *status, plan, progress);
             let Ok(process) = name.parse::<Process>() else {
                 continue;
@@ -536,6 +554,9 @@ pub async fn follow(
         if let Some(reason) = rec.settled_end(&mut settle_by) {
             break reason;
         }
+        if let Some(reason) = rec.world_gone_end(plan, progress) {
+            break reason;
+        }
         // Once the last step is known, a process that exits (the world-server ends itself at
         // the step limit) or a signal does not change why the run ended.
         if let Some(reason) = end {
@@ -597,6 +618,18 @@ impl Record {
                 None
             }
         }
+    }
+
+    /// The world-server exited cleanly and [`SETTLE`] passed with no status telling the run's
+    /// end: its exit is the end after all ([`Record::on_exits`]).
+    fn world_gone_end(&mut self, plan: &Plan, progress: &mut Progress) -> Option<ExitReason> {
+        let (at, pid, status) = self.world_gone?;
+        if self.end.is_some() || at.elapsed() < SETTLE {
+            return None;
+        }
+        let name = Process::WorldServer.to_string();
+        self.exited(&name, pid, status, plan, progress);
+        self.sup.died(Process::WorldServer, &describe(status))
     }
 
     /// Once the run's end is known: its reason when everything of it has arrived, or when
