@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use proto::grid::{Cell, Grid, Occ};
 use proto::msg::{RobotId, Step, Target};
 
-use crate::mapping::grid::supercover;
+use crate::mapping::grid::supercover_finds;
 use crate::nav::plan::CostMap;
 
 /// A target another robot announced (`targ`): the cell (`None`: it has none) and the step it
@@ -69,9 +69,7 @@ pub fn coverage_probability(d: f64, max_range: f64) -> f64 {
 /// No occupied cell lies on the straight segment between the centres of `a` and `b`.
 pub fn line_of_sight(g: &Grid, a: Cell, b: Cell) -> bool {
     let centre = Cell::centre;
-    supercover(centre(a), centre(b))
-        .into_iter()
-        .all(|c| g.get(c) != Occ::Occupied)
+    !supercover_finds(centre(a), centre(b), |c| g.get(c) == Occ::Occupied)
 }
 
 /// How much another robot's target `other` lowers the utility of frontier `t`, weighted by

@@ -58,26 +58,48 @@ pub fn supercover(from: (f64, f64), to: (f64, f64)) -> Vec<Cell> {
     out.into_iter().map(|(c, _)| c).collect()
 }
 
+/// Whether `found` holds for a cell of [`supercover`]`(from, to)`, asked in its order and no
+/// further than the first that holds — without the list (a line of sight stops at the first wall).
+pub fn supercover_finds(
+    from: (f64, f64),
+    to: (f64, f64),
+    mut found: impl FnMut(Cell) -> bool,
+) -> bool {
+    touched(from, to, |c, _| found(c))
+}
+
 /// [`supercover`] with the parameter `t ∈ [0, 1]` at which the segment enters each cell (0 for the
 /// first cell; the two side cells and the diagonal cell of a corner crossing share one `t`).
 /// Written into `out` (cleared first): a scan walks hundreds of beams into one buffer.
 fn walk(from: (f64, f64), to: (f64, f64), out: &mut Vec<(Cell, f64)>) {
     out.clear();
+    touched(from, to, |c, t| {
+        out.push((c, t));
+        false
+    });
+}
+
+/// `each(cell, t)` for the cells of [`walk`] in order, until it returns true; whether it did.
+fn touched(from: (f64, f64), to: (f64, f64), mut each: impl FnMut(Cell, f64) -> bool) -> bool {
     let usable = |v: f64| v.is_finite() && v.abs() <= MAX_COORD_CELLS;
     if ![from.0, from.1, to.0, to.1].into_iter().all(usable) {
-        return;
+        return false;
     }
     // The segment walk counts the remaining crossings per axis (rather than comparing against
     // `t = 1`), so it ends exactly in the cell of `to` whatever the rounding of the `t` values.
     let line = Traversal::segment(from, to, Corners::Supercover { eps: CORNER_EPS });
-    out.push((line.cell(), 0.0));
+    if each(line.cell(), 0.0) {
+        return true;
+    }
     for Crossing { t, cell, corner } in line {
         // The parameter of this crossing, clamped against rounding past the segment's ends.
         let t = t.clamp(0.0, 1.0);
         // Through a corner the segment touches both side cells before it enters the diagonal one.
-        out.extend(corner.into_iter().flatten().map(|side| (side, t)));
-        out.push((cell, t));
+        if corner.into_iter().flatten().any(|side| each(side, t)) || each(cell, t) {
+            return true;
+        }
     }
+    false
 }
 
 /// Integrates one laser scan taken at `pose` into `g`; returns how many cells changed.
@@ -731,6 +753,26 @@ mod tests {
     }
 
     proptest! {
+        /// Asking the segment's cells one by one finds what searching its list finds, and asks
+        /// no cell past the first found.
+        #[test]
+        fn supercover_finds_what_its_list_holds(
+            a in (-20.0f64..20.0, -20.0f64..20.0),
+            b in (-20.0f64..20.0, -20.0f64..20.0),
+            walls in proptest::collection::btree_set((-21i32..21, -21i32..21), 0..60),
+        ) {
+            let wall = |c: Cell| walls.contains(&(c.x, c.y));
+            let line = supercover(a, b);
+            let mut asked = Vec::new();
+            let found = supercover_finds(a, b, |c| {
+                asked.push(c);
+                wall(c)
+            });
+            prop_assert_eq!(found, line.iter().any(|&c| wall(c)));
+            let first = line.iter().position(|&c| wall(c)).map_or(line.len(), |i| i + 1);
+            prop_assert_eq!(&asked[..], &line[..first]);
+        }
+
         #[test]
         fn supercover_touches_exactly_the_segment(
             a in (-20.0f64..20.0, -20.0f64..20.0),
