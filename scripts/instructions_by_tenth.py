@@ -7,9 +7,10 @@ few per cent at most (what its runtime does while it waits depends on timing). T
 `swarm run` with the given `--set` overrides under valgrind's callgrind, tracing robot 0 alone
 (every other process runs natively), asks callgrind to dump robot 0's counts every few steps
 while the run goes (`callgrind_control -d`), and once the run has ended prints robot 0's
-instructions per step over the first tenth and the last tenth of the run's steps, the counts at
-a step interpolated between the dumps around it. The run is a lockstep run like any other (the
-world waits for the slow robot), so it is the same run: its run_digest is printed.
+instructions over the whole run and per step over the first tenth and the last tenth of the
+run's steps, the counts at a step interpolated between the dumps around it. The run is a
+lockstep run like any other (the world waits for the slow robot), so it is the same run: its
+run_digest is printed.
 Needs valgrind (apt install valgrind); a complete 8-robot mit_killian_court run takes ~4 min.
 The run directory is DIR/run; DIR also keeps the launcher's own callgrind counts.
 
@@ -89,8 +90,12 @@ def main():
     parts = sorted(glob.glob(f"{prefix}.{pid}.*"), key=lambda p: int(p.rsplit(".", 1)[1]))
     counts = [summary(p) for p in parts]
     final = summary(f"{prefix}.{pid}")
+    for p in parts + [f"{prefix}.{pid}"]:
+        os.remove(p)
+    print(f"{steps} steps, {s['robots']} robots, {s['exit_reason']}, run_digest {s['run_digest'][:8]}")
+    print(f"robot 0, whole run: {(sum(counts) + final) / 1e6:.0f} M instructions")
     if len(counts) != len(dumps):
-        sys.exit(f"{len(dumps)} dumps asked, {len(counts)} written: rerun on a quieter machine")
+        sys.exit(f"{len(dumps)} dumps asked, {len(counts)} written: the tenths need a quieter machine")
     points, total = [(0.0, 0)], 0
     for at, c in zip(dumps, counts):
         total += c
@@ -107,9 +112,6 @@ def main():
     early = (at(tenth) - at(0)) / tenth
     # As cpu_by_tenth.py: the last tenth stops a step short of the end.
     late = (at(steps - 2) - at(steps - 1 - tenth)) / (tenth - 1)
-    for p in parts + [f"{prefix}.{pid}"]:
-        os.remove(p)
-    print(f"{steps} steps, {s['robots']} robots, {s['exit_reason']}, run_digest {s['run_digest'][:8]}")
     print(f"robot 0, first tenth: {early / 1e6:.2f} M instructions per step")
     print(f"robot 0, last tenth:  {late / 1e6:.2f} M instructions per step")
     print(f"last ÷ first: {late / early:.2f}×")
