@@ -589,18 +589,19 @@ fn traced(map: &CostMap, g: &Grid, penalty: Option<&[f32]>, target: Cell) -> Opt
         let (cost, factor) = (map.dist_at(i), moves.factor(moves.in_grid(i)));
         let (x, y) = ((i % w as usize) as isize, (i / w as usize) as isize);
         let mut best: Option<(f64, usize)> = None;
-        for &(_, _, (dx, dy), between, length) in &moves.offsets {
+        for &(_, _, (dx, dy), length) in &moves.offsets {
             let (nx, ny) = (x - dx, y - dy);
             if nx < 0 || ny < 0 || nx >= w || ny >= h {
                 continue;
             }
             let n = (ny * w + nx) as usize;
             let from = map.dist_at(n);
+            if !from.is_finite() || from + length * factor != cost {
+                continue;
+            }
             // A diagonal from `n` into `i` passes between the cells beside `i` toward `n`.
-            let blocked =
-                between.is_some() && !(moves.is_free(i, (-dx, 0)) && moves.is_free(i, (0, -dy)));
-            let step = length * factor;
-            if blocked || !from.is_finite() || from + step != cost {
+            let diagonal = dx != 0 && dy != 0;
+            if diagonal && !(moves.is_free(i, (-dx, 0)) && moves.is_free(i, (0, -dy))) {
                 continue;
             }
             if best.is_none_or(|(c, j)| from < c || (from == c && n < j)) {
@@ -909,14 +910,14 @@ impl<'a> Moves<'a> {
     fn each(&self, index: usize, mut step: impl FnMut(usize, (usize, usize), f64)) {
         let p = self.place(index);
         let mut open = 0u8;
-        for (k, &(_, gd, d, _, _)) in self.offsets.iter().enumerate() {
+        for (k, &(_, gd, d, _)) in self.offsets.iter().enumerate() {
             open |= u8::from(self.is_free_from(&p, d, gd)) << k;
         }
         let mut allowed = ALLOWED[usize::from(open)];
         while allowed != 0 {
             let k = allowed.trailing_zeros() as usize;
             allowed &= allowed - 1;
-            let (d, gd, (dx, dy), _, length) = self.offsets[k & 7];
+            let (d, gd, (dx, dy), length) = self.offsets[k & 7];
             step(
                 index.wrapping_add_signed(d),
                 (p.x.wrapping_add_signed(dx), p.y.wrapping_add_signed(dy)),
@@ -941,24 +942,21 @@ struct Place {
 }
 
 /// A move's offsets ([`move_offsets`]).
-type MoveOffsets = (isize, isize, (isize, isize), Option<(usize, usize)>, f64);
+type MoveOffsets = (isize, isize, (isize, isize), f64);
 
 /// Per move of [`MOVES`]: the neighbour's offset in a window `width` cells wide and in the grid
-/// (`gw` wide), the move itself, for a diagonal the two orthogonal moves (by their place in
-/// [`MOVES`]) it passes between, and the step's length.
+/// (`gw` wide), the move itself and the step's length. (Which moves a cell's free neighbours
+/// allow is [`ALLOWED`]'s.)
 fn move_offsets(width: u32, gw: u32) -> [MoveOffsets; 8] {
     let (w, gw) = (width as isize, gw as isize);
-    let orthogonal = |m: (i32, i32)| MOVES.iter().position(|&o| o == m).unwrap_or(0);
     MOVES.map(|(dx, dy)| {
-        let diagonal = dx != 0 && dy != 0;
-        let between = diagonal.then(|| (orthogonal((dx, 0)), orthogonal((0, dy))));
-        let step = if diagonal {
+        let step = if dx != 0 && dy != 0 {
             std::f64::consts::SQRT_2
         } else {
             1.0
         };
         let (dx, dy) = (dx as isize, dy as isize);
-        (dy * w + dx, dy * gw + dx, (dx, dy), between, step)
+        (dy * w + dx, dy * gw + dx, (dx, dy), step)
     })
 }
 
