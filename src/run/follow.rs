@@ -365,12 +365,16 @@ impl Record {
         exits.sort_by_key(|(name, _, _)| !matches!(name.parse(), Ok(Process::WorldServer)));
         let mut end = None;
         for (name, pid, status) in &exits {
-            let world = matches!(name.parse(), Ok(Process::WorldServer));
-            if world && status.success() && self.world_gone.is_none() {
-                self.world_gone = Some((Instant::now(), *pid, *status));
+            if self.world_gone.is_some() {
+                // The others follow the world-server out: only a crash is recorded, as once the
+                // end is known ([`Record::on_crashes`]).
+                if !status.success() {
+                    self.exited(name, *pid, *status, plan, progress);
+                }
                 continue;
             }
-            if self.world_gone.is_some() && status.success() {
+            if status.success() && matches!(name.parse(), Ok(Process::WorldServer)) {
+                self.world_gone = Some((Instant::now(), *pid, *status));
                 continue;
             }
             self.exited(name, *pid, *status, plan, progress);
