@@ -43,10 +43,8 @@ async fn join(endpoint: &str, credentials: Option<&Path>) -> zenoh::Result<Sessi
 
 /// Samples a test's subscriber holds until it reads them: more than a run publishes on one key
 /// while the test is busy elsewhere (a lockstep run steps several hundred times a second).
-/// zenoh's default channel holds 256 and then blocks the session's reception; the router's
-/// put to a client that does not read blocks too (`CongestionControl::Block`, until zenoh
-/// closes the link after `wait_before_close`, 5 s), and with it the world's lockstep — a test
-/// whose client stops reading stalls the run it observes.
+/// zenoh's default channel would fill, and a client that stops reading stalls the run it
+/// observes (docs/design.md §7, "Limit: a login that stops reading holds the run").
 const SUB_CAPACITY: usize = 1 << 16;
 
 async fn sub(s: &Session, key: &str) -> Sub {
